@@ -1,0 +1,169 @@
+"""Record training scenes from SUMO traffic.
+
+    python -m sumo_scendiff.data -n networks/grid3.net.xml -n networks/spider.net.xml \\
+        -o data/train --scenes 20000 -s 0 --workers 2
+
+Each network is simulated in several *episodes* (one SUMO run each, libsumo in-process); without
+``--routes`` each episode gets random trips of a random insertion density (15-400 veh/h/km) and a
+mixed fleet, so that scenes range from empty to congested. Output: ``DIR/manifest.json`` and
+``DIR/shard-*.npz``. Work happens in ``DIR.partial`` and is renamed to ``DIR`` when complete; an
+interrupted run continues with ``--resume``. The same seed gives the same scenes.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, replace
+
+import numpy as np
+
+from ..network import Network, NetworkError
+from .demand import DemandError, check_routes
+from .record import EpisodeSpec, record_shard
+from .shards import FORMAT_VERSION, MANIFEST, DataError, Shard, file_sha256
+
+PROG = "python -m sumo_scendiff.data"
+
+
+def get_options(args=None):
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("-n", "--net-file", "--net", dest="nets", action="append", required=True,
+                   metavar="NET", help="SUMO network (.net.xml[.gz]); repeat for several")
+    p.add_argument("-r", "--routes", action="append", default=[], metavar="ROU",
+                   help="the network's own demand (once per --net, in order); default: random trips")
+    p.add_argument("-o", "--out", "--output-dir", dest="out", required=True, metavar="DIR")
+    p.add_argument("--scenes", type=int, required=True, help="scenes to record in total")
+    p.add_argument("-s", "--seed", type=int, default=0)
+    p.add_argument("--scenes-per-episode", type=int, default=300)
+    p.add_argument("--workers", type=int, default=1, help="parallel SUMO processes")
+    p.add_argument("--resume", action="store_true", help="continue an interrupted run in DIR.partial")
+    p.add_argument("-v", "--verbose", action="store_true")
+    o = p.parse_args(args)
+    if o.scenes <= 0:
+        p.error("--scenes must be positive")
+    if o.routes and len(o.routes) != len(o.nets):
+        p.error(f"give --routes once per --net ({len(o.nets)} nets, {len(o.routes)} route files)")
+    o.parser = p
+    return o
+
+
+def plan_episodes(nets: list[Network], routes: list[str | None], begins: list[float],
+                  scenes: int, seed: int, per_episode: int) -> list[tuple[int, str, EpisodeSpec]]:
+    """Deterministic episode plan: (net index, shard file name, spec) for every episode."""
+    counts = [scenes // len(nets) + (i < scenes % len(nets)) for i in range(len(nets))]
+    plan = []
+    for k, (net, rou, begin, n) in enumerate(zip(nets, routes, begins, counts)):
+        n_ep = max(1, -(-n // per_episode))
+        for e in range(n_ep):
+            ss = np.random.SeedSequence([seed, k, e])
+            rng = np.random.default_rng(ss)
+            ep_seed = int(ss.generate_state(1)[0] % (2 ** 31))
+            todo = n // n_ep + (e < n % n_ep)
+            spec = EpisodeSpec(seed=ep_seed, scenes=todo, routes=rou, begin=begin,
+                               density=float(np.exp(rng.uniform(np.log(15.0), np.log(400.0)))),
+                               warmup=float(rng.uniform(200.0, 900.0)),
+                               sample_every=float(rng.choice([2.0, 3.0, 5.0])))
+            if todo > 0:
+                plan.append((k, f"shard-{k:03d}-{e:04d}.npz", spec))
+    return plan
+
+
+def main(o) -> int:
+    from tqdm import tqdm
+    out = os.path.abspath(o.out)
+    partial = out + ".partial"
+    if os.path.exists(out) and (not os.path.isdir(out) or os.listdir(out)):
+        o.parser.exit(2, f"{PROG}: error: {o.out}: exists and is not empty (choose another --out)\n")
+    if os.path.exists(partial) and not o.resume:
+        o.parser.exit(2, f"{PROG}: error: {partial}: an interrupted run is there; "
+                         f"continue it with --resume or remove it\n")
+    try:
+        nets = [Network.load(p) for p in o.nets]
+        routes: list[str | None] = list(o.routes) or [None] * len(nets)
+        begins = [0.0 if r is None else check_routes(r, {ln.edge for ln in n.lanes})
+                  for n, r in zip(nets, routes)]
+    except (NetworkError, DemandError) as e:
+        o.parser.exit(2, f"{PROG}: error: {e}\n")
+    names = [n.name for n in nets]
+    if len(set(names)) != len(names):
+        o.parser.exit(2, f"{PROG}: error: two networks share the name {names}: rename one\n")
+
+    plan = plan_episodes(nets, [None if r is None else os.path.abspath(r) for r in routes], begins,
+                         o.scenes, o.seed, o.scenes_per_episode)
+    config = {"nets": [os.path.abspath(p) for p in o.nets], "routes": routes, "scenes": o.scenes,
+              "seed": o.seed, "scenes_per_episode": o.scenes_per_episode}
+    try:
+        os.makedirs(partial, exist_ok=True)
+    except OSError as e:
+        o.parser.exit(2, f"{PROG}: error: {partial}: cannot create ({e.strerror})\n")
+    plan_file = os.path.join(partial, "plan.json")
+    if os.path.exists(plan_file):
+        with open(plan_file) as f:
+            if json.load(f) != config:
+                o.parser.exit(2, f"{PROG}: error: {partial}: was started with other options; "
+                                 f"remove it or repeat the original command\n")
+    else:
+        with open(plan_file, "w") as f:
+            json.dump(config, f, indent=1)
+
+    entries: dict[str, dict] = {}
+    todo = []
+    for k, name, spec in plan:
+        path = os.path.join(partial, name)
+        if os.path.exists(path):
+            sh = Shard.load(path)
+            entries[name] = {"file": name, "scenes": len(sh), "agents": int(sh.offsets[-1]), "net": k}
+        else:
+            todo.append((k, name, spec))
+    bar = tqdm(total=sum(s.scenes for _, _, s in plan), unit="scene", desc="recording",
+               initial=sum(e["scenes"] for e in entries.values()), disable=None)
+    try:
+        if o.workers <= 1:
+            for k, name, spec in todo:
+                entries[name] = record_shard(nets[k].path, spec, k, os.path.join(partial, name))
+                bar.update(spec.scenes)
+        else:
+            import multiprocessing as mp
+            with ProcessPoolExecutor(o.workers, mp_context=mp.get_context("spawn")) as ex:
+                futs = {ex.submit(record_shard, nets[k].path, spec, k, os.path.join(partial, name)):
+                        (name, spec) for k, name, spec in todo}
+                for fut in as_completed(futs):
+                    name, spec = futs[fut]
+                    entries[name] = fut.result()
+                    bar.update(spec.scenes)
+    except (DemandError, DataError) as e:
+        bar.close()
+        o.parser.exit(2, f"{PROG}: error: {e} (finished episodes are kept in {partial}; "
+                         f"--resume continues)\n")
+    bar.close()
+
+    manifest = {
+        "format_version": FORMAT_VERSION,
+        "nets": [{"name": n.name, "path": os.path.relpath(os.path.abspath(n.path), out),
+                  "sha256": file_sha256(n.path)} for n in nets],
+        "shards": [entries[name] for _, name, _ in plan],
+        "scenes": sum(entries[name]["scenes"] for _, name, _ in plan),
+        "agents": sum(entries[name]["agents"] for _, name, _ in plan),
+        "seed": o.seed,
+        "episodes": [{"file": name, **asdict(replace(spec, routes=spec.routes and
+                                                     os.path.relpath(spec.routes, out)))}
+                     for _, name, spec in plan],
+    }
+    with open(os.path.join(partial, MANIFEST), "w") as f:
+        json.dump(manifest, f, indent=1)
+    os.remove(plan_file)
+    if os.path.isdir(out):
+        os.rmdir(out)  # exists but empty (checked above)
+    shutil.move(partial, out)
+    print(f"{o.out}: {manifest['scenes']} scenes, {manifest['agents']} agents from "
+          f"{len(nets)} network(s) in {len(plan)} episode(s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(get_options()))

@@ -1,0 +1,109 @@
+"""Demand for recording: the network's own route file, or random trips with a realistic vehicle mix.
+
+Random demand uses SUMO's ``randomTrips.py`` (shipped by the ``eclipse-sumo`` wheel) with an insertion
+density drawn per episode, so that recorded scenes range from nearly empty to congested, and a
+``vTypeDistribution`` of cars of three sizes, vans, trucks, buses and motorcycles.
+"""
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from dataclasses import dataclass
+
+# (id, vClass, guiShape, length, width, minGap, accel, decel, maxSpeed, probability)
+VEHICLE_MIX = (
+    ("car_small", "passenger", "passenger/hatchback", 3.9, 1.70, 2.0, 2.9, 4.5, 50.0, 0.25),
+    ("car", "passenger", "passenger", 4.6, 1.80, 2.5, 2.6, 4.5, 50.0, 0.35),
+    ("car_large", "passenger", "passenger/van", 5.1, 1.95, 2.5, 2.4, 4.5, 45.0, 0.15),
+    ("van", "delivery", "delivery", 6.0, 2.10, 2.5, 2.0, 4.0, 38.0, 0.09),
+    ("truck", "truck", "truck", 10.5, 2.50, 3.0, 1.3, 4.0, 25.0, 0.06),
+    ("bus", "bus", "bus", 12.0, 2.55, 3.0, 1.2, 4.0, 25.0, 0.03),
+    ("motorcycle", "motorcycle", "motorcycle", 2.2, 0.90, 1.5, 4.0, 7.0, 45.0, 0.07),
+)
+
+
+class DemandError(ValueError):
+    """A demand file that cannot be used with its network; the message names the file."""
+
+
+@dataclass(frozen=True)
+class RandomDemand:
+    insertion_density: float    # vehicles per hour per km of lane
+    end: float                  # seconds of departures
+    seed: int
+    fringe_factor: float = 5.0
+
+
+def sumo_home() -> str:
+    import sumo  # the eclipse-sumo wheel
+    return sumo.SUMO_HOME
+
+
+def sumo_binary(name: str = "sumo") -> str:
+    return os.path.join(sumo_home(), "bin", name)
+
+
+def write_vtypes(path: str) -> str:
+    """Write the vehicle-type distribution ``mix`` as an additional file."""
+    lines = ['<additional>', '    <vTypeDistribution id="mix">']
+    for vid, vcls, shape, length, width, gap, acc, dec, vmax, p in VEHICLE_MIX:
+        lines.append(f'        <vType id="{vid}" vClass="{vcls}" guiShape="{shape}" length="{length}" '
+                     f'width="{width}" minGap="{gap}" accel="{acc}" decel="{dec}" maxSpeed="{vmax}" '
+                     f'speedFactor="normc(1,0.1,0.2,2)" probability="{p}"/>')
+    lines += ['    </vTypeDistribution>', '</additional>', '']
+    with open(path, "w") as f:
+        f.write("\n".join(lines))
+    return path
+
+
+def random_trips(net_path: str, out_path: str, spec: RandomDemand) -> str:
+    """Write trips of type ``mix`` for ``net_path`` with randomTrips.py; returns ``out_path``."""
+    tool = os.path.join(sumo_home(), "tools", "randomTrips.py")
+    cmd = [sys.executable, tool, "-n", net_path, "-o", out_path, "-b", "0", "-e", f"{spec.end:g}",
+           "--insertion-density", f"{spec.insertion_density:.3f}", "--seed", str(spec.seed),
+           "--fringe-factor", f"{spec.fringe_factor:g}", "--edge-permission", "passenger",
+           "--min-distance", "100", "--random-departpos", "--prefix", "r",
+           "--trip-attributes", 'type="mix" departLane="best" departSpeed="max"',
+           "--no-validate"]
+    res = subprocess.run(cmd, capture_output=True, text=True)
+    if res.returncode != 0 or not os.path.exists(out_path):
+        tail = (res.stderr or res.stdout).strip().splitlines()[-1:] or ["unknown error"]
+        raise DemandError(f"{net_path}: randomTrips failed ({tail[0]})")
+    return out_path
+
+
+_EDGE_ATTRS = re.compile(rb'\b(?:edges|from|to)="([^"]*)"')
+_DEPART = re.compile(rb'\bdepart="([0-9.]+)"')
+
+
+def check_routes(routes_path: str, edge_ids: set[str], sample: int = 2000) -> float:
+    """Check that a route / trip file refers to this network's edges; returns its first departure (s).
+
+    Raises :class:`DemandError` for a missing, empty or non-route file, or one whose edges are not in
+    the network.
+    """
+    if not os.path.exists(routes_path):
+        raise DemandError(f"{routes_path}: no such file")
+    if os.path.getsize(routes_path) == 0:
+        raise DemandError(f"{routes_path}: empty file")
+    with open(routes_path, "rb") as f:
+        data = f.read()
+    if b"<routes" not in data[:65536]:
+        raise DemandError(f"{routes_path}: not a SUMO route file (no <routes> element)")
+    if not data.rstrip().endswith(b"</routes>"):
+        raise DemandError(f"{routes_path}: truncated (no closing </routes>)")
+    used = []
+    for m in _EDGE_ATTRS.finditer(data):
+        used.extend(m.group(1).decode().split())
+        if len(used) >= sample:
+            break
+    if not used:
+        raise DemandError(f"{routes_path}: no vehicle routes or trips found")
+    unknown = [e for e in used if e not in edge_ids]
+    if len(unknown) > 0.01 * len(used):
+        raise DemandError(f"{routes_path}: does not match the network ({len(unknown)} of {len(used)} "
+                          f"edges referenced are unknown, e.g. '{unknown[0]}')")
+    departs = [float(m.group(1)) for m in _DEPART.finditer(data, 0, min(len(data), 2_000_000))]
+    return min(departs) if departs else 0.0

@@ -1,0 +1,133 @@
+"""Sharded scene storage and the torch Dataset over it.
+
+A data directory holds ``manifest.json`` and ``shard-XXXXX.npz`` files. Each shard concatenates the
+agents of its scenes (``offsets`` delimits them) and stores windows, times and network indices.
+Rasters are not stored: :class:`~sumo_scendiff.data.dataset.SceneDataset` renders the map from the network and the agents from
+the boxes, for a window rotated by a random angle (rotation augmentation), so nothing is interpolated.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry import Window
+from ..scene import Scene
+
+MANIFEST = "manifest.json"
+FORMAT_VERSION = 1
+
+
+class DataError(ValueError):
+    """A data directory that cannot be read; the message names the file."""
+
+
+def file_sha256(path: str) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def write_shard(path: str, scenes: list[Scene], net_index: int) -> dict:
+    """Write scenes atomically (temporary file, then rename); returns the manifest entry."""
+    counts = np.array([len(s) for s in scenes], dtype=np.int64)
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+
+    def cat(name, shape):
+        arrs = [getattr(s, name) for s in scenes]
+        return np.concatenate(arrs) if arrs else np.zeros(shape)
+
+    tmp = path + ".tmp.npz"
+    np.savez_compressed(
+        tmp, offsets=offsets, window=np.array([s.window.as_tuple() for s in scenes]).reshape(-1, 4),
+        time=np.array([s.time for s in scenes]), net=np.full(len(scenes), net_index, np.int32),
+        kind=np.array([s.meta.get("kind", 0) for s in scenes], np.int8),
+        boxes=cat("boxes", (0, 5)), traj=cat("traj", (0, 5, 3)), traj_mask=cat("traj_mask", (0, 5)),
+        speed=cat("speed", (0, 5)), vclass=cat("vclass", (0,)))
+    os.replace(tmp, path)
+    return {"file": os.path.basename(path), "scenes": len(scenes), "agents": int(counts.sum()),
+            "net": net_index}
+
+
+@dataclass
+class Shard:
+    offsets: np.ndarray
+    window: np.ndarray
+    time: np.ndarray
+    net: np.ndarray
+    kind: np.ndarray
+    boxes: np.ndarray
+    traj: np.ndarray
+    traj_mask: np.ndarray
+    speed: np.ndarray
+    vclass: np.ndarray
+
+    @classmethod
+    def load(cls, path: str) -> "Shard":
+        try:
+            with np.load(path) as z:
+                return cls(**{k: z[k] for k in cls.__dataclass_fields__})
+        except Exception as e:  # zipfile / KeyError / ValueError: all a damaged shard
+            raise DataError(f"{path}: unreadable shard ({type(e).__name__}: {e})") from None
+
+    def __len__(self):
+        return len(self.window)
+
+    def scene(self, i: int, net_name: str = "") -> Scene:
+        a, b = self.offsets[i], self.offsets[i + 1]
+        return Scene(Window(*self.window[i]), self.boxes[a:b], self.traj[a:b], self.traj_mask[a:b],
+                     self.speed[a:b], self.vclass[a:b], net_name, float(self.time[i]),
+                     {"kind": int(self.kind[i])})
+
+
+def read_manifest(root: str) -> dict:
+    path = os.path.join(root, MANIFEST)
+    if not os.path.exists(path):
+        raise DataError(f"{root}: not a data directory (no {MANIFEST})")
+    try:
+        with open(path) as f:
+            manifest = json.load(f)
+    except (OSError, json.JSONDecodeError) as e:
+        raise DataError(f"{path}: unreadable manifest ({e})") from None
+    if manifest.get("format_version") != FORMAT_VERSION:
+        raise DataError(f"{path}: unsupported format_version {manifest.get('format_version')!r}")
+    return manifest
+
+
+def resolve_net_path(root: str, entry: dict) -> str:
+    """A manifest's network path, relative to the data directory unless absolute."""
+    p = entry["path"]
+    return p if os.path.isabs(p) else os.path.normpath(os.path.join(root, p))
+
+
+class SceneStore:
+    """All scenes of a data directory, loaded into memory (scenes are small: boxes, not rasters)."""
+
+    def __init__(self, root: str, nets: list[str] | None = None):
+        self.root = root
+        self.manifest = read_manifest(root)
+        self.net_entries = self.manifest["nets"]
+        wanted = None if nets is None else set(nets)
+        self.shards = [Shard.load(os.path.join(root, s["file"])) for s in self.manifest["shards"]
+                       if wanted is None or self.net_entries[s["net"]]["name"] in wanted]
+        self.index = [(k, i) for k, sh in enumerate(self.shards) for i in range(len(sh))]
+
+    def __len__(self):
+        return len(self.index)
+
+    def net_name(self, scene_idx: int) -> str:
+        k, i = self.index[scene_idx]
+        return self.net_entries[int(self.shards[k].net[i])]["name"]
+
+    def net_path(self, scene_idx: int) -> str:
+        k, i = self.index[scene_idx]
+        return resolve_net_path(self.root, self.net_entries[int(self.shards[k].net[i])])
+
+    def scene(self, idx: int) -> Scene:
+        k, i = self.index[idx]
+        return self.shards[k].scene(i, self.net_name(idx))

@@ -1,0 +1,284 @@
+"""Network: a SUMO ``.net.xml`` (or ``.net.xml.gz``) read by sumolib, as shapely geometry with spatial indices.
+
+    net = Network.load("networks/city.net.xml")
+    lanes = net.lanes_in(window)               # indices into net.lanes, via an STRtree
+    hit = net.lookup(x, y, yaw)                # nearest car lane whose direction agrees
+    net.on_drivable(points)                    # vectorised point-in-drivable-area test
+    net.lane_heading_difference(points, yaws)  # the paper's lane heading metric
+
+Everything is in world coordinates (SUMO network coordinates, net offset applied). The cost of a
+window query depends on what lies in the window, not on the size of the network.
+"""
+from __future__ import annotations
+
+import gzip
+import os
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from shapely import STRtree
+
+from .geometry import wrap_angle
+
+CAR = "passenger"
+
+
+class NetworkError(ValueError):
+    """A network file that cannot be used; the message names the file and the problem."""
+
+
+@dataclass
+class Lane:
+    id: str
+    edge: str
+    index: int
+    function: str              # "" (normal), "internal", "crossing", "walkingarea"
+    shape: np.ndarray          # (K, 2) centre line
+    width: float
+    speed: float
+    length: float
+    car: bool                  # a passenger car may drive here
+    pedestrian_only: bool      # sidewalk / walking area / crossing
+    tls: bool                  # the lane ends at a traffic-light-controlled stop line
+    stop_line: bool            # the lane ends at a junction (its end is a stop line)
+    polygon: shapely.Polygon
+
+    @property
+    def ring(self) -> np.ndarray:
+        """Exterior ring of the lane polygon, (K, 2), cached."""
+        if "_ring" not in self.__dict__:
+            self.__dict__["_ring"] = _exterior(self.polygon)
+        return self.__dict__["_ring"]
+
+    @property
+    def internal(self) -> bool:
+        return self.function == "internal"
+
+
+@dataclass
+class Junction:
+    id: str
+    type: str
+    polygon: shapely.Polygon
+
+    @property
+    def ring(self) -> np.ndarray:
+        if "_ring" not in self.__dict__:
+            self.__dict__["_ring"] = _exterior(self.polygon)
+        return self.__dict__["_ring"]
+
+
+def _exterior(geom) -> np.ndarray:
+    """Exterior ring of a polygon (the largest part of a multipolygon) as a (K, 2) array."""
+    if geom.geom_type == "MultiPolygon":
+        geom = max(geom.geoms, key=lambda g: g.area)
+    if geom.geom_type != "Polygon" or geom.is_empty:
+        return np.zeros((0, 2))
+    return np.asarray(geom.exterior.coords)[:, :2]
+
+
+def _check_file(path: str) -> None:
+    if not os.path.exists(path):
+        raise NetworkError(f"{path}: no such file")
+    if os.path.isdir(path):
+        raise NetworkError(f"{path}: is a directory, not a SUMO network file")
+    if os.path.getsize(path) == 0:
+        raise NetworkError(f"{path}: empty file")
+    opener = gzip.open if path.endswith(".gz") else open
+    try:
+        with opener(path, "rb") as f:
+            head = f.read(4096)
+    except (OSError, EOFError) as e:
+        raise NetworkError(f"{path}: cannot read ({e})") from None
+    if b"<net" not in head:
+        raise NetworkError(f"{path}: not a SUMO network (no <net> element at the top)")
+
+
+def _read(path: str):
+    import sumolib  # lazy: sumolib import is slow-ish and pulls lxml
+    _check_file(path)
+    try:
+        return sumolib.net.readNet(path, withInternal=True, withPedestrianConnections=True)
+    except Exception as e:  # lxml / sax / sumolib raise many kinds; all mean a broken file
+        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise NetworkError(f"{path}: not a readable SUMO network ({msg})") from None
+
+
+def _lane_polygon(shape: np.ndarray, width: float) -> shapely.Polygon:
+    line = shapely.LineString(shape) if len(shape) > 1 else shapely.Point(shape[0])
+    return line.buffer(0.5 * width, cap_style="flat", join_style="mitre", mitre_limit=3.0)
+
+
+class Network:
+    """Lanes and junctions of one SUMO network with STRtrees for window and point queries."""
+
+    def __init__(self, path: str, lanes: list[Lane], junctions: list[Junction], sumo_net=None):
+        self.path = path
+        self.lanes = lanes
+        self.junctions = junctions
+        self.sumo_net = sumo_net
+        self.lane_tree = STRtree([ln.polygon for ln in lanes])
+        self.junction_tree = STRtree([j.polygon for j in junctions])
+        self.car_lane_ids = np.array([i for i, ln in enumerate(lanes) if ln.car], dtype=np.int64)
+        self.lines = np.array([shapely.LineString(ln.shape) if len(ln.shape) > 1
+                               else shapely.LineString([ln.shape[0], ln.shape[0] + 0.01])
+                               for ln in lanes], dtype=object)
+        self.lane_index = {ln.id: i for i, ln in enumerate(lanes)}
+        drivable = [i for i, ln in enumerate(lanes) if ln.car]
+        self._drivable_geoms = [lanes[i].polygon for i in drivable] + \
+            [j.polygon for j in junctions if j.type not in ("dead_end",)]
+        self.drivable_tree = STRtree(self._drivable_geoms)
+        xy = np.concatenate([ln.shape for ln in lanes])
+        self.bounds = (*xy.min(0), *xy.max(0))
+
+    @property
+    def name(self) -> str:
+        base = os.path.basename(self.path)
+        for ext in (".net.xml.gz", ".net.xml", ".xml.gz", ".xml"):
+            if base.endswith(ext):
+                return base[: -len(ext)]
+        return base
+
+    @classmethod
+    def load(cls, path: str) -> "Network":
+        path = os.fspath(path)
+        net = _read(path)
+        tls_lanes, stop_lanes = set(), set()
+        for edge in net.getEdges(withInternal=False):
+            to_node = edge.getToNode()
+            for lane in edge.getLanes():
+                for conn in lane.getOutgoing():
+                    stop_lanes.add(lane.getID())
+                    if conn.getTLSID():
+                        tls_lanes.add(lane.getID())
+        lanes: list[Lane] = []
+        for edge in net.getEdges(withInternal=True):
+            function = edge.getFunction() or ""
+            for lane in edge.getLanes():
+                shape = np.asarray(lane.getShape(), dtype=np.float64)[:, :2]
+                if len(shape) == 0:
+                    continue
+                width = float(lane.getWidth())
+                car = bool(lane.allows(CAR)) and function in ("", "internal")
+                ped_only = function in ("crossing", "walkingarea") or (
+                    lane.allows("pedestrian") and not lane.allows(CAR) and not lane.allows("bicycle"))
+                poly = _lane_polygon(shape, width)
+                if function == "walkingarea":
+                    poly = shapely.Polygon(shape) if len(shape) >= 3 else poly
+                    poly = poly if poly.is_valid else poly.buffer(0)
+                lanes.append(Lane(lane.getID(), edge.getID(), lane.getIndex(), function, shape, width,
+                                  float(lane.getSpeed()), float(lane.getLength()), car, ped_only,
+                                  lane.getID() in tls_lanes, lane.getID() in stop_lanes, poly))
+        junctions = []
+        for node in net.getNodes():
+            shp = node.getShape()
+            if shp is None or len(shp) < 3:
+                continue
+            poly = shapely.Polygon(np.asarray(shp, dtype=np.float64)[:, :2])
+            if not poly.is_valid:
+                poly = poly.buffer(0)
+            if poly.is_empty or poly.area <= 0:
+                continue
+            junctions.append(Junction(node.getID(), node.getType(), poly))
+        if not any(ln.car for ln in lanes):
+            raise NetworkError(f"{path}: the network has no lane a passenger car may use")
+        return cls(path, lanes, junctions, net)
+
+    # ---- window queries -------------------------------------------------------------------
+    def lanes_in(self, window) -> np.ndarray:
+        """Indices of lanes whose polygon intersects the (rotated) window's bounding box."""
+        box = shapely.box(*window.world_bounds())
+        return np.sort(self.lane_tree.query(box, predicate="intersects"))
+
+    def junctions_in(self, window) -> np.ndarray:
+        box = shapely.box(*window.world_bounds())
+        return np.sort(self.junction_tree.query(box, predicate="intersects"))
+
+    def has_road(self, window) -> bool:
+        """Whether any car lane crosses the window's square."""
+        square = shapely.Polygon(window.scene_to_world(np.array(
+            [[1, 1], [-1, 1], [-1, -1], [1, -1]]) * 0.5 * window.size))
+        idx = self.lane_tree.query(square, predicate="intersects")
+        return any(self.lanes[i].car for i in idx)
+
+    # ---- point queries --------------------------------------------------------------------
+    def on_drivable(self, points) -> np.ndarray:
+        """Bool array: which world points (..., 2) lie on a car lane or a junction area."""
+        pts = np.asarray(points, dtype=np.float64)
+        flat = pts.reshape(-1, 2)
+        out = np.zeros(len(flat), dtype=bool)
+        if len(flat):
+            geoms = shapely.points(flat)
+            hit = self.drivable_tree.query(geoms, predicate="intersects")
+            out[np.unique(hit[0])] = True
+        return out.reshape(pts.shape[:-1])
+
+    def lane_headings_at(self, points, radius: float = 0.0):
+        """(point index, lane index, lane heading) for every car lane within ``radius`` m of each point."""
+        flat = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        geoms = shapely.points(flat)
+        if radius > 0:
+            pi, li = self.lane_tree.query(geoms, predicate="dwithin", distance=radius)
+        else:
+            pi, li = self.lane_tree.query(geoms, predicate="intersects")
+        keep = np.isin(li, self.car_lane_ids)
+        pi, li = pi[keep], li[keep]
+        return pi, li, self._heading_on_lines(li, flat[pi])
+
+    def _heading_on_lines(self, lane_idx, xy) -> np.ndarray:
+        lines = self.lines[lane_idx]
+        pts = shapely.points(xy)
+        d = shapely.line_locate_point(lines, pts)
+        a = shapely.get_coordinates(shapely.line_interpolate_point(lines, d - 0.5))
+        b = shapely.get_coordinates(shapely.line_interpolate_point(lines, d + 0.5))
+        if len(lane_idx) == 0:
+            return np.zeros(0)
+        return np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
+
+    def lane_heading_difference(self, points, yaws, radius: float = 2.0) -> np.ndarray:
+        """Minimum |heading - lane heading| over car lanes at each point (NaN where none within radius)."""
+        flat_yaw = np.asarray(yaws, dtype=np.float64).reshape(-1)
+        out = np.full(len(flat_yaw), np.nan)
+        pi, li, head = self.lane_headings_at(points, radius=radius)
+        if len(pi):
+            diff = np.abs(wrap_angle(flat_yaw[pi] - head))
+            np.fmin.at(out, pi, diff)
+        return out.reshape(np.shape(yaws))
+
+    def lookup(self, x: float, y: float, yaw: float | None = None, radius: float = 3.0,
+               max_angle: float = np.pi / 3, allow_internal: bool = True):
+        """The car lane a pose stands on: nearest within ``radius`` whose direction agrees with ``yaw``.
+
+        Returns ``(lane, pos, lateral, heading_diff)`` with ``pos`` the distance along the lane of the
+        projected point, or ``None``.
+        """
+        pt = shapely.Point(x, y)
+        cand = self.lane_tree.query(pt, predicate="dwithin", distance=radius)
+        best = None
+        for i in cand:
+            ln = self.lanes[i]
+            if not ln.car or (ln.internal and not allow_internal):
+                continue
+            line = self.lines[i]
+            dist = line.distance(pt)
+            pos = line.project(pt)
+            heading = float(self._heading_on_lines(np.array([i]), np.array([[x, y]]))[0])
+            hd = 0.0 if yaw is None else abs(float(wrap_angle(yaw - heading)))
+            if hd > max_angle:
+                continue
+            score = dist + 2.0 * hd  # metres; 0.5 rad of disagreement costs like 1 m of offset
+            if best is None or score < best[0]:
+                best = (score, ln, float(pos), float(dist), hd)
+        return None if best is None else best[1:]
+
+    def random_road_points(self, n: int, rng: np.random.Generator, internal: bool = False):
+        """``n`` points uniformly along car lanes (by length) with their lane headings."""
+        ids = [i for i in self.car_lane_ids if internal or not self.lanes[i].internal] or \
+            list(self.car_lane_ids)
+        lengths = np.array([max(self.lines[i].length, 1e-3) for i in ids])
+        pick = rng.choice(len(ids), size=n, p=lengths / lengths.sum())
+        lane_idx = np.asarray(ids)[pick]
+        d = rng.random(n) * lengths[pick]
+        xy = shapely.get_coordinates(shapely.line_interpolate_point(self.lines[lane_idx], d))
+        return xy, self._heading_on_lines(lane_idx, xy)

@@ -1,0 +1,43 @@
+"""Shared fixtures: tiny SUMO networks built with netconvert from plain XML (real SUMO, small scale)."""
+from __future__ import annotations
+
+import os
+import subprocess
+
+import pytest
+
+
+def netconvert(nodes: str, edges: str, out: str, *extra: str) -> str:
+    import sumo
+    d = os.path.dirname(out)
+    nod, edg = os.path.join(d, "n.nod.xml"), os.path.join(d, "e.edg.xml")
+    with open(nod, "w") as f:
+        f.write(f"<nodes>{nodes}</nodes>")
+    with open(edg, "w") as f:
+        f.write(f"<edges>{edges}</edges>")
+    subprocess.run([os.path.join(sumo.SUMO_HOME, "bin", "netconvert"), "-n", nod, "-e", edg, "-o", out,
+                    "--no-turnarounds", "--offset.disable-normalization", "true", *extra],
+                   check=True, capture_output=True)
+    return out
+
+
+@pytest.fixture(scope="session")
+def diagonal_net(tmp_path_factory) -> str:
+    """One 2-lane road from (0, 0) to (300, 300): heading 45 deg (SUMO angle 45, yaw pi/4)."""
+    d = tmp_path_factory.mktemp("diag")
+    return netconvert('<node id="a" x="0" y="0"/><node id="b" x="300" y="300"/>',
+                      '<edge id="ab" from="a" to="b" numLanes="2" speed="13.89"/>',
+                      str(d / "diag.net.xml"))
+
+
+@pytest.fixture(scope="session")
+def cross_net(tmp_path_factory) -> str:
+    """A traffic-light crossing of two 2-way roads, 200 m arms, centred on (0, 0)."""
+    d = tmp_path_factory.mktemp("cross")
+    nodes = ('<node id="c" x="0" y="0" type="traffic_light"/>'
+             '<node id="w" x="-200" y="0"/><node id="e" x="200" y="0"/>'
+             '<node id="s" x="0" y="-200"/><node id="n" x="0" y="200"/>')
+    edges = "".join(f'<edge id="{a}{b}" from="{a}" to="{b}" numLanes="1" speed="13.89"/>'
+                    for a, b in (("w", "c"), ("c", "w"), ("e", "c"), ("c", "e"),
+                                 ("s", "c"), ("c", "s"), ("n", "c"), ("c", "n")))
+    return netconvert(nodes, edges, str(d / "cross.net.xml"))
