@@ -44,12 +44,13 @@ class Lane:
     stop_line: bool            # the lane ends at a junction (its end is a stop line)
     polygon: shapely.Polygon
 
-    @property
-    def ring(self) -> np.ndarray:
-        """Exterior ring of the lane polygon, (K, 2), cached."""
-        if "_ring" not in self.__dict__:
-            self.__dict__["_ring"] = _exterior(self.polygon)
-        return self.__dict__["_ring"]
+    ring: np.ndarray = None    # exterior ring of the polygon (K, 2), for drawing
+    seg_yaw: np.ndarray = None  # world heading of each centre-line segment (K - 1,)
+
+    def __post_init__(self):
+        self.ring = _exterior(self.polygon)
+        d = np.diff(self.shape, axis=0)
+        self.seg_yaw = np.arctan2(d[:, 1], d[:, 0])
 
     @property
     def internal(self) -> bool:
@@ -61,12 +62,10 @@ class Junction:
     id: str
     type: str
     polygon: shapely.Polygon
+    ring: np.ndarray = None
 
-    @property
-    def ring(self) -> np.ndarray:
-        if "_ring" not in self.__dict__:
-            self.__dict__["_ring"] = _exterior(self.polygon)
-        return self.__dict__["_ring"]
+    def __post_init__(self):
+        self.ring = _exterior(self.polygon)
 
 
 def _exterior(geom) -> np.ndarray:
@@ -230,8 +229,10 @@ class Network:
         lines = self.lines[lane_idx]
         pts = shapely.points(xy)
         d = shapely.line_locate_point(lines, pts)
-        a = shapely.get_coordinates(shapely.line_interpolate_point(lines, d - 0.5))
-        b = shapely.get_coordinates(shapely.line_interpolate_point(lines, d + 0.5))
+        # clamp: shapely counts negative distances from the line's end
+        a = shapely.get_coordinates(shapely.line_interpolate_point(lines, np.maximum(d - 0.5, 0.0)))
+        b = shapely.get_coordinates(shapely.line_interpolate_point(
+            lines, np.minimum(d + 0.5, shapely.length(lines))))
         if len(lane_idx) == 0:
             return np.zeros(0)
         return np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])

@@ -94,13 +94,15 @@ def render_map(net, window: Window, cfg: RasterConfig = RasterConfig()) -> np.nd
         n = np.array([-d[1], d[0]]) / max(np.linalg.norm(d), 1e-9) * 0.5 * ln.width
         ends.append(np.stack([ln.shape[-1] + n, ln.shape[-1] - n]))
     pix = _px_many(window, [ln.shape for ln in car] + ends, cfg)
-    for ln, pts in zip(car, pix):
-        d = np.diff(ln.shape, axis=0)
-        yaw = np.arctan2(d[:, 1], d[:, 0]) - window.yaw
-        cos, sin = np.cos(yaw).tolist(), np.sin(yaw).tolist()
-        pts = pts.tolist()
-        for k in range(len(d)):
-            cv2.line(centre, pts[k], pts[k + 1], (1.0, cos[k], sin[k]), 2, cv2.LINE_8, _SHIFT)
+    if car:
+        rel = np.concatenate([ln.seg_yaw for ln in car]) - window.yaw
+        colours = np.stack([np.ones_like(rel), np.cos(rel), np.sin(rel)], axis=1).tolist()
+        k = 0
+        for pts in pix[: len(car)]:
+            pts = pts.tolist()
+            for a, b in zip(pts[:-1], pts[1:]):
+                cv2.line(centre, a, b, colours[k], 2, cv2.LINE_8, _SHIFT)
+                k += 1
     for a, b in pix[len(car):]:
         cv2.line(ch["stop_line"], tuple(a.tolist()), tuple(b.tolist()), 1.0, 2, cv2.LINE_8, _SHIFT)
     ch["centerline"], ch["lane_cos"], ch["lane_sin"] = centre[..., 0], centre[..., 1], centre[..., 2]

@@ -71,3 +71,11 @@ def test_window_query_does_not_depend_on_network_size(cross_net):
     net = Network.load(cross_net)
     near = net.lanes_in(Window(-150.0, 0.0, 0.0, 20.0))
     assert {net.lanes[i].edge for i in near} <= {"wc", "cw"}
+
+
+def test_heading_near_the_start_and_end_of_a_lane(cross_net):
+    net = Network.load(cross_net)
+    lane = next(ln for ln in net.lanes if ln.edge == "wc")
+    start, end = lane.shape[0], lane.shape[-1]
+    pts = [start + [0.2, 0.0], end - [0.2, 0.0]]
+    assert net.lane_heading_difference(pts, [0.0, 0.0], radius=0.0) == pytest.approx([0.0, 0.0], abs=1e-6)

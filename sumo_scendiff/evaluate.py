@@ -1,0 +1,194 @@
+"""Evaluate scene generators against SUMO's own traffic on networks the model never trained on.
+
+    python -m sumo_scendiff.evaluate                         # held-out generated nets + real cities
+    python -m sumo_scendiff.evaluate -n ../shared/nets/resco_cologne8/cologne8.net.xml --scenes 300
+    python -m sumo_scendiff.evaluate --json results.json     # everything, for machines
+
+For every network, ground-truth scenes are recorded from SUMO (with the network's own demand when a
+matching ``*.rou.xml`` lies beside it, otherwise random trips), each window turned by a random angle,
+and every method generates a scene for the same windows: Random Log Selection (agents of a random
+*training* scene, map ignored), Lane-uniform with its own count rule and told the true count, and the
+shipped Scenario Diffusion model (with ``--checkpoint``/the default weights when present). The table
+gives the paper's metrics per network (see :mod:`sumo_scendiff.metrics`).
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import glob
+import hashlib
+import json
+import os
+import sys
+
+import numpy as np
+
+from .baselines import LaneUniform, RandomLogSelection
+from .data.demand import DemandError, check_routes
+from .data.shards import SceneStore
+from .metrics import evaluate_scenes
+from .network import Network, NetworkError
+from .scene import rotate_scene
+
+PROG = "python -m sumo_scendiff.evaluate"
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SHARED_NETS = os.path.join(ROOT, "..", "shared", "nets")
+REAL_CITIES = ("resco_cologne1/cologne1.net.xml", "resco_cologne3/cologne3.net.xml",
+               "resco_cologne8/cologne8.net.xml", "resco_ingolstadt1/ingolstadt1.net.xml",
+               "resco_ingolstadt7/ingolstadt7.net.xml", "resco_ingolstadt21/ingolstadt21.net.xml",
+               "berlin_doerpfeldstr/net.net.xml.gz", "wildau/net.net.xml.gz",
+               "ingolstadt_cutmap/Forschungskreuzung_cutmap.net.xml.gz")
+COLUMNS = (("mmd2_position", "MMD² pos"), ("mmd2_heading", "MMD² head"),
+           ("mmd2_velocity", "MMD² vel"), ("mmd2_joint", "MMD² joint"),
+           ("traj_on_drivable", "traj on drivable"), ("lane_heading_difference", "lane head. diff"),
+           ("agents_emd", "agents/scene EMD"), ("agents_per_scene", "agents/scene"))
+
+
+def get_options(args=None):
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("-n", "--net-file", "--net", dest="nets", action="append", default=None,
+                   metavar="NET", help="network to evaluate on (repeat); default: held-out + real cities")
+    p.add_argument("--scenes", type=int, default=200, help="ground-truth scenes per network")
+    p.add_argument("--train-data", default=os.path.join(ROOT, "data", "train"),
+                   help="training scenes for Random Log (recorded from networks/ if missing)")
+    p.add_argument("--cache", default=os.path.join(ROOT, ".cache", "eval"),
+                   help="where recorded ground truth is kept between runs")
+    p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
+    p.add_argument("--no-model", action="store_true", help="baselines only")
+    p.add_argument("--steps", type=int, default=None, help="sampler steps for the model")
+    p.add_argument("--json", default=None, metavar="PATH", help="also write all results as JSON")
+    p.add_argument("-s", "--seed", type=int, default=0)
+    p.add_argument("-v", "--verbose", action="store_true")
+    o = p.parse_args(args)
+    o.parser = p
+    return o
+
+
+def default_nets() -> list[str]:
+    with open(os.path.join(ROOT, "networks", "splits.json")) as f:
+        nets = [os.path.join(ROOT, "networks", n) for n in json.load(f)["heldout"]]
+    return nets + [os.path.join(SHARED_NETS, r) for r in REAL_CITIES
+                   if os.path.exists(os.path.join(SHARED_NETS, r))]
+
+
+def find_demand(net: Network) -> str | None:
+    """The largest ``*.rou.xml`` beside the network that matches it, or None (random trips)."""
+    edges = {ln.edge for ln in net.lanes}
+    found = []
+    for path in glob.glob(os.path.join(os.path.dirname(os.path.abspath(net.path)), "*.rou.xml")):
+        try:
+            check_routes(path, edges)
+        except DemandError:
+            continue
+        found.append((os.path.getsize(path), path))
+    return max(found)[1] if found else None
+
+
+def record_cached(nets: list[str], routes: list[str | None], scenes: int, seed: int, cache: str,
+                  tag: str) -> str:
+    """Record (once) scenes with the data CLI into the cache; returns the data directory."""
+    from .data.__main__ import get_options as data_options, main as data_main
+    key = json.dumps([[os.path.abspath(n) for n in nets], routes, scenes, seed])
+    out = os.path.join(cache, f"{tag}-{hashlib.sha1(key.encode()).hexdigest()[:12]}")
+    if not os.path.exists(os.path.join(out, "manifest.json")):
+        args = [a for n in nets for a in ("-n", n)] + [a for r in routes if r for a in ("-r", r)]
+        args += ["-o", out, "--scenes", str(scenes), "-s", str(seed), "--scenes-per-episode", "100"]
+        if os.path.exists(out + ".partial"):
+            args.append("--resume")
+        with contextlib.redirect_stdout(sys.stderr):  # keep stdout for the table
+            data_main(data_options(args))
+    return out
+
+
+def training_pool(o) -> SceneStore:
+    if os.path.exists(os.path.join(o.train_data, "manifest.json")):
+        return SceneStore(o.train_data)
+    with open(os.path.join(ROOT, "networks", "splits.json")) as f:
+        train = [os.path.join(ROOT, "networks", n) for n in json.load(f)["train"]]
+    return SceneStore(record_cached(train, [None] * len(train), 1200, 12345, o.cache, "train-pool"))
+
+
+def methods_for(net: Network, pool: SceneStore, generator, seed: int):
+    """(name, fn(gt_scene, i) -> Scene) for every method compared on this network."""
+    rlog = RandomLogSelection(pool, seed=seed)
+    lane = LaneUniform(net, seed=seed)
+    out = [("Random Log", lambda gt, i: rlog.generate(gt.window, index=i)),
+           ("Lane-uniform", lambda gt, i: lane.generate(gt.window, index=i)),
+           ("Lane-uniform (true count)", lambda gt, i: lane.generate(gt.window, n=len(gt), index=i))]
+    if generator is not None:
+        out += generator.methods(net, seed)
+    return out
+
+
+def evaluate_net(path: str, o, pool: SceneStore, generator) -> dict:
+    from tqdm import tqdm
+    net = Network.load(path)
+    routes = find_demand(net)
+    gt_dir = record_cached([path], [routes], o.scenes, o.seed, o.cache, f"gt-{net.name}")
+    store = SceneStore(gt_dir)
+    rng = np.random.default_rng([o.seed, 7])
+    gts = [rotate_scene(store.scene(i), float(rng.uniform(-np.pi, np.pi))) for i in range(len(store))]
+    result = {"net": net.name, "path": path, "demand": routes and os.path.basename(routes),
+              "scenes": len(gts), "methods": {}}
+    first = None
+    for name, fn in methods_for(net, pool, generator, o.seed):
+        gen = [fn(gt, i) for i, gt in enumerate(tqdm(gts, desc=f"{net.name}: {name}", leave=False,
+                                                     disable=None))]
+        res = evaluate_scenes(gen, gts, net)
+        first = first or res
+        result["methods"][name] = _row(res)
+    gt = first["gt_only"]
+    result["methods"] = {"Ground truth": {"traj_on_drivable": gt["traj_on_drivable"],
+                                          "lane_heading_difference": gt["lane_heading_diff"],
+                                          "agents_per_scene": first["agents_per_scene_gt"]},
+                         **result["methods"]}
+    return result
+
+
+def _row(res: dict) -> dict:
+    return {"mmd2_position": res["mmd2_position"], "mmd2_heading": res["mmd2_heading"],
+            "mmd2_velocity": res["mmd2_velocity"], "mmd2_joint": res["mmd2_joint"],
+            "traj_on_drivable": res["traj_on_drivable"],
+            "lane_heading_difference": res["lane_heading_diff"],
+            "agents_emd": res["agents_per_scene_emd"], "agents_per_scene": res["agents_per_scene_gen"],
+            "mmd_scenes": res["mmd_scenes"]}
+
+
+def markdown(results: list[dict]) -> str:
+    head = "| network | method | " + " | ".join(c[1] for c in COLUMNS) + " |"
+    lines = [head, "|" + "---|" * (len(COLUMNS) + 2)]
+    for r in results:
+        label = f"{r['net']} ({r['scenes']} scenes{', own demand' if r['demand'] else ', random trips'})"
+        for k, (name, row) in enumerate(r["methods"].items()):
+            cells = [_fmt(row.get(key)) for key, _ in COLUMNS]
+            lines.append(f"| {label if k == 0 else ''} | {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _fmt(v) -> str:
+    if v is None or (isinstance(v, float) and np.isnan(v)):
+        return "–"
+    return f"{v:.3f}" if abs(v) < 100 else f"{v:.0f}"
+
+
+def main(o) -> int:
+    nets = o.nets or default_nets()
+    generator = None
+    if not o.no_model:
+        from .generate import load_generator_for_eval
+        generator = load_generator_for_eval(o.checkpoint, o.steps, o.parser, PROG)
+    try:
+        pool = training_pool(o)
+        results = [evaluate_net(p, o, pool, generator) for p in nets]
+    except (NetworkError, DemandError) as e:
+        o.parser.exit(2, f"{PROG}: error: {e}\n")
+    print(markdown(results))
+    if o.json:
+        with open(o.json, "w") as f:
+            json.dump(results, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(get_options()))
