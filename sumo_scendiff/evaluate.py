@@ -56,6 +56,9 @@ def get_options(args=None):
                    help="where recorded ground truth is kept between runs")
     p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
     p.add_argument("--no-model", action="store_true", help="baselines only")
+    p.add_argument("--no-map-checkpoint", default=None, help="the no-map ablation model (a row)")
+    p.add_argument("--tokens", action="store_true", help="also the token tables (2, 3, E.2)")
+    p.add_argument("--token-scenes", type=int, default=100, help="scenes per net for --tokens")
     p.add_argument("--steps", type=int, default=None, help="sampler steps for the model")
     p.add_argument("--json", default=None, metavar="PATH", help="also write all results as JSON")
     p.add_argument("-s", "--seed", type=int, default=0)
@@ -109,35 +112,44 @@ def training_pool(o) -> SceneStore:
     return SceneStore(record_cached(train, [None] * len(train), 1200, 12345, o.cache, "train-pool"))
 
 
-def methods_for(net: Network, pool: SceneStore, generator, seed: int):
-    """(name, fn(gt_scene, i) -> Scene) for every method compared on this network."""
+def methods_for(net: Network, pool: SceneStore, models: dict, seed: int):
+    """(name, fn(ground-truth scenes) -> generated scenes) for every method compared on this net."""
     rlog = RandomLogSelection(pool, seed=seed)
     lane = LaneUniform(net, seed=seed)
-    out = [("Random Log", lambda gt, i: rlog.generate(gt.window, index=i)),
-           ("Lane-uniform", lambda gt, i: lane.generate(gt.window, index=i)),
-           ("Lane-uniform (true count)", lambda gt, i: lane.generate(gt.window, n=len(gt), index=i))]
-    if generator is not None:
-        out += generator.methods(net, seed)
+    out = [("Random Log", lambda gts: [rlog.generate(g.window, index=i) for i, g in enumerate(gts)]),
+           ("Lane-uniform", lambda gts: [lane.generate(g.window, index=i) for i, g in enumerate(gts)]),
+           ("Lane-uniform (true count)",
+            lambda gts: [lane.generate(g.window, n=len(g), index=i) for i, g in enumerate(gts)])]
+    for name, gen in models.items():  # map-only generation: no agent tokens, p_mask = 1
+        out.append((name, lambda gts, gen=gen: gen.generate(net, [g.window for g in gts], seed=seed)))
     return out
 
 
-def evaluate_net(path: str, o, pool: SceneStore, generator) -> dict:
-    from tqdm import tqdm
+def ground_truth(path: str, o) -> tuple[Network, str | None, list]:
+    """The network, its demand file, and its recorded scenes, each window turned by a random angle."""
     net = Network.load(path)
     routes = find_demand(net)
-    gt_dir = record_cached([path], [routes], o.scenes, o.seed, o.cache, f"gt-{net.name}")
-    store = SceneStore(gt_dir)
+    store = SceneStore(record_cached([path], [routes], o.scenes, o.seed, o.cache, f"gt-{net.name}"))
     rng = np.random.default_rng([o.seed, 7])
     gts = [rotate_scene(store.scene(i), float(rng.uniform(-np.pi, np.pi))) for i in range(len(store))]
+    return net, routes, gts
+
+
+def evaluate_net(path: str, o, pool: SceneStore, models: dict) -> dict:
+    import time
+    net, routes, gts = ground_truth(path, o)
     result = {"net": net.name, "path": path, "demand": routes and os.path.basename(routes),
-              "scenes": len(gts), "methods": {}}
+              "scenes": len(gts), "methods": {}, "seconds": {}}
     first = None
-    for name, fn in methods_for(net, pool, generator, o.seed):
-        gen = [fn(gt, i) for i, gt in enumerate(tqdm(gts, desc=f"{net.name}: {name}", leave=False,
-                                                     disable=None))]
+    for name, fn in methods_for(net, pool, models, o.seed):
+        t = time.perf_counter()
+        gen = fn(gts)
+        result["seconds"][name] = time.perf_counter() - t
         res = evaluate_scenes(gen, gts, net)
         first = first or res
         result["methods"][name] = _row(res)
+        if o.verbose:
+            print(f"{net.name}: {name} done", file=sys.stderr)
     gt = first["gt_only"]
     result["methods"] = {"Ground truth": {"traj_on_drivable": gt["traj_on_drivable"],
                                           "lane_heading_difference": gt["lane_heading_diff"],
@@ -172,21 +184,49 @@ def _fmt(v) -> str:
     return f"{v:.3f}" if abs(v) < 100 else f"{v:.0f}"
 
 
+def load_models(o) -> dict:
+    """name -> ScenarioGenerator for the model rows (none with --no-model)."""
+    if o.no_model:
+        return {}
+    from .generate import DEFAULT_CHECKPOINT, GenerationConfig, ScenarioGenerator
+    cfg = GenerationConfig(steps=o.steps) if o.steps else GenerationConfig()
+    path = o.checkpoint or DEFAULT_CHECKPOINT
+    if o.checkpoint is None and not os.path.exists(path):
+        print(f"{PROG}: no shipped checkpoint at {path}: baselines only", file=sys.stderr)
+        return {}
+    models = {"Scenario Diffusion": ScenarioGenerator.load(path, cfg)}
+    if o.no_map_checkpoint:
+        models["Scenario Diffusion (no map)"] = ScenarioGenerator.load(o.no_map_checkpoint, cfg)
+    return models
+
+
 def main(o) -> int:
+    from .model.checkpoint import CheckpointError
     nets = o.nets or default_nets()
-    generator = None
-    if not o.no_model:
-        from .generate import load_generator_for_eval
-        generator = load_generator_for_eval(o.checkpoint, o.steps, o.parser, PROG)
     try:
+        models = load_models(o)
         pool = training_pool(o)
-        results = [evaluate_net(p, o, pool, generator) for p in nets]
-    except (NetworkError, DemandError) as e:
+        results = [evaluate_net(p, o, pool, models) for p in nets]
+        tokens = {}
+        if o.tokens and models:
+            from . import token_eval
+            gen = models["Scenario Diffusion"]
+            for p in nets:
+                net, _, gts = ground_truth(p, o)
+                gts = gts[: o.token_scenes]
+                tokens[net.name] = {"mask": token_eval.mask_table(gen, net, gts, o.seed),
+                                    "threshold": token_eval.threshold_table(gen, net, gts, o.seed),
+                                    "speed": token_eval.speed_table(gen, net, gts, o.seed)}
+    except (NetworkError, DemandError, CheckpointError) as e:
         o.parser.exit(2, f"{PROG}: error: {e}\n")
     print(markdown(results))
+    if tokens:
+        from .token_eval import markdown_tables
+        print()
+        print(markdown_tables(tokens))
     if o.json:
         with open(o.json, "w") as f:
-            json.dump(results, f, indent=1)
+            json.dump({"distribution": results, "tokens": tokens}, f, indent=1)
     return 0
 
 

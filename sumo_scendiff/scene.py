@@ -22,6 +22,18 @@ VEHICLE_CLASSES = ("passenger", "delivery", "truck", "bus", "motorcycle")
 FORMAT_VERSION = 1
 
 
+def vclass_from_size(length, width) -> np.ndarray:
+    """A vehicle class index fitting a box: motorcycle < 2.8 m or < 1.2 m wide, van up to 7.5 m,
+    truck up to 11 m, bus beyond; passenger car otherwise."""
+    length, width = np.asarray(length, np.float64), np.asarray(width, np.float64)
+    out = np.zeros(length.shape, np.int8)
+    out[(length >= 5.5) & (length < 7.5)] = VEHICLE_CLASSES.index("delivery")
+    out[(length >= 7.5) & (length < 11.0)] = VEHICLE_CLASSES.index("truck")
+    out[length >= 11.0] = VEHICLE_CLASSES.index("bus")
+    out[(length < 2.8) | (width < 1.2)] = VEHICLE_CLASSES.index("motorcycle")
+    return out
+
+
 @dataclass
 class Scene:
     window: Window

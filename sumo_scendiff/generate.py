@@ -1,0 +1,162 @@
+"""ScenarioGenerator: network + windows + tokens (+ seed) -> generated scenes, batched.
+
+    gen = ScenarioGenerator.load()                       # the shipped checkpoint
+    scenes = gen.generate(net, [Window(x, y, yaw)], seed=0)
+    scenes = gen.generate(net, windows, tokens=[[{"x": 0, "y": 0, "heading": 0, "speed": 0}]], p_mask=0.5)
+
+Pipeline per batch: map raster m -> initial noise (one generator per window, so a window's scene does
+not depend on what else is in the batch) -> Euler/Heun ODE from sigma_max to 0 -> D(z, m) ->
+boxes above ``threshold`` -> overlapping boxes removed (most probable kept) -> scene-frame
+:class:`~sumo_scendiff.scene.Scene` with speeds from the trajectory.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+import shapely
+import torch
+
+from .geometry import TIMES, Window, box_corners
+from .model import checkpoint as ckpt
+from .model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
+from .model.detection import decode_boxes
+from .model.diffusion import DiffusionConfig, ScenarioDiffusion
+from .model.edm import sample_euler
+from .raster import RasterConfig, render_map
+from .scene import Scene, vclass_from_size
+from .tokens import AGENT_TOKEN_DIM, agent_tokens_from_dicts, global_token, pad_tokens
+
+DEFAULT_CHECKPOINT = os.path.join(os.path.dirname(__file__), "weights", "scendiff.pt")
+
+
+@dataclass
+class GenerationConfig:
+    steps: int = 20
+    sampler: Callable = sample_euler
+    threshold: float = 0.8       # box probability (paper sec. 4.1: 80 %)
+    batch_size: int = 32
+
+
+def speeds_from_traj(traj: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(N, 5) speeds at t = -2..+2 from 1-s poses: central differences inside, one-sided at the ends."""
+    p = traj[..., :2]
+    step = np.linalg.norm(np.diff(p, axis=1), axis=-1)           # (N, 4): |p(t+1) - p(t)|
+    v = np.zeros(mask.shape, np.float32)
+    v[:, 0], v[:, -1] = step[:, 0], step[:, -1]
+    v[:, 1:-1] = 0.5 * (step[:, :-1] + step[:, 1:])
+    return v * mask
+
+
+def remove_overlaps(boxes: np.ndarray, prob: np.ndarray) -> np.ndarray:
+    """Indices of boxes kept when overlapping oriented boxes are removed, most probable first."""
+    if len(boxes) == 0:
+        return np.zeros(0, np.int64)
+    order = np.argsort(-prob, kind="stable")
+    corners = box_corners(boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3], boxes[:, 4])
+    polys = shapely.polygons(corners)
+    a, b = shapely.STRtree(polys).query(polys, predicate="intersects")
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    overlaps: dict[int, list[int]] = {}
+    for i, j in zip(a, b):
+        if i != j and shapely.area(shapely.intersection(polys[i], polys[j])) > 1e-3:
+            overlaps.setdefault(int(i), []).append(int(j))
+    removed = np.zeros(len(boxes), bool)
+    for i in order:
+        if removed[i]:
+            continue
+        for j in overlaps.get(int(i), ()):
+            if rank[j] > rank[i]:
+                removed[j] = True
+    return np.sort(np.flatnonzero(~removed))
+
+
+class ScenarioGenerator:
+    def __init__(self, autoencoder: ScenarioAutoencoder, diffusion: ScenarioDiffusion,
+                 latent_scale: float, raster: RasterConfig = RasterConfig(), sha256: str = "",
+                 config: GenerationConfig = GenerationConfig()):
+        self.ae = autoencoder.eval()
+        self.diffusion = diffusion.eval()
+        self.latent_scale = latent_scale
+        self.raster = raster
+        self.sha256 = sha256
+        self.config = config
+
+    @classmethod
+    def load(cls, path: str | None = None, config: GenerationConfig = GenerationConfig()):
+        """Load a ``scenario-diffusion`` checkpoint (default: the shipped one)."""
+        path = path or DEFAULT_CHECKPOINT
+        ck = ckpt.load(path, "scenario-diffusion")
+        try:
+            ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ck["autoencoder_config"]))
+            df = ScenarioDiffusion(ckpt.config_from_dict(DiffusionConfig, ck["diffusion_config"]))
+        except (KeyError, TypeError) as e:
+            raise ckpt.CheckpointError(f"{path}: incomplete or incompatible checkpoint ({e})") from None
+        ckpt.load_state(ae, {k: v.float() for k, v in ck["autoencoder"].items()}, path)
+        ckpt.load_state(df, {k: v.float() for k, v in ck["diffusion"].items()}, path)
+        return cls(ae, df, float(ck["latent_scale"]), sha256=ckpt.sha256(path), config=config)
+
+    # ---- one batch ------------------------------------------------------------------------
+    @torch.no_grad()
+    def _batch(self, maps: np.ndarray, tokens: list[np.ndarray], p_mask: np.ndarray,
+               seeds: list[int], cfg: GenerationConfig):
+        m = torch.from_numpy(maps)
+        tok, pad = pad_tokens(tokens)
+        glob = torch.from_numpy(global_token(p_mask).reshape(len(maps), -1))
+        noise = torch.stack([torch.randn(self.diffusion.cfg.unet.c_z, self.diffusion.cfg.unet.res,
+                                         self.diffusion.cfg.unet.res,
+                                         generator=torch.Generator().manual_seed(s)) for s in seeds])
+        z = self.diffusion.sample(m, tok, pad, glob, steps=cfg.steps, sampler=cfg.sampler,
+                                  noise=noise)
+        y = self.ae.decode(z / self.latent_scale, m)
+        dec = decode_boxes(y, self.raster.size)
+        return dec.prob.numpy(), dec.boxes.numpy(), dec.traj.numpy()
+
+    def _scene(self, window: Window, prob, boxes, traj, threshold: float, net_name: str) -> Scene:
+        keep = np.flatnonzero(prob >= threshold)
+        keep = keep[window.contains(boxes[keep, :2])]
+        keep = keep[remove_overlaps(boxes[keep], prob[keep])]
+        keep = keep[np.argsort(-prob[keep], kind="stable")]
+        b, t = boxes[keep], traj[keep]
+        mask = np.ones((len(keep), len(TIMES)), bool)
+        return Scene(window, b, t, mask, speeds_from_traj(t, mask), vclass_from_size(b[:, 3], b[:, 4]),
+                     net_name, meta={"score": prob[keep].tolist(), "cell": keep.tolist()})
+
+    # ---- public API -----------------------------------------------------------------------
+    def generate(self, net, windows: Sequence[Window], tokens=None, p_mask=1.0, seed: int = 0,
+                 config: GenerationConfig | None = None, progress: bool = False) -> list[Scene]:
+        """Scenes for ``windows`` on ``net``.
+
+        ``tokens``: per window, agent tokens as a list of feature dicts (any subset of
+        :data:`~sumo_scendiff.tokens.FEATURES`, scene frame of that window) or an encoded
+        (T, 170) array; ``None`` for no tokens. ``p_mask``: the global scene token per window (or
+        one for all); 1.0 with no tokens = map-only generation. The same ``seed`` gives the same
+        scenes; window ``i`` uses the seed ``(seed, i)``.
+        """
+        cfg = config or self.config
+        n = len(windows)
+        toks = [_encode(t) for t in (tokens if tokens is not None else [None] * n)]
+        if len(toks) != n:
+            raise ValueError(f"{len(toks)} token sets for {n} windows")
+        pm = np.broadcast_to(np.asarray(p_mask, np.float64), (n,))
+        seeds = [int(np.random.SeedSequence([seed, i]).generate_state(1)[0]) for i in range(n)]
+        out: list[Scene] = []
+        from tqdm import tqdm
+        for s in tqdm(range(0, n, cfg.batch_size), disable=not progress, desc="generating"):
+            sl = slice(s, min(n, s + cfg.batch_size))
+            maps = np.stack([render_map(net, w, self.raster) for w in windows[sl]])
+            prob, boxes, traj = self._batch(maps, toks[sl], pm[sl], seeds[sl], cfg)
+            for k, w in enumerate(windows[sl]):
+                out.append(self._scene(w, prob[k], boxes[k], traj[k], cfg.threshold, net.name))
+        return out
+
+
+def _encode(t) -> np.ndarray:
+    if t is None:
+        return np.zeros((0, AGENT_TOKEN_DIM), np.float32)
+    if isinstance(t, np.ndarray) and t.ndim == 2 and t.shape[1] == AGENT_TOKEN_DIM:
+        return t.astype(np.float32)
+    return agent_tokens_from_dicts(list(t))

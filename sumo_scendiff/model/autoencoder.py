@@ -1,0 +1,150 @@
+"""Scenario autoencoder: E(x) -> z,  D(z, m) = D_up(z, D_down(m)) -> y (paper section 3.1, appendix C).
+
+Architecture after the latent-diffusion autoencoder (appendix C.1), one ResnetBlock per
+resolution, narrowed for CPU training and without the mid-block self-attention:
+
+* E:      x (B, 15, 128, 128) -> (mu, logvar), each (B, C_z, 16, 16)     (f = 3)
+* D_down: m (B, C_m, 128, 128) -> (B, C_map, 16, 16), same architecture as E, own weights
+* D_up:   concat(z, D_down(m)) at 16 -> upsample 16 -> 32 -> 64 -> y (B, 19, 64, 64); the output
+  resolution is truncated at 64 px as in appendix C.1. See ``detection.py`` for the layout of y.
+
+Training objective (appendix C.3): L = L_rec + kl_weight * L_KL, both per-scene sums averaged
+over the batch.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from .blocks import Downsample, ResnetBlock, Upsample, group_norm
+from .detection import C_Y, DetectionLossConfig, detection_loss
+
+
+@dataclass
+class AutoencoderConfig:
+    """Hyper-parameters of :class:`ScenarioAutoencoder` (names follow the paper's symbols)."""
+
+    C_x: int = 15  # agent raster channels (appendix A)
+    C_m: int = 11  # map raster channels
+    C_z: int = 4  # latent channels
+    C_map: int = 16  # channels of D_down(m)
+    enc_channels: tuple[int, ...] = (16, 32, 64, 64)  # E and D_down, at 128, 64, 32, 16 px
+    dec_channels: tuple[int, ...] = (64, 32, 32)  # D_up, at 16, 32, 64 px (CPU budget)
+    dropout: float = 0.0
+    kl_weight: float = 0.1  # appendix C.3
+    logit_bias: float = -4.0  # initial box logit (prior probability ~ 0.018)
+    log_dist_bias: float = 0.4  # initial log edge distance (~1.5 m)
+    delta_scale: tuple[float, float, float] = (10.0, 2.0, 0.3)  # output units of (dx m, dy m, dyaw rad)
+    loss: DetectionLossConfig = field(default_factory=DetectionLossConfig)
+
+
+class ConvEncoder(nn.Module):
+    """LDM-style encoder: conv_in, [ResnetBlock, Downsample] per level, mid ResnetBlock, GN-SiLU-conv_out.
+
+    Downsamples by 2^(len(channels) - 1). Used for E (out_ch = 2 C_z) and D_down (out_ch = C_map).
+    """
+
+    def __init__(self, in_ch: int, channels: tuple[int, ...], out_ch: int, dropout: float = 0.0):
+        super().__init__()
+        self.conv_in = nn.Conv2d(in_ch, channels[0], 3, padding=1)
+        layers, prev = [], channels[0]
+        for i, ch in enumerate(channels):
+            layers.append(ResnetBlock(prev, ch, dropout=dropout))
+            if i < len(channels) - 1:
+                layers.append(Downsample(ch))
+            prev = ch
+        layers.append(ResnetBlock(prev, prev, dropout=dropout))  # mid block
+        self.body = nn.Sequential(*layers)
+        self.norm_out = group_norm(prev)
+        self.conv_out = nn.Conv2d(prev, out_ch, 3, padding=1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.conv_out(F.silu(self.norm_out(self.body(self.conv_in(x)))))
+
+
+class DetectionDecoder(nn.Module):
+    """D_up: (z, D_down(m)) -> y. conv_in, mid ResnetBlock, [ResnetBlock, Upsample] per level, head.
+
+    The head's raw outputs are multiplied by fixed per-channel scales so that y is in physical
+    units (metres / radians) while the network works with O(1) numbers.
+    """
+
+    def __init__(self, cfg: AutoencoderConfig):
+        super().__init__()
+        ch = cfg.dec_channels
+        self.conv_in = nn.Conv2d(cfg.C_z + cfg.C_map, ch[0], 3, padding=1)
+        layers = [ResnetBlock(ch[0], ch[0], dropout=cfg.dropout)]  # mid block
+        prev = ch[0]
+        for i, c in enumerate(ch):
+            layers.append(ResnetBlock(prev, c, dropout=cfg.dropout))
+            if i < len(ch) - 1:
+                layers.append(Upsample(c))
+            prev = c
+        self.body = nn.Sequential(*layers)
+        self.norm_out = group_norm(prev)
+        self.conv_out = nn.Conv2d(prev, C_Y, 3, padding=1)
+        scale = torch.ones(C_Y)
+        scale[7:] = torch.tensor(cfg.delta_scale).repeat(4)
+        self.register_buffer("out_scale", scale[:, None, None], persistent=False)
+        with torch.no_grad():
+            self.conv_out.bias.zero_()
+            self.conv_out.bias[0] = cfg.logit_bias
+            self.conv_out.bias[3:7] = cfg.log_dist_bias
+
+    def forward(self, z: torch.Tensor, m_enc: torch.Tensor) -> torch.Tensor:
+        h = self.body(self.conv_in(torch.cat([z, m_enc], dim=1)))
+        return self.conv_out(F.silu(self.norm_out(h))) * self.out_scale
+
+
+class ScenarioAutoencoder(nn.Module):
+    """The scenario VAE of section 3.1: encoder E, map encoder D_down, decoder D_up."""
+
+    def __init__(self, cfg: AutoencoderConfig = AutoencoderConfig()):
+        super().__init__()
+        self.cfg = cfg
+        self.E = ConvEncoder(cfg.C_x, cfg.enc_channels, 2 * cfg.C_z, cfg.dropout)
+        self.D_down = ConvEncoder(cfg.C_m, cfg.enc_channels, cfg.C_map, cfg.dropout)
+        self.D_up = DetectionDecoder(cfg)
+
+    def encode(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """x (B, C_x, H, W) -> (mu, logvar), each (B, C_z, H / 2^f, W / 2^f)."""
+        mu, logvar = self.E(x).chunk(2, dim=1)
+        return mu, logvar.clamp(-30.0, 20.0)
+
+    @staticmethod
+    def sample(mu: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:
+        """Reparameterised z = mu + sigma * eps."""
+        return mu + torch.exp(0.5 * logvar) * torch.randn_like(mu)
+
+    def decode(self, z: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
+        """y = D(z, m) = D_up(z, D_down(m)), (B, 19, 64, 64)."""
+        return self.D_up(z, self.D_down(m))
+
+    def forward(self, x: torch.Tensor, m: torch.Tensor,
+                sample: bool | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """-> (y, mu, logvar). z is sampled in training mode (or if ``sample``), else z = mu."""
+        mu, logvar = self.encode(x)
+        sample = self.training if sample is None else sample
+        z = self.sample(mu, logvar) if sample else mu
+        return self.decode(z, m), mu, logvar
+
+    @staticmethod
+    def kl(mu: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:
+        """KL(q(z|x) || N(0, I)) summed over the latent, averaged over the batch."""
+        return 0.5 * (mu.square() + logvar.exp() - 1.0 - logvar).flatten(1).sum(1).mean()
+
+    def loss(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Batch with keys x, m, boxes, traj, traj_mask, valid -> dict of loss terms.
+
+        Keys: the detection terms (cls_pos, cls_neg, box, vertex, traj_pos, traj_yaw, rec), the
+        diagnostic ``matched``, ``kl`` (unweighted) and ``total`` = rec + kl_weight * kl.
+        """
+        y, mu, logvar = self(batch["x"], batch["m"])
+        out = detection_loss(y, batch["boxes"], batch["traj"], batch["traj_mask"], batch["valid"],
+                             self.cfg.loss)
+        out["kl"] = self.kl(mu, logvar)
+        out["total"] = out["rec"] + self.cfg.kl_weight * out["kl"]
+        return out

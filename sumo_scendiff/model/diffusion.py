@@ -1,0 +1,76 @@
+"""The latent diffusion model of section 3.2-3.3: map encoder E_m, conditional UNet M, EDM.
+
+    model = ScenarioDiffusion(DiffusionConfig())
+    loss = model.loss(z0, m, agent_tokens, agent_pad_mask, global_token)         # training
+    z = model.sample(m, agent_tokens, agent_pad_mask, global_token, steps=20)    # inference
+
+``z0`` is the autoencoder's latent (mu of E(x)) multiplied by ``latent_scale`` so that its standard
+deviation matches sigma_data = 0.5 (latent-diffusion's scale factor); :meth:`sample` returns
+latents in the same scaled units, divide by ``latent_scale`` before decoding.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import torch
+from torch import Tensor, nn
+
+from .autoencoder import ConvEncoder
+from .edm import EDMLoss, EDMPrecond, initial_noise, karras_sigmas, sample_euler
+from .unet import UNet, UNetConfig
+
+
+@dataclass
+class DiffusionConfig:
+    """E_m and the UNet. ``map_channels``: widths of E_m at 128, 64, 32, 16 px (appendix D.1)."""
+
+    C_m: int = 11
+    map_channels: tuple[int, ...] = (16, 32, 64, 64)
+    unet: UNetConfig = field(default_factory=UNetConfig)
+    use_map: bool = True        # False: the paper's no-map ablation (m replaced by zeros)
+
+
+class ScenarioDiffusion(nn.Module):
+    """D(z; sigma, c) with c = (E_m(m), agent tokens, global token), EDM-preconditioned."""
+
+    def __init__(self, cfg: DiffusionConfig = DiffusionConfig()):
+        super().__init__()
+        self.cfg = cfg
+        self.E_m = ConvEncoder(cfg.C_m, cfg.map_channels, cfg.unet.c_map)
+        self.denoiser = EDMPrecond(UNet(cfg.unet))
+        self.edm_loss = EDMLoss()
+
+    def encode_map(self, m: Tensor) -> Tensor:
+        if not self.cfg.use_map:
+            m = torch.zeros_like(m)
+        return self.E_m(m)
+
+    def cond(self, m: Tensor, agent_tokens: Tensor, agent_pad_mask: Tensor, global_token: Tensor) -> dict:
+        return {"m_enc": self.encode_map(m), "agent_tokens": agent_tokens,
+                "agent_pad_mask": agent_pad_mask, "global_token": global_token}
+
+    def loss(self, z0: Tensor, m: Tensor, agent_tokens: Tensor, agent_pad_mask: Tensor,
+             global_token: Tensor, generator: Optional[torch.Generator] = None) -> Tensor:
+        """Mean EDM loss (paper eq. 1) over the batch."""
+        cond = self.cond(m, agent_tokens, agent_pad_mask, global_token)
+        return self.edm_loss(self.denoiser, z0, cond=cond, generator=generator).mean()
+
+    @torch.no_grad()
+    def sample(self, m: Tensor, agent_tokens: Tensor, agent_pad_mask: Tensor, global_token: Tensor,
+               steps: int = 20, sampler: Callable = sample_euler,
+               generator: Optional[torch.Generator] = None, noise: Optional[Tensor] = None) -> Tensor:
+        """Integrate the probability-flow ODE from sigma_max to 0 (paper eq. 3); returns z (scaled).
+
+        ``noise``: standard-normal (B, C_z, R, R) starting noise (scaled by sigma_max here); drawn
+        with ``generator`` when not given.
+        """
+        cfg = self.cfg.unet
+        cond = self.cond(m, agent_tokens, agent_pad_mask, global_token)
+        sigmas = karras_sigmas(steps, device=m.device)
+        if noise is None:
+            z_t = initial_noise((m.shape[0], cfg.c_z, cfg.res, cfg.res), generator=generator,
+                                device=m.device)
+        else:
+            z_t = noise.to(m.device) * sigmas[0]
+        return sampler(self.denoiser, z_t, sigmas, cond=cond)

@@ -1,0 +1,217 @@
+"""EDM diffusion (Karras et al. 2022): preconditioning, training loss, noise schedule and samplers.
+
+Scenario Diffusion (paper sec. 3.2, appendix D.2) trains the latent denoiser with EDM using
+sigma_data = 0.5, P_mean = -0.5, P_std = 1, sigma_min = 0.02, sigma_max = 20, rho = 7.
+
+Layout follows NVlabs/edm (``training/networks.py``, ``training/loss.py``) for the preconditioning
+and the loss, and k-diffusion for the sampling side: the noise schedule (:func:`karras_sigmas`) is
+separate from the solvers, and every solver has the one signature::
+
+    sample_x(denoiser, z_T, sigmas, *, cond=None, generator=None) -> z_0
+
+where ``denoiser(z, sigma, **cond)`` is the preconditioned D(z; sigma, cond) (an :class:`EDMPrecond`
+or any function with that signature), ``z_T`` is the initial noise already scaled by ``sigmas[0]``
+(see :func:`initial_noise`) and ``sigmas`` is a decreasing 1-D tensor ending in 0. Samplers are
+chosen by passing the function, e.g. ``sampler=sample_heun``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Optional
+
+import torch
+from torch import Tensor, nn
+
+SIGMA_DATA = 0.5
+SIGMA_MIN = 0.02
+SIGMA_MAX = 20.0
+RHO = 7.0
+P_MEAN = -0.5
+P_STD = 1.0
+
+Denoiser = Callable[..., Tensor]  # D(z, sigma, **cond) -> denoised z, same shape as z
+
+
+# --------------------------------------------------------------------------------------------
+# Preconditioning (Karras et al. 2022, Table 1, "EDM" column)
+# --------------------------------------------------------------------------------------------
+
+def c_skip(sigma: Tensor, sigma_data: float = SIGMA_DATA) -> Tensor:
+    """c_skip(sigma) = sigma_data^2 / (sigma^2 + sigma_data^2)."""
+    return sigma_data ** 2 / (sigma ** 2 + sigma_data ** 2)
+
+
+def c_out(sigma: Tensor, sigma_data: float = SIGMA_DATA) -> Tensor:
+    """c_out(sigma) = sigma * sigma_data / sqrt(sigma^2 + sigma_data^2)."""
+    return sigma * sigma_data / (sigma ** 2 + sigma_data ** 2).sqrt()
+
+
+def c_in(sigma: Tensor, sigma_data: float = SIGMA_DATA) -> Tensor:
+    """c_in(sigma) = 1 / sqrt(sigma^2 + sigma_data^2)."""
+    return 1.0 / (sigma ** 2 + sigma_data ** 2).sqrt()
+
+
+def c_noise(sigma: Tensor) -> Tensor:
+    """c_noise(sigma) = ln(sigma) / 4."""
+    return sigma.log() / 4.0
+
+
+def loss_weight(sigma: Tensor, sigma_data: float = SIGMA_DATA) -> Tensor:
+    """lambda(sigma) = (sigma^2 + sigma_data^2) / (sigma * sigma_data)^2  (= 1 / c_out(sigma)^2)."""
+    return (sigma ** 2 + sigma_data ** 2) / (sigma * sigma_data) ** 2
+
+
+def _as_batch_sigma(sigma: Tensor | float, z: Tensor) -> Tensor:
+    """sigma as a (B,) tensor on z's device/dtype (scalars are broadcast over the batch)."""
+    sigma = torch.as_tensor(sigma, dtype=z.dtype, device=z.device)
+    if sigma.ndim == 0:
+        sigma = sigma.expand(z.shape[0])
+    return sigma.reshape(z.shape[0])
+
+
+class EDMPrecond(nn.Module):
+    """Wrap a raw network F(c_in * z, c_noise, **cond) into the denoiser D(z; sigma, cond).
+
+    D(z; sigma) = c_skip(sigma) * z + c_out(sigma) * F(c_in(sigma) * z; c_noise(sigma))
+    (paper eq. 2; Karras et al. 2022 eq. 7). ``net`` receives the scaled input, the (B,) noise
+    conditioning and every keyword in ``cond`` unchanged (for the UNet: m_enc, agent_tokens,
+    agent_pad_mask, global_token).
+    """
+
+    def __init__(self, net: nn.Module, sigma_data: float = SIGMA_DATA):
+        super().__init__()
+        self.net = net
+        self.sigma_data = sigma_data
+
+    def forward(self, z: Tensor, sigma: Tensor | float, **cond) -> Tensor:
+        s = _as_batch_sigma(sigma, z)
+        sb = s.reshape(-1, *([1] * (z.ndim - 1)))
+        f = self.net(c_in(sb, self.sigma_data) * z, c_noise(s), **cond)
+        return c_skip(sb, self.sigma_data) * z + c_out(sb, self.sigma_data) * f.to(z.dtype)
+
+
+# --------------------------------------------------------------------------------------------
+# Training loss
+# --------------------------------------------------------------------------------------------
+
+@dataclass
+class EDMLoss:
+    """EDM training loss with log(sigma) ~ N(P_mean, P_std^2) (paper eq. 1).
+
+    ``loss(denoiser, z0, cond=..., generator=...)`` returns the per-sample loss, shape (B,):
+
+        lambda(sigma) * mean_over_elements( (D(z0 + sigma * eps; sigma) - z0)^2 )
+
+    which equals the paper's lambda * c_out^2 * ||F(c_in z) - (z0 - c_skip z) / c_out||^2 since
+    lambda * c_out^2 = 1. It is a *mean* over latent elements rather than a sum (a constant factor,
+    which keeps the loss O(1): it is ~1 for a network that outputs zeros at every sigma).
+    """
+
+    p_mean: float = P_MEAN
+    p_std: float = P_STD
+    sigma_data: float = SIGMA_DATA
+
+    def sample_sigma(self, n: int, *, device=None, dtype=torch.float32,
+                     generator: Optional[torch.Generator] = None) -> Tensor:
+        """Draw n noise levels with log(sigma) ~ N(p_mean, p_std^2)."""
+        rnd = torch.randn(n, device=device, dtype=dtype, generator=generator)
+        return (rnd * self.p_std + self.p_mean).exp()
+
+    def __call__(self, denoiser: Denoiser, z0: Tensor, *, cond: Optional[dict] = None,
+                 generator: Optional[torch.Generator] = None,
+                 sigma: Optional[Tensor] = None) -> Tensor:
+        b = z0.shape[0]
+        if sigma is None:
+            sigma = self.sample_sigma(b, device=z0.device, dtype=z0.dtype, generator=generator)
+        sigma = _as_batch_sigma(sigma, z0)
+        eps = torch.randn(z0.shape, device=z0.device, dtype=z0.dtype, generator=generator)
+        sb = sigma.reshape(-1, *([1] * (z0.ndim - 1)))
+        d = denoiser(z0 + sb * eps, sigma, **(cond or {}))
+        err = (d - z0).pow(2).flatten(1).mean(1)
+        return loss_weight(sigma, self.sigma_data) * err
+
+
+# --------------------------------------------------------------------------------------------
+# Noise schedule (Karras et al. 2022 eq. 5)
+# --------------------------------------------------------------------------------------------
+
+def karras_sigmas(n: int, sigma_min: float = SIGMA_MIN, sigma_max: float = SIGMA_MAX,
+                  rho: float = RHO, *, device=None, dtype=torch.float32) -> Tensor:
+    """The n noise levels sigma_i = (sigma_max^(1/rho) + i/(n-1) (sigma_min^(1/rho) -
+    sigma_max^(1/rho)))^rho, i = 0..n-1, followed by sigma_n = 0; shape (n + 1,), decreasing.
+
+    ``n`` is the number of Euler steps (denoiser evaluations); Heun uses 2n - 1 evaluations.
+    """
+    if n < 1:
+        raise ValueError(f"karras_sigmas needs n >= 1 steps, got {n}")
+    if n == 1:
+        ramp = torch.zeros(1, dtype=torch.float64)
+    else:
+        ramp = torch.linspace(0, 1, n, dtype=torch.float64)
+    lo, hi = sigma_min ** (1 / rho), sigma_max ** (1 / rho)
+    sig = (hi + ramp * (lo - hi)) ** rho
+    return torch.cat([sig, sig.new_zeros(1)]).to(device=device, dtype=dtype)
+
+
+def initial_noise(shape: tuple[int, ...], sigma_max: float = SIGMA_MAX, *,
+                  generator: Optional[torch.Generator] = None, device=None,
+                  dtype=torch.float32) -> Tensor:
+    """z_T ~ N(0, sigma_max^2 I): the starting point of every sampler (deterministic given the
+    generator's seed)."""
+    return torch.randn(shape, generator=generator, device=device, dtype=dtype) * sigma_max
+
+
+# --------------------------------------------------------------------------------------------
+# Samplers of the probability-flow ODE dz/dsigma = (z - D(z; sigma)) / sigma  (paper eq. 3)
+# --------------------------------------------------------------------------------------------
+
+@torch.no_grad()
+def sample_euler(denoiser: Denoiser, z_T: Tensor, sigmas: Tensor, *, cond: Optional[dict] = None,
+                 generator: Optional[torch.Generator] = None) -> Tensor:
+    """Euler integration of the reverse ODE from sigmas[0] to sigmas[-1] (the paper's sampler).
+
+    One denoiser evaluation per step: len(sigmas) - 1 evaluations. Deterministic; ``generator`` is
+    accepted for signature uniformity with stochastic samplers and is unused.
+    """
+    cond = cond or {}
+    z = z_T
+    for s_cur, s_next in zip(sigmas[:-1], sigmas[1:]):
+        d = (z - denoiser(z, s_cur, **cond)) / s_cur  # dz/dsigma at s_cur
+        z = z + (s_next - s_cur) * d
+    return z
+
+
+@torch.no_grad()
+def sample_heun(denoiser: Denoiser, z_T: Tensor, sigmas: Tensor, *, cond: Optional[dict] = None,
+                generator: Optional[torch.Generator] = None) -> Tensor:
+    """Heun's 2nd-order method, Karras et al. 2022 Algorithm 1 (deterministic, no churn).
+
+    Every step is an Euler predictor plus a trapezoidal corrector, except the last step to
+    sigma = 0, which is plain Euler: 2 (len(sigmas) - 1) - 1 evaluations when sigmas ends in 0.
+    ``generator`` is unused (signature uniformity).
+    """
+    cond = cond or {}
+    z = z_T
+    for s_cur, s_next in zip(sigmas[:-1], sigmas[1:]):
+        d = (z - denoiser(z, s_cur, **cond)) / s_cur
+        z_next = z + (s_next - s_cur) * d
+        if s_next > 0:  # 2nd-order correction
+            d_next = (z_next - denoiser(z_next, s_next, **cond)) / s_next
+            z_next = z + (s_next - s_cur) * (0.5 * d + 0.5 * d_next)
+        z = z_next
+    return z
+
+
+def num_evaluations(sampler: Callable, sigmas: Tensor) -> int:
+    """Denoiser evaluations a built-in sampler makes for a schedule (for throughput budgets)."""
+    n = len(sigmas) - 1
+    if sampler is sample_heun:
+        return 2 * n - int(float(sigmas[-1]) == 0.0)
+    return n
+
+
+__all__ = [
+    "SIGMA_DATA", "SIGMA_MIN", "SIGMA_MAX", "RHO", "P_MEAN", "P_STD",
+    "c_skip", "c_out", "c_in", "c_noise", "loss_weight", "EDMPrecond", "EDMLoss",
+    "karras_sigmas", "initial_noise", "sample_euler", "sample_heun", "num_evaluations",
+]

@@ -1,0 +1,164 @@
+"""Train Scenario Diffusion: the detection autoencoder, then the latent diffusion model, then export.
+
+    python -m sumo_scendiff.train autoencoder --data data/train --val data/val -o runs/ae --steps 6000
+    python -m sumo_scendiff.train diffusion --autoencoder runs/ae/last.pt --data data/train \\
+        --val data/val -o runs/diffusion --steps 8000
+    python -m sumo_scendiff.train export --autoencoder runs/ae/last.pt \\
+        --diffusion runs/diffusion/last.pt -o sumo_scendiff/weights/scendiff.pt
+
+Each stage writes ``OUT/last.pt`` every ``--ckpt-every`` steps (and when ``--max-minutes`` runs out or
+on Ctrl-C) and continues from it when started again with the same ``-o``: a stopped run loses at most
+the steps since its last checkpoint. Uses CUDA when present; runs unchanged under
+``torchrun --nproc_per_node N python -m sumo_scendiff.train ...`` (DistributedDataParallel; gloo on CPU).
+The full recipe is ``scripts/train_recipe.sh``.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from dataclasses import asdict, dataclass
+
+# OpenMP threads that spin while waiting make torch ~4x slower whenever anything else runs on a
+# 2-core machine (measured here); must be set before torch starts its thread pool.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from .model import checkpoint as ckpt  # noqa: E402
+from .model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
+from .model.diffusion import DiffusionConfig, ScenarioDiffusion
+from .train_loop import Loop, conditioning, distributed_setup, estimate_latent_scale
+
+PROG = "python -m sumo_scendiff.train"
+
+
+@dataclass
+class TrainConfig:
+    steps: int = 6000
+    batch_size: int = 16
+    lr: float = 3e-4
+    weight_decay: float = 1e-4
+    grad_clip: float = 1.0        # appendix C.3
+    val_every: int = 500
+    val_batches: int = 8
+    ckpt_every: int = 250
+    plateau_patience: int = 3     # validations without improvement before lr /= 10
+    seed: int = 0
+    workers: int = 0              # DataLoader worker processes (rendering is ~2 % of a step)
+
+
+def get_options(args=None):
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="stage", required=True)
+    for name in ("autoencoder", "diffusion"):
+        s = sub.add_parser(name)
+        s.add_argument("--data", required=True, help="training data directory (sumo_scendiff.data)")
+        s.add_argument("--val", default=None, help="validation data directory")
+        s.add_argument("-o", "--output-dir", dest="out", required=True)
+        s.add_argument("--max-minutes", type=float, default=None, help="stop (and save) after this")
+        s.add_argument("-v", "--verbose", action="store_true")
+        for f, default in asdict(TrainConfig()).items():
+            s.add_argument("--" + f.replace("_", "-"), type=type(default), default=None)
+        if name == "diffusion":
+            s.add_argument("--autoencoder", required=True, help="autoencoder checkpoint (last.pt)")
+            s.add_argument("--no-map", action="store_true", help="the paper's no-map ablation")
+    e = sub.add_parser("export")
+    e.add_argument("--autoencoder", required=True)
+    e.add_argument("--diffusion", required=True)
+    e.add_argument("-o", "--output", required=True)
+    e.add_argument("--fp16", action="store_true", help="store weights in float16 (half the size)")
+    o = p.parse_args(args)
+    o.parser = p
+    return o
+
+
+def train_config(o, defaults: TrainConfig) -> TrainConfig:
+    kw = {f: getattr(o, f) for f in asdict(defaults) if getattr(o, f, None) is not None}
+    return TrainConfig(**{**asdict(defaults), **kw})
+
+
+def train_autoencoder(o) -> None:
+    cfg = train_config(o, TrainConfig(steps=6000, lr=3e-4, weight_decay=1e-4))
+    model = ScenarioAutoencoder(AutoencoderConfig())
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+
+    def step_loss(module, batch, step):
+        out = module.loss({"x": batch["agents"], "m": batch["map"], "boxes": batch["boxes"],
+                           "traj": batch["traj"], "traj_mask": batch["traj_mask"],
+                           "valid": batch["valid"]})
+        return out["total"], {k: float(v) for k, v in out.items() if v.ndim == 0}
+
+    Loop("autoencoder", o, cfg, model, opt, step_loss,
+         extra={"model_config": ckpt.config_to_dict(model.cfg)}).run()
+
+
+def train_diffusion(o) -> None:
+    cfg = train_config(o, TrainConfig(steps=8000, lr=3e-4, weight_decay=1e-5))
+    ae_ck = ckpt.load(o.autoencoder, "autoencoder-train")
+    ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ae_ck["model_config"]))
+    ckpt.load_state(ae, ae_ck["state"], o.autoencoder)
+    ae.eval().requires_grad_(False)
+    model = ScenarioDiffusion(DiffusionConfig(use_map=not o.no_map))
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    scale = {"value": None}
+
+    def step_loss(module, batch, step):
+        if scale["value"] is None:
+            raise RuntimeError("latent scale not set")
+        with torch.no_grad():
+            z0 = ae.encode(batch["agents"])[0] * scale["value"]
+        tokens, pad, glob = conditioning(batch, seed=cfg.seed, step=step, device=z0.device)
+        loss = module.loss(z0, batch["map"], tokens, pad, glob)
+        return loss, {"edm": float(loss)}
+
+    loop = Loop("diffusion", o, cfg, model, opt, step_loss,
+                extra={"model_config": ckpt.config_to_dict(model.cfg),
+                       "autoencoder_sha256": ckpt.sha256(o.autoencoder)},
+                frozen=[ae])
+    scale["value"] = loop.extra.get("latent_scale") or estimate_latent_scale(ae, loop)
+    loop.extra["latent_scale"] = scale["value"]
+    loop.run()
+
+
+def export(o) -> None:
+    ae_ck = ckpt.load(o.autoencoder, "autoencoder-train")
+    df_ck = ckpt.load(o.diffusion, "diffusion-train")
+    if df_ck["autoencoder_sha256"] != ckpt.sha256(o.autoencoder):
+        o.parser.exit(2, f"{PROG}: error: {o.diffusion}: was trained on another autoencoder than "
+                         f"{o.autoencoder}\n")
+
+    def cast(state):
+        return {k: (v.half() if o.fp16 and v.is_floating_point() else v) for k, v in state.items()}
+
+    sha = ckpt.save(o.output, "scenario-diffusion",
+                    autoencoder_config=ae_ck["model_config"], autoencoder=cast(ae_ck["state"]),
+                    diffusion_config=df_ck["model_config"], diffusion=cast(df_ck["state"]),
+                    latent_scale=float(df_ck["latent_scale"]),
+                    trained={"autoencoder_steps": ae_ck["step"], "diffusion_steps": df_ck["step"],
+                             "autoencoder_val": ae_ck.get("best_val"),
+                             "diffusion_val": df_ck.get("best_val"),
+                             "data": df_ck.get("data_manifest")})
+    print(f"{o.output}: {os.path.getsize(o.output) / 2**20:.1f} MiB, sha256 {sha}")
+
+
+def main(o) -> int:
+    torch.manual_seed(0)
+    np.random.seed(0)
+    try:
+        if o.stage == "export":
+            export(o)
+            return 0
+        distributed_setup()
+        (train_autoencoder if o.stage == "autoencoder" else train_diffusion)(o)
+    except ckpt.CheckpointError as e:
+        o.parser.exit(2, f"{PROG}: error: {e}\n")
+    return 0
+
+
+if __name__ == "__main__":
+    start = time.time()
+    sys.exit(main(get_options()))

@@ -1,0 +1,226 @@
+"""The training loop shared by both stages: data, DDP, progress, validation, resumable checkpoints.
+
+:class:`Loop` takes a model, an optimiser and ``step_loss(module, batch, step) -> (loss, logs)``;
+it owns everything else. ``OUT/last.pt`` holds model, optimiser, scheduler, step, the best validation
+loss and the data manifest: starting again with the same output directory continues from there.
+"""
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import asdict
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch import nn
+from torch.utils.data import DataLoader, DistributedSampler, RandomSampler
+
+from .data.dataset import SceneDataset, collate_scenes
+from .data.shards import DataError, read_manifest
+from .model import checkpoint as ckpt
+from .tokens import features_from_scene, pad_tokens, partial_tokens
+
+
+def distributed_setup() -> None:
+    """Join the process group when started by torchrun (WORLD_SIZE > 1)."""
+    if int(os.environ.get("WORLD_SIZE", "1")) > 1 and not dist.is_initialized():
+        backend = "nccl" if torch.cuda.is_available() else "gloo"
+        dist.init_process_group(backend)
+        if torch.cuda.is_available():
+            torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", "0")))
+
+
+def rank() -> int:
+    return dist.get_rank() if dist.is_initialized() else 0
+
+
+def world() -> int:
+    return dist.get_world_size() if dist.is_initialized() else 1
+
+
+def device() -> torch.device:
+    if torch.cuda.is_available():
+        return torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+    return torch.device("cpu")
+
+
+class _LossModule(nn.Module):
+    """Routes DDP's forward through ``step_loss`` so gradients are synchronised."""
+
+    def __init__(self, model: nn.Module, step_loss):
+        super().__init__()
+        self.model, self.step_loss = model, step_loss
+
+    def forward(self, batch, step):
+        return self.step_loss(self.model, batch, step)
+
+
+def conditioning(batch: dict, seed: int, step: int, device) -> tuple:
+    """Partial tokenisation of a batch (paper sec. 4.3.1): agent tokens, padding mask, global token."""
+    toks, globs = [], []
+    for i in range(batch["boxes"].shape[0]):
+        v = batch["valid"][i].cpu().numpy()
+        arrays = [batch[k][i].cpu().numpy()[v] for k in ("boxes", "traj", "traj_mask", "speed")]
+        feats, present = features_from_scene(*arrays)
+        rng = np.random.default_rng([seed, step, int(batch["index"][i]), rank()])
+        tok, glob, _ = partial_tokens(feats, present, rng)
+        toks.append(tok)
+        globs.append(glob)
+    tokens, pad = pad_tokens(toks)
+    return tokens.to(device), pad.to(device), torch.as_tensor(np.stack(globs), device=device)
+
+
+def _to(batch: dict, dev) -> dict:
+    return {k: (v.to(dev, non_blocking=True) if torch.is_tensor(v) else v) for k, v in batch.items()}
+
+
+class Loop:
+    def __init__(self, kind: str, o, cfg, model: nn.Module, opt, step_loss, extra=None, frozen=()):
+        self.kind, self.o, self.cfg = kind, o, cfg
+        self.dev = device()
+        self.model = model.to(self.dev)
+        for m in frozen:
+            m.to(self.dev)
+        self.opt = opt
+        self.sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.1,
+                                                                patience=cfg.plateau_patience)
+        self.step_loss = step_loss
+        self.extra = dict(extra or {})
+        self.step, self.best_val = 0, math.inf
+        self.path = os.path.join(o.out, "last.pt")
+        try:
+            self.data_manifest = read_manifest(o.data)
+            self.train_set = SceneDataset(o.data, rotate=True, seed=cfg.seed)
+            self.val_set = SceneDataset(o.val, rotate=True, seed=12345) if o.val else None
+        except DataError as e:
+            o.parser.exit(2, f"{o.parser.prog}: error: {e}\n")
+        if os.path.exists(self.path):
+            self._resume()
+        elif os.path.isdir(o.out) and os.listdir(o.out):
+            o.parser.exit(2, f"{o.parser.prog}: error: {o.out}: not empty and holds no last.pt "
+                             f"(choose another --output-dir)\n")
+        self.ddp = _LossModule(self.model, step_loss)
+        if world() > 1:
+            self.ddp = nn.parallel.DistributedDataParallel(self.ddp)
+
+    # ---- checkpoints ----------------------------------------------------------------------
+    def _resume(self) -> None:
+        ck = ckpt.load(self.path, f"{self.kind}-train")
+        ckpt.load_state(self.model, ck["state"], self.path)
+        self.opt.load_state_dict(ck["optimizer"])
+        self.sched.load_state_dict(ck["scheduler"])
+        self.step, self.best_val = ck["step"], ck.get("best_val", math.inf)
+        self.extra.update({k: ck[k] for k in ("latent_scale",) if k in ck})
+        if rank() == 0:
+            print(f"{self.path}: resuming at step {self.step}")
+
+    def save(self) -> None:
+        if rank() != 0:
+            return
+        ckpt.save(self.path, f"{self.kind}-train", state=self.model.state_dict(),
+                  optimizer=self.opt.state_dict(), scheduler=self.sched.state_dict(), step=self.step,
+                  best_val=self.best_val, train_config=asdict(self.cfg),
+                  data_manifest={"scenes": self.data_manifest["scenes"],
+                                 "nets": [n["name"] for n in self.data_manifest["nets"]]},
+                  **self.extra)
+
+    # ---- data -----------------------------------------------------------------------------
+    def loader(self, ds, epoch: int, shuffle: bool = True) -> DataLoader:
+        ds.set_epoch(epoch)
+        if world() > 1:
+            sampler = DistributedSampler(ds, world(), rank(), shuffle=shuffle, seed=self.cfg.seed)
+            sampler.set_epoch(epoch)
+        else:
+            g = torch.Generator().manual_seed(self.cfg.seed * 1000 + epoch)
+            sampler = RandomSampler(ds, generator=g) if shuffle else None
+        return DataLoader(ds, batch_size=self.cfg.batch_size, sampler=sampler, drop_last=shuffle,
+                          collate_fn=collate_scenes, num_workers=self.cfg.workers,
+                          persistent_workers=False)
+
+    def batches(self):
+        """Endless stream of training batches, continuing the epoch count on resume."""
+        per_epoch = max(1, len(self.train_set) // (self.cfg.batch_size * world()))
+        epoch, skip = divmod(self.step, per_epoch)
+        while True:
+            for k, batch in enumerate(self.loader(self.train_set, epoch)):
+                if k >= skip:
+                    yield _to(batch, self.dev)
+            epoch, skip = epoch + 1, 0
+
+    # ---- validation -----------------------------------------------------------------------
+    @torch.no_grad()
+    def validate(self) -> float:
+        if self.val_set is None:
+            return math.nan
+        self.model.eval()
+        losses = []
+        torch_state = torch.get_rng_state()
+        torch.manual_seed(12345)  # the same noise every validation: comparable numbers
+        for k, batch in enumerate(self.loader(self.val_set, 0, shuffle=False)):
+            if k >= self.cfg.val_batches:
+                break
+            loss, _ = self.step_loss(self.model, _to(batch, self.dev), -1 - k)
+            losses.append(float(loss))
+        torch.set_rng_state(torch_state)
+        self.model.train()
+        val = float(np.mean(losses))
+        if world() > 1:
+            t = torch.tensor([val], device=self.dev)
+            dist.all_reduce(t)
+            val = float(t) / world()
+        return val
+
+    # ---- the loop -------------------------------------------------------------------------
+    def run(self) -> None:
+        from tqdm import tqdm
+        cfg, o = self.cfg, self.o
+        torch.manual_seed(cfg.seed + self.step + 7919 * rank())
+        deadline = time.time() + 60 * o.max_minutes if o.max_minutes else math.inf
+        bar = tqdm(total=cfg.steps, initial=self.step, desc=self.kind, disable=rank() != 0,
+                   dynamic_ncols=True)
+        self.model.train()
+        stream = self.batches()
+        try:
+            while self.step < cfg.steps and time.time() < deadline:
+                batch = next(stream)
+                loss, logs = self.ddp(batch, self.step)
+                self.opt.zero_grad(set_to_none=True)
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(self.model.parameters(), cfg.grad_clip)
+                self.opt.step()
+                self.step += 1
+                bar.update(1)
+                bar.set_postfix({k: f"{v:.3g}" for k, v in list(logs.items())[:4]})
+                if self.step % cfg.val_every == 0 or self.step == cfg.steps:
+                    val = self.validate()
+                    if not math.isnan(val):
+                        self.sched.step(val)
+                        self.best_val = min(self.best_val, val)
+                    if rank() == 0:
+                        bar.write(f"step {self.step}: val {val:.4f} (best {self.best_val:.4f}) "
+                                  f"lr {self.opt.param_groups[0]['lr']:.1e}")
+                if self.step % cfg.ckpt_every == 0:
+                    self.save()
+        except KeyboardInterrupt:
+            if rank() == 0:
+                bar.write("interrupted: saving")
+        finally:
+            self.save()
+            bar.close()
+
+
+@torch.no_grad()
+def estimate_latent_scale(ae: nn.Module, loop: Loop, batches: int = 16) -> float:
+    """sigma_data / std(mu) over training batches (latent diffusion's scale factor; EDM wants
+    latents with standard deviation sigma_data = 0.5)."""
+    mus = []
+    for k, batch in enumerate(loop.loader(loop.train_set, 10_000)):
+        if k >= batches:
+            break
+        mus.append(ae.encode(batch["agents"].to(loop.dev))[0].flatten())
+    std = float(torch.cat(mus).std())
+    if rank() == 0:
+        print(f"latent std {std:.4f}: scale {0.5 / std:.4f}")
+    return 0.5 / max(std, 1e-6)

@@ -1,0 +1,97 @@
+"""Tests of the scenario autoencoder (sumo_scendiff/model/autoencoder.py) and the shared blocks."""
+import math
+
+import cv2
+import numpy as np
+import torch
+
+from sumo_scendiff.geometry import box_corners, metres_to_pixels
+from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
+from sumo_scendiff.model.blocks import Downsample, ResnetBlock, Upsample
+from sumo_scendiff.model.detection import C_Y, decode_boxes, threshold_boxes
+
+TINY = AutoencoderConfig(enc_channels=(4, 8, 8, 8), dec_channels=(16, 16, 16), C_map=4)
+
+
+def rasterise(boxes: np.ndarray, traj: np.ndarray, size: float = 100.0, hw: int = 128) -> np.ndarray:
+    """The 15-channel agent raster of appendix A for one scene (boxes (N, 5), traj (N, 5, 3))."""
+    x = np.zeros((15, hw, hw), np.float32)
+    for box, tr in zip(boxes, traj):
+        poly = metres_to_pixels(box_corners(*box), size, (hw, hw))
+        mask = np.zeros((hw, hw), np.uint8)
+        cv2.fillPoly(mask, [np.round(poly * 16).astype(np.int32)], 1, shift=4)
+        inside = mask.astype(bool)
+        vals = [1.0, math.cos(box[2]), math.sin(box[2])]
+        for i in (0, 1, 3, 4):
+            d = tr[i, :2] - box[:2]
+            vals += [1.0, np.clip(d[0] / 30 + 0.5, 0, 1), np.clip(d[1] / 30 + 0.5, 0, 1)]
+        for ch, v in enumerate(vals):
+            x[ch][inside] = v
+    return x
+
+
+def test_blocks_api():
+    x = torch.randn(2, 8, 16, 16)
+    assert ResnetBlock(8, 12)(x).shape == (2, 12, 16, 16)
+    blk = ResnetBlock(8, 8, emb_ch=5, dropout=0.1)
+    assert blk(x, torch.randn(2, 5)).shape == (2, 8, 16, 16)
+    assert Downsample(8)(x).shape == (2, 8, 8, 8)
+    assert Upsample(8)(x).shape == (2, 8, 32, 32)
+
+
+def test_shapes_default_config():
+    cfg = AutoencoderConfig()
+    ae = ScenarioAutoencoder(cfg).eval()
+    x, m = torch.rand(2, 15, 128, 128), torch.rand(2, cfg.C_m, 128, 128)
+    mu, logvar = ae.encode(x)
+    assert mu.shape == logvar.shape == (2, cfg.C_z, 16, 16)
+    assert ae.D_down(m).shape == (2, cfg.C_map, 16, 16)
+    y, mu2, _ = ae(x, m)
+    assert y.shape == (2, C_Y, 64, 64) and torch.allclose(mu, mu2)
+    assert torch.allclose(ae.decode(mu, m), y)  # eval: z = mu
+
+
+def test_overfit_one_scene():
+    """Train a tiny autoencoder on one 2-box scene; after overlap removal ("keep the most probable
+    detection near each box") both boxes and their trajectories are recovered."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # small convs: 1 thread is faster, and much faster on a busy machine
+    torch.manual_seed(0)
+    boxes = np.array([[10.0, 5.0, 0.4, 4.6, 1.9], [-15.0, -8.0, -2.0, 5.2, 2.1]], np.float32)
+    traj = np.zeros((2, 5, 3), np.float32)
+    for j, (speed, turn) in enumerate([(8.0, 0.0), (5.0, 0.25)]):  # straight, turning
+        for i, t in enumerate((-2, -1, 0, 1, 2)):
+            yaw = boxes[j, 2] + turn * t
+            traj[j, i] = [boxes[j, 0] + speed * t * math.cos(yaw), boxes[j, 1] + speed * t * math.sin(yaw), yaw]
+    batch = dict(x=torch.from_numpy(rasterise(boxes, traj))[None], m=torch.zeros(1, TINY.C_m, 128, 128),
+                 boxes=torch.from_numpy(boxes)[None], traj=torch.from_numpy(traj)[None],
+                 traj_mask=torch.ones(1, 2, 5, dtype=torch.bool), valid=torch.ones(1, 2, dtype=torch.bool))
+    ae = ScenarioAutoencoder(TINY)
+    steps = 300
+    opt = torch.optim.Adam(ae.parameters(), lr=3e-3)
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: 1.0 - s / steps)
+    try:
+        for _ in range(steps):
+            out = ae.loss(batch)
+            opt.zero_grad()
+            out["total"].backward()
+            torch.nn.utils.clip_grad_norm_(ae.parameters(), 1.0)
+            opt.step()
+            sched.step()
+        ae.eval()
+        with torch.no_grad():
+            y, _, _ = ae(batch["x"], batch["m"])
+    finally:
+        torch.set_num_threads(threads)
+    det = threshold_boxes(decode_boxes(y), 0.5)[0]
+    gt = batch["boxes"][0]
+    near = (det["boxes"][:, None, :2] - gt[None, :, :2]).norm(dim=-1)  # (n, 2)
+    for j in range(2):
+        cand = torch.nonzero(near[:, j] < 3.0).squeeze(1)
+        assert len(cand) > 0
+        best = cand[det["prob"][cand].argmax()]
+        dyaw = torch.remainder(det["boxes"][best, 2] - gt[j, 2] + math.pi, 2 * math.pi) - math.pi
+        assert near[best, j] < 1.0 and dyaw.abs() < 0.1, (det["boxes"][best], gt[j])
+        assert (det["boxes"][best, 3:] - gt[j, 3:]).abs().max() < 1.0
+        traj_err = (det["traj"][best, :, :2] - batch["traj"][0, j, :, :2]).norm(dim=-1).max()
+        assert traj_err < 3.0, traj_err

@@ -1,0 +1,81 @@
+"""Checkpoints: weights_only loading and one clear error for every kind of bad file."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from sumo_scendiff.model import checkpoint as ckpt
+from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
+
+
+def tiny_ae():
+    return ScenarioAutoencoder(AutoencoderConfig(enc_channels=(4, 4, 4, 4), dec_channels=(4, 4, 4), C_map=4))
+
+
+def test_round_trip_with_weights_only(tmp_path):
+    ae = tiny_ae()
+    path = str(tmp_path / "a.pt")
+    sha = ckpt.save(path, "autoencoder-train", state=ae.state_dict(),
+                    model_config=ckpt.config_to_dict(ae.cfg), step=3)
+    assert len(sha) == 64 and sha == ckpt.sha256(path)
+    ck = ckpt.load(path, "autoencoder-train")
+    cfg = ckpt.config_from_dict(AutoencoderConfig, ck["model_config"])
+    assert cfg == ae.cfg  # tuples restored, nested loss config restored
+    again = ScenarioAutoencoder(cfg)
+    ckpt.load_state(again, ck["state"], path)
+    for (k, a), b in zip(ae.state_dict().items(), again.state_dict().values()):
+        assert torch.equal(a, b), k
+
+
+def _write(path, kind):
+    if kind == "empty":
+        path.write_bytes(b"")
+    elif kind == "truncated":
+        ae = tiny_ae()
+        ckpt.save(str(path), "autoencoder-train", state=ae.state_dict(), model_config={})
+        data = path.read_bytes()
+        path.write_bytes(data[: len(data) // 3])
+    elif kind == "text":
+        path.write_text("hello")
+    elif kind == "foreign":
+        torch.save({"model": torch.zeros(3)}, str(path))
+    elif kind == "pickled_code":
+        torch.save({"format": "sumo-scendiff", "obj": torch.nn.Linear(2, 2)}, str(path))
+    elif kind == "version":
+        torch.save({"format": "sumo-scendiff", "version": 99, "kind": "autoencoder-train"}, str(path))
+    elif kind == "kind":
+        ckpt.save(str(path), "diffusion-train", state={})
+
+
+@pytest.mark.parametrize("kind, words", [
+    ("missing", "no such checkpoint"), ("empty", "empty file"), ("truncated", "not a readable"),
+    ("text", "not a readable"), ("foreign", "not a sumo-scendiff checkpoint"),
+    ("pickled_code", "not a readable"), ("version", "format version 99"),
+    ("kind", "expected autoencoder-train")])
+def test_bad_checkpoints(tmp_path, kind, words):
+    path = tmp_path / "bad.pt"
+    if kind != "missing":
+        _write(path, kind)
+    with pytest.raises(ckpt.CheckpointError) as e:
+        ckpt.load(str(path), "autoencoder-train")
+    assert str(path) in str(e.value) and words in str(e.value)
+    assert "\n" not in str(e.value)
+
+
+def test_weights_of_another_architecture(tmp_path):
+    path = str(tmp_path / "a.pt")
+    ckpt.save(path, "autoencoder-train", state=tiny_ae().state_dict())
+    with pytest.raises(ckpt.CheckpointError, match="do not fit"):
+        ckpt.load_state(ScenarioAutoencoder(AutoencoderConfig()), ckpt.load(path, "autoencoder-train")["state"], path)
+
+
+def test_cli_bad_checkpoint_exit_2(tmp_path):
+    bad = tmp_path / "x.pt"
+    bad.write_text("not torch")
+    res = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "export", "--autoencoder", str(bad),
+                          "--diffusion", str(bad), "-o", str(tmp_path / "out.pt")], capture_output=True, text=True)
+    assert res.returncode == 2 and "Traceback" not in res.stderr and "x.pt" in res.stderr
+    assert not (tmp_path / "out.pt").exists()

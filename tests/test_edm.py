@@ -1,0 +1,154 @@
+"""EDM preconditioning identities, the Karras schedule and the samplers."""
+import math
+
+import pytest
+import torch
+
+from sumo_scendiff.model.edm import (SIGMA_DATA, EDMLoss, EDMPrecond, c_in, c_noise, c_out, c_skip,
+                                     initial_noise, karras_sigmas, loss_weight, num_evaluations,
+                                     sample_euler, sample_heun)
+
+SIGMAS = torch.tensor([1e-3, 0.02, 0.1, 0.5, 1.0, 5.0, 20.0, 80.0], dtype=torch.float64)
+
+
+class ConstNet(torch.nn.Module):
+    """A raw network F returning a fixed (arbitrary) output and recording its inputs."""
+
+    def __init__(self, value: float):
+        super().__init__()
+        self.value = value
+
+    def forward(self, z_in, c_noise_, **cond):
+        self.last = (z_in, c_noise_, cond)
+        return torch.full_like(z_in, self.value)
+
+
+def test_weight_times_c_out_squared_is_one():
+    torch.testing.assert_close(loss_weight(SIGMAS) * c_out(SIGMAS) ** 2, torch.ones_like(SIGMAS))
+
+
+def test_coefficients_match_table1():
+    s = torch.tensor(0.7, dtype=torch.float64)
+    sd = SIGMA_DATA
+    assert c_skip(s).item() == pytest.approx(sd**2 / (0.49 + sd**2))
+    assert c_out(s).item() == pytest.approx(0.7 * sd / math.sqrt(0.49 + sd**2))
+    assert c_in(s).item() == pytest.approx(1 / math.sqrt(0.49 + sd**2))
+    assert c_noise(s).item() == pytest.approx(math.log(0.7) / 4)
+    # unit-variance input and training target at every sigma
+    assert (c_in(SIGMAS) ** 2 * (SIGMAS ** 2 + sd ** 2)).allclose(torch.ones_like(SIGMAS))
+
+
+@pytest.mark.parametrize("out", [-100.0, 0.0, 3.0, 1e4])
+def test_denoiser_is_identity_as_sigma_to_zero(out):
+    z = torch.randn(3, 4, 16, 16, dtype=torch.float64)
+    d = EDMPrecond(ConstNet(out))(z, 1e-9)
+    torch.testing.assert_close(d, z, atol=2e-9 * max(1.0, abs(out)), rtol=0)  # |c_out F| ~ 1e-9 |F|
+    assert c_skip(torch.tensor(1e-9)).item() == pytest.approx(1.0)
+    assert c_out(torch.tensor(1e-9)).item() == pytest.approx(0.0, abs=1e-8)
+
+
+def test_precond_passes_scaled_input_noise_and_cond():
+    net = ConstNet(0.0)
+    z = torch.randn(2, 4, 8, 8)
+    sigma = torch.tensor([0.5, 2.0])
+    EDMPrecond(net)(z, sigma, m_enc="map")
+    z_in, cn, cond = net.last
+    torch.testing.assert_close(z_in, z * c_in(sigma)[:, None, None, None])
+    torch.testing.assert_close(cn, sigma.log() / 4)
+    assert cond == {"m_enc": "map"}
+
+
+def test_loss_is_one_for_zero_net_and_per_sample():
+    """F = 0 -> D = c_skip z; with sigma fixed the expected loss is analytic: lambda * E||...||^2."""
+    z0 = torch.randn(4096, 4, 2, 2) * SIGMA_DATA
+    g = torch.Generator().manual_seed(0)
+    loss = EDMLoss()(EDMPrecond(ConstNet(0.0)), z0, generator=g, sigma=torch.tensor(1.3))
+    assert loss.shape == (4096,)
+    # E[(c_skip(z0 + s eps) - z0)^2] = (c_skip-1)^2 sd^2 + c_skip^2 s^2 = c_out^2 -> loss = 1
+    assert loss.mean().item() == pytest.approx(1.0, rel=0.03)
+
+
+def test_loss_sigma_distribution():
+    g = torch.Generator().manual_seed(1)
+    s = EDMLoss().sample_sigma(100_000, generator=g)
+    assert s.log().mean().item() == pytest.approx(-0.5, abs=0.02)
+    assert s.log().std().item() == pytest.approx(1.0, abs=0.02)
+
+
+def test_karras_schedule():
+    s = karras_sigmas(20)
+    assert s.shape == (21,)
+    assert s[0].item() == pytest.approx(20.0) and s[-2].item() == pytest.approx(0.02)
+    assert s[-1].item() == 0.0
+    assert (s[1:] < s[:-1]).all()
+    s1 = karras_sigmas(1)
+    assert s1.tolist() == pytest.approx([20.0, 0.0])
+    with pytest.raises(ValueError):
+        karras_sigmas(0)
+
+
+def _point_denoiser(z_star):
+    def d(z, sigma, **cond):  # the exact denoiser when the data is the single point z_star
+        return z_star.expand_as(z)
+    return d
+
+
+@pytest.mark.parametrize("sampler", [sample_euler, sample_heun])
+def test_samplers_converge_to_single_point(sampler):
+    z_star = torch.tensor([1.0, -2.0, 0.5, 3.0]).reshape(1, 4, 1, 1)
+    g = torch.Generator().manual_seed(0)
+    z_T = initial_noise((8, 4, 1, 1), generator=g)
+    out = sampler(_point_denoiser(z_star), z_T, karras_sigmas(10))
+    torch.testing.assert_close(out, z_star.expand_as(out), atol=1e-5, rtol=0)
+
+
+def test_samplers_on_gaussian_data_convergence_order():
+    """Data N(mu, sd^2): the exact denoiser is D = mu + sd^2/(sd^2+s^2)(z-mu) and the exact ODE
+    solution z(0) = mu + (z_T - mu) sd / sqrt(sd^2 + s_max^2). Euler is 1st, Heun 2nd order."""
+    mu, sd = 2.0, 0.5
+
+    def d(z, sigma, **cond):
+        s = torch.as_tensor(sigma)
+        return mu + sd**2 / (sd**2 + s**2) * (z - mu)
+
+    g = torch.Generator().manual_seed(3)
+    z_T = initial_noise((1000, 1), generator=g, dtype=torch.float64)
+    exact = mu + (z_T - mu) * sd / math.sqrt(sd**2 + 20.0**2)
+    err = {(s.__name__, n): (s(d, z_T, karras_sigmas(n, dtype=torch.float64)) - exact).abs().max().item()
+           for s in (sample_euler, sample_heun) for n in (20, 40)}
+    assert err["sample_euler", 40] < 0.1 and err["sample_heun", 40] < 0.01
+    assert 1.6 < err["sample_euler", 20] / err["sample_euler", 40] < 2.5
+    assert err["sample_heun", 20] / err["sample_heun", 40] > 3.5
+
+
+def test_determinism_and_cond_forwarding():
+    calls = []
+
+    def d(z, sigma, *, tag):
+        calls.append(tag)
+        return 0.5 * z
+
+    def run(seed):
+        g = torch.Generator().manual_seed(seed)
+        return sample_euler(d, initial_noise((2, 4, 16, 16), generator=g), karras_sigmas(5),
+                            cond={"tag": "c"})
+
+    a, b, c = run(7), run(7), run(8)
+    assert torch.equal(a, b) and not torch.equal(a, c)
+    assert calls == ["c"] * 15
+
+
+def test_num_evaluations():
+    s = karras_sigmas(20)
+    n = {"euler": 0, "heun": 0}
+
+    def counter(key):
+        def d(z, sigma, **cond):
+            n[key] += 1
+            return z
+        return d
+
+    sample_euler(counter("euler"), torch.zeros(1, 1), s)
+    sample_heun(counter("heun"), torch.zeros(1, 1), s)
+    assert n == {"euler": num_evaluations(sample_euler, s), "heun": num_evaluations(sample_heun, s)}
+    assert n == {"euler": 20, "heun": 39}
