@@ -17,4 +17,4 @@ python -m sumo_scendiff.train autoencoder --data data/train --val data/val -o ru
 python -m sumo_scendiff.train diffusion --autoencoder runs/ae/last.pt --data data/train --val data/val \
     -o runs/diffusion --steps "$DIFF_STEPS"
 python -m sumo_scendiff.train export --autoencoder runs/ae/last.pt --diffusion runs/diffusion/last.pt \
-    -o sumo_scendiff/weights/scendiff.pt --fp16
+    -o sumo_scendiff/weights/scendiff.pt --fp16 --force

@@ -15,6 +15,7 @@ The full recipe is ``scripts/train_recipe.sh``.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import time
@@ -48,6 +49,7 @@ class TrainConfig:
     plateau_patience: int = 3     # validations without improvement before lr /= 10
     seed: int = 0
     workers: int = 0              # DataLoader worker processes (rendering is ~2 % of a step)
+    rotate: bool = True           # rotation augmentation of the training windows
 
 
 def get_options(args=None):
@@ -62,7 +64,13 @@ def get_options(args=None):
         s.add_argument("--max-minutes", type=float, default=None, help="stop (and save) after this")
         s.add_argument("-v", "--verbose", action="store_true")
         for f, default in asdict(TrainConfig()).items():
-            s.add_argument("--" + f.replace("_", "-"), type=type(default), default=None)
+            if isinstance(default, bool):
+                s.add_argument("--" + f.replace("_", "-"), action=argparse.BooleanOptionalAction,
+                               default=None)
+            else:
+                s.add_argument("--" + f.replace("_", "-"), type=type(default), default=None)
+        s.add_argument("--model-config", type=json.loads, default={}, metavar="JSON",
+                       help='override model config fields, e.g. \'{"enc_channels": [8, 16, 32, 32]}\'')
         if name == "diffusion":
             s.add_argument("--autoencoder", required=True, help="autoencoder checkpoint (last.pt)")
             s.add_argument("--no-map", action="store_true", help="the paper's no-map ablation")
@@ -71,6 +79,7 @@ def get_options(args=None):
     e.add_argument("--diffusion", required=True)
     e.add_argument("-o", "--output", required=True)
     e.add_argument("--fp16", action="store_true", help="store weights in float16 (half the size)")
+    e.add_argument("--force", action="store_true", help="replace an existing output file")
     o = p.parse_args(args)
     o.parser = p
     return o
@@ -81,9 +90,23 @@ def train_config(o, defaults: TrainConfig) -> TrainConfig:
     return TrainConfig(**{**asdict(defaults), **kw})
 
 
+def _merge(base: dict, over: dict) -> dict:
+    return {k: (_merge(v, over[k]) if isinstance(v, dict) and isinstance(over.get(k), dict)
+                else over.get(k, v)) for k, v in base.items()} | {k: v for k, v in over.items() if k not in base}
+
+
+def model_config(o, cls, **fixed):
+    """The model config: defaults, then ``--model-config`` overrides (nested dicts merge)."""
+    merged = _merge(asdict(cls(**fixed)), o.model_config)
+    try:
+        return ckpt.config_from_dict(cls, merged)
+    except (ckpt.CheckpointError, TypeError) as e:
+        o.parser.exit(2, f"{PROG}: error: --model-config: {e}\n")
+
+
 def train_autoencoder(o) -> None:
     cfg = train_config(o, TrainConfig(steps=6000, lr=3e-4, weight_decay=1e-4))
-    model = ScenarioAutoencoder(AutoencoderConfig())
+    model = ScenarioAutoencoder(model_config(o, AutoencoderConfig))
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
 
     def step_loss(module, batch, step):
@@ -102,7 +125,7 @@ def train_diffusion(o) -> None:
     ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ae_ck["model_config"]))
     ckpt.load_state(ae, ae_ck["state"], o.autoencoder)
     ae.eval().requires_grad_(False)
-    model = ScenarioDiffusion(DiffusionConfig(use_map=not o.no_map))
+    model = ScenarioDiffusion(model_config(o, DiffusionConfig, use_map=not o.no_map))
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     scale = {"value": None}
 
@@ -125,6 +148,8 @@ def train_diffusion(o) -> None:
 
 
 def export(o) -> None:
+    if os.path.exists(o.output) and not o.force:
+        o.parser.exit(2, f"{PROG}: error: {o.output}: exists (add --force to replace it)\n")
     ae_ck = ckpt.load(o.autoencoder, "autoencoder-train")
     df_ck = ckpt.load(o.diffusion, "diffusion-train")
     if df_ck["autoencoder_sha256"] != ckpt.sha256(o.autoencoder):

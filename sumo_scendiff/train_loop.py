@@ -22,6 +22,8 @@ from .data.shards import DataError, read_manifest
 from .model import checkpoint as ckpt
 from .tokens import features_from_scene, pad_tokens, partial_tokens
 
+VAL_STEP = 1_000_000_000  # "step" given to step_loss in validation: its token masks never repeat training's
+
 
 def distributed_setup() -> None:
     """Join the process group when started by torchrun (WORLD_SIZE > 1)."""
@@ -92,7 +94,7 @@ class Loop:
         self.path = os.path.join(o.out, "last.pt")
         try:
             self.data_manifest = read_manifest(o.data)
-            self.train_set = SceneDataset(o.data, rotate=True, seed=cfg.seed)
+            self.train_set = SceneDataset(o.data, rotate=cfg.rotate, seed=cfg.seed)
             self.val_set = SceneDataset(o.val, rotate=True, seed=12345) if o.val else None
         except DataError as e:
             o.parser.exit(2, f"{o.parser.prog}: error: {e}\n")
@@ -161,7 +163,7 @@ class Loop:
         for k, batch in enumerate(self.loader(self.val_set, 0, shuffle=False)):
             if k >= self.cfg.val_batches:
                 break
-            loss, _ = self.step_loss(self.model, _to(batch, self.dev), -1 - k)
+            loss, _ = self.step_loss(self.model, _to(batch, self.dev), VAL_STEP + k)
             losses.append(float(loss))
         torch.set_rng_state(torch_state)
         self.model.train()

@@ -24,7 +24,7 @@ import numpy as np
 from ..network import Network, NetworkError
 from .demand import DemandError, check_routes
 from .record import EpisodeSpec, record_shard
-from .shards import FORMAT_VERSION, MANIFEST, DataError, Shard, file_sha256
+from .shards import DataError, Shard, net_entry, write_manifest
 
 PROG = "python -m sumo_scendiff.data"
 
@@ -142,20 +142,10 @@ def main(o) -> int:
                          f"--resume continues)\n")
     bar.close()
 
-    manifest = {
-        "format_version": FORMAT_VERSION,
-        "nets": [{"name": n.name, "path": os.path.relpath(os.path.abspath(n.path), out),
-                  "sha256": file_sha256(n.path)} for n in nets],
-        "shards": [entries[name] for _, name, _ in plan],
-        "scenes": sum(entries[name]["scenes"] for _, name, _ in plan),
-        "agents": sum(entries[name]["agents"] for _, name, _ in plan),
-        "seed": o.seed,
-        "episodes": [{"file": name, **asdict(replace(spec, routes=spec.routes and
-                                                     os.path.relpath(spec.routes, out)))}
-                     for _, name, spec in plan],
-    }
-    with open(os.path.join(partial, MANIFEST), "w") as f:
-        json.dump(manifest, f, indent=1)
+    episodes = [{"file": name, **asdict(replace(spec, routes=spec.routes and os.path.relpath(spec.routes, out)))}
+                for _, name, spec in plan]
+    manifest = write_manifest(partial, [net_entry(n.path, out, n.name) for n in nets],
+                              [entries[name] for _, name, _ in plan], seed=o.seed, episodes=episodes)
     os.remove(plan_file)
     if os.path.isdir(out):
         os.rmdir(out)  # exists but empty (checked above)

@@ -54,6 +54,22 @@ def write_shard(path: str, scenes: list[Scene], net_index: int) -> dict:
             "net": net_index}
 
 
+def write_manifest(root: str, nets: list[dict], shards: list[dict], **extra) -> dict:
+    """Write ``root/manifest.json``: ``nets`` = [{name, path (relative to root), sha256}], ``shards``
+    = :func:`write_shard` entries in order."""
+    manifest = {"format_version": FORMAT_VERSION, "nets": nets, "shards": shards,
+                "scenes": sum(s["scenes"] for s in shards), "agents": sum(s["agents"] for s in shards),
+                **extra}
+    with open(os.path.join(root, MANIFEST), "w") as f:
+        json.dump(manifest, f, indent=1)
+    return manifest
+
+
+def net_entry(net_path: str, root: str, name: str) -> dict:
+    return {"name": name, "path": os.path.relpath(os.path.abspath(net_path), os.path.abspath(root)),
+            "sha256": file_sha256(net_path)}
+
+
 @dataclass
 class Shard:
     offsets: np.ndarray
