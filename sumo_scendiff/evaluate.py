@@ -125,20 +125,19 @@ def methods_for(net: Network, pool: SceneStore, models: dict, seed: int):
     return out
 
 
-def ground_truth(path: str, o) -> tuple[Network, str | None, list]:
-    """The network, its demand file, and its recorded scenes, each window turned by a random angle."""
-    net = Network.load(path)
+def ground_truth(net: Network, o) -> tuple[str | None, list]:
+    """The network's demand file and its recorded scenes, each window turned by a random angle."""
     routes = find_demand(net)
-    store = SceneStore(record_cached([path], [routes], o.scenes, o.seed, o.cache, f"gt-{net.name}"))
+    store = SceneStore(record_cached([net.path], [routes], o.scenes, o.seed, o.cache, f"gt-{net.name}"))
     rng = np.random.default_rng([o.seed, 7])
     gts = [rotate_scene(store.scene(i), float(rng.uniform(-np.pi, np.pi))) for i in range(len(store))]
-    return net, routes, gts
+    return routes, gts
 
 
-def evaluate_net(path: str, o, pool: SceneStore, models: dict) -> dict:
+def evaluate_net(net: Network, o, pool: SceneStore, models: dict) -> dict:
     import time
-    net, routes, gts = ground_truth(path, o)
-    result = {"net": net.name, "path": path, "demand": routes and os.path.basename(routes),
+    routes, gts = ground_truth(net, o)
+    result = {"net": net.name, "path": net.path, "demand": routes and os.path.basename(routes),
               "scenes": len(gts), "methods": {}, "seconds": {}}
     first = None
     for name, fn in methods_for(net, pool, models, o.seed):
@@ -202,17 +201,17 @@ def load_models(o) -> dict:
 
 def main(o) -> int:
     from .model.checkpoint import CheckpointError
-    nets = o.nets or default_nets()
     try:
+        nets = [Network.load(p) for p in (o.nets or default_nets())]  # bad input first, before work
         models = load_models(o)
         pool = training_pool(o)
-        results = [evaluate_net(p, o, pool, models) for p in nets]
+        results = [evaluate_net(net, o, pool, models) for net in nets]
         tokens = {}
         if o.tokens and models:
             from . import token_eval
             gen = models["Scenario Diffusion"]
-            for p in nets:
-                net, _, gts = ground_truth(p, o)
+            for net in nets:
+                _, gts = ground_truth(net, o)
                 gts = gts[: o.token_scenes]
                 tokens[net.name] = {"mask": token_eval.mask_table(gen, net, gts, o.seed),
                                     "threshold": token_eval.threshold_table(gen, net, gts, o.seed),

@@ -133,10 +133,14 @@ class Network:
 
     @property
     def name(self) -> str:
+        """The file name without extension; the folder's name for generic names (``net.net.xml``)."""
         base = os.path.basename(self.path)
         for ext in (".net.xml.gz", ".net.xml", ".xml.gz", ".xml"):
             if base.endswith(ext):
-                return base[: -len(ext)]
+                base = base[: -len(ext)]
+                break
+        if base.lower() in ("net", "osm", "map", "network"):
+            return os.path.basename(os.path.dirname(os.path.abspath(self.path))) or base
         return base
 
     @classmethod

@@ -278,10 +278,11 @@ def validate_token_features(features: Mapping[str, Any]) -> dict[str, np.ndarray
         if val is None:
             continue
         raw = _to_numpy(val) if isinstance(val, torch.Tensor) else val
+        arr = np.atleast_1d(np.asarray(raw, dtype=object))
+        if arr.ndim != 1:
+            raise TokenError(f"token feature {name!r} must be a number or a 1-D sequence of "
+                             f"numbers, got shape {arr.shape}")
         try:
-            arr = np.atleast_1d(np.asarray(raw, dtype=object))
-            if arr.ndim != 1:
-                raise TypeError
             if arr.dtype == object and any(isinstance(a, (str, bytes, bool, np.bool_)) for a in arr.ravel()):
                 raise TypeError
             arr = np.array([np.nan if a is None else a for a in arr.ravel()], dtype=np.float64)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import os
+import signal
 import time
 from dataclasses import asdict
 
@@ -113,6 +114,9 @@ class Loop:
         ckpt.load_state(self.model, ck["state"], self.path)
         self.opt.load_state_dict(ck["optimizer"])
         self.sched.load_state_dict(ck["scheduler"])
+        if getattr(self.o, "lr", None) is not None:  # an explicit --lr wins over the saved one
+            for group in self.opt.param_groups:
+                group["lr"] = self.cfg.lr
         self.step, self.best_val = ck["step"], ck.get("best_val", math.inf)
         self.extra.update({k: ck[k] for k in ("latent_scale",) if k in ck})
         if rank() == 0:
@@ -184,8 +188,14 @@ class Loop:
                    dynamic_ncols=True)
         self.model.train()
         stream = self.batches()
+        stop = {"signal": None}
+
+        def on_signal(signum, frame):  # finish the step, save, exit: no progress lost
+            stop["signal"] = signum
+
+        old_handlers = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         try:
-            while self.step < cfg.steps and time.time() < deadline:
+            while self.step < cfg.steps and time.time() < deadline and stop["signal"] is None:
                 batch = next(stream)
                 loss, logs = self.ddp(batch, self.step)
                 self.opt.zero_grad(set_to_none=True)
@@ -205,12 +215,13 @@ class Loop:
                                   f"lr {self.opt.param_groups[0]['lr']:.1e}")
                 if self.step % cfg.ckpt_every == 0:
                     self.save()
-        except KeyboardInterrupt:
-            if rank() == 0:
-                bar.write("interrupted: saving")
         finally:
             self.save()
             bar.close()
+            for s, h in old_handlers.items():
+                signal.signal(s, h)
+        if stop["signal"] is not None and rank() == 0:
+            print(f"stopped by signal {stop['signal']} at step {self.step}: saved {self.path}")
 
 
 @torch.no_grad()

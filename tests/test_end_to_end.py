@@ -86,3 +86,24 @@ def test_torchrun_two_cpu_processes(tmp_path, cross_net):
     from sumo_scendiff.model import checkpoint as ckpt
     ck = ckpt.load(str(tmp_path / "ae" / "last.pt"), "autoencoder-train")
     assert ck["step"] == 4
+
+
+def test_sigterm_saves_and_resume_continues(tmp_path, cross_net):
+    import signal
+    import time
+    data = str(tmp_path / "data")
+    one_scene_dataset(data, cross_net)
+    args = [sys.executable, "-m", "sumo_scendiff.train", "autoencoder", "--data", data, "-o",
+            str(tmp_path / "ae"), "--steps", "100000", "--batch-size", "1", "--ckpt-every", "100000",
+            "--model-config", json.dumps(TINY_AE)]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(6)
+    proc.send_signal(signal.SIGTERM)
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 0 and "stopped by signal" in out
+    from sumo_scendiff.model import checkpoint as ckpt
+    step = ckpt.load(str(tmp_path / "ae" / "last.pt"), "autoencoder-train")["step"]
+    assert step > 0  # steps made before the signal are kept although no periodic checkpoint ran
+    res = train("autoencoder", "--data", data, "-o", tmp_path / "ae", "--steps", step + 2, "--batch-size", 1,
+                "--model-config", json.dumps(TINY_AE))
+    assert f"resuming at step {step}" in res.stdout

@@ -154,6 +154,7 @@ def test_partial_tokens():
     ({"heading": [0.1, "a"]}, "must be numeric"),
     ({"length": True, "width": 2.0}, "must be numeric"),
     ({"heading": float("inf")}, "must be finite"),
+    ({"heading": [[0.0, 1.0]]}, "1-D sequence"),
     ({"x": 1.0}, "x and y .* must be given together"),
     ({"length": [4.0, 5.0], "width": [2.0, None]}, "length and width"),
     ({"speed": [1.0, 2.0], "heading": [0.0]}, "different lengths"),

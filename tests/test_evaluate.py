@@ -1,0 +1,36 @@
+"""The evaluation CLI end to end on a tiny network (baselines; the model rows are covered by the
+end-to-end test's generator)."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+CLI = [sys.executable, "-m", "sumo_scendiff.evaluate"]
+
+
+def test_evaluate_prints_the_table_and_json(tmp_path, cross_net):
+    pool = tmp_path / "pool"
+    assert subprocess.run([sys.executable, "-m", "sumo_scendiff.data", "-n", cross_net, "-o", str(pool),
+                           "--scenes", "30", "-s", "9"], capture_output=True).returncode == 0
+    out = tmp_path / "r.json"
+    res = subprocess.run(CLI + ["-n", cross_net, "--scenes", "30", "--no-model", "--train-data", str(pool),
+                                "--cache", str(tmp_path / "cache"), "--json", str(out)],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.strip().splitlines()
+    assert lines[0].startswith("| network | method | MMD² pos")
+    names = [ln.split("|")[2].strip() for ln in lines[2:]]
+    assert names == ["Ground truth", "Random Log", "Lane-uniform", "Lane-uniform (true count)"]
+    rows = json.loads(out.read_text())["distribution"][0]["methods"]
+    assert rows["Ground truth"]["traj_on_drivable"] > 0.95
+    assert rows["Random Log"]["traj_on_drivable"] < rows["Ground truth"]["traj_on_drivable"]
+    assert rows["Lane-uniform (true count)"]["agents_emd"] < 0.5
+
+
+def test_evaluate_bad_network(tmp_path):
+    bad = tmp_path / "bad.net.xml"
+    bad.write_text("<nonsense/>")
+    res = subprocess.run(CLI + ["-n", str(bad), "--no-model", "--cache", str(tmp_path / "c")],
+                         capture_output=True, text=True)
+    assert res.returncode == 2 and "bad.net.xml" in res.stderr and "Traceback" not in res.stderr
