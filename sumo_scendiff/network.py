@@ -149,7 +149,6 @@ class Network:
         net = _read(path)
         tls_lanes, stop_lanes = set(), set()
         for edge in net.getEdges(withInternal=False):
-            to_node = edge.getToNode()
             for lane in edge.getLanes():
                 for conn in lane.getOutgoing():
                     stop_lanes.add(lane.getID())

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-import shapely
 
 from .geometry import Window, box_corners, metres_to_pixels
 

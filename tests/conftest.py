@@ -41,3 +41,15 @@ def cross_net(tmp_path_factory) -> str:
                     for a, b in (("w", "c"), ("c", "w"), ("e", "c"), ("c", "e"),
                                  ("s", "c"), ("c", "s"), ("n", "c"), ("c", "n")))
     return netconvert(nodes, edges, str(d / "cross.net.xml"))
+
+
+@pytest.fixture(scope="session")
+def grid(tmp_path_factory):
+    """netgenerate's 3x3 grid with 100 m blocks (0..200 m), loaded as a Network."""
+    import sumo
+
+    from sumo_scendiff.network import Network
+    out = str(tmp_path_factory.mktemp("grid") / "grid.net.xml")
+    subprocess.run([os.path.join(sumo.SUMO_HOME, "bin", "netgenerate"), "--grid", "--grid.number", "3",
+                    "--grid.length", "100", "-o", out], check=True, capture_output=True)
+    return Network.load(out)

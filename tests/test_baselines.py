@@ -1,8 +1,6 @@
 """Tests of the baselines (sumo_scendiff/baselines.py): Random Log Selection and lane-uniform insertion."""
 from __future__ import annotations
 
-import os
-import subprocess
 
 import numpy as np
 import pytest
@@ -11,19 +9,9 @@ import shapely
 from sumo_scendiff.baselines import (DENSITY_PER_KM_LANE, TYPE_LENGTH, TYPE_VCLASS, LanePath, LaneUniform,
                                      RandomLogSelection)
 from sumo_scendiff.geometry import T0, TIMES, Window, box_corners, wrap_angle
-from sumo_scendiff.network import Network
 from sumo_scendiff.scene import Scene
 
 CENTRE = Window(100.0, 100.0, 0.3, 100.0)
-
-
-@pytest.fixture(scope="module")
-def grid(tmp_path_factory) -> Network:
-    import sumo
-    out = str(tmp_path_factory.mktemp("grid") / "grid.net.xml")
-    subprocess.run([os.path.join(sumo.SUMO_HOME, "bin", "netgenerate"), "--grid", "--grid.number", "3",
-                    "--grid.length", "100", "-o", out], check=True, capture_output=True)
-    return Network.load(out)
 
 
 def pool(n_scenes: int = 12) -> list[Scene]:

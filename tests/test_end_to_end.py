@@ -80,7 +80,7 @@ def test_train_then_sample_finds_the_trained_agent(tmp_path, cross_net):
 def test_torchrun_two_cpu_processes(tmp_path, cross_net):
     data = str(tmp_path / "data")
     one_scene_dataset(data, cross_net)
-    res = train("autoencoder", "--data", data, "-o", tmp_path / "ae", "--steps", 4, "--batch-size", 1,
+    train("autoencoder", "--data", data, "-o", tmp_path / "ae", "--steps", 4, "--batch-size", 1,
                 "--no-rotate", "--ckpt-every", 2, "--model-config", json.dumps(TINY_AE),
                 runner=("torchrun", "--standalone", "--nproc_per_node", "2", "-m"))
     from sumo_scendiff.model import checkpoint as ckpt

@@ -2,8 +2,6 @@
 from __future__ import annotations
 
 import math
-import os
-import subprocess
 
 import numpy as np
 import pytest
@@ -16,15 +14,6 @@ from sumo_scendiff.metrics import (MMD_SIGMAS, agent_features, agents_per_scene_
                                    traj_on_drivable)
 from sumo_scendiff.network import Network
 from sumo_scendiff.scene import Scene, rotate_scene
-
-
-@pytest.fixture(scope="module")
-def grid(tmp_path_factory) -> Network:
-    import sumo
-    out = str(tmp_path_factory.mktemp("grid") / "grid.net.xml")
-    subprocess.run([os.path.join(sumo.SUMO_HOME, "bin", "netgenerate"), "--grid", "--grid.number", "3",
-                    "--grid.length", "100", "-o", out], check=True, capture_output=True)
-    return Network.load(out)
 
 
 CENTRE = Window(100.0, 100.0, 0.3, 100.0)  # the middle of the 3x3 grid (0..200 m), rotated

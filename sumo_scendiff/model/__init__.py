@@ -1,4 +1,2 @@
-# scenario autoencoder (section 3.1, appendix C)
-from .autoencoder import AutoencoderConfig, ScenarioAutoencoder  # noqa: F401
-from .blocks import Downsample, ResnetBlock, Upsample  # noqa: F401
-from .detection import DecodedBoxes, DetectionLossConfig, decode_boxes, detection_loss, threshold_boxes  # noqa: F401
+"""The model: detection autoencoder (autoencoder.py, detection.py), EDM (edm.py), UNet (unet.py),
+latent diffusion wrapper (diffusion.py), checkpoints (checkpoint.py)."""

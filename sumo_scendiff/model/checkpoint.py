@@ -9,11 +9,12 @@ with one line naming the file and the problem.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import os
 import typing
 
 import torch
+
+from ..data.shards import file_sha256 as sha256
 
 FORMAT = "sumo-scendiff"
 VERSION = 1
@@ -53,14 +54,6 @@ def save(path: str, kind: str, **content) -> str:
     torch.save({"format": FORMAT, "version": VERSION, "kind": kind, **content}, tmp)
     os.replace(tmp, path)
     return sha256(path)
-
-
-def sha256(path: str) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def load(path: str, kind: str | tuple[str, ...]) -> dict:

@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as F
 from scipy.optimize import linear_sum_assignment
 
-from ..geometry import T0, TIMES, metres_to_pixels, pixel_centres
+from ..geometry import T0, metres_to_pixels, pixel_centres
 
 C_Y = 1 + 6 + 6 * 2  # channels of y for T = 2 (paper: 1 + 6 + 6T)
 STEPS = (0, 1, 3, 4)  # indices into TIMES of the trajectory delta blocks (t = -2, -1, +1, +2)
