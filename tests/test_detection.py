@@ -142,9 +142,9 @@ def test_negative_weights_by_distance():
     w = negative_weights(gt, valid, cells, CFG)[0]
     u, v = cells[:, 0].abs(), cells[:, 1].abs()
     d = torch.stack([(u - 2.0).clamp_min(0), (v - 1.0).clamp_min(0)], -1).norm(dim=-1)
-    assert torch.all(w[d <= 2.9] == 0.2) and torch.all(w[d > 3.1] == 0.002)
+    assert torch.all(w[d <= 2.9] == 0.2) and torch.all(w[d > 3.1] == CFG.neg_far_weight)
     assert (w == 0.2).sum() > 10
-    assert torch.all(negative_weights(gt, ~valid, cells, CFG) == 0.002)
+    assert torch.all(negative_weights(gt, ~valid, cells, CFG) == CFG.neg_far_weight)
     # in the loss: logits 0 -> cls_neg = ln 2 * (sum of weights - weight of the matched cell)
     y = torch.zeros(1, C_Y, 64, 64)
     y[:, 1] = 1.0

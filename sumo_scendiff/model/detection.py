@@ -46,7 +46,7 @@ class DetectionLossConfig:
     stationary_threshold: float = 1.0  # m: max |p_t - p_0| over observed steps below -> stationary
     turn_threshold: float = 0.3  # rad: range of observed yaw(t) - yaw(0) above -> turning
     neg_near_weight: float = 0.2  # unmatched cells within neg_near_distance of a GT box
-    neg_far_weight: float = 0.002  # all other unmatched cells
+    neg_far_weight: float = 0.05  # all other unmatched cells (paper: 0.002; see README "The model")
     neg_near_distance: float = 3.0  # m, cell centre to the GT box outline (0 inside)
     match_radius: float = 4.0  # m, candidate cells for a GT box lie within this of its centre
     min_edge_distance: float = 0.1  # m, GT edge distances are at least this (see box_targets)
