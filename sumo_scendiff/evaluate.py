@@ -61,6 +61,8 @@ def get_options(args=None):
     p.add_argument("--token-scenes", type=int, default=100, help="scenes per net for --tokens")
     p.add_argument("--steps", type=int, default=None, help="sampler steps for the model")
     p.add_argument("--json", default=None, metavar="PATH", help="also write all results as JSON")
+    p.add_argument("--pictures", default=None, metavar="DIR",
+                   help="write DIR/<net>.png: three windows, ground truth beside every method")
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("-v", "--verbose", action="store_true")
     o = p.parse_args(args)
@@ -140,9 +142,12 @@ def evaluate_net(net: Network, o, pool: SceneStore, models: dict) -> dict:
     result = {"net": net.name, "path": net.path, "demand": routes and os.path.basename(routes),
               "scenes": len(gts), "methods": {}, "seconds": {}}
     first = None
+    shown = [i for i, g in enumerate(gts) if len(g)][:3]
+    tiles = {"Ground truth": [gts[i] for i in shown]}
     for name, fn in methods_for(net, pool, models, o.seed):
         t = time.perf_counter()
         gen = fn(gts)
+        tiles[name] = [gen[i] for i in shown]
         result["seconds"][name] = time.perf_counter() - t
         res = evaluate_scenes(gen, gts, net)
         first = first or res
@@ -154,7 +159,21 @@ def evaluate_net(net: Network, o, pool: SceneStore, models: dict) -> dict:
                                           "lane_heading_difference": gt["lane_heading_diff"],
                                           "agents_per_scene": first["agents_per_scene_gt"]},
                          **result["methods"]}
+    if o.pictures:
+        save_pictures(net, tiles, os.path.join(o.pictures, f"{net.name}.png"))
     return result
+
+
+def save_pictures(net: Network, tiles: dict, path: str) -> None:
+    """One row per shown window, one column per method (ground truth first)."""
+    import cv2
+
+    from .picture import contact_sheet, draw_scene
+    rows = [[draw_scene(net, scenes[r], 320, title=name) for name, scenes in tiles.items()]
+            for r in range(len(next(iter(tiles.values()))))]
+    if rows:
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        cv2.imwrite(path, contact_sheet(rows))
 
 
 def _row(res: dict) -> dict:
