@@ -19,8 +19,9 @@ def test_evaluate_prints_the_table_and_json(tmp_path, cross_net):
                          capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     lines = res.stdout.strip().splitlines()
-    assert lines[0].startswith("| network | method | MMD² pos")
-    names = [ln.split("|")[2].strip() for ln in lines[2:]]
+    assert lines[0].startswith("| networks | method | MMD² pos")  # the summary first
+    start = next(i for i, ln in enumerate(lines) if ln.startswith("| network | method | MMD² pos"))
+    names = [ln.split("|")[2].strip() for ln in lines[start + 2:]]
     assert names == ["Ground truth", "Random Log", "Lane-uniform", "Lane-uniform (true count)"]
     rows = json.loads(out.read_text())["distribution"][0]["methods"]
     assert rows["Ground truth"]["traj_on_drivable"] > 0.95
