@@ -28,7 +28,7 @@ from .data.demand import DemandError, check_routes
 from .data.shards import SceneStore
 from .metrics import evaluate_scenes
 from .network import Network, NetworkError
-from .scene import rotate_scene
+from .scene import crop_to_window, rotate_scene
 
 PROG = "python -m sumo_scendiff.evaluate"
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -132,7 +132,8 @@ def ground_truth(net: Network, o) -> tuple[str | None, list]:
     routes = find_demand(net)
     store = SceneStore(record_cached([net.path], [routes], o.scenes, o.seed, o.cache, f"gt-{net.name}"))
     rng = np.random.default_rng([o.seed, 7])
-    gts = [rotate_scene(store.scene(i), float(rng.uniform(-np.pi, np.pi))) for i in range(len(store))]
+    gts = [crop_to_window(rotate_scene(store.scene(i), float(rng.uniform(-np.pi, np.pi))))
+           for i in range(len(store))]
     return routes, gts
 
 

@@ -138,3 +138,9 @@ def rotate_scene(scene: Scene, angle: float) -> Scene:
     win = Window(w.cx, w.cy, float(wrap_angle(w.yaw + angle)), w.size)
     return Scene(win, boxes, traj, scene.traj_mask, scene.speed, scene.vclass, scene.net, scene.time,
                  dict(scene.meta))
+
+
+def crop_to_window(scene: Scene) -> Scene:
+    """Only the agents whose box centre lies inside the window square (e.g. after :func:`rotate_scene`,
+    which turns the square and leaves some agents of the old one outside)."""
+    return scene.select(scene.window.contains(scene.boxes[:, :2]))

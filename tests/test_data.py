@@ -96,3 +96,12 @@ def test_bad_input_one_line_exit_2_no_output(tmp_path, cross_net, diagonal_net, 
         assert not out.exists() and not os.path.exists(str(out) + ".partial")
     named = {"missing": "nope.net.xml", "empty": "e.net.xml", "foreign_routes": "x.rou.xml", "exists": "out"}
     assert named[case] in res.stderr
+
+
+def test_rotated_items_keep_only_agents_inside_the_window(recorded):
+    from sumo_scendiff.data.dataset import SceneDataset
+    from sumo_scendiff.geometry import Window
+    ds = SceneDataset(recorded, rotate=True, seed=1)
+    for i in range(len(ds)):
+        b = ds[i]["boxes"]
+        assert np.all(Window(0.0, 0.0).contains(b[:, :2]))

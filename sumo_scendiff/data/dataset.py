@@ -10,7 +10,7 @@ import torch
 from torch.utils.data import Dataset
 
 from ..raster import RasterConfig, render_agents, render_map
-from ..scene import rotate_scene
+from ..scene import crop_to_window, rotate_scene
 from .shards import SceneStore
 
 
@@ -46,7 +46,7 @@ class SceneDataset(Dataset):
         scene = self.store.scene(idx)
         if self.rotate:
             rng = np.random.default_rng((self.seed, self.epoch, idx))
-            scene = rotate_scene(scene, float(rng.uniform(-np.pi, np.pi)))
+            scene = crop_to_window(rotate_scene(scene, float(rng.uniform(-np.pi, np.pi))))
         if len(scene) > self.max_agents:  # keep the agents nearest the centre
             keep = np.argsort(np.hypot(scene.boxes[:, 0], scene.boxes[:, 1]))[: self.max_agents]
             scene = scene.select(np.sort(keep))
