@@ -11,6 +11,7 @@ window query depends on what lies in the window, not on the size of the network.
 """
 from __future__ import annotations
 
+import gc
 import gzip
 import os
 from dataclasses import dataclass
@@ -185,7 +186,13 @@ class Network:
             junctions.append(Junction(node.getID(), node.getType(), poly))
         if not any(ln.car for ln in lanes):
             raise NetworkError(f"{path}: the network has no lane a passenger car may use")
-        return cls(path, lanes, junctions, net)
+        network = cls(path, lanes, junctions, net)
+        # A big network is ~100k long-lived Python objects; without this, every full garbage collection
+        # triggered by per-window work walks them all, and a 100 m window costs more on a larger net
+        # (measured: 0.89 vs 0.55 ms per raster on ingolstadt21 vs ingolstadt1; 0.64 vs 0.52 frozen).
+        gc.collect()
+        gc.freeze()
+        return network
 
     # ---- window queries -------------------------------------------------------------------
     def lanes_in(self, window) -> np.ndarray:
