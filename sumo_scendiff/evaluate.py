@@ -200,8 +200,10 @@ def markdown(results: list[dict]) -> str:
 def summary(results: list[dict]) -> str:
     """Means over the held-out generated networks and over the real cities, with the MMD²s as a
     ratio to Random Log's (the paper's targets are stated that way)."""
-    groups = {"held-out generated": [r for r in results if os.sep + "networks" + os.sep in r["path"]],
-              "real cities": [r for r in results if os.sep + "networks" + os.sep not in r["path"]]}
+    ours = os.path.join(ROOT, "networks") + os.sep
+    mine = [os.path.abspath(r["path"]).startswith(ours) for r in results]
+    groups = {"held-out generated": [r for r, m in zip(results, mine) if m],
+              "real cities": [r for r, m in zip(results, mine) if not m]}
     keys = [k for k, _ in COLUMNS]
     head = "| networks | method | " + " | ".join(c[1] for c in COLUMNS) + " | joint / Random Log |"
     lines = [head, "|" + "---|" * (len(COLUMNS) + 3)]
