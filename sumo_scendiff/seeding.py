@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .geometry import T0, pose_to_sumo, sumo_to_pose, wrap_angle
+from .geometry import T0, pose_to_sumo, wrap_angle
 from .network import Network
 from .scene import VEHICLE_CLASSES, Scene
 
@@ -184,4 +184,4 @@ class Seeder:
         return report
 
 
-__all__ = ["Seeder", "SeedReport", "sumo_to_pose"]
+__all__ = ["Seeder", "SeedReport"]

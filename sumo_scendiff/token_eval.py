@@ -14,7 +14,6 @@ from typing import Sequence
 
 import numpy as np
 
-from .generate import GenerationConfig
 from .metrics import token_metrics
 from .scene import Scene
 from .tokens import features_from_scene
@@ -102,4 +101,4 @@ def markdown_tables(results: dict) -> str:
     return "\n".join(out)
 
 
-__all__ = ["mask_table", "threshold_table", "speed_table", "markdown_tables", "GenerationConfig"]
+__all__ = ["mask_table", "threshold_table", "speed_table", "markdown_tables"]

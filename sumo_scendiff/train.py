@@ -18,7 +18,6 @@ import argparse
 import json
 import os
 import sys
-import time
 from dataclasses import asdict, dataclass
 
 # OpenMP threads that spin while waiting make torch ~4x slower whenever anything else runs on a
@@ -185,5 +184,4 @@ def main(o) -> int:
 
 
 if __name__ == "__main__":
-    start = time.time()
     sys.exit(main(get_options()))
