@@ -91,6 +91,7 @@ class ScenarioGenerator:
         path = path or DEFAULT_CHECKPOINT
         ck = ckpt.load(path, "scenario-diffusion")
         try:
+            ck["diffusion_config"].get("unet", {}).setdefault("pos_freqs", 0)  # saved before it existed
             ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ck["autoencoder_config"]))
             df = ScenarioDiffusion(ckpt.config_from_dict(DiffusionConfig, ck["diffusion_config"]))
         except (KeyError, TypeError) as e:
@@ -127,14 +128,16 @@ class ScenarioGenerator:
 
     # ---- public API -----------------------------------------------------------------------
     def generate(self, net, windows: Sequence[Window], tokens=None, p_mask=1.0, seed: int = 0,
-                 config: GenerationConfig | None = None, progress: bool = False) -> list[Scene]:
+                 config: GenerationConfig | None = None, progress: bool = False,
+                 maps: np.ndarray | None = None) -> list[Scene]:
         """Scenes for ``windows`` on ``net``.
 
         ``tokens``: per window, agent tokens as a list of feature dicts (any subset of
         :data:`~sumo_scendiff.tokens.FEATURES`, scene frame of that window) or an encoded
         (T, 170) array; ``None`` for no tokens. ``p_mask``: the global scene token per window (or
         one for all); 1.0 with no tokens = map-only generation. The same ``seed`` gives the same
-        scenes; window ``i`` uses the seed ``(seed, i)``.
+        scenes; window ``i`` uses the seed ``(seed, i)``. ``maps``: the windows' map rasters when
+        already rendered (``render_map``), else rendered here.
         """
         cfg = config or self.config
         n = len(windows)
@@ -147,8 +150,9 @@ class ScenarioGenerator:
         from tqdm import tqdm
         for s in tqdm(range(0, n, cfg.batch_size), disable=not progress, desc="generating"):
             sl = slice(s, min(n, s + cfg.batch_size))
-            maps = np.stack([render_map(net, w, self.raster) for w in windows[sl]])
-            prob, boxes, traj = self._batch(maps, toks[sl], pm[sl], seeds[sl], cfg)
+            m = maps[sl] if maps is not None else np.stack([render_map(net, w, self.raster)
+                                                             for w in windows[sl]])
+            prob, boxes, traj = self._batch(m, toks[sl], pm[sl], seeds[sl], cfg)
             for k, w in enumerate(windows[sl]):
                 out.append(self._scene(w, prob[k], boxes[k], traj[k], cfg.threshold, net.name))
         return out

@@ -68,9 +68,13 @@ class Scene:
         return np.stack([np.cos(yaw), np.sin(yaw)], -1) * self.speed[:, T0:T0 + 1]
 
     def select(self, keep) -> "Scene":
-        """A new scene with only the agents where ``keep`` (bool mask or indices) selects."""
+        """A new scene with only the agents where ``keep`` (bool mask or indices) selects;
+        per-agent lists in ``meta`` (e.g. the generator's scores) are selected with them."""
+        idx = np.arange(len(self))[keep]
+        meta = {k: ([v[i] for i in idx] if isinstance(v, list) and len(v) == len(self) else v)
+                for k, v in self.meta.items()}
         return Scene(self.window, self.boxes[keep], self.traj[keep], self.traj_mask[keep],
-                     self.speed[keep], self.vclass[keep], self.net, self.time, dict(self.meta))
+                     self.speed[keep], self.vclass[keep], self.net, self.time, meta)
 
     def world_agents(self) -> list[dict]:
         """Agents in world coordinates (centre, heading, size, speed, the five poses)."""

@@ -194,7 +194,12 @@ def tokens_from_scene(boxes: np.ndarray, traj: np.ndarray, traj_mask: np.ndarray
 def global_token(p_mask: float | Sequence[float] | np.ndarray) -> np.ndarray:
     """p_mask (scalar or (B,)) -> one-hot over 10 buckets [0, .1), ..., [.9, 1.0]:
     (GLOBAL_TOKEN_DIM,) or (B, GLOBAL_TOKEN_DIM) float32. 1.0 falls in the last bucket."""
-    p = np.asarray(p_mask, np.float64)
+    try:
+        if isinstance(p_mask, (bool, np.bool_, str, bytes)):
+            raise TypeError
+        p = np.asarray(p_mask, np.float64)
+    except (TypeError, ValueError):
+        raise TokenError(f"p_mask must be a number in [0, 1], got {p_mask!r}") from None
     if not np.all(np.isfinite(p)) or np.any(p < 0) or np.any(p > 1):
         raise TokenError(f"p_mask must be in [0, 1], got {p_mask!r}")
     idx = np.minimum(np.floor(p * GLOBAL_TOKEN_DIM), GLOBAL_TOKEN_DIM - 1).astype(np.int64)
@@ -300,6 +305,8 @@ def validate_token_features(features: Mapping[str, Any]) -> dict[str, np.ndarray
             raise TokenError(f"token feature {name!r} must be > 0 metres, got {float(v.min())}")
         if name in ("speed", "final_speed") and (v < 0).any():
             raise TokenError(f"token feature {name!r} must be >= 0 m/s, got {float(v.min())}")
+        if name in ("heading", "heading_to_final") and (np.abs(v) > 2 * np.pi).any():
+            raise TokenError(f"token feature {name!r} is in radians, got {float(v[np.abs(v) > 2 * np.pi][0])}")
         if name in ("x", "y") and (np.abs(v) > WINDOW_HALF).any():
             bad = float(v[np.abs(v) > WINDOW_HALF][0])
             raise TokenError(f"token feature {name!r} = {bad} m is outside the 100 m window "
@@ -327,7 +334,7 @@ def agent_tokens_from_dicts(agents: Sequence[Mapping[str, Any]]) -> np.ndarray:
         except TokenError as e:
             raise TokenError(f"agent token {i}: {e}") from None
         for name, arr in v.items():
-            if len(arr) != 1:
+            if len(arr) != 1 or np.ndim(a[name]) != 0:
                 raise TokenError(f"agent token {i}: feature {name!r} must be a scalar")
     for name in FEATURES:
         vals = [a.get(name) for a in agents]

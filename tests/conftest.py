@@ -53,3 +53,40 @@ def grid(tmp_path_factory):
     subprocess.run([os.path.join(sumo.SUMO_HOME, "bin", "netgenerate"), "--grid", "--grid.number", "3",
                     "--grid.length", "100", "-o", out], check=True, capture_output=True)
     return Network.load(out)
+
+
+def _cross_scene(net):
+    """Five agents on ``cross_net``: a queue of two (1 m bumper gap) eastbound, one northbound, one
+    in the junction turning, one off the road (refused)."""
+    import math
+
+    import numpy as np
+
+    from sumo_scendiff.geometry import Window
+    from sumo_scendiff.scene import Scene
+
+    east = next(ln for ln in net.lanes if ln.edge == "wc")
+    north = next(ln for ln in net.lanes if ln.edge == "sc")
+    turn = next(ln for ln in net.lanes if ln.internal and ln.car and len(ln.shape) > 3)
+    ye, xn = float(east.shape[0][1]), float(north.shape[0][0])
+    mid = len(turn.shape) // 2
+    d = turn.shape[mid + 1] - turn.shape[mid]
+    tyaw = math.atan2(d[1], d[0])
+    boxes = [[-60.0, ye, 0.0, 4.6, 1.8], [-65.6, ye, 0.0, 4.6, 1.8], [xn, -80.0, math.pi / 2, 5.1, 1.95],
+             [*turn.shape[mid], tyaw, 4.6, 1.8], [-60.0, -40.0, 0.0, 4.6, 1.8]]
+    speeds = [0.0, 0.0, 8.0, 3.0, 5.0]
+    boxes = np.array(boxes)
+    traj = np.zeros((5, 5, 3))
+    for i, (x, y, yaw, _, _) in enumerate(boxes):
+        for k, t in enumerate(range(-2, 3)):
+            traj[i, k] = (x + speeds[i] * t * math.cos(yaw), y + speeds[i] * t * math.sin(yaw), yaw)
+    mask = np.ones((5, 5), bool)
+    mask[3, 3:] = False  # the turning agent's future unknown
+    return Scene(Window(0.0, 0.0, 0.0), boxes, traj, mask, np.repeat(np.array(speeds)[:, None], 5, 1),
+                 np.zeros(5), "cross")
+
+
+@pytest.fixture(scope="session")
+def cross_scene():
+    """``cross_scene(net) -> Scene``: see :func:`_cross_scene`."""
+    return _cross_scene

@@ -184,3 +184,21 @@ def test_pad_tokens():
     assert toks[0, 2].abs().sum() == 0
     toks, pad = pad_tokens([np.zeros((0, 170))] * 4)
     assert toks.shape == (4, 0, 170) and pad.shape == (4, 0)
+
+
+@pytest.mark.parametrize("agents, message", [
+    ([{"speed": [3.0]}], "must be a scalar"),
+    ([{"heading_to_final": 40.0}], "radians"),
+    ([{"heading": -90}], "radians"),
+])
+def test_user_token_shapes_and_units(agents, message):
+    from sumo_scendiff.tokens import TokenError, agent_tokens_from_dicts
+    with pytest.raises(TokenError, match=message):
+        agent_tokens_from_dicts(agents)
+
+
+@pytest.mark.parametrize("bad", [True, "a lot", None, 1.5, -0.1])
+def test_global_token_rejects_non_numbers(bad):
+    from sumo_scendiff.tokens import TokenError, global_token
+    with pytest.raises(TokenError, match="p_mask"):
+        global_token(bad)

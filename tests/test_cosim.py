@@ -1,0 +1,82 @@
+"""Co-simulation API on a simulation the caller runs (real libsumo, shipped model)."""
+from __future__ import annotations
+
+import numpy as np
+import shapely
+
+from sumo_scendiff.cosim import CoSimulation, token_assignment
+from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
+from sumo_scendiff.geometry import Window, box_corners
+from sumo_scendiff.network import Network
+from sumo_scendiff.scene import Scene
+from sumo_scendiff.sumo_sim import SimConfig, start
+
+
+def _demand(tmp_path) -> str:
+    path = tmp_path / "d.rou.xml"
+    path.write_text("<routes>" + "".join(
+        f'<vehicle id="e{k}" depart="{3 * k}"><route edges="wc ce"/></vehicle>'
+        f'<vehicle id="s{k}" depart="{3 * k + 1}"><route edges="sc cn"/></vehicle>' for k in range(8))
+        + "</routes>")
+    return str(path)
+
+
+def test_seed_around_keeps_existing_vehicles_and_reseeds_ahead(cross_net, tmp_path):
+    net = Network.load(cross_net)
+    gen = ScenarioGenerator.load(config=GenerationConfig(steps=8, threshold=0.5))
+    sim = start(SimConfig(net=cross_net, routes=(_demand(tmp_path),)))
+    try:
+        while "e3" not in sim.vehicle.getIDList():
+            sim.simulationStep()
+        cosim = CoSimulation(sim, net, gen, seed=1)
+        w = cosim.ego_window("e3")
+        assert abs(w.yaw) < 0.05
+        before = set(sim.vehicle.getIDList())
+        ex = cosim.existing(w)
+        assert "e3" in ex.token_ids() and len(ex.tokens()) == int(ex.inside.sum())
+        seeding = cosim.seed_around("e3", p_mask=0.8)
+        assert not set(seeding.agent_ids) & before          # nobody re-added
+        assert seeding.token_source[: len(ex.token_ids())] == ex.token_ids()
+        # no seeded agent on top of a vehicle that was already there
+        occupied = shapely.union_all(shapely.polygons(box_corners(*ex.boxes.T)))
+        mine = shapely.polygons(box_corners(*seeding.scene.boxes.T.astype(np.float64)))
+        assert not shapely.intersects(mine, occupied).any()
+        sim.simulationStep()
+        cosim.verify(seeding)
+        assert before <= set(sim.vehicle.getIDList()) | set(sim.simulation.getArrivedIDList())
+        assert cosim.reseed_ahead("e3", every=30.0) is None    # has not moved 30 m yet
+        x0 = np.asarray(sim.vehicle.getPosition("e3"))
+        while np.hypot(*(np.asarray(sim.vehicle.getPosition("e3")) - x0)) < 30.0:
+            sim.simulationStep()
+        again = cosim.reseed_ahead("e3", every=30.0, ahead=60.0)
+        assert again is not None
+        ex_x = sim.vehicle.getPosition("e3")[0]
+        assert again.scene.window.cx > ex_x + 50.0             # the window ahead of the ego
+    finally:
+        sim.close()
+
+
+def test_token_assignment_matches_by_position_and_heading():
+    boxes = np.array([[10.0, 0.0, 0.0, 4.5, 1.8], [-20.0, 5.0, np.pi / 2, 4.5, 1.8], [0, 30, 0, 4, 2]])
+    scene = Scene(Window(0, 0), boxes, np.zeros((3, 5, 3)), np.ones((3, 5), bool), np.zeros((3, 5)), np.zeros(3))
+    tokens = [{"x": -19.0, "y": 5.5, "heading": np.pi / 2}, {"speed": 3.0}, {"x": 10.5, "y": 0.0},
+              {"x": 0.0, "y": 30.0, "heading": np.pi}]         # last: right place, wrong heading
+    assert token_assignment(scene, tokens) == [2, 0, None]
+
+
+def test_place_drops_agents_on_existing_vehicles_and_their_tokens(cross_net, cross_scene):
+    from sumo_scendiff.cosim import Existing
+    net = Network.load(cross_net)
+    scene = cross_scene(net)
+    # a host vehicle exactly where agent 0 stands, another one 1 m beside agent 2 (touching it)
+    ex = Existing(["host0", "host1"], np.array([scene.boxes[0], scene.boxes[2] + [1.0, 0, 0, 0, 0]], np.float64),
+                  np.zeros(2), np.array([True, True]))
+    sim = start(SimConfig(net=cross_net))
+    try:
+        cosim = CoSimulation(sim, net, generator=None)
+        seeding = cosim.place(scene, ex.tokens(), ex.token_ids(), ex)
+        assert seeding.dropped == 2 and len(seeding.scene) == 3
+        np.testing.assert_allclose(seeding.scene.boxes, scene.boxes[[1, 3, 4]])
+        assert seeding.token_of == [None, None, None]
+    finally:
+        sim.close()

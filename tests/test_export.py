@@ -1,0 +1,112 @@
+"""Export of a seeded scene: the files, and replays in stock SUMO that put every agent back at the
+pose scene.json records (real libsumo and the sumo binary)."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+
+import numpy as np
+import pytest
+
+from sumo_scendiff.cosim import CoSimulation
+from sumo_scendiff.data.demand import sumo_binary
+from sumo_scendiff.export import FILES, ScenarioWriter, pose_error
+from sumo_scendiff.network import Network
+from sumo_scendiff.rollout import rollout
+from sumo_scendiff.sumo_sim import SimConfig, start
+
+
+@pytest.fixture(scope="module")
+def exported(cross_net, cross_scene, tmp_path_factory):
+    out = tmp_path_factory.mktemp("export")
+    net = Network.load(cross_net)
+    scene = cross_scene(net)
+    scene.boxes[0, 1] += 0.6          # half a metre off the lane centre: must stay there
+    scene.traj[0, :, 1] += 0.6
+    cfg = SimConfig(net=cross_net)
+    sim = start(cfg)
+    try:
+        cosim = CoSimulation(sim, net, generator=None)
+        seeding = cosim.place(scene, [{"x": -60.0, "y": float(scene.boxes[0, 1]), "heading": 0.0}],
+                              ["user"], cosim.existing(scene.window), seed=3, p_mask=0.5)
+        sim.simulationStep()
+        cosim.verify(seeding)
+        writer = ScenarioWriter(str(out), "scene_000")
+        assert os.path.isdir(str(out / "scene_000.partial")) and not os.path.exists(out / "scene_000")
+        writer.after_seeding(sim, seeding, net, cfg.options(), {"scene": "scene_000"})
+        stats = rollout(sim, seeding.agent_ids, 5.0)
+        folder = writer.finish(stats.as_dict())
+    finally:
+        sim.close()
+    return folder, cross_net
+
+
+def test_files_and_scene_json(exported):
+    folder, _ = exported
+    assert sorted(os.listdir(folder)) == sorted(FILES)
+    assert not os.path.exists(folder + ".partial")
+    doc = json.load(open(os.path.join(folder, "scene.json")))
+    assert doc["format"] == "sumo-scendiff-scenario" and doc["version"] == 1
+    assert doc["counts"] == {"generated": 5, "placed": 4, "refused": 1, "misplaced": 0}
+    agents = doc["agents"]
+    assert [a["status"] for a in agents] == ["placed"] * 4 + ["refused"]
+    assert agents[0]["token"] == 0 and agents[0]["token_source"] == "user"
+    assert [a["token"] for a in agents[1:]] == [None] * 4
+    assert agents[2]["heading"] == pytest.approx(np.pi / 2)
+    assert len(agents[0]["poses"]) == 5 and agents[0]["y"] == pytest.approx(-1.6 + 0.6, abs=0.01)
+    assert agents[3]["replay_exact"] is False           # inside the junction
+    assert [a["replay_exact"] for a in agents[:3]] == [True] * 3
+    stats = json.load(open(os.path.join(folder, "rollout.json")))
+    assert stats["agents"] == 4 and stats["seconds"] == 5.0 and stats["collisions"] == 0
+
+
+def _check_poses(sim, doc, only_exact=False, heading=True):
+    checked = 0
+    for a in doc["agents"]:
+        if a["status"] != "placed" or (only_exact and not a["replay_exact"]):
+            continue
+        dist, dyaw = pose_error(sim, a["vehicle"], a)
+        assert dist < 0.5, (a["vehicle"], dist)
+        if heading:
+            assert dyaw < 0.1, (a["vehicle"], dyaw)
+        checked += 1
+    return checked
+
+
+def test_sumocfg_replays_every_agent_at_its_pose(exported):
+    import libsumo
+    folder, _ = exported
+    doc = json.load(open(os.path.join(folder, "scene.json")))
+    libsumo.start([sumo_binary(), "-c", os.path.join(folder, "scenario.sumocfg"), "--no-warnings", "true"])
+    try:
+        assert _check_poses(libsumo, doc) == 4
+    finally:
+        libsumo.close()
+
+
+def test_stock_sumo_runs_the_scenario(exported):
+    folder, _ = exported
+    res = subprocess.run([sumo_binary(), "-c", "scenario.sumocfg", "--end", "20"], cwd=folder,
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert "Error" not in res.stderr
+
+
+def test_route_file_replays_lane_agents(exported):
+    import libsumo
+    folder, net = exported
+    doc = json.load(open(os.path.join(folder, "scene.json")))
+    libsumo.start([sumo_binary(), "-n", net, "-r", os.path.join(folder, "scenario.rou.xml"),
+                   "--lateral-resolution", "0.8", "--no-step-log", "true", "--no-warnings", "true"])
+    try:
+        libsumo.simulationStep()   # departures at t = 0
+        assert _check_poses(libsumo, doc, only_exact=True) == 3
+    finally:
+        libsumo.close()
+
+
+def test_writer_never_replaces_a_finished_scene(exported, tmp_path):
+    folder, _ = exported
+    with pytest.raises(FileExistsError, match="exists"):
+        ScenarioWriter(os.path.dirname(folder), os.path.basename(folder))

@@ -1,0 +1,114 @@
+"""`python -m sumo_scendiff.run`: the shipped model, real libsumo, export; bad input -> one line, exit 2."""
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+from sumo_scendiff import run as run_cli
+
+TOKENS = """p_mask = 0.6
+[[agents]]
+x = 20.0
+y = -1.6
+heading = 0.0
+speed = 8.0
+"""
+
+
+def _run(args, capsys):
+    try:
+        code = run_cli.main(run_cli.get_options(args))
+    except SystemExit as e:
+        code = e.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def demand(cross_net, tmp_path_factory):
+    path = tmp_path_factory.mktemp("demand") / "cross.rou.xml"
+    vehicles = "".join(f'<vehicle id="v{k}" depart="{2 * k}"><route edges="wc ce"/></vehicle>'
+                       f'<vehicle id="n{k}" depart="{2 * k + 1}"><route edges="sc cn"/></vehicle>'
+                       for k in range(10))
+    path.write_text(f"<routes>{vehicles}</routes>")
+    return str(path)
+
+
+def test_run_center_tokens_and_rollout(cross_net, tmp_path, capsys):
+    tok = tmp_path / "tokens.toml"
+    tok.write_text(TOKENS)
+    out = tmp_path / "out"
+    common = ["-n", cross_net, "--center", "0,0", "--tokens", str(tok), "--scenes", "2",
+              "--rollout", "4", "-s", "5", "--steps", "8"]
+    args = common + ["-o", str(out)]
+    code, stdout, err = _run(args, capsys)
+    assert code == 0, err
+    assert sorted(os.listdir(out)) == ["run.json", "scene_000", "scene_001"]
+    summary = json.load(open(out / "run.json"))
+    assert [s["scene"] for s in summary["scenes"]] == ["scene_000", "scene_001"]
+    assert set(summary["timing_s"]) == {"load", "raster", "generate", "seed", "rollout", "export"}
+    doc = json.load(open(out / "scene_000" / "scene.json"))
+    assert doc["window"] == {"cx": 0.0, "cy": 0.0, "yaw": 0.0, "size": 100.0}
+    assert doc["p_mask"] == 0.6 and doc["tokens"][0]["x"] == 20.0 and doc["tokens"][0]["source"] == "user"
+    assert len(doc["model"]["sha256"]) == 64
+    for a in doc["agents"]:
+        assert abs(a["x"]) <= 50 and abs(a["y"]) <= 50 and len(a["poses"]) == 5
+        assert a["status"] in ("placed", "refused", "misplaced")
+    roll = json.load(open(out / "scene_000" / "rollout.json"))
+    assert roll["seconds"] == 4.0 and roll["placed"] + roll["refused"] + roll["misplaced"] == roll["generated"]
+    assert "placed" in stdout and "scene_001" in stdout
+
+    # the same seed gives the same scenes
+    code, _, err = _run(common + ["-o", str(tmp_path / "again")], capsys)
+    assert code == 0, err
+    again = json.load(open(tmp_path / "again" / "scene_000" / "scene.json"))
+    assert [a["poses"] for a in again["agents"]] == [a["poses"] for a in doc["agents"]]
+
+    # a second run into the same folder is refused, nothing is touched
+    before = (out / "scene_000" / "scene.json").read_bytes()
+    code, _, err = _run(args, capsys)
+    assert code == 2 and "exists" in err and err.count("\n") == 1
+    assert (out / "scene_000" / "scene.json").read_bytes() == before
+
+
+def test_run_ego_infill(cross_net, demand, tmp_path, capsys):
+    out = tmp_path / "ego"
+    code, _, err = _run(["-n", cross_net, "-r", demand, "--ego", "v3", "--scenes", "1", "--rollout", "2",
+                         "-o", str(out), "--steps", "8"], capsys)
+    assert code == 0, err
+    doc = json.load(open(out / "scene_000" / "scene.json"))
+    sources = [t["source"] for t in doc["tokens"]]
+    assert "v3" in sources                      # the ego itself is a token: the model fills around it
+    assert abs(doc["window"]["yaw"]) < 0.05     # the ego drives east: the window turns with it
+    ids = {a["vehicle"] for a in doc["agents"]}
+    assert not ids & {"v3"}                     # existing vehicles are kept, never re-seeded
+
+
+@pytest.mark.parametrize("case, expect", [
+    ("missing-net", "no such file"),
+    ("not-a-net", "not a SUMO network"),
+    ("far-center", "off the network"),
+    ("bad-tokens", "agents[0]"),
+    ("ego-never", "never appears"),
+    ("unwritable", "not writable"),
+])
+def test_bad_input_one_line_exit_2(case, expect, cross_net, demand, tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[[agents]]\nx = 10\ny = 0\nspeed = -3\n')
+    junk = tmp_path / "junk.net.xml"
+    junk.write_text("<routes/>")
+    (tmp_path / "file").write_text("x")
+    args = {"missing-net": ["-n", str(tmp_path / "nope.net.xml")],
+            "not-a-net": ["-n", str(junk)],
+            "far-center": ["-n", cross_net, "--center", "5000,5000"],
+            "bad-tokens": ["-n", cross_net, "--center", "0,0", "--tokens", str(bad)],
+            "ego-never": ["-n", cross_net, "-r", demand, "--ego", "nobody"],
+            "unwritable": ["-n", cross_net, "--center", "0,0", "-o", str(tmp_path / "file" / "sub")],
+            }[case]
+    out = tmp_path / "out"
+    code, _, err = _run(args + (["-o", str(out)] if "-o" not in args else []) + ["--rollout", "0"], capsys)
+    assert code == 2
+    assert err.count("\n") == 1 and expect in err and "Traceback" not in err
+    assert not (out / "scene_000").exists() and not (out / "run.json").exists()

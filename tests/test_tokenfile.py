@@ -1,0 +1,182 @@
+"""Token files (sumo_scendiff.tokenfile): TOML/JSON parity, frames, defaults, one-line errors."""
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sumo_scendiff.geometry import Window
+from sumo_scendiff.tokenfile import TokenFileError, TokenSpec, load_tokens, parse_tokens
+from sumo_scendiff.tokens import FEATURE_SLICES, PRESENCE_SLICE, agent_tokens_from_dicts
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "tokens"
+
+TOML = """\
+frame = "window"
+p_mask = 0.25
+[[agents]]
+x = 12.0
+y = -1.6
+heading = 0.0
+length = 10.5
+width = 2.5
+speed = 8.0
+final_speed = 0.0
+[[agents]]
+x = -20
+y = 1.6
+"""
+AGENTS = ({"x": 12.0, "y": -1.6, "heading": 0.0, "length": 10.5, "width": 2.5, "speed": 8.0,
+           "final_speed": 0.0}, {"x": -20.0, "y": 1.6})
+
+
+def _write(tmp_path, name, text):
+    p = tmp_path / name
+    p.write_text(text if isinstance(text, str) else json.dumps(text), encoding="utf-8")
+    return p
+
+
+def test_toml_and_json_give_the_same_spec(tmp_path):
+    t = load_tokens(_write(tmp_path, "a.toml", TOML))
+    j = load_tokens(_write(tmp_path, "a.json", {"frame": "window", "p_mask": 0.25,
+                                                "agents": [dict(a) for a in AGENTS]}))
+    assert isinstance(t, TokenSpec)
+    assert t.agents == j.agents == AGENTS
+    assert (t.frame, t.p_mask, j.frame, j.p_mask) == ("window", 0.25, "window", 0.25)
+    assert t.source == str(tmp_path / "a.toml") and j.source == str(tmp_path / "a.json")
+    assert isinstance(t.agents[1]["x"], float)
+    assert parse_tokens({"agents": [{"speed": 3, "heading": None}]}, "sweep.toml").agents == ({"speed": 3.0},)
+
+
+def test_default_frame_and_p_mask(tmp_path):
+    spec = parse_tokens({"agents": [{"speed": 3.0}]}, "s")
+    assert (spec.frame, spec.p_mask) == ("window", 0.5)
+    assert parse_tokens({}, "s").p_mask == 1.0
+    only_global = load_tokens(_write(tmp_path, "g.toml", "p_mask = 0.3\n"))
+    assert (only_global.p_mask, only_global.agents, only_global.for_window(Window(0, 0))) == (0.3, (), [])
+    assert parse_tokens({"agents": []}, "s").p_mask == 1.0
+    assert parse_tokens({"p_mask": 0, "agents": [{"speed": 1}]}, "s").p_mask == 0.0
+
+
+def test_world_frame_to_rotated_window():
+    spec = parse_tokens({"frame": "world", "agents": [
+        {"x": 100.0, "y": 210.0, "heading": math.pi / 2, "length": 4.5, "width": 1.8, "speed": 5.0,
+         "final_speed": 6.0, "heading_to_final": 0.3},
+        {"x": 90.0, "y": 200.0, "heading": math.pi},
+        {"heading": 0.0}, {"speed": 2.0}]}, "w.toml")
+    got = spec.for_window(Window(100.0, 200.0, math.pi / 2))
+    assert got[0]["x"] == pytest.approx(10.0, abs=1e-9) and got[0]["y"] == pytest.approx(0.0, abs=1e-9)
+    assert got[0]["heading"] == pytest.approx(0.0, abs=1e-12)
+    assert {k: got[0][k] for k in ("length", "width", "speed", "final_speed", "heading_to_final")} == \
+        {"length": 4.5, "width": 1.8, "speed": 5.0, "final_speed": 6.0, "heading_to_final": 0.3}
+    assert got[1]["x"] == pytest.approx(0.0, abs=1e-9) and got[1]["y"] == pytest.approx(10.0)
+    assert got[1]["heading"] == pytest.approx(math.pi / 2)
+    assert got[2] == {"heading": pytest.approx(-math.pi / 2)} and got[3] == {"speed": 2.0}
+    assert spec.agents[0]["x"] == 100.0  # the spec itself is not modified
+    # window frame: unchanged, returned as copies
+    w = parse_tokens({"agents": [{"x": 5.0, "y": 1.0, "heading": 0.2}]}, "w")
+    out = w.for_window(Window(100.0, 200.0, 1.0))
+    assert out == [{"x": 5.0, "y": 1.0, "heading": 0.2}] and out[0] is not w.agents[0]
+
+
+def test_for_window_encodes_to_tokens():
+    spec = parse_tokens({"frame": "world", "agents": [
+        {"x": 100.0, "y": 210.0, "heading": math.pi / 2, "speed": 8.0},
+        {"length": 12.0, "width": 2.5}]}, "w")
+    tok = agent_tokens_from_dicts(spec.for_window(Window(100.0, 200.0, math.pi / 2)))
+    assert tok.shape == (2, 170) and tok.dtype == np.float32
+    assert tok[0, FEATURE_SLICES["x"]].argmax() == 38  # floor((10 + 50) / 1.5625)
+    assert tok[0, FEATURE_SLICES["y"]].argmax() == 32
+    np.testing.assert_allclose(tok[0, FEATURE_SLICES["heading"]], [1.0, 0.0], atol=1e-7)
+    assert tok[0, FEATURE_SLICES["speed"]].argmax() == 4
+    assert tok[:, PRESENCE_SLICE].tolist() == [[1, 1, 1, 0, 0, 1, 0, 0], [0, 0, 0, 1, 1, 0, 0, 0]]
+
+
+@pytest.mark.parametrize("agent,window,msg", [
+    ({"x": 100.0, "y": 260.5}, Window(100.0, 200.0, math.pi / 2), r"agents\[0\]: world position \(100, 260.5\)"),
+    ({"x": 151.0, "y": 200.0}, Window(100.0, 200.0, 0.0), "outside the window"),
+    ({"x": 0.0, "y": 0.0}, Window(1000.0, 0.0, 0.0), r"\(-1000.00, 0.00\) m in the window frame"),
+])
+def test_world_agent_outside_window(agent, window, msg):
+    spec = parse_tokens({"frame": "world", "agents": [agent]}, "w.toml")
+    with pytest.raises(TokenFileError, match=msg) as e:
+        spec.for_window(window)
+    assert str(e.value).startswith("w.toml: agents[0]: ") and "\n" not in str(e.value)
+
+
+def test_window_agent_outside_small_window():
+    spec = parse_tokens({"agents": [{"speed": 1.0}, {"x": 30.0, "y": 0.0}]}, "w.json")
+    assert spec.for_window(Window(0, 0))[1] == {"x": 30.0, "y": 0.0}
+    with pytest.raises(TokenFileError, match=r"^w.json: agents\[1\]: position is \(30.00, 0.00\)"):
+        spec.for_window(Window(0, 0, 0.0, 50.0))
+
+
+ERRORS = [
+    ("t.toml", "p_mask = 0.5\n[[agents]]\nspeed = 1.0\n[[agents]]\nspeed = -3.0\n",
+     "agents[1]: token feature 'speed' must be >= 0 m/s, got -3.0"),
+    ("t.toml", "pmask = 0.5\n", "unknown key 'pmask' (expected frame, p_mask, agents)"),
+    ("t.toml", "p_mask = 0.5\nframe = 'window'\nagents = [\n", "not valid TOML ("),
+    ("t.json", '{"agents": [}', "not valid JSON ("),
+    ("t.json", {"agents": {"x": 1.0, "y": 2.0}}, "'agents' must be a list of tables"),
+    ("t.json", {"agents": [3]}, "'agents' must be a list of tables: agents[0] is 3"),
+    ("t.json", {"p_mask": "a lot"}, "p_mask must be a number in [0, 1], got 'a lot'"),
+    ("t.json", {"p_mask": True}, "p_mask must be a number in [0, 1], got True"),
+    ("t.toml", "p_mask = 1.5\n", "p_mask must be a number in [0, 1], got 1.5"),
+    ("t.toml", "p_mask = nan\n", "p_mask must be a number in [0, 1], got nan"),
+    ("t.toml", 'frame = "scene"\n', "frame must be \"window\" or \"world\", got 'scene'"),
+    ("t.json", [1, 2], "top level must be a table, got list"),
+    ("t.json", {"agents": [{"spead": 3}]}, "agents[0]: unknown token feature 'spead'"),
+    ("t.json", {"agents": [{"speed": "fast"}]}, "agents[0]: token feature 'speed' must be numeric, got 'fast'"),
+    ("t.json", {"agents": [{"speed": False}]}, "agents[0]: token feature 'speed' must be numeric, got False"),
+    ("t.json", {"agents": [{"speed": [1, 2]}]}, "agents[0]: token feature 'speed' must be a single number, got [1, 2]"),
+    ("t.json", {"agents": [{"x": 1.0}]}, "agents[0]: features x and y (position) must be given together"),
+    ("t.json", {"agents": [{"length": 4.0, "width": 0}]}, "agents[0]: token feature 'width' must be > 0 metres, got 0.0"),
+    ("t.json", {"agents": [{"x": 51.0, "y": 0}]}, "agents[0]: token feature 'x' = 51.0 m is outside the 100 m window"),
+    ("t.json", {"agents": [{}]}, "agents[0]: no token features (give at least one of x, y,"),
+    ("t.json", {"frame": "world", "agents": [{"x": "1", "y": 2.0}]},
+     "agents[0]: token feature 'x' must be a finite number (world metres), got '1'"),
+    ("t.json", {"frame": "world", "agents": [{"x": 1e4, "y": 2.0, "speed": -1}]},
+     "agents[0]: token feature 'speed' must be >= 0 m/s, got -1.0"),
+    ("t.json", {"frame": "world", "agents": [{"y": 2.0}]}, "features x and y (position) must be given together"),
+    ("t.toml", "[[agents]]\nheading = inf\n", "agents[0]: token feature 'heading' must be finite"),
+    ("t.yaml", "p_mask: 0.5\n", "unknown token file type '.yaml' (expected .toml or .json)"),
+    ("t", "p_mask = 0.5\n", "unknown token file type '(none)'"),
+]
+
+
+@pytest.mark.parametrize("name,content,expected", ERRORS)
+def test_errors_are_one_line_and_start_with_the_path(tmp_path, name, content, expected):
+    path = _write(tmp_path, name, content)
+    with pytest.raises(TokenFileError) as e:
+        load_tokens(path)
+    msg = str(e.value)
+    assert isinstance(e.value, ValueError) and "\n" not in msg
+    assert msg.startswith(f"{path}: "), msg
+    assert expected in msg, msg
+
+
+def test_missing_file_and_directory(tmp_path):
+    with pytest.raises(TokenFileError) as e:
+        load_tokens(tmp_path / "nope.toml")
+    assert str(e.value) == f"{tmp_path / 'nope.toml'}: no such file"
+    (tmp_path / "d.json").mkdir()
+    with pytest.raises(TokenFileError, match=r"d\.json: is a directory"):
+        load_tokens(tmp_path / "d.json")
+    with pytest.raises(TokenFileError, match=r"^relative\.toml: no such file$"):
+        load_tokens("relative.toml")
+    with pytest.raises(TokenFileError, match=r"^sweep\.toml: unknown key 'agent'"):
+        parse_tokens({"agent": []}, "sweep.toml")
+
+
+def test_example_files_load():
+    truck = load_tokens(EXAMPLES / "truck_stopping.toml")
+    assert (truck.frame, truck.p_mask) == ("window", 0.6)
+    assert truck.agents == ({"x": 12.0, "y": 0.0, "heading": 0.0, "length": 10.5, "width": 2.5,
+                             "speed": 8.0, "final_speed": 0.0},)
+    cross = load_tokens(EXAMPLES / "cross_traffic.json")
+    assert (cross.frame, cross.p_mask) == ("window", 0.8)
+    assert [(a["x"], a["y"], a["heading"], a["speed"]) for a in cross.agents] == \
+        [(3.0, -20.0, math.pi / 2, 10.0), (-3.0, -20.0, math.pi / 2, 10.0)]
+    for spec in (truck, cross):
+        assert agent_tokens_from_dicts(spec.for_window(Window(0.0, 0.0, 0.7))).shape == (len(spec.agents), 170)
