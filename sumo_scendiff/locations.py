@@ -9,12 +9,12 @@
 Candidates are junctions where cars interact: nodes with >= 3 car arms (dead ends, internal and pure
 geometry nodes excluded), merges / diverges (2 car edges into 1, 1 into 2, lane drops, zipper nodes)
 and roundabouts (one candidate per ring, centred on its nodes' mean). A candidate's score is its number
-of incoming car lanes, plus ``TLS_BONUS`` when signalised (a roundabout: entry lanes + ring lanes). ``auto_windows`` takes kinds round-robin
-(seeded order) and, inside a kind, junctions with probability proportional to score, keeping centres
-at least ``size / 2`` apart; the separation is relaxed (``size / 4``, then none) when that leaves fewer
-than ``n``, and when ``n`` exceeds the candidates they are reused with a random yaw. A network without
-candidates (one long road) gets windows on random car-lane points, kind ``"road"``.
-Same (net, n, seed, size) -> same windows.
+of incoming car lanes, plus ``TLS_BONUS`` when signalised (a roundabout: entry lanes + ring lanes).
+``auto_windows`` takes kinds round-robin (seeded order) and, inside a kind, junctions with probability
+proportional to score, keeping centres at least ``size / 2`` apart; the separation is relaxed
+(``size / 4``, then none) when that leaves fewer than ``n``, and when ``n`` exceeds the candidates they
+are reused with a random yaw. A network without candidates (one long road) gets windows on random
+car-lane points, kind ``"road"``. Same (net, n, seed, size) -> same windows.
 """
 from __future__ import annotations
 

@@ -28,6 +28,7 @@ class SimConfig:
     lateral_resolution: float = 0.8     # sublane model; 0 = off (agents snap to lane centres)
     check_junctions: bool = True        # collisions inside junctions count too
     gui: bool = False                   # sumo-gui through traci instead of libsumo
+    traci: bool = False                 # sumo through traci (a separate process) instead of libsumo
     seed: int = 0
     extra: tuple[str, ...] = field(default_factory=tuple)
 
@@ -53,9 +54,10 @@ def start(cfg: SimConfig, quiet: bool = True):
     """Start SUMO and return the module to drive it (``libsumo``, or ``traci`` for the GUI)."""
     args = cfg.args() + (["--no-warnings", "true"] if quiet else [])
     try:
-        if cfg.gui:
+        if cfg.gui or cfg.traci:
             import traci
-            traci.start([sumo_binary("sumo-gui")] + args + ["--start"])
+            binary = sumo_binary("sumo-gui") if cfg.gui else sumo_binary("sumo")
+            traci.start([binary] + args + (["--start"] if cfg.gui else []))
             return traci
         import libsumo
         libsumo.start([sumo_binary("sumo")] + args)

@@ -17,14 +17,15 @@ from sumo_scendiff.rollout import rollout
 from sumo_scendiff.sumo_sim import SimConfig, start
 
 
-@pytest.fixture(scope="module")
-def exported(cross_net, cross_scene, tmp_path_factory):
+@pytest.fixture(scope="module", params=["libsumo", "traci"])
+def exported(request, cross_net, cross_scene, tmp_path_factory):
+    """The same seeding and export through libsumo (in-process) and traci (a sumo process)."""
     out = tmp_path_factory.mktemp("export")
     net = Network.load(cross_net)
     scene = cross_scene(net)
     scene.boxes[0, 1] += 0.6          # half a metre off the lane centre: must stay there
     scene.traj[0, :, 1] += 0.6
-    cfg = SimConfig(net=cross_net)
+    cfg = SimConfig(net=cross_net, traci=request.param == "traci")
     sim = start(cfg)
     try:
         cosim = CoSimulation(sim, net, generator=None)
