@@ -18,7 +18,6 @@ import argparse
 import json
 import os
 import sys
-import tempfile
 import time
 
 PROG = "python -m sumo_scendiff.run"
@@ -112,13 +111,11 @@ def _windows(o, net, sim, cosim):
 def run(o) -> dict:
     import numpy as np
 
-    from .cosim import CoSimulation
-    from .export import ScenarioWriter
     from .generate import GenerationConfig, ScenarioGenerator
     from .network import Network
     from .raster import render_map
-    from .rollout import rollout
-    from .sumo_sim import SimConfig, close, start
+    from .session import Session
+    from .sumo_sim import SimConfig
     from .tokenfile import load_tokens
 
     progress = sys.stderr.isatty() or o.verbose
@@ -133,25 +130,19 @@ def run(o) -> dict:
         if not os.path.isfile(r):
             raise RunError(f"{r}: no such route file")
     cfg = SimConfig(net=o.net, routes=routes, step_length=o.step_length, gui=o.gui, seed=o.seed)
-    sim = start(cfg, quiet=not o.verbose)
-    base = None
+    session = Session(cfg, net, gen, quiet=not o.verbose)
     try:
-        if routes:
-            _warm_up(sim, o, progress)
-        fd, base = tempfile.mkstemp(suffix=".xml.gz", prefix="scendiff-base-")
-        os.close(fd)
-        sim.simulation.saveState(base)
-        cosim = CoSimulation(sim, net, gen, seed=o.seed)
-        places = _windows(o, net, sim, cosim)
+        session.prepare((lambda sim: _warm_up(sim, o, progress)) if routes else None)
+        places = _windows(o, net, session.sim, session.cosim())
+        windows = [w for w, _ in places]
+        existing = [session.existing(w) for w in windows]
         timing["load"] = time.perf_counter() - t
 
         t = time.perf_counter()
-        windows = [w for w, _ in places]
         maps = np.stack([render_map(net, w, gen.raster) for w in windows])
         timing["raster"] = time.perf_counter() - t
 
         t = time.perf_counter()
-        existing = [cosim.existing(w) for w in windows]
         user = [spec.for_window(w) if spec else [] for w in windows]
         tokens = [u + e.tokens() for u, e in zip(user, existing)]
         sources = [["user"] * len(u) + e.token_ids() for u, e in zip(user, existing)]
@@ -161,39 +152,19 @@ def run(o) -> dict:
                               progress=progress)
         timing["generate"] = time.perf_counter() - t
 
-        results, timing["seed"], timing["rollout"], timing["export"] = [], 0.0, 0.0, 0.0
+        results = []
         from tqdm import tqdm
         for k in tqdm(range(len(scenes)), desc="seeding and rolling out", disable=not progress):
-            t = time.perf_counter()
-            sim.simulation.loadState(base)
-            seeding = cosim.place(scenes[k], tokens[k], sources[k], existing[k], seed=o.seed,
-                                  p_mask=p_mask[k])
-            sim.simulationStep()
-            cosim.verify(seeding)
-            timing["seed"] += time.perf_counter() - t
-            t = time.perf_counter()
-            writer = ScenarioWriter(o.out, f"scene_{k:03d}", force=o.force)
-            info = {"scene": f"scene_{k:03d}", "location": places[k][1], "window_index": k,
+            name = f"scene_{k:03d}"
+            info = {"scene": name, "location": places[k][1], "window_index": k,
                     "model": {"sha256": gen.sha256, "steps": o.steps, "threshold": o.threshold},
                     "sumo_options": cfg.options()}
-            writer.after_seeding(sim, seeding, net, cfg.options(), info)
-            timing["export"] += time.perf_counter() - t
-            t = time.perf_counter()
-            stats = rollout(sim, seeding.agent_ids, o.rollout, progress=progress)
-            timing["rollout"] += time.perf_counter() - t
-            t = time.perf_counter()
-            rep = seeding.report
-            counts = {"generated": len(seeding.scene), "placed": rep.placed, "refused": len(rep.refused),
-                      "misplaced": len(rep.misplaced), "existing_vehicles": len(existing[k].token_ids()),
-                      "dropped_on_existing": seeding.dropped}
-            writer.finish({**counts, **stats.as_dict()})
-            timing["export"] += time.perf_counter() - t
-            results.append({"scene": f"scene_{k:03d}", "location": places[k][1], **counts,
-                            **stats.as_dict()})
+            row = session.realise(scenes[k], tokens[k], sources[k], existing[k], o.out, name, info,
+                                  o.rollout, seed=o.seed, p_mask=p_mask[k], force=o.force)
+            results.append({"scene": name, "location": places[k][1], **row})
+        timing.update(session.timing)
     finally:
-        close(sim)
-        if base:
-            os.remove(base)
+        session.close()
     summary = {"network": os.path.abspath(o.net), "model_sha256": gen.sha256, "seed": o.seed,
                "scenes": results, "timing_s": {k: round(v, 3) for k, v in timing.items()}}
     tmp = os.path.join(o.out, "run.json.partial")

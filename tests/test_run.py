@@ -65,6 +65,8 @@ def test_run_center_tokens_and_rollout(cross_net, tmp_path, capsys):
     assert code == 0, err
     again = json.load(open(tmp_path / "again" / "scene_000" / "scene.json"))
     assert [a["poses"] for a in again["agents"]] == [a["poses"] for a in doc["agents"]]
+    assert json.load(open(tmp_path / "again" / "scene_001" / "rollout.json")) == \
+        json.load(open(out / "scene_001" / "rollout.json"))
 
     # a second run into the same folder is refused, nothing is touched
     before = (out / "scene_000" / "scene.json").read_bytes()
