@@ -29,6 +29,7 @@ from .raster import RasterConfig, render_map
 from .scene import Scene, vclass_from_size
 from .tokens import AGENT_TOKEN_DIM, agent_tokens_from_dicts, global_token, pad_tokens
 
+DECIMALS = 3   # generated poses are rounded to mm / mrad
 DEFAULT_CHECKPOINT = os.path.join(os.path.dirname(__file__), "weights", "scendiff.pt")
 
 
@@ -121,15 +122,17 @@ class ScenarioGenerator:
         keep = keep[window.contains(boxes[keep, :2])]
         keep = keep[remove_overlaps(boxes[keep], prob[keep])]
         keep = keep[np.argsort(-prob[keep], kind="stable")]
-        b, t = boxes[keep], traj[keep]
+        # millimetres / milliradians: the float noise of batch composition and thread count
+        # (~1e-6) must not make the same seed seed SUMO differently
+        b, t = np.round(boxes[keep], DECIMALS), np.round(traj[keep], DECIMALS)
         mask = np.ones((len(keep), len(TIMES)), bool)
         return Scene(window, b, t, mask, speeds_from_traj(t, mask), vclass_from_size(b[:, 3], b[:, 4]),
-                     net_name, meta={"score": prob[keep].tolist(), "cell": keep.tolist()})
+                     net_name, meta={"score": np.round(prob[keep], 4).tolist(), "cell": keep.tolist()})
 
     # ---- public API -----------------------------------------------------------------------
     def generate(self, net, windows: Sequence[Window], tokens=None, p_mask=1.0, seed: int = 0,
                  config: GenerationConfig | None = None, progress: bool = False,
-                 maps: np.ndarray | None = None) -> list[Scene]:
+                 maps: np.ndarray | None = None, noise_seeds: Sequence[int] | None = None) -> list[Scene]:
         """Scenes for ``windows`` on ``net``.
 
         ``tokens``: per window, agent tokens as a list of feature dicts (any subset of
@@ -137,7 +140,9 @@ class ScenarioGenerator:
         (T, 170) array; ``None`` for no tokens. ``p_mask``: the global scene token per window (or
         one for all); 1.0 with no tokens = map-only generation. The same ``seed`` gives the same
         scenes; window ``i`` uses the seed ``(seed, i)``. ``maps``: the windows' map rasters when
-        already rendered (``render_map``), else rendered here.
+        already rendered (``render_map``), else rendered here. ``noise_seeds``: one seed per
+        window instead (window ``i`` starts from the noise of ``noise_seeds[i]`` alone, whatever
+        else is in the batch: the same seed with other tokens gives the variant of the same scene).
         """
         cfg = config or self.config
         n = len(windows)
@@ -145,7 +150,10 @@ class ScenarioGenerator:
         if len(toks) != n:
             raise ValueError(f"{len(toks)} token sets for {n} windows")
         pm = np.broadcast_to(np.asarray(p_mask, np.float64), (n,))
-        seeds = [int(np.random.SeedSequence([seed, i]).generate_state(1)[0]) for i in range(n)]
+        if noise_seeds is not None and len(noise_seeds) != n:
+            raise ValueError(f"{len(noise_seeds)} noise seeds for {n} windows")
+        keys = [[int(s)] for s in noise_seeds] if noise_seeds is not None else [[seed, i] for i in range(n)]
+        seeds = [int(np.random.SeedSequence(k).generate_state(1)[0]) for k in keys]
         out: list[Scene] = []
         from tqdm import tqdm
         for s in tqdm(range(0, n, cfg.batch_size), disable=not progress, desc="generating"):

@@ -1,7 +1,7 @@
 """One network, many scenes: the per-scene pipeline shared by ``run`` and ``sweep``.
 
     session = Session(SimConfig(net=path), net, generator)      # warm-up demand once if -r given
-    session.prepare(until=...)                                  # base state (after the warm-up)
+    session.prepare(warm_up)                                    # base state (after the warm-up)
     existing = session.existing(window)                         # vehicles there -> tokens
     row = session.realise(scene, tokens, sources, existing, out_dir, "scene_000", info, rollout=60)
 
@@ -28,6 +28,7 @@ class Session:
         self.cfg, self.net, self.generator, self.quiet = cfg, net, generator, quiet
         self.base: str | None = None
         self.sim = None
+        self._at_base = False
         self.timing = {"seed": 0.0, "export": 0.0, "rollout": 0.0}
 
     # ---- the base simulation --------------------------------------------------------------------
@@ -35,6 +36,7 @@ class Session:
         """Start SUMO, run ``warm_up(sim)`` (the demand up to the seeding time) if given, and keep
         the state as the base of every scene. The simulation stays open for :meth:`existing`."""
         self.sim = start(self.cfg, quiet=self.quiet)
+        self._at_base = True
         if warm_up is not None:
             warm_up(self.sim)
             fd, self.base = tempfile.mkstemp(suffix=".xml.gz", prefix="scendiff-base-")
@@ -42,8 +44,19 @@ class Session:
             self.sim.simulation.saveState(self.base)
         return self
 
+    def at_base(self):
+        """The simulation at the base state (restarted if a scene has run since)."""
+        if not self._at_base:
+            if self.sim is not None:
+                close(self.sim)
+            self.sim = start(self.cfg, quiet=self.quiet)
+            if self.base:
+                self.sim.simulation.loadState(self.base)
+            self._at_base = True
+        return self.sim
+
     def cosim(self, seed: int = 0) -> CoSimulation:
-        return CoSimulation(self.sim, self.net, self.generator, seed=seed)
+        return CoSimulation(self.at_base(), self.net, self.generator, seed=seed)
 
     def existing(self, window) -> Existing:
         return self.cosim().existing(window)
@@ -65,6 +78,7 @@ class Session:
         if self.sim is not None:
             close(self.sim)
             self.sim = None
+        self._at_base = False
         writer = ScenarioWriter(out_dir, name, force=force)
         try:
             t = time.perf_counter()
@@ -84,7 +98,11 @@ class Session:
             self.timing["rollout"] += time.perf_counter() - t
             t = time.perf_counter()
             rep = seeding.report
-            row = {"generated": len(seeding.scene), "placed": rep.placed, "refused": len(rep.refused),
+            user = [k for k, (src, tok) in enumerate(zip(sources, tokens))
+                    if src == "user" and tok.get("x") is not None]
+            row = {"user_tokens": len(user),
+                   "user_tokens_matched": len(set(user) & set(t for t in seeding.token_of if t is not None)),
+                   "generated": len(seeding.scene), "placed": rep.placed, "refused": len(rep.refused),
                    "misplaced": len(rep.misplaced), "existing_vehicles": len(existing.token_ids()),
                    "dropped_on_existing": seeding.dropped, **stats.as_dict()}
             writer.finish(row)

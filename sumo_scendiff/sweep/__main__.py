@@ -1,0 +1,132 @@
+"""Batch token sweeps: many scenarios from one spec file, in parallel, resumable.
+
+    python -m sumo_scendiff.sweep --spec scenarios/truck_stopping.toml --out sweeps/truck
+    python -m sumo_scendiff.sweep --spec scenarios/density.toml --out sweeps/density --workers 2
+    python -m sumo_scendiff.sweep --spec scenarios/density.toml --out sweeps/density --resume
+    python -m sumo_scendiff.sweep --spec ... --out ... --engine ray [--ray-address HOST:PORT]
+
+The spec (``docs/sweeps.md``) names networks, locations, token sets and their variants, p_mask
+values and seeds; the sweep is their cross product (or an explicit list). Each scenario is written
+as ``run`` writes one (``OUT/sNNNN/``, via a ``.partial`` folder renamed when complete); then
+``OUT/index.csv`` / ``index.jsonl`` (one row per scenario: parameters, scene and rollout
+statistics), ``OUT/contact_sheet.png`` and ``OUT/stats.png``. A sweep that was killed, even with
+SIGKILL, continues with ``--resume``: only missing scenarios run, the index is rebuilt.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import time
+
+PROG = "python -m sumo_scendiff.sweep"
+
+
+def get_options(args=None):
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    p.add_argument("--spec", required=True, help="sweep spec (TOML or JSON)")
+    p.add_argument("-o", "--out", "--output-dir", dest="out", required=True, help="output directory")
+    p.add_argument("--workers", type=int, default=1, help="worker processes (each loads the model once)")
+    p.add_argument("--engine", choices=("local", "ray"), default="local")
+    p.add_argument("--ray-address", default=None, help="an existing Ray cluster (default: a local instance)")
+    p.add_argument("--resume", action="store_true", help="continue the sweep in --out")
+    p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
+    p.add_argument("--no-pictures", action="store_true")
+    p.add_argument("-v", "--verbose", action="store_true")
+    o = p.parse_args(args)
+    if o.workers < 1:
+        p.error("--workers must be >= 1")
+    o.parser = p
+    return o
+
+
+class SweepError(Exception):
+    """Stops the sweep before it starts (exit 2, one line)."""
+
+
+def prepare_out(o, spec, scenarios) -> list:
+    """Create or check OUT; returns the scenarios still to run (stale partial output removed)."""
+    plan_path = os.path.join(o.out, "sweep.json")
+    if os.path.exists(plan_path):
+        if not o.resume:
+            raise SweepError(f"{o.out}: holds a sweep already (add --resume to continue it, or choose "
+                             f"another --out)")
+        with open(plan_path) as f:
+            plan = json.load(f)
+        if plan.get("digest") != spec.digest:
+            raise SweepError(f"{o.spec}: differs from the spec {o.out} was started with "
+                             f"({plan.get('spec')}); start a new --out")
+    else:
+        if os.path.isdir(o.out) and os.listdir(o.out):
+            raise SweepError(f"{o.out}: exists and is not a sweep directory (choose another --out)")
+        try:
+            os.makedirs(o.out, exist_ok=True)
+            tmp = plan_path + ".partial"
+            with open(tmp, "w") as f:
+                json.dump({"spec": os.path.abspath(o.spec), "digest": spec.digest, "name": spec.name,
+                           "scenarios": [s.params() for s in scenarios]}, f, indent=1)
+            os.replace(tmp, plan_path)
+        except OSError as e:
+            raise SweepError(f"{o.out}: cannot write ({e.strerror or e})") from None
+    from .worker import failure_path
+    for name in os.listdir(o.out):
+        if name.endswith(".partial"):
+            path = os.path.join(o.out, name)
+            shutil.rmtree(path) if os.path.isdir(path) else os.remove(path)
+    todo = []
+    for s in scenarios:
+        if os.path.isdir(os.path.join(o.out, s.id)):
+            continue
+        if os.path.exists(failure_path(o.out, s.id)):
+            os.remove(failure_path(o.out, s.id))   # failed before: try again
+        todo.append(s)
+    return todo
+
+
+def main(o) -> int:
+    from tqdm import tqdm
+
+    from ..tokenfile import TokenFileError
+    from .engines import EngineError, run_local, run_ray, tasks
+    from .index import contact_sheet, stats_plot, write_index
+    from .spec import SpecError, load_spec
+    t0 = time.perf_counter()
+    try:
+        spec = load_spec(o.spec)
+        scenarios = spec.scenarios()
+        todo = prepare_out(o, spec, scenarios)
+    except (SpecError, TokenFileError, SweepError) as e:
+        o.parser.exit(2, f"{PROG}: error: {e}\n")
+    if todo:
+        print(f"{spec.name}: {len(scenarios)} scenarios, {len(scenarios) - len(todo)} done before, "
+              f"{len(todo)} to run on {o.workers} {o.engine} worker(s)", file=sys.stderr)
+        bar = tqdm(total=len(scenarios), initial=len(scenarios) - len(todo), desc="scenarios",
+                   unit=" scn", disable=not (sys.stderr.isatty() or o.verbose))
+        try:
+            if o.engine == "ray":
+                run_ray(tasks(todo), spec, o.out, o.workers, o.checkpoint, bar, o.ray_address)
+            else:
+                run_local(tasks(todo), spec, o.out, o.workers, o.checkpoint, bar)
+        except EngineError as e:
+            o.parser.exit(2, f"{PROG}: error: {e}\n")
+        finally:
+            bar.close()
+    rows = write_index(o.out, scenarios)
+    pictures = [] if o.no_pictures else [contact_sheet(o.out, rows), stats_plot(o.out, rows)]
+    ok = sum(r["status"] == "ok" for r in rows)
+    failed = [r for r in rows if r["status"] == "failed"]
+    print(f"{spec.name}: {ok} of {len(rows)} scenarios written to {o.out} in "
+          f"{time.perf_counter() - t0:.1f} s; index.csv, index.jsonl"
+          + "".join(f", {os.path.basename(p)}" for p in pictures if p))
+    for r in failed[:10]:
+        print(f"  failed {r['id']} ({r['network']}, {r['location']}): {r['error']}")
+    if len(failed) > 10:
+        print(f"  ... {len(failed) - 10} more failures (index.csv, column error)")
+    return 0 if not failed else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main(get_options()))

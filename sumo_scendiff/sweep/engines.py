@@ -1,0 +1,103 @@
+"""Running sweep tasks: in this process, on a local process pool, or on Ray.
+
+Every engine hands whole tasks (scenarios sharing a network and sampler settings, see
+:func:`tasks`) to workers that each load the model once; progress is counted in scenarios as tasks
+finish. Workers of the local pool die with their parent (Linux ``PR_SET_PDEATHSIG``), so a sweep
+killed with SIGKILL leaves no orphan writing into the output directory.
+"""
+from __future__ import annotations
+
+import os
+from itertools import groupby
+
+from .spec import Scenario, Spec
+
+TASK_SIZE = 8   # scenarios per task: the model call batches them; small enough to balance workers
+
+
+class EngineError(RuntimeError):
+    """The engine cannot run (Ray missing, cluster unreachable): one line."""
+
+
+def tasks(scenarios: list[Scenario], size: int = TASK_SIZE) -> list[list[Scenario]]:
+    """Group by (network, step length, sampler settings), then cut into tasks of ``size``."""
+    key = lambda s: (s.network, s.step_length, s.steps, s.threshold)  # noqa: E731
+    out = []
+    for _, group in groupby(sorted(scenarios, key=lambda s: (key(s), s.id)), key=key):
+        group = list(group)
+        out += [group[i:i + size] for i in range(0, len(group), size)]
+    return out
+
+
+def _threads(workers: int) -> int:
+    return max(1, (os.cpu_count() or 1) // max(workers, 1))
+
+
+def _die_with_parent() -> None:
+    try:
+        import ctypes
+        import signal
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+_WORKER = None
+
+
+def _init(spec: Spec, out: str, checkpoint: str | None, threads: int) -> None:
+    global _WORKER
+    _die_with_parent()
+    from .worker import Worker
+    _WORKER = Worker(spec, out, checkpoint, threads=threads)
+
+
+def _run(task: list[Scenario]) -> list[str]:
+    return _WORKER.run(task)
+
+
+def run_local(all_tasks, spec: Spec, out: str, workers: int, checkpoint=None, bar=None) -> None:
+    if workers <= 1:
+        from .worker import Worker
+        w = Worker(spec, out, checkpoint)
+        try:
+            for t in all_tasks:
+                bar.update(len(w.run(t))) if bar is not None else w.run(t)
+        finally:
+            w.close()
+        return
+    import multiprocessing as mp
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(workers, initializer=_init, initargs=(spec, out, checkpoint, _threads(workers))) as pool:
+        for done in pool.imap_unordered(_run, all_tasks):
+            if bar is not None:
+                bar.update(len(done))
+
+
+def run_ray(all_tasks, spec: Spec, out: str, workers: int, checkpoint=None, bar=None,
+            address: str | None = None) -> None:
+    try:
+        import ray
+        from ray.util import ActorPool
+    except ImportError:
+        raise EngineError("--engine ray needs Ray: pip install 'sumo-scendiff[ray]'") from None
+    from .worker import Worker
+    started = not ray.is_initialized()
+    if started:
+        try:
+            kw = {"address": address} if address else {"num_cpus": workers}
+            ray.init(include_dashboard=False, logging_level="ERROR", log_to_driver=False, **kw)
+        except Exception as e:  # ConnectionError, ...: a cluster that is not there
+            raise EngineError(f"Ray: cannot start or reach {address or 'a local instance'} "
+                              f"({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
+    try:
+        actor = ray.remote(num_cpus=1)(Worker)
+        actors = [actor.remote(spec, out, checkpoint, threads=1) for _ in range(workers)]
+        pool = ActorPool(actors)
+        for done in pool.map_unordered(lambda a, t: a.run.remote(t), all_tasks):
+            if bar is not None:
+                bar.update(len(done))
+        ray.get([a.close.remote() for a in actors])
+    finally:
+        if started:
+            ray.shutdown()

@@ -1,0 +1,239 @@
+"""Sweep spec files (TOML or JSON) and their expansion into scenarios.
+
+    spec = load_spec("scenarios/truck_stopping.toml")
+    scenarios = spec.scenarios()          # the cross product (or the explicit list), in a fixed order
+
+The format is documented in ``docs/sweeps.md``; every key is checked (an unknown key or a wrong type
+names the key and the file). A scenario is one (network, location, token set, p_mask, seed) with the
+sampler and rollout settings; its ``id`` is its position in the plan, so a resumed sweep (same spec)
+finds the same ids.
+"""
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import os
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+KEYS = {"name": str, "networks": list, "locations": list, "token_sets": list, "p_mask": list,
+        "seeds": (list, int), "steps": int, "threshold": float, "rollout": float, "step_length": float,
+        "scenarios": list}
+NET_KEYS = {"net": str, "routes": str, "begin": float}
+LOC_KEYS = {"auto": int, "center": list, "yaw": float}
+SET_KEYS = {"name": str, "frame": str, "p_mask": float, "agents": list, "vary": dict}
+SCENARIO_KEYS = {"network": str, "location": str, "token_set": str, "p_mask": float, "seed": int}
+
+
+class SpecError(ValueError):
+    """One line: the spec file, the key, the problem."""
+
+
+@dataclass(frozen=True)
+class NetworkEntry:
+    name: str                    # file name without .net.xml (unique within the sweep)
+    net: str                     # absolute path
+    routes: str | None = None
+    begin: float | None = None
+
+
+@dataclass(frozen=True)
+class Scenario:
+    id: str
+    network: str                 # NetworkEntry.name
+    location: str                # "auto:K" or "X,Y" (or "X,Y,yaw")
+    token_set: str
+    p_mask: float | None         # None: the token set's own
+    seed: int
+    steps: int
+    threshold: float
+    rollout: float
+    step_length: float
+
+    def params(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class Spec:
+    source: str
+    name: str
+    networks: dict[str, NetworkEntry]
+    locations: list[str]
+    token_sets: dict[str, Any]   # name -> tokenfile.TokenSpec
+    p_masks: list[float | None]
+    seeds: list[int]
+    settings: dict[str, float] = field(default_factory=dict)
+    explicit: list[dict] | None = None
+    digest: str = ""
+
+    def auto_count(self) -> int:
+        """How many automatic locations the sweep uses per network."""
+        locs = self.locations + [e["location"] for e in (self.explicit or [])]
+        idx = [int(loc[5:]) for loc in locs if loc.startswith("auto:")]
+        return max(idx) + 1 if idx else 0
+
+    def scenarios(self) -> list[Scenario]:
+        if self.explicit is not None:
+            combos = [(e["network"], e["location"], e["token_set"], e.get("p_mask"), e["seed"])
+                      for e in self.explicit]
+        else:
+            combos = list(itertools.product(self.networks, self.locations, self.token_sets,
+                                            self.p_masks, self.seeds))
+        if not combos:
+            raise SpecError(f"{self.source}: the sweep is empty (a list in the cross product is empty)")
+        return [Scenario(f"s{k:04d}", *c, **self.settings) for k, c in enumerate(combos)]
+
+
+def _err(source: str, key: str, msg: str) -> SpecError:
+    return SpecError(f"{source}: {key}: {msg}")
+
+
+def _check_keys(source: str, where: str, table: Any, allowed: dict) -> dict:
+    if not isinstance(table, dict):
+        raise _err(source, where, "must be a table")
+    for k, v in table.items():
+        if k not in allowed:
+            raise _err(source, f"{where}.{k}" if where else k,
+                       f"unknown key (expected {', '.join(allowed)})")
+        want = allowed[k]
+        ok = isinstance(v, want) and not isinstance(v, bool) if want is not float else \
+            isinstance(v, (int, float)) and not isinstance(v, bool)
+        if not ok:
+            names = "/".join(t.__name__ for t in (want if isinstance(want, tuple) else (want,)))
+            raise _err(source, f"{where}.{k}" if where else k, f"must be {names}, got {v!r}")
+    return table
+
+
+def _networks(source: str, raw: list, here: str) -> dict[str, NetworkEntry]:
+    out: dict[str, NetworkEntry] = {}
+    for i, item in enumerate(raw):
+        item = {"net": item} if isinstance(item, str) else item
+        e = _check_keys(source, f"networks[{i}]", item, NET_KEYS)
+        if "net" not in e:
+            raise _err(source, f"networks[{i}]", "needs 'net'")
+        path = os.path.normpath(os.path.join(here, e["net"]))
+        routes = os.path.normpath(os.path.join(here, e["routes"])) if "routes" in e else None
+        name = os.path.basename(path).split(".net.xml")[0]
+        if name in out:
+            name = f"{name}_{i}"
+        out[name] = NetworkEntry(name, path, routes, e.get("begin"))
+    return out
+
+
+def _locations(source: str, raw: list) -> list[str]:
+    out = []
+    for i, item in enumerate(raw):
+        e = _check_keys(source, f"locations[{i}]", item, LOC_KEYS)
+        if ("auto" in e) == ("center" in e):
+            raise _err(source, f"locations[{i}]", "give either auto = N or center = [x, y]")
+        if "auto" in e:
+            if e["auto"] < 1:
+                raise _err(source, f"locations[{i}].auto", "must be >= 1")
+            out += [f"auto:{k}" for k in range(e["auto"])]
+        else:
+            c = e["center"]
+            if len(c) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in c):
+                raise _err(source, f"locations[{i}].center", f"must be [x, y] in metres, got {c!r}")
+            out.append(f"{float(c[0]):g},{float(c[1]):g}" + (f",{float(e['yaw']):g}" if "yaw" in e else ""))
+    return out
+
+
+def _location_ok(loc) -> bool:
+    if not isinstance(loc, str):
+        return False
+    if loc.startswith("auto:"):
+        return loc[5:].isdigit()
+    try:
+        return len([float(v) for v in loc.split(",")]) in (2, 3)
+    except ValueError:
+        return False
+
+
+def _token_sets(source: str, raw: list) -> dict[str, Any]:
+    from ..tokenfile import TokenFileError, parse_tokens
+    out: dict[str, Any] = {}
+    for i, item in enumerate(raw):
+        e = _check_keys(source, f"token_sets[{i}]", item, SET_KEYS)
+        name = e.get("name", f"set{i}")
+        body = {k: v for k, v in e.items() if k in ("frame", "p_mask", "agents")}
+        variants = [(name, body)]
+        if "vary" in e:  # {feature: [values]} for the first agent (the key vehicle)
+            if not body.get("agents"):
+                raise _err(source, f"token_sets[{i}].vary", "needs at least one agent to vary")
+            axes = list(e["vary"].items())
+            for feat, values in axes:
+                if not isinstance(values, list) or not values:
+                    raise _err(source, f"token_sets[{i}].vary.{feat}", "must be a non-empty list")
+            variants = []
+            for combo in itertools.product(*[v for _, v in axes]):
+                agents = [dict(a) for a in body["agents"]]
+                agents[0].update({f: v for (f, _), v in zip(axes, combo)})
+                label = ",".join(f"{f}={v:g}" if isinstance(v, (int, float)) else f"{f}={v}"
+                                 for (f, _), v in zip(axes, combo))
+                variants.append((f"{name}[{label}]", {**body, "agents": agents}))
+        for vname, vbody in variants:
+            if vname in out:
+                raise _err(source, f"token_sets[{i}].name", f"{vname!r} is used twice")
+            try:
+                out[vname] = parse_tokens(vbody, f"{source}: token_sets[{i}]")
+            except TokenFileError as ex:
+                raise SpecError(str(ex)) from None
+    return out
+
+
+def parse_spec(data: dict, source: str, here: str = ".") -> Spec:
+    _check_keys(source, "", data, KEYS)
+    for key in ("networks", "locations"):
+        if key not in data and "scenarios" not in data:
+            raise _err(source, key, "missing")
+    nets = _networks(source, data.get("networks", []), here)
+    locs = _locations(source, data.get("locations", []))
+    sets = _token_sets(source, data.get("token_sets", [{"name": "none"}]))
+    p_masks = data.get("p_mask", [None])
+    for v in p_masks:
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 1):
+            raise _err(source, "p_mask", f"values must be numbers in [0, 1], got {v!r}")
+    seeds = data.get("seeds", [0])
+    seeds = list(range(seeds)) if isinstance(seeds, int) else seeds
+    if not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds):
+        raise _err(source, "seeds", f"must be integers (or a count), got {seeds!r}")
+    settings = {"steps": int(data.get("steps", 20)), "threshold": float(data.get("threshold", 0.8)),
+                "rollout": float(data.get("rollout", 60.0)), "step_length": float(data.get("step_length", 0.5))}
+    if settings["steps"] < 1 or not 0 < settings["threshold"] <= 1 or settings["rollout"] < 0 \
+            or settings["step_length"] <= 0:
+        raise _err(source, "steps/threshold/rollout/step_length", f"out of range: {settings}")
+    explicit = None
+    if "scenarios" in data:
+        explicit = []
+        for i, e in enumerate(data["scenarios"]):
+            e = dict(_check_keys(source, f"scenarios[{i}]", e, SCENARIO_KEYS))
+            for key, pool in (("network", nets), ("token_set", sets)):
+                e.setdefault(key, next(iter(pool), None))
+                if e[key] not in pool:
+                    raise _err(source, f"scenarios[{i}].{key}", f"{e[key]!r} is not defined "
+                               f"(known: {', '.join(pool) or 'none'})")
+            if not _location_ok(e.get("location")):
+                raise _err(source, f"scenarios[{i}].location", f"must be 'auto:K' or 'X,Y' (or "
+                           f"'X,Y,yaw'), got {e.get('location')!r}")
+            e.setdefault("seed", 0)
+            explicit.append(e)
+    digest = hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
+    return Spec(source, data.get("name", os.path.splitext(os.path.basename(source))[0]), nets, locs,
+                sets, p_masks, seeds, settings, explicit, digest)
+
+
+def load_spec(path: str) -> Spec:
+    from ..tokenfile import TokenFileError, _decode
+    if not os.path.isfile(path):
+        raise SpecError(f"{path}: no such file")
+    with open(path, encoding="utf-8", errors="replace") as f:
+        text = f.read()
+    try:
+        data = _decode(text, os.path.splitext(path)[1].lower(), path)
+    except TokenFileError as e:
+        raise SpecError(str(e)) from None
+    if not isinstance(data, dict):
+        raise SpecError(f"{path}: the spec must be a table/object at the top level")
+    return parse_spec(data, path, os.path.dirname(os.path.abspath(path)))

@@ -1,0 +1,133 @@
+"""A sweep worker: loads the model once, then runs tasks (scenarios that share a network and the
+sampler settings, generated in one batched model call) and writes each scenario exactly as ``run``
+does. One worker per process (libsumo allows one simulation per process); the local pool and the
+Ray actors both wrap this class.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+
+from .spec import NetworkEntry, Scenario, Spec
+
+DEFAULT_BEGIN = 600.0   # seconds of a network's demand before seeding (when it has routes)
+
+
+def noise_seed(s: Scenario) -> int:
+    """The initial-noise seed: network, location and seed only, so the variants of a token set or
+    p_mask start from the same noise (like the paper's Fig. 4 variants)."""
+    key = f"{s.network}|{s.location}|{s.seed}".encode()
+    return int.from_bytes(hashlib.sha256(key).digest()[:4], "little")
+
+
+def failure_path(out: str, sid: str) -> str:
+    return os.path.join(out, f"{sid}.failed.json")
+
+
+def write_failure(out: str, s: Scenario, error: str) -> None:
+    tmp = failure_path(out, s.id) + ".partial"
+    with open(tmp, "w") as f:
+        json.dump({**s.params(), "status": "failed", "error": error}, f)
+    os.replace(tmp, failure_path(out, s.id))
+
+
+class Worker:
+    def __init__(self, spec: Spec, out: str, checkpoint: str | None = None, threads: int | None = None):
+        import torch
+
+        from ..generate import ScenarioGenerator
+        if threads:
+            torch.set_num_threads(threads)
+        self.spec, self.out = spec, out
+        self.generator = ScenarioGenerator.load(checkpoint)
+        self._nets: dict[str, object] = {}
+        self._sessions: dict[tuple, object] = {}
+        self._auto: dict[str, list] = {}
+
+    # ---- cached per network -------------------------------------------------------------------
+    def network(self, entry: NetworkEntry):
+        from ..network import Network
+        if entry.name not in self._nets:
+            self._nets[entry.name] = Network.load(entry.net)
+        return self._nets[entry.name]
+
+    def session(self, entry: NetworkEntry, step_length: float):
+        from ..session import Session
+        from ..sumo_sim import SimConfig
+        key = (entry.name, step_length)
+        if key not in self._sessions:
+            for old in self._sessions.values():   # one simulation per process: close the last one
+                old.close()
+            self._sessions.clear()
+            routes = (entry.routes,) if entry.routes else ()
+            cfg = SimConfig(net=entry.net, routes=routes, step_length=step_length)
+            begin = DEFAULT_BEGIN if entry.begin is None else entry.begin
+            warm = (lambda sim: [sim.simulationStep() for _ in range(int(round(begin / step_length)))]) \
+                if routes else None
+            self._sessions[key] = Session(cfg, self.network(entry), self.generator).prepare(warm)
+        return self._sessions[key]
+
+    def window(self, entry: NetworkEntry, location: str):
+        from ..locations import auto_windows, window_at
+        net = self.network(entry)
+        if location.startswith("auto:"):
+            if entry.name not in self._auto:   # the same n in every worker: the same windows
+                self._auto[entry.name] = auto_windows(net, self.spec.auto_count(), seed=0)
+            loc = self._auto[entry.name][int(location[5:])]
+            return loc.window, loc.kind
+        x, y, *yaw = (float(v) for v in location.split(","))
+        return window_at(net, x, y, yaw[0] if yaw else 0.0), "center"
+
+    # ---- one task -----------------------------------------------------------------------------
+    def run(self, scenarios: list[Scenario]) -> list[str]:
+        """Run scenarios that share network, step length and sampler settings; returns their ids.
+        A scenario whose network, location or tokens fail is recorded as failed, the rest go on."""
+        from ..generate import GenerationConfig
+        from ..locations import LocationError
+        from ..network import NetworkError
+        from ..sumo_sim import SimError
+        from ..tokenfile import TokenFileError
+        bad = (NetworkError, LocationError, TokenFileError, SimError, OSError)
+        first = scenarios[0]
+        entry = self.spec.networks[first.network]
+        try:
+            session = self.session(entry, first.step_length)
+        except bad as e:
+            for s in scenarios:
+                write_failure(self.out, s, str(e))
+            return [s.id for s in scenarios]
+        ready = []
+        for s in scenarios:
+            try:
+                window, kind = self.window(entry, s.location)
+                spec_tokens = self.spec.token_sets[s.token_set]
+                user = spec_tokens.for_window(window)
+                existing = session.existing(window)
+                tokens = user + existing.tokens()
+                sources = ["user"] * len(user) + existing.token_ids()
+                p_mask = s.p_mask if s.p_mask is not None else spec_tokens.p_mask
+                ready.append((s, window, kind, tokens, sources, existing, p_mask))
+            except bad as e:
+                write_failure(self.out, s, str(e))
+        if ready:
+            cfg = GenerationConfig(steps=first.steps, threshold=first.threshold)
+            scenes = self.generator.generate(session.net, [r[1] for r in ready], tokens=[r[3] for r in ready],
+                                             p_mask=[r[6] for r in ready], config=cfg,
+                                             noise_seeds=[noise_seed(r[0]) for r in ready])
+            for (s, window, kind, tokens, sources, existing, p_mask), scene in zip(ready, scenes):
+                info = {"scene": s.id, "location": kind, "sweep": {**s.params(), "kind": kind,
+                                                                    "p_mask_used": p_mask},
+                        "model": {"sha256": self.generator.sha256, "steps": s.steps, "threshold": s.threshold},
+                        "sumo_options": session.cfg.options()}
+                try:
+                    session.realise(scene, tokens, sources, existing, self.out, s.id, info, s.rollout,
+                                    seed=s.seed, p_mask=p_mask)
+                except bad as e:
+                    write_failure(self.out, s, str(e))
+        return [s.id for s in scenarios]
+
+    def close(self) -> None:
+        for s in self._sessions.values():
+            s.close()
+        self._sessions.clear()
