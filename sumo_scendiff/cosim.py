@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import shapely
 
-from .geometry import Window, box_corners, sumo_to_pose
+from .geometry import T0, TIMES, Window, box_corners, pose_to_sumo, sumo_to_pose, wrap_angle
 from .metrics import match_agents
 from .network import Network
 from .scene import Scene
@@ -167,6 +167,40 @@ class CoSimulation:
         if last is not None and np.hypot(*(xy - last)) < every:
             return None
         return self.seed_around(ego, ahead=ahead, **kw)
+
+    def follow(self, seeding: Seeding, tau: float) -> int:
+        """Hold every seeded agent on its generated future: place it at its interpolated pose and
+        speed for ``tau`` seconds after seeding (0 < tau <= 2); the caller then steps. Returns how
+        many agents were moved (agents without an observed future are left to SUMO)."""
+        sc, w, sim = seeding.scene, seeding.scene.window, self.sim
+        k = min(int(np.floor(tau)), len(TIMES) - T0 - 2)          # segment [T0 + k, T0 + k + 1]
+        a = tau - k
+        present, moved = set(sim.vehicle.getIDList()), 0
+        for i, vid in seeding.report.ids.items():
+            j = T0 + k
+            if vid not in present or not sc.traj_mask[i, j:j + 2].all():
+                continue
+            p = (1 - a) * sc.traj[i, j, :2] + a * sc.traj[i, j + 1, :2]
+            yaw = sc.traj[i, j, 2] + a * wrap_angle(sc.traj[i, j + 1, 2] - sc.traj[i, j, 2])
+            xy = w.scene_to_world(p)
+            fx, fy, angle = pose_to_sumo(xy[0], xy[1], float(w.yaw_to_world(yaw)), sc.boxes[i, 3])
+            speed = (1 - a) * sc.speed[i, j] + a * sc.speed[i, j + 1]
+            try:
+                sim.vehicle.moveToXY(vid, "", -1, float(fx), float(fy), float(angle),
+                                     keepRoute=self.seeder.keep_route)
+                sim.vehicle.setPreviousSpeed(vid, float(speed))
+                moved += 1
+            except Exception:  # a vehicle SUMO removed meanwhile: leave it
+                continue
+        return moved
+
+    def replay_future(self, seeding: Seeding, seconds: float = 2.0) -> None:
+        """Step the simulation for ``seconds`` (<= 2) with every agent on its generated future,
+        then hand it to SUMO (for hosts that let the co-simulation step)."""
+        dt = float(self.sim.simulation.getDeltaT())
+        for k in range(1, int(round(min(seconds, 2.0) / dt)) + 1):
+            self.follow(seeding, k * dt)
+            self.sim.simulationStep()
 
     def verify(self, seeding: Seeding) -> Seeding:
         """After the host's next step: agents not within 0.5 m / 0.1 rad of their generated pose."""

@@ -13,9 +13,8 @@ rollout.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
-
-import numpy as np
 
 BRAKE_MARGIN = 0.05  # m/s^2 above decel before a deceleration counts as emergency braking
 
@@ -61,7 +60,7 @@ def rollout(sim, agent_ids, seconds: float, brake_window: float = 10.0,
                 stats.collisions += 1
         stats.teleports += len(ids.intersection(sim.simulation.getStartingTeleportIDList()))
         stats.arrived += len(ids.intersection(sim.simulation.getArrivedIDList()))
-        for v in ids.intersection(sim.vehicle.getIDList()):
+        for v in [v for v in sim.vehicle.getIDList() if v in ids]:   # SUMO's order: reproducible
             a = float(sim.vehicle.getAcceleration(v))
             speeds.append(float(sim.vehicle.getSpeed(v)))
             if a < -(decel.get(v, 4.5) + BRAKE_MARGIN):
@@ -69,6 +68,6 @@ def rollout(sim, agent_ids, seconds: float, brake_window: float = 10.0,
                 if (k + 1) * dt <= brake_window:
                     braked.add(v)
     stats.emergency_brakes = len(braked)
-    stats.mean_speed = float(np.mean(speeds)) if speeds else 0.0
+    stats.mean_speed = math.fsum(speeds) / len(speeds) if speeds else 0.0
     stats.present_at_end = len(ids.intersection(sim.vehicle.getIDList()))
     return stats

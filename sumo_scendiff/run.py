@@ -41,6 +41,8 @@ def get_options(args=None):
     p.add_argument("--steps", type=int, default=20, help="sampler steps (default 20)")
     p.add_argument("--threshold", type=float, default=0.8, help="box probability threshold")
     p.add_argument("--rollout", type=float, default=60.0, help="seconds SUMO drives after seeding (0: none)")
+    p.add_argument("--replay-future", type=float, default=0.0, metavar="SECONDS",
+                   help="hold the agents on their generated 0..+2 s future before SUMO takes over (max 2)")
     p.add_argument("--step-length", type=float, default=0.5)
     p.add_argument("--gui", action="store_true", help="watch in sumo-gui (traci)")
     p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
@@ -54,6 +56,8 @@ def get_options(args=None):
         p.error("--scenes must be >= 1")
     if o.rollout < 0 or o.step_length <= 0 or o.steps < 1:
         p.error("--rollout must be >= 0, --step-length > 0, --steps >= 1")
+    if not 0.0 <= o.replay_future <= 2.0:
+        p.error(f"--replay-future must be in [0, 2] seconds, got {o.replay_future}")
     if o.p_mask is not None and not 0.0 <= o.p_mask <= 1.0:
         p.error(f"--p-mask must be in [0, 1], got {o.p_mask}")
     o.parser = p
@@ -160,7 +164,8 @@ def run(o) -> dict:
                     "model": {"sha256": gen.sha256, "steps": o.steps, "threshold": o.threshold},
                     "sumo_options": cfg.options()}
             row = session.realise(scenes[k], tokens[k], sources[k], existing[k], o.out, name, info,
-                                  o.rollout, seed=o.seed, p_mask=p_mask[k], force=o.force)
+                                  o.rollout, seed=o.seed, p_mask=p_mask[k], force=o.force,
+                                  replay=o.replay_future)
             results.append({"scene": name, "location": places[k][1], **row})
         timing.update(session.timing)
     finally:

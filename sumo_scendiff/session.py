@@ -72,9 +72,10 @@ class Session:
     # ---- one scene ----------------------------------------------------------------------------
     def realise(self, scene, tokens: list[dict], sources: list[str], existing: Existing, out_dir: str,
                 name: str, info: dict, rollout_s: float, seed: int = 0, p_mask: float = 1.0,
-                force: bool = False, progress: bool = False) -> dict:
+                force: bool = False, progress: bool = False, replay: float = 0.0) -> dict:
         """Seed ``scene`` into a fresh simulation at the base state, export it to
-        ``out_dir/name`` and roll it out; returns the row of statistics (also in rollout.json)."""
+        ``out_dir/name``, hold the agents on their generated future for ``replay`` seconds (<= 2)
+        and roll it out; returns the row of statistics (also in rollout.json)."""
         if self.sim is not None:
             close(self.sim)
             self.sim = None
@@ -94,6 +95,8 @@ class Session:
             writer.after_seeding(sim, seeding, self.net, self.cfg.options(), info)
             self.timing["export"] += time.perf_counter() - t
             t = time.perf_counter()
+            if replay > 0:
+                cosim.replay_future(seeding, replay)
             stats = rollout(sim, seeding.agent_ids, rollout_s, progress=progress)
             self.timing["rollout"] += time.perf_counter() - t
             t = time.perf_counter()
@@ -104,7 +107,7 @@ class Session:
                    "user_tokens_matched": len(set(user) & set(t for t in seeding.token_of if t is not None)),
                    "generated": len(seeding.scene), "placed": rep.placed, "refused": len(rep.refused),
                    "misplaced": len(rep.misplaced), "existing_vehicles": len(existing.token_ids()),
-                   "dropped_on_existing": seeding.dropped, **stats.as_dict()}
+                   "dropped_on_existing": seeding.dropped, "replayed_s": replay, **stats.as_dict()}
             writer.finish(row)
             self.timing["export"] += time.perf_counter() - t
             return row

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import shapely
 
 from sumo_scendiff.cosim import CoSimulation, token_assignment
@@ -78,5 +79,34 @@ def test_place_drops_agents_on_existing_vehicles_and_their_tokens(cross_net, cro
         assert seeding.dropped == 2 and len(seeding.scene) == 3
         np.testing.assert_allclose(seeding.scene.boxes, scene.boxes[[1, 3, 4]])
         assert seeding.token_of == [None, None, None]
+    finally:
+        sim.close()
+
+
+def test_replay_future_holds_agents_on_their_generated_future(cross_net):
+    """An agent braking from 8 m/s to a stop in 2 s (the paper's "stopping" token): after the replay
+    it stands at its generated +2 s pose, not where SUMO's car-following would have taken it."""
+    from sumo_scendiff.geometry import Window
+    from sumo_scendiff.scene import Scene
+    net = Network.load(cross_net)
+    east = next(ln for ln in net.lanes if ln.edge == "wc")
+    y = float(east.shape[0][1])
+    xs = np.array([-96.0, -88.0, -80.0, -76.0, -74.0])     # 8 m/s, then braking to a stop at -74
+    traj = np.stack([xs, np.full(5, y), np.zeros(5)], -1)[None]
+    speed = np.array([[8.0, 8.0, 6.0, 3.0, 1.0]])
+    scene = Scene(Window(0, 0), [[-80.0, y, 0.0, 4.6, 1.8]], traj, np.ones((1, 5), bool), speed, [0])
+    sim = start(SimConfig(net=cross_net))
+    try:
+        cosim = CoSimulation(sim, net, generator=None)
+        ex = cosim.existing(scene.window)
+        seeding = cosim.place(scene, [], [], ex)
+        sim.simulationStep()
+        cosim.verify(seeding)
+        assert seeding.report.placed == 1
+        vid = seeding.agent_ids[0]
+        cosim.replay_future(seeding, 2.0)
+        x, _ = sim.vehicle.getPosition(vid)                 # front bumper
+        assert x - 2.3 == pytest.approx(-74.0, abs=0.3)
+        assert sim.vehicle.getSpeed(vid) < 2.0
     finally:
         sim.close()

@@ -60,7 +60,7 @@ def prepare_out(o, spec, scenarios) -> list:
             raise SweepError(f"{o.spec}: differs from the spec {o.out} was started with "
                              f"({plan.get('spec')}); start a new --out")
     else:
-        if os.path.isdir(o.out) and os.listdir(o.out):
+        if os.path.isdir(o.out) and [n for n in os.listdir(o.out) if not n.endswith(".partial")]:
             raise SweepError(f"{o.out}: exists and is not a sweep directory (choose another --out)")
         try:
             os.makedirs(o.out, exist_ok=True)
@@ -107,9 +107,9 @@ def main(o) -> int:
                    unit=" scn", disable=not (sys.stderr.isatty() or o.verbose))
         try:
             if o.engine == "ray":
-                run_ray(tasks(todo), spec, o.out, o.workers, o.checkpoint, bar, o.ray_address)
+                run_ray(tasks(todo, o.workers), spec, o.out, o.workers, o.checkpoint, bar, o.ray_address)
             else:
-                run_local(tasks(todo), spec, o.out, o.workers, o.checkpoint, bar)
+                run_local(tasks(todo, o.workers), spec, o.out, o.workers, o.checkpoint, bar)
         except EngineError as e:
             o.parser.exit(2, f"{PROG}: error: {e}\n")
         finally:

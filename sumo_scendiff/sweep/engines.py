@@ -7,6 +7,7 @@ killed with SIGKILL leaves no orphan writing into the output directory.
 """
 from __future__ import annotations
 
+import math
 import os
 from itertools import groupby
 
@@ -19,9 +20,11 @@ class EngineError(RuntimeError):
     """The engine cannot run (Ray missing, cluster unreachable): one line."""
 
 
-def tasks(scenarios: list[Scenario], size: int = TASK_SIZE) -> list[list[Scenario]]:
-    """Group by (network, step length, sampler settings), then cut into tasks of ``size``."""
+def tasks(scenarios: list[Scenario], workers: int = 1, size: int = TASK_SIZE) -> list[list[Scenario]]:
+    """Group by (network, step length, sampler settings), then cut into tasks of at most ``size``
+    scenarios, and small enough that every worker gets about four (the last tasks balance)."""
     key = lambda s: (s.network, s.step_length, s.steps, s.threshold)  # noqa: E731
+    size = max(1, min(size, math.ceil(len(scenarios) / (4 * max(workers, 1)))))
     out = []
     for _, group in groupby(sorted(scenarios, key=lambda s: (key(s), s.id)), key=key):
         group = list(group)
@@ -33,21 +36,23 @@ def _threads(workers: int) -> int:
     return max(1, (os.cpu_count() or 1) // max(workers, 1))
 
 
-def _die_with_parent() -> None:
+def _die_with_parent(parent: int) -> None:
     try:
         import ctypes
         import signal
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):
         pass
+    if os.getppid() != parent:   # the parent died before the line above took effect
+        os._exit(1)
 
 
 _WORKER = None
 
 
-def _init(spec: Spec, out: str, checkpoint: str | None, threads: int) -> None:
+def _init(spec: Spec, out: str, checkpoint: str | None, threads: int, parent: int) -> None:
     global _WORKER
-    _die_with_parent()
+    _die_with_parent(parent)
     from .worker import Worker
     _WORKER = Worker(spec, out, checkpoint, threads=threads)
 
@@ -68,7 +73,7 @@ def run_local(all_tasks, spec: Spec, out: str, workers: int, checkpoint=None, ba
         return
     import multiprocessing as mp
     ctx = mp.get_context("spawn")
-    with ctx.Pool(workers, initializer=_init, initargs=(spec, out, checkpoint, _threads(workers))) as pool:
+    with ctx.Pool(workers, initializer=_init, initargs=(spec, out, checkpoint, _threads(workers), os.getpid())) as pool:
         for done in pool.imap_unordered(_run, all_tasks):
             if bar is not None:
                 bar.update(len(done))

@@ -122,7 +122,7 @@ class Worker:
                         "sumo_options": session.cfg.options()}
                 try:
                     session.realise(scene, tokens, sources, existing, self.out, s.id, info, s.rollout,
-                                    seed=s.seed, p_mask=p_mask)
+                                    seed=s.seed, p_mask=p_mask, replay=s.replay)
                 except bad as e:
                     write_failure(self.out, s, str(e))
         return [s.id for s in scenarios]
