@@ -112,7 +112,7 @@ def train_autoencoder(o) -> None:
         out = module.loss({"x": batch["agents"], "m": batch["map"], "boxes": batch["boxes"],
                            "traj": batch["traj"], "traj_mask": batch["traj_mask"],
                            "valid": batch["valid"]})
-        return out["total"], {k: float(v) for k, v in out.items() if v.ndim == 0}
+        return out["total"], {k: float(v.detach()) for k, v in out.items() if v.ndim == 0}
 
     Loop("autoencoder", o, cfg, model, opt, step_loss,
          extra={"model_config": ckpt.config_to_dict(model.cfg)}).run()
@@ -135,7 +135,7 @@ def train_diffusion(o) -> None:
             z0 = ae.encode(batch["agents"])[0] * scale["value"]
         tokens, pad, glob = conditioning(batch, seed=cfg.seed, step=step, device=z0.device)
         loss = module.loss(z0, batch["map"], tokens, pad, glob)
-        return loss, {"edm": float(loss)}
+        return loss, {"edm": float(loss.detach())}
 
     loop = Loop("diffusion", o, cfg, model, opt, step_loss,
                 extra={"model_config": ckpt.config_to_dict(model.cfg),
