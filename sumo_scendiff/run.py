@@ -33,7 +33,8 @@ def get_options(args=None):
     where.add_argument("--center", metavar="X,Y", help="window centre in network coordinates")
     where.add_argument("--ego", metavar="ID", help="seed around this vehicle of --route-files")
     p.add_argument("--begin", type=float, default=None,
-                   help="with -r and no --ego: seconds of demand to run before seeding (default 600)")
+                   help="with -r and no --ego: seconds of demand to run (from its first departure) "
+                        "before seeding (default 600)")
     p.add_argument("--tokens", metavar="FILE", help="agent tokens and global token (TOML/JSON, docs/tokens.md)")
     p.add_argument("--p-mask", type=float, default=None, help="global scene token (overrides the token file)")
     p.add_argument("--scenes", type=int, default=4, help="number of scenes (default 4)")
@@ -115,6 +116,7 @@ def _windows(o, net, sim, cosim):
 def run(o) -> dict:
     import numpy as np
 
+    from .data.demand import DemandError, check_routes
     from .generate import GenerationConfig, ScenarioGenerator
     from .network import Network
     from .raster import render_map
@@ -130,10 +132,13 @@ def run(o) -> dict:
     _check_output(o)
     gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(steps=o.steps, threshold=o.threshold))
     routes = tuple(r for r in (o.routes or "").split(",") if r)
-    for r in routes:
-        if not os.path.isfile(r):
-            raise RunError(f"{r}: no such route file")
-    cfg = SimConfig(net=o.net, routes=routes, step_length=o.step_length, gui=o.gui, seed=o.seed)
+    edges = {ln.edge for ln in net.lanes}
+    try:  # matches the network; the simulation starts at the first departure
+        first = min(check_routes(r, edges) for r in routes) if routes else None
+    except DemandError as e:
+        raise RunError(str(e)) from None
+    cfg = SimConfig(net=o.net, routes=routes, step_length=o.step_length, gui=o.gui, seed=o.seed,
+                    begin=first)
     session = Session(cfg, net, gen, quiet=not o.verbose)
     try:
         session.prepare((lambda sim: _warm_up(sim, o, progress)) if routes else None)

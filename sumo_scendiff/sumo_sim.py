@@ -30,6 +30,7 @@ class SimConfig:
     gui: bool = False                   # sumo-gui through traci instead of libsumo
     traci: bool = False                 # sumo through traci (a separate process) instead of libsumo
     seed: int = 0
+    begin: float | None = None          # simulation start (s): a demand's first departure
     extra: tuple[str, ...] = field(default_factory=tuple)
 
     def args(self) -> list[str]:
@@ -42,6 +43,8 @@ class SimConfig:
             a += ["--lateral-resolution", f"{self.lateral_resolution:g}"]
         if self.routes:
             a += ["-r", ",".join(os.path.abspath(r) for r in self.routes)]
+        if self.begin is not None:
+            a += ["-b", f"{self.begin:g}"]
         return a + list(self.extra)
 
     def options(self) -> dict[str, str]:

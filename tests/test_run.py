@@ -95,6 +95,7 @@ def test_run_ego_infill(cross_net, demand, tmp_path, capsys):
     ("bad-tokens", "agents[0]"),
     ("ego-never", "never appears"),
     ("unwritable", "not writable"),
+    ("foreign-routes", "does not match the network"),
 ])
 def test_bad_input_one_line_exit_2(case, expect, cross_net, demand, tmp_path, capsys):
     bad = tmp_path / "bad.toml"
@@ -102,12 +103,15 @@ def test_bad_input_one_line_exit_2(case, expect, cross_net, demand, tmp_path, ca
     junk = tmp_path / "junk.net.xml"
     junk.write_text("<routes/>")
     (tmp_path / "file").write_text("x")
+    foreign = tmp_path / "foreign.rou.xml"
+    foreign.write_text('<routes><vehicle id="a" depart="0"><route edges="x y"/></vehicle></routes>')
     args = {"missing-net": ["-n", str(tmp_path / "nope.net.xml")],
             "not-a-net": ["-n", str(junk)],
             "far-center": ["-n", cross_net, "--center", "5000,5000"],
             "bad-tokens": ["-n", cross_net, "--center", "0,0", "--tokens", str(bad)],
             "ego-never": ["-n", cross_net, "-r", demand, "--ego", "nobody"],
             "unwritable": ["-n", cross_net, "--center", "0,0", "-o", str(tmp_path / "file" / "sub")],
+            "foreign-routes": ["-n", cross_net, "-r", str(foreign), "--center", "0,0"],
             }[case]
     out = tmp_path / "out"
     code, _, err = _run(args + (["-o", str(out)] if "-o" not in args else []) + ["--rollout", "0"], capsys)

@@ -53,6 +53,7 @@ class Worker:
         return self._nets[entry.name]
 
     def session(self, entry: NetworkEntry, step_length: float):
+        from ..data.demand import check_routes
         from ..session import Session
         from ..sumo_sim import SimConfig
         key = (entry.name, step_length)
@@ -61,11 +62,13 @@ class Worker:
                 old.close()
             self._sessions.clear()
             routes = (entry.routes,) if entry.routes else ()
-            cfg = SimConfig(net=entry.net, routes=routes, step_length=step_length)
+            net = self.network(entry)
+            first = check_routes(entry.routes, {ln.edge for ln in net.lanes}) if routes else None
+            cfg = SimConfig(net=entry.net, routes=routes, step_length=step_length, begin=first)
             begin = DEFAULT_BEGIN if entry.begin is None else entry.begin
             warm = (lambda sim: [sim.simulationStep() for _ in range(int(round(begin / step_length)))]) \
                 if routes else None
-            self._sessions[key] = Session(cfg, self.network(entry), self.generator).prepare(warm)
+            self._sessions[key] = Session(cfg, net, self.generator).prepare(warm)
         return self._sessions[key]
 
     def window(self, entry: NetworkEntry, location: str):
@@ -83,12 +86,13 @@ class Worker:
     def run(self, scenarios: list[Scenario]) -> list[str]:
         """Run scenarios that share network, step length and sampler settings; returns their ids.
         A scenario whose network, location or tokens fail is recorded as failed, the rest go on."""
+        from ..data.demand import DemandError
         from ..generate import GenerationConfig
         from ..locations import LocationError
         from ..network import NetworkError
         from ..sumo_sim import SimError
         from ..tokenfile import TokenFileError
-        bad = (NetworkError, LocationError, TokenFileError, SimError, OSError)
+        bad = (NetworkError, LocationError, TokenFileError, SimError, DemandError, OSError)
         first = scenarios[0]
         entry = self.spec.networks[first.network]
         try:
