@@ -38,7 +38,7 @@ class SimConfig:
         a = ["-n", os.path.abspath(self.net), "--step-length", f"{self.step_length:g}",
              "--seed", str(self.seed), "--no-step-log", "true", "--duration-log.disable", "true",
              "--collision.check-junctions", "true" if self.check_junctions else "false",
-             "--time-to-teleport", "300"]
+             "--time-to-teleport", "300", "--save-state.precision", "6"]
         if self.lateral_resolution > 0:
             a += ["--lateral-resolution", f"{self.lateral_resolution:g}"]
         if self.routes:

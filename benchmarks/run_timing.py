@@ -1,0 +1,153 @@
+"""Benchmark: where the time of a ``run`` goes on a real city with its own traffic, and the seeding
+overhead relative to SUMO driving (target: raster + generate + seed + export <= 10 % of rollout).
+
+    python benchmarks/run_timing.py [-n NET] [-r ROUTES] [--scenes 8] [--rollout 60] [--begin SECONDS ...]
+    python benchmarks/run_timing.py -o runs/bench_run_timing.md
+
+Runs ``python -m sumo_scendiff.run -n NET -r ROUTES --scenes 8 --rollout 60 -o TMP`` in-process
+(``sumo_scendiff.run.get_options`` / ``run``; windows auto-chosen) once per ``--begin`` value
+(``default``: run's own, 600 s of demand from its first departure; a number is passed as run's
+``--begin``) and reads ``TMP/run.json``'s ``timing_s``. The warm-up inside run (part of its "load")
+is timed separately by wrapping ``run._warm_up``, together with the simulation time and the
+vehicles on the road when seeding starts. Prints a markdown table, configurations side by side
+(and writes it with ``-o``).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
+COLOGNE8 = os.path.normpath(os.path.join(ROOT, "..", "shared", "nets", "resco_cologne8", "cologne8.net.xml"))
+PHASES = ("load", "raster", "generate", "seed", "rollout", "export")
+OVERHEAD = ("raster", "generate", "seed", "export")
+
+
+def get_options(args=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    p.add_argument("-n", "--net-file", "--net", dest="net", default=COLOGNE8)
+    p.add_argument("-r", "--route-files", "--routes", dest="routes", default=None,
+                   help="default: the route file beside the net (evaluate.find_demand)")
+    p.add_argument("--scenes", type=int, default=8)
+    p.add_argument("--rollout", type=float, default=60.0)
+    p.add_argument("--begin", action="append", default=None, metavar="default|SECONDS",
+                   help="run's --begin (seconds of demand before seeding), one run per value (default: default)")
+    p.add_argument("-s", "--seed", type=int, default=0)
+    p.add_argument("-o", "--output", default=None, metavar="FILE", help="also write the table here")
+    return p.parse_args(args)
+
+
+def one_run(o, routes: str, begin: float | None, tmp: str) -> dict:
+    """Run the CLI in-process; its summary plus the timed warm-up and the state after it."""
+    from sumo_scendiff import run as run_mod
+    args = ["-n", o.net, "-r", routes, "--scenes", str(o.scenes), "--rollout", f"{o.rollout:g}",
+            "-s", str(o.seed), "-o", tmp]
+    if begin is not None:
+        args += ["--begin", f"{begin:g}"]
+    warm = {}
+    original = run_mod._warm_up
+
+    def timed_warm_up(sim, opts, progress):
+        t = time.perf_counter()
+        original(sim, opts, progress)
+        warm.update(seconds=time.perf_counter() - t, sim_time=float(sim.simulation.getTime()),
+                    vehicles=len(sim.vehicle.getIDList()))
+
+    run_mod._warm_up = timed_warm_up
+    try:
+        t = time.perf_counter()
+        summary = run_mod.run(run_mod.get_options(args))
+        wall = time.perf_counter() - t
+    finally:
+        run_mod._warm_up = original
+    return {"args": args, "summary": summary, "warm": warm, "wall": wall}
+
+
+def table(results: list[tuple[str, dict]], o, routes: str, command: str) -> str:
+    labels = [label for label, _ in results]
+    lines = [f"Command: `{command}`", "",
+             f"`python -m sumo_scendiff.run -n {os.path.relpath(o.net, ROOT)} -r {os.path.relpath(routes, ROOT)} "
+             f"--scenes {o.scenes} --rollout {o.rollout:g} -s {o.seed} -o TMP [--begin B]` in-process, "
+             f"windows auto-chosen, 1 process (a training job shares the 2 cores)", "",
+             "| | " + " | ".join(labels) + " |", "|---|" + "---|" * len(labels)]
+
+    def row(name, cells):
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+
+    S = [r["summary"] for _, r in results]
+    T = [s["timing_s"] for s in S]
+    n = [max(len(s["scenes"]), 1) for s in S]
+    row("`--begin` passed", [" ".join(r["args"][r["args"].index("--begin"):][:2]) if "--begin" in r["args"]
+                             else "none (600 s of demand)" for _, r in results])
+    row("simulation time when seeding (s)", [f"{r['warm'].get('sim_time', float('nan')):.0f}" for _, r in results])
+    row("vehicles on the net when seeding", [str(r["warm"].get("vehicles", "–")) for _, r in results])
+    for ph in PHASES:
+        row(f"{ph} (s): total / per scene",
+            [f"{t.get(ph, 0.0):.2f} / {t.get(ph, 0.0) / k:.2f}" for t, k in zip(T, n)])
+        if ph == "load":
+            row("  of which warm-up inside run (s)", [f"{r['warm'].get('seconds', 0.0):.2f}" for _, r in results])
+            row("  load without warm-up (s)",
+                [f"{t.get('load', 0.0) - r['warm'].get('seconds', 0.0):.2f}" for t, (_, r) in zip(T, results)])
+    row("sum of phases / wall of run() (s)",
+        [f"{sum(t.values()):.1f} / {r['wall']:.1f}" for t, (_, r) in zip(T, results)])
+    over = [sum(t.get(k, 0.0) for k in OVERHEAD) for t in T]
+    row("seeding overhead (raster + generate + seed + export) (s)", [f"{v:.2f}" for v in over])
+    row("**overhead / rollout** (target ≤ 10 %)",
+        [f"**{100.0 * v / t['rollout']:.1f} %**" if t.get("rollout") else "–" for v, t in zip(over, T)])
+    sim_s = [len(s["scenes"]) * o.rollout for s in S]
+    row("simulated rollout time (s); simulated s per wall s",
+        [f"{v:g}; {v / t['rollout']:.0f}x" if t.get("rollout") else f"{v:g}; –" for v, t in zip(sim_s, T)])
+    row("overhead / simulated rollout time", [f"{100.0 * v / x:.1f} %" if x else "–" for v, x in zip(over, sim_s)])
+    for key, name in (("generated", "agents generated (seeded after drops)"),
+                      ("dropped_on_existing", "dropped on existing vehicles"),
+                      ("existing_vehicles", "existing vehicles in the windows (tokens)"),
+                      ("refused", "refused"), ("misplaced", "misplaced")):
+        row(name, [str(sum(sc.get(key, 0) for sc in s["scenes"])) for s in S])
+    placed = [sum(sc["placed"] for sc in s["scenes"]) for s in S]
+    gen = [sum(sc["generated"] for sc in s["scenes"]) for s in S]
+    drop = [sum(sc["dropped_on_existing"] for sc in s["scenes"]) for s in S]
+    row("**placement** (placed / seeded, run's definition)",
+        [f"**{100.0 * p / g:.1f} %** ({p}/{g})" if g else "–" for p, g in zip(placed, gen)])
+    row("placed / (seeded + dropped)",
+        [f"{100.0 * p / (g + d):.1f} %" if g + d else "–" for p, g, d in zip(placed, gen, drop)])
+    for key, name in (("collisions", "collisions"), ("teleports", "teleports"),
+                      ("emergency_brakes", "e-brake agents (first 10 s)")):
+        row(f"{name} / 100 agents",
+            [f"{100.0 * sum(sc[key] for sc in s['scenes']) / max(sum(sc['agents'] for sc in s['scenes']), 1):.1f}"
+             for s in S])
+    return "\n".join(lines)
+
+
+def main(o) -> int:
+    import tempfile
+
+    from sumo_scendiff.evaluate import find_demand
+    from sumo_scendiff.network import Network
+    routes = o.routes or find_demand(Network.load(o.net))
+    if routes is None:
+        sys.exit(f"{o.net}: no route file beside the net; give -r")
+    command = ("python benchmarks/run_timing.py " + " ".join(sys.argv[1:])).strip() \
+        if sys.argv[0].endswith("run_timing.py") else "benchmarks/run_timing.py (in-process)"
+    results = []
+    t0 = time.perf_counter()
+    for b in (o.begin or ["default"]):
+        begin = None if b == "default" else float(b)
+        label = "run's default warm-up (600 s of demand)" if begin is None else f"--begin {begin:g}"
+        with tempfile.TemporaryDirectory(prefix="bench-run-") as tmp:
+            r = one_run(o, routes, begin, tmp)
+        print(f"{label}: {r['wall']:.0f} s", file=sys.stderr)
+        results.append((label, r))
+    text = table(results, o, routes, command) + f"\n\nTotal wall time {time.perf_counter() - t0:.0f} s.\n"
+    print(text)
+    if o.output:
+        os.makedirs(os.path.dirname(os.path.abspath(o.output)), exist_ok=True)
+        with open(o.output, "w") as f:
+            f.write("# run timing benchmark\n\n" + text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(get_options()))

@@ -1,0 +1,388 @@
+"""Benchmark: seeding generated traffic into SUMO -- placement rate, and 60-s rollouts of the model's
+agents and Lane-uniform's beside SUMO's own traffic in the same windows and the same traffic state.
+
+    python benchmarks/seeding.py [-n NET ...] [--windows 10] [--rollout 60] [-s 0] [-o runs/bench_seeding.md]
+    python benchmarks/seeding.py -n networks/city.net.xml \\
+        -n ../shared/nets/resco_cologne8/cologne8.net.xml \\
+        -n ../shared/nets/resco_ingolstadt21/ingolstadt21.net.xml --windows 8 -o runs/bench_seeding.md
+
+Per network: its own demand (a real city: the route file beside the net, from its first departure,
+as the data recorder runs it; otherwise random trips with the recorder's vehicle mix) is warmed up
+for ``--warmup`` s and the state saved at that time T. For each window (``auto_windows``):
+
+* **SUMO**: load the state; the vehicles whose centre is inside the window are the agents.
+* **Scenario Diffusion**: load the state, remove the vehicles inside the window, generate the window
+  map-only (no tokens, p_mask = 1) and seed it with ``CoSimulation.place`` (the vehicles around the
+  window are the existing ones, so nothing is seeded on top of them); step; ``verify``.
+* **Lane-uniform**: the same with the baseline's scene (its own Poisson count rule).
+
+Every rollout runs in a freshly started SUMO that loads the state (as ``run``'s ``Session`` does), so
+each method starts from the same state and random streams. Every method gets one step (the seeding
+step for the generated ones) and ``rollout`` of ``--rollout`` s. Placement = agents within 0.5 m /
+0.1 rad of their generated pose after that step, over the agents generated (refused, misplaced and
+dropped-on-existing ones count against it).
+Rollout rates are per 100 agents; "x SUMO" columns are the method's rate over SUMO's.
+
+Determinism: with libsumo 1.28 the steps after a ``loadState`` depend on where SUMO's objects lie
+in memory (measured on city.net.xml: the same state file loaded into a fresh SUMO gives other
+vehicle positions one step later from run to run, even within one process; warm-ups from scratch
+repeat exactly). So the model's scenes are generated here, and SUMO runs in a fresh interpreter
+per net (``--worker``) that is given only that net's inputs and has nothing that varies between
+runs: no address space randomisation (``personality``, as ``setarch -R``), no torch, one BLAS
+thread, a fixed hash seed, fixed file names (``$TMPDIR/scendiff-bench-seeding-UID/work``, locked),
+stdout / stderr to a pipe / file, windows and methods in a fixed order, the begin time on the step
+grid. Then the same seed gives the same numbers, whatever other nets the command has (checked by
+repeating runs on this machine; another SUMO build or machine may give other numbers). Every
+rollout starts a fresh SUMO because SUMO's random streams are not part of a saved state
+(``--save-state.rng`` crashes libsumo 1.28 on the second ``loadState``). Prints markdown tables
+(and writes them with ``-o``).
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import os
+import re
+import sys
+import time
+from collections import Counter
+
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
+SHARED = os.path.join(ROOT, "..", "shared", "nets")
+CITY = os.path.join(ROOT, "networks", "city.net.xml")
+REAL = ("resco_cologne1/cologne1.net.xml", "resco_cologne3/cologne3.net.xml",
+        "resco_cologne8/cologne8.net.xml", "resco_ingolstadt1/ingolstadt1.net.xml",
+        "resco_ingolstadt7/ingolstadt7.net.xml", "resco_ingolstadt21/ingolstadt21.net.xml",
+        "berlin_doerpfeldstr/net.net.xml.gz")
+METHODS = ("SUMO", "Scenario Diffusion", "Lane-uniform")
+RATES = (("collisions", "collisions / 100"), ("teleports", "teleports / 100"),
+         ("emergency_brakes", "e-brake agents (first 10 s) / 100"))
+
+
+def get_options(args=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    p.add_argument("-n", "--net-file", "--net", dest="nets", action="append", default=None, metavar="NET",
+                   help="network (repeat); default: networks/city.net.xml + the real cities with demand")
+    p.add_argument("--windows", type=int, default=10, help="windows per network (auto_windows)")
+    p.add_argument("--rollout", type=float, default=60.0, help="seconds SUMO drives after hand-off")
+    p.add_argument("--warmup", type=float, default=600.0, help="seconds of demand before the state T")
+    p.add_argument("--density", type=float, default=100.0,
+                   help="random trips (nets without demand): vehicles / h / km of lane")
+    p.add_argument("--step-length", type=float, default=0.5)
+    p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
+    p.add_argument("-s", "--seed", type=int, default=0)
+    p.add_argument("-o", "--output", default=None, metavar="FILE", help="also write the tables here")
+    return p.parse_args(args)
+
+
+def default_nets() -> list[str]:
+    return [CITY] + [os.path.normpath(os.path.join(SHARED, r)) for r in REAL
+                     if os.path.exists(os.path.join(SHARED, r))]
+
+
+def _reason(msg: str) -> str:
+    """A refusal message with vehicle / route / type ids blanked, so equal causes count together."""
+    return re.sub(r"'[^']*'", "'…'", msg)[:120]
+
+
+# ---- one network ---------------------------------------------------------------------------------
+def demand(net, o, tmp: str):
+    """(route file, begin, extra SUMO args, label): the net's own demand, else random trips."""
+    from sumo_scendiff.data.demand import RandomDemand, check_routes, random_trips, write_vtypes
+    from sumo_scendiff.evaluate import find_demand
+    routes = find_demand(net)
+    if routes:
+        first = check_routes(routes, {ln.edge for ln in net.lanes})  # first departure (data CLI -> record)
+        begin = math.floor(first / o.step_length) * o.step_length   # on the step grid, see the docstring
+        return routes, begin, [], f"own demand {os.path.basename(routes)}, from t = {begin:g} s"
+    vtypes = write_vtypes(os.path.join(tmp, "vtypes.add.xml"))
+    trips = random_trips(net.path, os.path.join(tmp, "trips.rou.xml"),
+                         RandomDemand(o.density, o.warmup + o.rollout + 60.0, o.seed))
+    with open(trips) as f:   # without randomTrips' header comment (its time stamp): the same bytes every run
+        text = re.sub(r"<!--.*?-->\s*", "", f.read(), count=1, flags=re.S)
+    with open(trips, "w") as f:
+        f.write(text)
+    return trips, 0.0, ["--additional-files", vtypes], f"random trips {o.density:g} veh/h/km"
+
+
+@contextlib.contextmanager
+def no_aslr():
+    """Programs started inside run without address space randomisation (Linux ``personality``,
+    what ``setarch -R`` does); yields whether that worked."""
+    import ctypes
+    ADDR_NO_RANDOMIZE = 0x0040000
+    old = -1
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        old = libc.personality(0xFFFFFFFF)
+        if old != -1 and libc.personality(old | ADDR_NO_RANDOMIZE) == -1:
+            old = -1
+    except (OSError, AttributeError):
+        pass
+    if old == -1:
+        print("could not turn off address space randomisation: rollout numbers may vary between runs",
+              file=sys.stderr)
+    try:
+        yield old != -1
+    finally:
+        if old != -1:
+            libc.personality(old)
+
+
+def bench_net(path: str, gen, o, explicit: bool) -> dict | None:
+    """Windows and the model's scenes here; everything SUMO does in a fresh child process."""
+    import pickle
+    import shutil
+    import subprocess
+    import tempfile
+
+    from tqdm import tqdm
+
+    from sumo_scendiff.evaluate import find_demand
+    from sumo_scendiff.locations import auto_windows
+    from sumo_scendiff.network import Network
+
+    t_start = time.perf_counter()
+    net = Network.load(path)
+    if find_demand(net) is None and not explicit and os.path.abspath(path) != os.path.abspath(CITY):
+        print(f"{net.name}: no demand beside the net, skipped", file=sys.stderr)
+        return None
+    locs = auto_windows(net, o.windows, seed=o.seed)
+    windows = [loc.window for loc in locs]
+    t = time.perf_counter()
+    scenes = gen.generate(net, windows, seed=o.seed)          # map-only: no tokens, p_mask = 1
+    t_gen = time.perf_counter() - t
+    # SUMO's steps after a loadState depend on where its objects lie in memory (see the module
+    # docstring): a fresh interpreter without torch or BLAS threads, with a fixed hash seed, without
+    # address space randomisation, fixed file names and stdout / stderr, given only this net's inputs,
+    # runs the same way whatever else the command does.
+    import fcntl
+    opts = {k: getattr(o, k) for k in ("warmup", "rollout", "density", "step_length", "seed")}
+    top = os.path.join(tempfile.gettempdir(), f"scendiff-bench-seeding-{os.getuid()}")
+    os.makedirs(top, exist_ok=True)
+    with open(os.path.join(top, "lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)                 # one benchmark at a time uses these names
+        io = os.path.join(top, "work")
+        shutil.rmtree(io, ignore_errors=True)
+        os.makedirs(io)
+        src, dst, log = (os.path.join(io, n) for n in ("in.pkl", "out.pkl", "err.txt"))
+        with open(src, "wb") as f:
+            pickle.dump({"path": os.path.abspath(path), "windows": windows, "scenes": scenes, "opts": opts,
+                         "demand": demand(net, o, io), "dir": io}, f)
+        env = {**os.environ, "PYTHONHASHSEED": "0", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
+               "MKL_NUM_THREADS": "1"}
+        with no_aslr() as fixed, open(log, "w") as err, \
+                tqdm(total=len(windows), desc=net.name, unit="window", leave=False) as bar:
+            proc = subprocess.Popen([sys.executable, os.path.abspath(__file__), "--worker", src, dst],
+                                    env=env, stdout=subprocess.PIPE, stderr=err, text=True)
+            for _ in proc.stdout:                         # one line per window done
+                bar.update(1)
+            if proc.wait() != 0:
+                with open(log) as f:
+                    sys.exit(f"{net.name}: the SUMO worker failed:\n{f.read()[-3000:]}")
+        with open(dst, "rb") as f:
+            r = pickle.load(f)
+        shutil.rmtree(io, ignore_errors=True)
+    r["repeatable"] = fixed
+    r.update(net=net.name, windows=len(windows), kinds=dict(Counter(loc.kind for loc in locs)))
+    r["seconds"].update(generate=t_gen, total=time.perf_counter() - t_start)
+    return r
+
+
+def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -> dict:
+    """The SUMO part of one network (runs in the child process); ``dem`` from :func:`demand`,
+    ``work`` the directory for the saved state."""
+    import numpy as np
+
+    from sumo_scendiff.baselines import LaneUniform
+    from sumo_scendiff.cosim import CoSimulation, Existing
+    from sumo_scendiff.network import Network
+    from sumo_scendiff.rollout import rollout
+    from sumo_scendiff.sumo_sim import SimConfig, close, start
+
+    net = Network.load(path)
+    lane = LaneUniform(net, seed=o.seed)
+    lu_scenes = [lane.generate(w, index=i) for i, w in enumerate(windows)]
+    routes, begin, extra, label = dem
+    cfg = SimConfig(net=path, routes=(routes,), step_length=o.step_length, seed=o.seed, begin=begin,
+                    extra=tuple(["--ignore-route-errors", "true"] + extra))
+    base = os.path.join(work, "state.xml")
+    sim = start(cfg)
+    try:
+        t = time.perf_counter()
+        sim.simulationStep(begin + o.warmup)
+        t_warm = time.perf_counter() - t
+        on_road = len(sim.vehicle.getIDList())
+        sim.simulation.saveState(base)
+    finally:
+        close(sim)
+    res = {m: {"stats": [], "generated": 0, "dropped": 0, "refused": Counter(), "absent": 0,
+               "off_pose": 0, "placed": 0} for m in METHODS}
+    t = time.perf_counter()
+    for k, w in enumerate(windows):
+        for name, scene in zip(METHODS, (None, scenes[k], lu_scenes[k])):
+            # a fresh SUMO at the base state for every rollout, as run's Session does: each starts
+            # from the same state and the same random streams, whatever ran before it
+            sim = start(cfg)
+            try:
+                sim.simulation.loadState(base)
+                cosim = CoSimulation(sim, net, None, seed=o.seed)
+                ex = cosim.existing(w)
+                if scene is None:                          # (a) SUMO's own traffic in the window
+                    sim.simulationStep()
+                    res[name]["stats"].append(rollout(sim, ex.token_ids(), o.rollout))
+                    continue
+                for vid in ex.token_ids():                 # (b), (c): the window emptied, then seeded
+                    sim.vehicle.remove(vid)
+                out = ~ex.inside
+                around = Existing([i for i, keep in zip(ex.ids, out) if keep], ex.boxes[out],
+                                  ex.speed[out], np.zeros(int(out.sum()), bool))
+                seeding = cosim.place(scene, [], [], around, seed=o.seed, p_mask=1.0)
+                sim.simulationStep()
+                cosim.verify(seeding)
+                r, rep = res[name], seeding.report
+                r["generated"] += len(scene)
+                r["dropped"] += seeding.dropped
+                r["refused"].update(_reason(m) for m in rep.refused.values())
+                r["absent"] += sum(1 for e in rep.misplaced.values() if not np.isfinite(e))
+                r["off_pose"] += sum(1 for e in rep.misplaced.values() if np.isfinite(e))
+                r["placed"] += rep.placed
+                r["stats"].append(rollout(sim, seeding.agent_ids, o.rollout))
+            finally:
+                close(sim)
+        print(k + 1, flush=True)                           # progress, for the parent's bar
+    t_windows = time.perf_counter() - t
+    return {"demand": label, "on_road": on_road, "methods": res,
+            "seconds": {"warmup": t_warm, "windows": t_windows}}
+
+
+# ---- tables --------------------------------------------------------------------------------------
+def totals(stats: list) -> dict:
+    agents = sum(s.agents for s in stats)
+    d = {"agents": agents}
+    for key, _ in RATES:
+        d[key] = 100.0 * sum(getattr(s, key) for s in stats) / agents if agents else float("nan")
+    # mean speed over agent-steps is what rollout reports per window; windows weighted by agents
+    d["mean_speed"] = (sum(s.mean_speed * s.agents for s in stats) / agents) if agents else float("nan")
+    return d
+
+
+def _f(v, fmt="{:.2f}") -> str:
+    return "–" if v != v else fmt.format(v)
+
+
+def _ratio(a: float, b: float) -> str:
+    if a != a or b != b:
+        return "–"
+    if b == 0:
+        return "–" if a == 0 else "∞"
+    return f"{a / b:.2f}"
+
+
+def _merge(results: list[dict], method: str) -> dict:
+    out = {"stats": [], "generated": 0, "dropped": 0, "refused": Counter(), "absent": 0, "off_pose": 0,
+           "placed": 0}
+    for r in results:
+        m = r["methods"][method]
+        out["stats"] += m["stats"]
+        out["refused"].update(m["refused"])
+        for k in ("generated", "dropped", "absent", "off_pose", "placed"):
+            out[k] += m[k]
+    return out
+
+
+def tables(results: list[dict], o, command: str) -> str:
+    groups = [(r["net"], r["methods"]) for r in results]
+    if len(results) > 1:
+        groups.append((f"**all ({len(results)} nets)**", {m: _merge(results, m) for m in METHODS}))
+    lines = [f"Command: `{command}`", "",
+             f"seed {o.seed}, {o.windows} windows per net (auto_windows), warm-up {o.warmup:g} s, "
+             f"rollout {o.rollout:g} s, step {o.step_length:g} s, sublane 0.8 m; a fresh SUMO at the state T "
+             f"per rollout, in one worker process per net, address space randomisation off: "
+             f"{'yes' if all(r.get('repeatable') for r in results) else 'NO (numbers may vary)'}", "",
+             "| network | demand | windows (kinds) | vehicles on the net at T | wall (s): warm-up / generate / "
+             "windows / total |", "|---|---|---|---|---|"]
+    for r in results:
+        s = r["seconds"]
+        kinds = ", ".join(f"{v} {k}" for k, v in r["kinds"].items())
+        lines.append(f"| {r['net']} | {r['demand']} | {r['windows']} ({kinds}) | {r['on_road']} | "
+                     f"{s['warmup']:.1f} / {s['generate']:.1f} / {s['windows']:.1f} / {s['total']:.1f} |")
+
+    lines += ["", "### Placement: generated agents within 0.5 m / 0.1 rad of their pose after the first step",
+              "", "| network | method | generated | dropped (on existing) | refused | absent after step "
+              "| off pose | placed | placement (placed / generated) |", "|---|---|---|---|---|---|---|---|---|"]
+    for label, methods in groups:
+        for k, name in enumerate(METHODS[1:]):
+            m = methods[name]
+            rate = 100.0 * m["placed"] / m["generated"] if m["generated"] else float("nan")
+            lines.append(f"| {label if k == 0 else ''} | {name} | {m['generated']} | {m['dropped']} | "
+                         f"{sum(m['refused'].values())} | {m['absent']} | {m['off_pose']} | {m['placed']} | "
+                         f"{_f(rate, '{:.1f} %')} |")
+    for name in METHODS[1:]:
+        refused = Counter()
+        for r in results:
+            refused.update(r["methods"][name]["refused"])
+        lines += ["", f"Refusal reasons, {name}: " + ("none" if not refused else "")]
+        if refused:
+            lines += ["", "| count | reason |", "|---|---|"]
+            lines += [f"| {n} | {reason} |" for reason, n in refused.most_common()]
+
+    head = " | ".join(c for _, c in RATES)
+    lines += ["", f"### Rollout: {o.rollout:g} s after hand-off, same windows and state; "
+                  "rates per 100 agents, ratio to SUMO's own traffic", "",
+              f"| network | method | agents | {head} | mean speed (m/s) | collisions × SUMO | "
+              "teleports × SUMO | e-brakes × SUMO | speed × SUMO |", "|---|" * 1 + "---|" * 10]
+    for label, methods in groups:
+        ref = totals(methods["SUMO"]["stats"])
+        for k, name in enumerate(METHODS):
+            d = totals(methods[name]["stats"])
+            cells = [str(d["agents"])] + [_f(d[key]) for key, _ in RATES] + [_f(d["mean_speed"])]
+            ratios = ["" if name == "SUMO" else _ratio(d[key], ref[key]) for key, _ in RATES]
+            ratios.append("" if name == "SUMO" else _ratio(d["mean_speed"], ref["mean_speed"]))
+            lines.append(f"| {label if k == 0 else ''} | {name} | " + " | ".join(cells + ratios) + " |")
+    return "\n".join(lines)
+
+
+def main(o) -> int:
+    import torch
+
+    from sumo_scendiff.generate import ScenarioGenerator
+    torch.manual_seed(o.seed)
+    command = "python benchmarks/seeding.py " + " ".join(sys.argv[1:]) if sys.argv[0].endswith(
+        "seeding.py") else "benchmarks/seeding.py (in-process)"
+    t = time.perf_counter()
+    gen = ScenarioGenerator.load(o.checkpoint)
+    results = []
+    for path in (o.nets or default_nets()):
+        r = bench_net(path, gen, o, explicit=o.nets is not None)
+        if r is not None:
+            results.append(r)
+            print(f"{r['net']}: {r['seconds']['total']:.0f} s", file=sys.stderr)
+    text = tables(results, o, command) + f"\n\nTotal wall time {time.perf_counter() - t:.0f} s.\n"
+    print(text)
+    if o.output:
+        os.makedirs(os.path.dirname(os.path.abspath(o.output)), exist_ok=True)
+        with open(o.output, "w") as f:
+            f.write("# Seeding benchmark\n\n" + text)
+    return 0
+
+
+def worker(src: str, dst: str) -> int:
+    """``--worker IN OUT``: :func:`simulate` on a pickled net's inputs (the SUMO process)."""
+    import pickle
+    import types
+    with open(src, "rb") as f:
+        job = pickle.load(f)
+    r = simulate(job["path"], job["windows"], job["scenes"], types.SimpleNamespace(**job["opts"]),
+                 job["demand"], job["dir"])
+    with open(dst, "wb") as f:
+        pickle.dump(r, f)
+    return 0
+
+
+if __name__ == "__main__":
+    if sys.argv[1:2] == ["--worker"]:
+        sys.exit(worker(*sys.argv[2:4]))
+    sys.exit(main(get_options()))
