@@ -5,10 +5,13 @@
     existing = session.existing(window)                         # vehicles there -> tokens
     row = session.realise(scene, tokens, sources, existing, out_dir, "scene_000", info, rollout=60)
 
-Every scene runs in a freshly started SUMO that loads the base state, so a scene's rollout depends
-only on the scene and the seed, never on which scenes came before it (SUMO's random streams are not
-part of a saved state: reusing one simulation made the same scene drive differently after
-different predecessors, measured).
+Every scene runs in a freshly started SUMO (that loads the base state when there is demand), so a
+scene's rollout never depends on which scenes came before it (SUMO's random streams are not part of
+a saved state: reusing one simulation made the same scene drive differently after different
+predecessors, measured). Without demand the rollout is exactly reproducible for a seed. With demand,
+libsumo 1.28's ``loadState`` makes the following steps depend on where SUMO's objects lie in memory
+(measured by ``benchmarks/seeding.py``, which runs SUMO without address randomisation to compare
+methods), so those rollouts can differ slightly between runs; the generated scenes do not.
 """
 from __future__ import annotations
 
