@@ -233,7 +233,7 @@ def memory(o, workdir: str, command: str) -> str:
                     if "multiprocessing" in cl or "spawn_main" in cl else "other"
             if roles[c] != "resource tracker":
                 procs.append(c)
-        samples.append((t, done, {p: r for p in procs if (r := rss(p)) is not None}))
+        samples.append((t, done, {p: r for p in procs if (r := rss(p))}))   # 0: exited (zombie)
 
     run_sweep(sw, n, f"memory --workers {o.workers}", o.timeout, sample=sample, period=min(0.2, o.interval))
     rows = read_index(out)
