@@ -141,11 +141,8 @@ def main(o) -> int:
         print(f"{label}: {r['wall']:.0f} s", file=sys.stderr)
         results.append((label, r))
     text = table(results, o, routes, command) + f"\n\nTotal wall time {time.perf_counter() - t0:.0f} s.\n"
-    print(text)
-    if o.output:
-        os.makedirs(os.path.dirname(os.path.abspath(o.output)), exist_ok=True)
-        with open(o.output, "w") as f:
-            f.write("# run timing benchmark\n\n" + text)
+    from report import emit
+    emit(text, o.output, "run timing benchmark")
     return 0
 
 

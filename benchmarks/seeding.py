@@ -361,11 +361,8 @@ def main(o) -> int:
             results.append(r)
             print(f"{r['net']}: {r['seconds']['total']:.0f} s", file=sys.stderr)
     text = tables(results, o, command) + f"\n\nTotal wall time {time.perf_counter() - t:.0f} s.\n"
-    print(text)
-    if o.output:
-        os.makedirs(os.path.dirname(os.path.abspath(o.output)), exist_ok=True)
-        with open(o.output, "w") as f:
-            f.write("# Seeding benchmark\n\n" + text)
+    from report import emit
+    emit(text, o.output, "Seeding benchmark")
     return 0
 
 

@@ -135,11 +135,8 @@ def main(o) -> int:
             shutil.rmtree(workdir, ignore_errors=True)
     text = "\n\n".join(f"## {name}\n\n{body}" for name, body in parts) + \
         f"\n\nTotal wall time {time.perf_counter() - t0:.0f} s.\n"
-    print(text)
-    if o.output:
-        os.makedirs(os.path.dirname(os.path.abspath(o.output)), exist_ok=True)
-        with open(o.output, "w") as f:
-            f.write("# sweep benchmark\n\n" + text)
+    from report import emit
+    emit(text, o.output, "sweep benchmark")
     return 0
 
 

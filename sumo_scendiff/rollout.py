@@ -49,7 +49,8 @@ def rollout(sim, agent_ids, seconds: float, brake_window: float = 10.0,
     stats = RolloutStats(seconds=seconds, agents=len(ids), brake_window=brake_window)
     dt = float(sim.simulation.getDeltaT())
     steps = int(round(seconds / dt))
-    decel = {v: float(sim.vehicle.getDecel(v)) for v in ids if v in set(sim.vehicle.getIDList())}
+    present = set(sim.vehicle.getIDList())
+    decel = {v: float(sim.vehicle.getDecel(v)) for v in ids & present}
     braked: set[str] = set()
     speeds: list[float] = []
     from tqdm import tqdm
