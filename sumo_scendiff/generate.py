@@ -92,7 +92,9 @@ class ScenarioGenerator:
         path = path or DEFAULT_CHECKPOINT
         ck = ckpt.load(path, "scenario-diffusion")
         try:
-            ck["diffusion_config"].get("unet", {}).setdefault("pos_freqs", 0)  # saved before it existed
+            unet = ck["diffusion_config"].get("unet", {})
+            for field in ("pos_freqs", "splat_ch"):  # saved before these existed
+                unet.setdefault(field, 0)
             ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ck["autoencoder_config"]))
             df = ScenarioDiffusion(ckpt.config_from_dict(DiffusionConfig, ck["diffusion_config"]))
         except (KeyError, TypeError) as e:

@@ -364,3 +364,24 @@ def pad_tokens(tokens: Sequence[Any], dim: int = AGENT_TOKEN_DIM) -> tuple[torch
         out[i, :len(a)] = a
         pad[i, :len(a)] = False
     return out, pad
+
+
+def token_cells(tokens: torch.Tensor, pad: torch.Tensor, res: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Which cell of a ``res`` x ``res`` grid over the window each token's position bin falls in.
+
+    Args:
+        tokens: (B, T, AGENT_TOKEN_DIM); pad: (B, T) bool, True = padding.
+
+    Returns:
+        ``(cell (B, T) long = row * res + col, placed (B, T) bool)``; ``placed`` is False for padding
+        and for tokens without a position. Rows and columns follow
+        :func:`~sumo_scendiff.geometry.metres_to_pixels` (row 0 at the window's +y edge, column 0 at
+        its -x edge); ``res`` must divide :data:`POS_BINS`, so every bin lies in one cell.
+    """
+    if POS_BINS % res:
+        raise ValueError(f"grid {res} does not divide the {POS_BINS} position bins")
+    per = POS_BINS // res
+    col = tokens[..., FEATURE_SLICES["x"]].argmax(-1) // per
+    row = (res - 1) - tokens[..., FEATURE_SLICES["y"]].argmax(-1) // per
+    placed = (tokens[..., PRESENCE_SLICE.start + FEATURES.index("x")] > 0.5) & ~pad
+    return row * res + col, placed

@@ -30,6 +30,7 @@ import torch  # noqa: E402
 from .model import checkpoint as ckpt  # noqa: E402
 from .model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from .model.diffusion import DiffusionConfig, ScenarioDiffusion
+from .model.unet import widen_conv_in
 from .train_loop import Loop, conditioning, distributed_setup, estimate_latent_scale
 
 PROG = "python -m sumo_scendiff.train"
@@ -73,6 +74,10 @@ def get_options(args=None):
         if name == "diffusion":
             s.add_argument("--autoencoder", required=True, help="autoencoder checkpoint (last.pt)")
             s.add_argument("--no-map", action="store_true", help="the paper's no-map ablation")
+            s.add_argument("--init-from", default=None, metavar="CKPT",
+                           help="warm start a new run from the weights of an earlier diffusion run "
+                                "(its last.pt; new input channels start at zero); ignored when "
+                                "resuming")
     e = sub.add_parser("export")
     e.add_argument("--autoencoder", required=True)
     e.add_argument("--diffusion", required=True)
@@ -137,10 +142,15 @@ def train_diffusion(o) -> None:
         loss = module.loss(z0, batch["map"], tokens, pad, glob)
         return loss, {"edm": float(loss.detach())}
 
-    loop = Loop("diffusion", o, cfg, model, opt, step_loss,
-                extra={"model_config": ckpt.config_to_dict(model.cfg),
-                       "autoencoder_sha256": ckpt.sha256(o.autoencoder)},
-                frozen=[ae])
+    extra = {"model_config": ckpt.config_to_dict(model.cfg),
+             "autoencoder_sha256": ckpt.sha256(o.autoencoder)}
+    if o.init_from and not os.path.exists(os.path.join(o.out, "last.pt")):
+        init = ckpt.load(o.init_from, "diffusion-train")
+        state = widen_conv_in(init["state"], model.denoiser.net, prefix="denoiser.net.")
+        ckpt.load_state(model, state, o.init_from)
+        extra["init_from_sha256"] = ckpt.sha256(o.init_from)
+        print(f"{o.init_from}: warm start from step {init['step']}")
+    loop = Loop("diffusion", o, cfg, model, opt, step_loss, extra=extra, frozen=[ae])
     scale["value"] = loop.extra.get("latent_scale") or estimate_latent_scale(ae, loop)
     loop.extra["latent_scale"] = scale["value"]
     loop.run()

@@ -118,7 +118,7 @@ class Loop:
             for group in self.opt.param_groups:
                 group["lr"] = self.cfg.lr
         self.step, self.best_val = ck["step"], ck.get("best_val", math.inf)
-        self.extra.update({k: ck[k] for k in ("latent_scale",) if k in ck})
+        self.extra.update({k: ck[k] for k in ("latent_scale", "init_from_sha256") if k in ck})
         if rank() == 0:
             print(f"{self.path}: resuming at step {self.step}")
 

@@ -107,3 +107,39 @@ def test_sigterm_saves_and_resume_continues(tmp_path, cross_net):
     res = train("autoencoder", "--data", data, "-o", tmp_path / "ae", "--steps", step + 2, "--batch-size", 1,
                 "--model-config", json.dumps(TINY_AE))
     assert f"resuming at step {step}" in res.stdout
+
+
+def test_init_from_warm_starts_a_wider_unet(tmp_path, cross_net):
+    """--init-from: a diffusion run without the token splat continues as one with it, computing the
+    same function at its first step (new input channels start at zero)."""
+    import torch
+
+    from sumo_scendiff.model import checkpoint as ckpt
+    from sumo_scendiff.model.diffusion import DiffusionConfig, ScenarioDiffusion
+    data = str(tmp_path / "data")
+    one_scene_dataset(data, cross_net)
+    common = ["--data", data, "--batch-size", 1, "--no-rotate"]
+    train("autoencoder", *common, "-o", tmp_path / "ae", "--steps", 2, "--model-config", json.dumps(TINY_AE))
+    narrow = {**TINY_DIFF, "unet": {**TINY_DIFF["unet"], "splat_ch": 0}}
+    ae = ["--autoencoder", tmp_path / "ae" / "last.pt"]
+    train("diffusion", *common, *ae, "-o", tmp_path / "d0", "--steps", 3, "--model-config", json.dumps(narrow))
+    res = train("diffusion", *common, *ae, "-o", tmp_path / "d1", "--steps", 0,
+                "--init-from", tmp_path / "d0" / "last.pt", "--model-config", json.dumps(TINY_DIFF))
+    assert "warm start from step 3" in res.stdout
+    nets = []
+    for run in ("d0", "d1"):
+        ck = ckpt.load(str(tmp_path / run / "last.pt"), "diffusion-train")
+        model = ScenarioDiffusion(ckpt.config_from_dict(DiffusionConfig, ck["model_config"]))
+        model.load_state_dict(ck["state"])
+        nets.append(model.eval())
+    assert nets[1].cfg.unet.splat_ch == 16 and ck["init_from_sha256"] == ckpt.sha256(str(tmp_path / "d0" / "last.pt"))
+    w0, w1 = (n.denoiser.net.conv_in.weight for n in nets)
+    assert torch.equal(w1[:, : w0.shape[1]], w0) and w1.shape[1] == w0.shape[1] + 16
+    assert not w1[:, w0.shape[1]:].any()
+    g = torch.Generator().manual_seed(0)
+    z, m = torch.randn(2, 4, 16, 16, generator=g), torch.randn(2, 11, 128, 128, generator=g)
+    tok = torch.rand(2, 3, 170, generator=g)
+    pad, glob = torch.zeros(2, 3, dtype=torch.bool), torch.zeros(2, 10)
+    with torch.no_grad():
+        out = [n.denoiser(z, 1.0, **n.cond(m, tok, pad, glob)) for n in nets]
+    torch.testing.assert_close(out[1], out[0], atol=1e-5, rtol=1e-5)

@@ -113,3 +113,52 @@ def test_edm_training_step_reduces_loss():
         opt.step()
     assert loss.item() < first.item()
     assert GLOBAL_TOKEN_DIM == 10
+
+
+def test_token_cells_follow_the_raster_convention():
+    import numpy as np
+
+    from sumo_scendiff.geometry import metres_to_pixels
+    from sumo_scendiff.tokens import encode_agent_tokens, token_cells
+    xy = np.array([[-49.0, 49.0], [0.1, -0.1], [30.0, 12.0], [-12.6, -37.4], [49.9, -49.9]])
+    tok, pad = pad_tokens([encode_agent_tokens({"x": xy[:, 0], "y": xy[:, 1]})])
+    cell, placed = token_cells(tok, pad, 16)
+    colrow = np.floor(metres_to_pixels(xy, 100.0, (16, 16)) + 0.5).astype(int)
+    assert placed.all()
+    assert cell[0].tolist() == (colrow[:, 1] * 16 + colrow[:, 0]).tolist()
+    # no position, or padding: not placed
+    tok2, pad2 = pad_tokens([encode_agent_tokens({"speed": np.array([5.0, 6.0])})[:1]])
+    assert not token_cells(tok2, pad2, 16)[1].any()
+    assert not token_cells(tok, torch.ones_like(pad), 16)[1].any()
+
+
+@torch.no_grad()
+def test_splat_writes_each_token_at_its_cell_only():
+    import numpy as np
+
+    from sumo_scendiff.model.unet import TokenSplat
+    from sumo_scendiff.tokens import encode_agent_tokens
+    torch.manual_seed(0)
+    splat = TokenSplat(AGENT_TOKEN_DIM, 4)
+    tok, pad = pad_tokens([encode_agent_tokens({"x": np.array([30.0, np.nan]),
+                                                "y": np.array([12.0, np.nan]),
+                                                "speed": np.array([3.0, 9.0])})])
+    img = splat(tok, pad, 16)
+    nz = img.abs().sum(1)[0].nonzero().tolist()
+    assert nz == [[6, 12]]  # row 6 (y = 12 m), column 12 (x = 30 m); the unplaced token adds nothing
+
+
+@torch.no_grad()
+def test_widen_conv_in_warm_start_computes_the_old_function():
+    from dataclasses import replace
+
+    from sumo_scendiff.model.unet import widen_conv_in
+    torch.manual_seed(0)
+    old = UNet(replace(CFG, splat_ch=0)).eval()
+    for name, p in old.named_parameters():
+        if "conv_out" in name or ".attn.proj" in name:
+            p.normal_(0, 0.2)
+    new = UNet(CFG).eval()
+    new.load_state_dict(widen_conv_in(old.state_dict(), new))
+    args = _inputs()
+    torch.testing.assert_close(new(*args), old(*args), atol=1e-5, rtol=1e-5)
