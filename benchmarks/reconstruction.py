@@ -1,6 +1,7 @@
 """Where a model loses agents: autoencoder reconstruction vs diffusion samples, on held-out scenes.
 
     python benchmarks/reconstruction.py [--checkpoint PATH] [--data data/val] [--scenes 96] [-o FILE]
+    python benchmarks/reconstruction.py --autoencoder runs/ae/last.pt    # a training run's autoencoder alone
 
 For each held-out scene (generated networks' validation split, no rotation), three decodings go
 through the same box filter as ``ScenarioGenerator`` (threshold, window, overlap removal) and are
@@ -29,6 +30,8 @@ from sumo_scendiff.data.dataset import SceneDataset, collate_scenes
 from sumo_scendiff.generate import ScenarioGenerator, remove_overlaps
 from sumo_scendiff.geometry import wrap_angle
 from sumo_scendiff.metrics import match_agents, precision_recall_f1
+from sumo_scendiff.model import checkpoint as ckpt
+from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from sumo_scendiff.model.detection import decode_boxes
 from sumo_scendiff.tokens import global_token, pad_tokens, token_cells, tokens_from_scene
 
@@ -38,6 +41,8 @@ ROOT = os.path.join(os.path.dirname(__file__), "..")
 def get_options(args=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--checkpoint", default=None, help="scenario-diffusion checkpoint (default: shipped)")
+    p.add_argument("--autoencoder", default=None,
+                   help="an autoencoder training checkpoint: measure its reconstruction only")
     p.add_argument("--data", default=os.path.join(ROOT, "data", "val"))
     p.add_argument("--scenes", type=int, default=96)
     p.add_argument("--threshold", type=float, default=0.8)
@@ -74,7 +79,15 @@ def score(dec, gts: list[np.ndarray], threshold: float) -> dict:
 
 def main(o) -> None:
     torch.set_num_threads(2)
-    gen = ScenarioGenerator.load(o.checkpoint)
+    if o.autoencoder:
+        ck = ckpt.load(o.autoencoder, "autoencoder-train")
+        ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ck["model_config"]))
+        ckpt.load_state(ae, ck["state"], o.autoencoder)
+        ae.eval()
+        name, sha = f"{o.autoencoder} (step {ck['step']})", ckpt.sha256(o.autoencoder)
+    else:
+        gen = ScenarioGenerator.load(o.checkpoint)
+        ae, name, sha = gen.ae, o.checkpoint or "shipped", gen.sha256
     ds = SceneDataset(o.data, rotate=False)
     idx = np.random.default_rng(o.seed).choice(len(ds), min(o.scenes, len(ds)), replace=False)
     b = collate_scenes([ds[int(i)] for i in idx])
@@ -83,17 +96,18 @@ def main(o) -> None:
     m = b["map"]
     rows = {}
     with torch.no_grad():
-        mu, logvar = gen.ae.encode(b["agents"])
-        rows["autoencoder D(mu, m)"] = score(decode_boxes(gen.ae.decode(mu, m)), gts, o.threshold)
+        mu, logvar = ae.encode(b["agents"])
+        rows["autoencoder D(mu, m)"] = score(decode_boxes(ae.decode(mu, m)), gts, o.threshold)
         every = [tokens_from_scene(*(b[k][i][b["valid"][i]].numpy()
                                      for k in ("boxes", "traj", "traj_mask", "speed"))) for i in range(n)]
-        for name, toks, p in (("diffusion, no tokens (p_mask 1)", [np.zeros((0, 170), np.float32)] * n, 1.0),
-                              ("diffusion, every token (p_mask 0)", every, 0.0)):
+        runs = (("diffusion, no tokens (p_mask 1)", [np.zeros((0, 170), np.float32)] * n, 1.0),
+                ("diffusion, every token (p_mask 0)", every, 0.0))
+        for row, toks, p in runs if not o.autoencoder else ():
             tok, pad = pad_tokens(toks)
             glob = torch.from_numpy(global_token(np.full(n, p)).reshape(n, -1))
             z = gen.diffusion.sample(m, tok, pad, glob, steps=o.steps,
                                      generator=torch.Generator().manual_seed(o.seed))
-            rows[name] = score(decode_boxes(gen.ae.decode(z / gen.latent_scale, m)), gts, o.threshold)
+            rows[row] = score(decode_boxes(gen.ae.decode(z / gen.latent_scale, m)), gts, o.threshold)
         # posterior std at the latent cells holding an agent vs elsewhere
         tok, pad = pad_tokens(every)
         cell, placed = token_cells(tok, pad, mu.shape[-1])
@@ -101,13 +115,13 @@ def main(o) -> None:
         occ.scatter_(1, torch.where(placed, cell, 0), placed)
         sd = (0.5 * logvar).exp().flatten(2).transpose(1, 2)            # (B, HW, C)
         mabs = mu.abs().flatten(2).transpose(1, 2)
-    lines = [f"checkpoint `{o.checkpoint or 'shipped'}` (sha256 {gen.sha256[:12]}…), "
+    lines = [f"checkpoint `{name}` (sha256 {sha[:12]}…), "
              f"{n} scenes of `{os.path.relpath(o.data, ROOT)}` ({sum(map(len, gts)) / n:.2f} agents per "
              f"scene), threshold {o.threshold}, {o.steps} Euler steps", "",
              "| decoding | agents/scene | precision | recall | F1 | median centre error m | median heading error rad |",
              "|---|---|---|---|---|---|---|"]
-    for name, r in rows.items():
-        lines.append(f"| {name} | {r['count']:.2f} | {r['precision']:.3f} | {r['recall']:.3f} | "
+    for label, r in rows.items():
+        lines.append(f"| {label} | {r['count']:.2f} | {r['precision']:.3f} | {r['recall']:.3f} | "
                      f"{r['f1']:.3f} | {r['dist']:.2f} | {r['dyaw']:.3f} |")
     lines += ["", f"latent at agent cells: |mu| {mabs[occ].mean():.2f}, posterior std {sd[occ].mean():.2f}; "
                   f"elsewhere |mu| {mabs[~occ].mean():.2f}, std {sd[~occ].mean():.2f}"]
