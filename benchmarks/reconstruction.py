@@ -27,15 +27,17 @@ import torch
 
 from report import emit
 from sumo_scendiff.data.dataset import SceneDataset, collate_scenes
-from sumo_scendiff.generate import ScenarioGenerator, remove_overlaps
-from sumo_scendiff.geometry import wrap_angle
+from sumo_scendiff.generate import ScenarioGenerator, select_boxes
+from sumo_scendiff.geometry import Window, wrap_angle
 from sumo_scendiff.metrics import match_agents, precision_recall_f1
 from sumo_scendiff.model import checkpoint as ckpt
 from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from sumo_scendiff.model.detection import decode_boxes
-from sumo_scendiff.tokens import global_token, pad_tokens, token_cells, tokens_from_scene
+from sumo_scendiff.tokens import (AGENT_TOKEN_DIM, global_token, pad_tokens, token_cells,
+                                  tokens_from_scene)
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
+WINDOW = Window(0.0, 0.0)  # boxes are already in the scene frame; only the window's extent matters
 
 
 def get_options(args=None):
@@ -52,18 +54,12 @@ def get_options(args=None):
     return p.parse_args(args)
 
 
-def filtered(prob: np.ndarray, boxes: np.ndarray, threshold: float) -> np.ndarray:
-    k = np.flatnonzero(prob >= threshold)
-    k = k[(np.abs(boxes[k, :2]) <= 50.0).all(1)]
-    return boxes[k[remove_overlaps(boxes[k], prob[k])]]
-
-
 def score(dec, gts: list[np.ndarray], threshold: float) -> dict:
     prob, boxes = dec.prob.numpy(), dec.boxes.numpy()
     tp = fp = fn = 0
     counts, dist, dyaw = [], [], []
     for i, gt in enumerate(gts):
-        gen = filtered(prob[i], boxes[i], threshold)
+        gen = boxes[i][select_boxes(WINDOW, prob[i], boxes[i], threshold)]
         gi, ti = match_agents(gen, gt)
         tp, fp, fn = tp + len(gi), fp + len(gen) - len(gi), fn + len(gt) - len(ti)
         counts.append(len(gen))
@@ -100,7 +96,7 @@ def main(o) -> None:
         rows["autoencoder D(mu, m)"] = score(decode_boxes(ae.decode(mu, m)), gts, o.threshold)
         every = [tokens_from_scene(*(b[k][i][b["valid"][i]].numpy()
                                      for k in ("boxes", "traj", "traj_mask", "speed"))) for i in range(n)]
-        runs = (("diffusion, no tokens (p_mask 1)", [np.zeros((0, 170), np.float32)] * n, 1.0),
+        runs = (("diffusion, no tokens (p_mask 1)", [np.zeros((0, AGENT_TOKEN_DIM), np.float32)] * n, 1.0),
                 ("diffusion, every token (p_mask 0)", every, 0.0))
         for row, toks, p in runs if not o.autoencoder else ():
             tok, pad = pad_tokens(toks)

@@ -75,6 +75,15 @@ def remove_overlaps(boxes: np.ndarray, prob: np.ndarray) -> np.ndarray:
     return np.sort(np.flatnonzero(~removed))
 
 
+def select_boxes(window: Window, prob: np.ndarray, boxes: np.ndarray, threshold: float) -> np.ndarray:
+    """Indices of the decoded boxes a scene keeps, most probable first: probability >= ``threshold``,
+    centre inside ``window`` (scene frame), overlapping oriented boxes removed (most probable kept)."""
+    keep = np.flatnonzero(prob >= threshold)
+    keep = keep[window.contains(boxes[keep, :2])]
+    keep = keep[remove_overlaps(boxes[keep], prob[keep])]
+    return keep[np.argsort(-prob[keep], kind="stable")]
+
+
 class ScenarioGenerator:
     def __init__(self, autoencoder: ScenarioAutoencoder, diffusion: ScenarioDiffusion,
                  latent_scale: float, raster: RasterConfig = RasterConfig(), sha256: str = "",
@@ -120,10 +129,7 @@ class ScenarioGenerator:
         return dec.prob.numpy(), dec.boxes.numpy(), dec.traj.numpy()
 
     def _scene(self, window: Window, prob, boxes, traj, threshold: float, net_name: str) -> Scene:
-        keep = np.flatnonzero(prob >= threshold)
-        keep = keep[window.contains(boxes[keep, :2])]
-        keep = keep[remove_overlaps(boxes[keep], prob[keep])]
-        keep = keep[np.argsort(-prob[keep], kind="stable")]
+        keep = select_boxes(window, prob, boxes, threshold)
         # millimetres / milliradians: the float noise of batch composition and thread count
         # (~1e-6) must not make the same seed seed SUMO differently
         b, t = np.round(boxes[keep], DECIMALS), np.round(traj[keep], DECIMALS)
