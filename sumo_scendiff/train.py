@@ -47,6 +47,9 @@ class TrainConfig:
     val_batches: int = 8
     ckpt_every: int = 250
     plateau_patience: int = 3     # validations without improvement before lr /= 10
+    lr_drop_at: int = 0           # step at which lr /= 10 (a fixed schedule); 0: the plateau rule
+    ema_halflife: float = 0.0     # weight average half-life in steps (0: none); export uses it
+    ema_rampup: float = 0.05      # ... but at most this fraction of the steps so far (EDM's rule)
     seed: int = 0
     workers: int = 0              # DataLoader worker processes (rendering is ~2 % of a step)
     rotate: bool = True           # rotation augmentation of the training windows
@@ -124,7 +127,7 @@ def train_autoencoder(o) -> None:
 
 
 def train_diffusion(o) -> None:
-    cfg = train_config(o, TrainConfig(steps=8000, lr=3e-4, weight_decay=1e-5))
+    cfg = train_config(o, TrainConfig(steps=8000, lr=3e-4, weight_decay=1e-5, ema_halflife=250.0))
     ae_ck = ckpt.load(o.autoencoder, "autoencoder-train")
     ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ae_ck["model_config"]))
     ckpt.load_state(ae, ae_ck["state"], o.autoencoder)
@@ -146,7 +149,7 @@ def train_diffusion(o) -> None:
              "autoencoder_sha256": ckpt.sha256(o.autoencoder)}
     if o.init_from and not os.path.exists(os.path.join(o.out, "last.pt")):
         init = ckpt.load(o.init_from, "diffusion-train")
-        state = widen_conv_in(init["state"], model.denoiser.net, prefix="denoiser.net.")
+        state = widen_conv_in(init.get("ema", init["state"]), model.denoiser.net, prefix="denoiser.net.")
         ckpt.load_state(model, state, o.init_from)
         extra["init_from_sha256"] = ckpt.sha256(o.init_from)
         print(f"{o.init_from}: warm start from step {init['step']}")
@@ -170,9 +173,11 @@ def export(o) -> None:
 
     sha = ckpt.save(o.output, "scenario-diffusion",
                     autoencoder_config=ae_ck["model_config"], autoencoder=cast(ae_ck["state"]),
-                    diffusion_config=df_ck["model_config"], diffusion=cast(df_ck["state"]),
+                    diffusion_config=df_ck["model_config"],
+                    diffusion=cast(df_ck.get("ema", df_ck["state"])),  # the weight average when kept
                     latent_scale=float(df_ck["latent_scale"]),
                     trained={"autoencoder_steps": ae_ck["step"], "diffusion_steps": df_ck["step"],
+                             "diffusion_ema": "ema" in df_ck,
                              "autoencoder_val": ae_ck.get("best_val"),
                              "diffusion_val": df_ck.get("best_val"),
                              "data": df_ck.get("data_manifest")})

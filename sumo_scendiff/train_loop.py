@@ -2,10 +2,12 @@
 
 :class:`Loop` takes a model, an optimiser and ``step_loss(module, batch, step) -> (loss, logs)``;
 it owns everything else. ``OUT/last.pt`` holds model, optimiser, scheduler, step, the best validation
-loss and the data manifest: starting again with the same output directory continues from there.
+loss, the data manifest and (when ``ema_halflife`` > 0) an exponential moving average of the weights:
+starting again with the same output directory continues from there.
 """
 from __future__ import annotations
 
+import copy
 import math
 import os
 import signal
@@ -79,6 +81,28 @@ def _to(batch: dict, dev) -> dict:
     return {k: (v.to(dev, non_blocking=True) if torch.is_tensor(v) else v) for k, v in batch.items()}
 
 
+class EMA:
+    """Exponential moving average of a model's weights (NVlabs/edm ``training_loop.py``): the half-life
+    is ``halflife`` optimiser steps, but at most ``rampup`` times the steps taken so far, so that early
+    weights fade quickly. ``beta = 0.5 ** (1 / halflife)`` per step."""
+
+    def __init__(self, model: nn.Module, halflife: float, rampup: float):
+        self.model = copy.deepcopy(model).eval().requires_grad_(False)
+        self.halflife, self.rampup = halflife, rampup
+
+    def beta(self, step: int) -> float:
+        h = min(self.halflife, step * self.rampup) if self.rampup > 0 else self.halflife
+        return 0.5 ** (1.0 / max(h, 1e-8))
+
+    @torch.no_grad()
+    def update(self, model: nn.Module, step: int) -> None:
+        beta = self.beta(step)
+        for p_ema, p in zip(self.model.parameters(), model.parameters()):
+            p_ema.copy_(p.detach().lerp(p_ema, beta))
+        for b_ema, b in zip(self.model.buffers(), model.buffers()):
+            b_ema.copy_(b)
+
+
 class Loop:
     def __init__(self, kind: str, o, cfg, model: nn.Module, opt, step_loss, extra=None, frozen=()):
         self.kind, self.o, self.cfg = kind, o, cfg
@@ -89,6 +113,7 @@ class Loop:
         self.opt = opt
         self.sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.1,
                                                                 patience=cfg.plateau_patience)
+        self.ema = EMA(self.model, cfg.ema_halflife, cfg.ema_rampup) if cfg.ema_halflife > 0 else None
         self.step_loss = step_loss
         self.extra = dict(extra or {})
         self.step, self.best_val = 0, math.inf
@@ -114,17 +139,26 @@ class Loop:
         ckpt.load_state(self.model, ck["state"], self.path)
         self.opt.load_state_dict(ck["optimizer"])
         self.sched.load_state_dict(ck["scheduler"])
-        if getattr(self.o, "lr", None) is not None:  # an explicit --lr wins over the saved one
-            for group in self.opt.param_groups:
-                group["lr"] = self.cfg.lr
         self.step, self.best_val = ck["step"], ck.get("best_val", math.inf)
+        if getattr(self.o, "lr", None) is not None:  # an explicit --lr wins over the saved one
+            self._set_lr(self.cfg.lr)
+        if self.cfg.lr_drop_at and self.step >= self.cfg.lr_drop_at:
+            self._set_lr(min(self.opt.param_groups[0]["lr"], 0.1 * self.cfg.lr))
+        if self.ema is not None and "ema" in ck:  # (a run saved without an average starts one here)
+            ckpt.load_state(self.ema.model, ck["ema"], self.path)
         self.extra.update({k: ck[k] for k in ("latent_scale", "init_from_sha256") if k in ck})
         if rank() == 0:
             print(f"{self.path}: resuming at step {self.step}")
 
+    def _set_lr(self, lr: float) -> None:
+        for group in self.opt.param_groups:
+            group["lr"] = lr
+
     def save(self) -> None:
         if rank() != 0:
             return
+        if self.ema is not None:
+            self.extra["ema"] = self.ema.model.state_dict()
         ckpt.save(self.path, f"{self.kind}-train", state=self.model.state_dict(),
                   optimizer=self.opt.state_dict(), scheduler=self.sched.state_dict(), step=self.step,
                   best_val=self.best_val, train_config=asdict(self.cfg),
@@ -157,20 +191,23 @@ class Loop:
 
     # ---- validation -----------------------------------------------------------------------
     @torch.no_grad()
-    def validate(self) -> float:
+    def validate(self, model: nn.Module | None = None) -> float:
+        """Mean validation loss of ``model`` (default: the trained weights) on fixed noise."""
         if self.val_set is None:
             return math.nan
-        self.model.eval()
+        model = model or self.model
+        was_training = model.training
+        model.eval()
         losses = []
         torch_state = torch.get_rng_state()
         torch.manual_seed(12345)  # the same noise every validation: comparable numbers
         for k, batch in enumerate(self.loader(self.val_set, 0, shuffle=False)):
             if k >= self.cfg.val_batches:
                 break
-            loss, _ = self.step_loss(self.model, _to(batch, self.dev), VAL_STEP + k)
+            loss, _ = self.step_loss(model, _to(batch, self.dev), VAL_STEP + k)
             losses.append(float(loss))
         torch.set_rng_state(torch_state)
-        self.model.train()
+        model.train(was_training)
         val = float(np.mean(losses))
         if world() > 1:
             t = torch.tensor([val], device=self.dev)
@@ -203,15 +240,21 @@ class Loop:
                 torch.nn.utils.clip_grad_norm_(self.model.parameters(), cfg.grad_clip)
                 self.opt.step()
                 self.step += 1
+                if self.ema is not None:
+                    self.ema.update(self.model, self.step)
+                if self.step == cfg.lr_drop_at:  # a fixed step schedule instead of the plateau rule
+                    self._set_lr(0.1 * cfg.lr)
                 bar.update(1)
                 bar.set_postfix({k: f"{v:.3g}" for k, v in list(logs.items())[:4]})
                 if self.step % cfg.val_every == 0 or self.step == cfg.steps:
                     val = self.validate()
                     if not math.isnan(val):
-                        self.sched.step(val)
+                        if not cfg.lr_drop_at:
+                            self.sched.step(val)
                         self.best_val = min(self.best_val, val)
+                    ema = f", ema {self.validate(self.ema.model):.4f}" if self.ema and self.val_set else ""
                     if rank() == 0:
-                        bar.write(f"step {self.step}: val {val:.4f} (best {self.best_val:.4f}) "
+                        bar.write(f"step {self.step}: val {val:.4f} (best {self.best_val:.4f}){ema} "
                                   f"lr {self.opt.param_groups[0]['lr']:.1e}")
                 if self.step % cfg.ckpt_every == 0:
                     self.save()

@@ -130,7 +130,7 @@ def test_init_from_warm_starts_a_wider_unet(tmp_path, cross_net):
     for run in ("d0", "d1"):
         ck = ckpt.load(str(tmp_path / run / "last.pt"), "diffusion-train")
         model = ScenarioDiffusion(ckpt.config_from_dict(DiffusionConfig, ck["model_config"]))
-        model.load_state_dict(ck["state"])
+        model.load_state_dict(ck["ema"] if run == "d0" else ck["state"])  # warm starts take the average
         nets.append(model.eval())
     assert nets[1].cfg.unet.splat_ch == 16 and ck["init_from_sha256"] == ckpt.sha256(str(tmp_path / "d0" / "last.pt"))
     w0, w1 = (n.denoiser.net.conv_in.weight for n in nets)
@@ -143,3 +143,31 @@ def test_init_from_warm_starts_a_wider_unet(tmp_path, cross_net):
     with torch.no_grad():
         out = [n.denoiser(z, 1.0, **n.cond(m, tok, pad, glob)) for n in nets]
     torch.testing.assert_close(out[1], out[0], atol=1e-5, rtol=1e-5)
+
+
+def test_fixed_lr_drop_and_weight_average_reach_the_export(tmp_path, cross_net):
+    """--lr-drop-at divides the learning rate by ten at that step (and again after a resume); the
+    diffusion run keeps an EMA of its weights, which the export ships."""
+    import torch
+
+    from sumo_scendiff.model import checkpoint as ckpt
+    data = str(tmp_path / "data")
+    one_scene_dataset(data, cross_net)
+    common = ["--data", data, "--batch-size", 1, "--no-rotate"]
+    train("autoencoder", *common, "-o", tmp_path / "ae", "--steps", 2, "--model-config", json.dumps(TINY_AE))
+    diff = [*common, "--autoencoder", tmp_path / "ae" / "last.pt", "-o", tmp_path / "d", "--lr", 1e-3,
+            "--lr-drop-at", 3, "--model-config", json.dumps(TINY_DIFF)]
+    train("diffusion", *diff, "--steps", 2)
+    ck = ckpt.load(str(tmp_path / "d" / "last.pt"), "diffusion-train")
+    assert ck["optimizer"]["param_groups"][0]["lr"] == pytest.approx(1e-3)
+    train("diffusion", *diff, "--steps", 5)  # resumes with --lr 1e-3 given again: the drop still holds
+    ck = ckpt.load(str(tmp_path / "d" / "last.pt"), "diffusion-train")
+    assert ck["step"] == 5 and ck["optimizer"]["param_groups"][0]["lr"] == pytest.approx(1e-4)
+    assert ck["ema"].keys() == ck["state"].keys()
+    assert any(not torch.equal(ck["ema"][k], ck["state"][k]) for k in ck["state"])
+    out = tmp_path / "model.pt"
+    train("export", "--autoencoder", tmp_path / "ae" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
+          "-o", out)
+    shipped = ckpt.load(str(out), "scenario-diffusion")
+    assert shipped["trained"]["diffusion_ema"]
+    assert all(torch.equal(shipped["diffusion"][k], ck["ema"][k]) for k in ck["ema"])
