@@ -105,3 +105,17 @@ def test_rotated_items_keep_only_agents_inside_the_window(recorded):
     for i in range(len(ds)):
         b = ds[i]["boxes"]
         assert np.all(Window(0.0, 0.0).contains(b[:, :2]))
+
+
+def test_density_range_bounds_every_episode(cross_net, tmp_path):
+    from sumo_scendiff.data.__main__ import plan_episodes
+    from sumo_scendiff.network import Network
+    net = Network.load(cross_net)
+    default = plan_episodes([net], [None], [0.0], 3000, 0, 300)
+    dense = plan_episodes([net], [None], [0.0], 3000, 0, 300, density=(300.0, 800.0))
+    assert all(15.0 <= s.density <= 400.0 for _, _, s in default)
+    assert all(300.0 <= s.density <= 800.0 for _, _, s in dense)
+    assert [s.seed for _, _, s in dense] == [s.seed for _, _, s in default]  # only the density moves
+    res = run("-n", cross_net, "-o", tmp_path / "out", "--scenes", 5, "--density", 400, 100)
+    assert res.returncode == 2 and "--density 400 100" in res.stderr and "Traceback" not in res.stderr
+    assert not (tmp_path / "out").exists()

@@ -4,8 +4,9 @@
         -o data/train --scenes 20000 -s 0 --workers 2
 
 Each network is simulated in several *episodes* (one SUMO run each, libsumo in-process); without
-``--routes`` each episode gets random trips of a random insertion density (15-400 veh/h/km) and a
-mixed fleet, so that scenes range from empty to congested. Output: ``DIR/manifest.json`` and
+``--routes`` each episode gets random trips of a random insertion density (log-uniform over
+``--density LO HI``, default 15-400 veh/h/km of lane) and a mixed fleet, so that scenes range from
+empty to congested. Output: ``DIR/manifest.json`` and
 ``DIR/shard-*.npz``. Work happens in ``DIR.partial`` and is renamed to ``DIR`` when complete; an
 interrupted run continues with ``--resume``. The same seed gives the same scenes.
 """
@@ -27,6 +28,7 @@ from .record import EpisodeSpec, record_shard
 from .shards import DataError, Shard, net_entry, write_manifest
 
 PROG = "python -m sumo_scendiff.data"
+DENSITY = (15.0, 400.0)  # veh/h/km of lane: from nearly empty streets to congestion
 
 
 def get_options(args=None):
@@ -40,12 +42,17 @@ def get_options(args=None):
     p.add_argument("--scenes", type=int, required=True, help="scenes to record in total")
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("--scenes-per-episode", type=int, default=300)
+    p.add_argument("--density", type=float, nargs=2, default=DENSITY, metavar=("LO", "HI"),
+                   help="random trips: insertion density range, vehicles per hour per km of lane, drawn "
+                        "log-uniformly per episode (default %(default)s)")
     p.add_argument("--workers", type=int, default=1, help="parallel SUMO processes")
     p.add_argument("--resume", action="store_true", help="continue an interrupted run in DIR.partial")
     p.add_argument("-v", "--verbose", action="store_true")
     o = p.parse_args(args)
     if o.scenes <= 0:
         p.error("--scenes must be positive")
+    if not 0 < o.density[0] <= o.density[1]:
+        p.error(f"--density {o.density[0]:g} {o.density[1]:g}: need 0 < LO <= HI")
     if o.routes and len(o.routes) != len(o.nets):
         p.error(f"give --routes once per --net ({len(o.nets)} nets, {len(o.routes)} route files)")
     o.parser = p
@@ -53,7 +60,8 @@ def get_options(args=None):
 
 
 def plan_episodes(nets: list[Network], routes: list[str | None], begins: list[float],
-                  scenes: int, seed: int, per_episode: int) -> list[tuple[int, str, EpisodeSpec]]:
+                  scenes: int, seed: int, per_episode: int,
+                  density: tuple[float, float] = DENSITY) -> list[tuple[int, str, EpisodeSpec]]:
     """Deterministic episode plan: (net index, shard file name, spec) for every episode."""
     counts = [scenes // len(nets) + (i < scenes % len(nets)) for i in range(len(nets))]
     plan = []
@@ -65,7 +73,7 @@ def plan_episodes(nets: list[Network], routes: list[str | None], begins: list[fl
             ep_seed = int(ss.generate_state(1)[0] % (2 ** 31))
             todo = n // n_ep + (e < n % n_ep)
             spec = EpisodeSpec(seed=ep_seed, scenes=todo, routes=rou, begin=begin,
-                               density=float(np.exp(rng.uniform(np.log(15.0), np.log(400.0)))),
+                               density=float(np.exp(rng.uniform(*np.log(density)))),
                                warmup=float(rng.uniform(200.0, 900.0)),
                                sample_every=float(rng.choice([2.0, 3.0, 5.0])))
             if todo > 0:
@@ -94,9 +102,11 @@ def main(o) -> int:
         o.parser.exit(2, f"{PROG}: error: two networks share the name {names}: rename one\n")
 
     plan = plan_episodes(nets, [None if r is None else os.path.abspath(r) for r in routes], begins,
-                         o.scenes, o.seed, o.scenes_per_episode)
+                         o.scenes, o.seed, o.scenes_per_episode, tuple(o.density))
     config = {"nets": [os.path.abspath(p) for p in o.nets], "routes": routes, "scenes": o.scenes,
               "seed": o.seed, "scenes_per_episode": o.scenes_per_episode}
+    if tuple(o.density) != DENSITY:  # (plans of runs started before the option stay resumable)
+        config["density"] = list(o.density)
     try:
         os.makedirs(partial, exist_ok=True)
     except OSError as e:
