@@ -162,3 +162,19 @@ def test_widen_conv_in_warm_start_computes_the_old_function():
     new.load_state_dict(widen_conv_in(old.state_dict(), new))
     args = _inputs()
     torch.testing.assert_close(new(*args), old(*args), atol=1e-5, rtol=1e-5)
+
+
+def test_no_map_ablation_ignores_the_map_and_survives_its_config_round_trip():
+    from sumo_scendiff.model import checkpoint as ckpt
+    from sumo_scendiff.model.diffusion import DiffusionConfig, ScenarioDiffusion
+    cfg = DiffusionConfig(map_channels=(4, 8, 8, 8), unet=CFG, use_map=False)
+    cfg = ckpt.config_from_dict(DiffusionConfig, ckpt.config_to_dict(cfg))  # as a checkpoint stores it
+    model = ScenarioDiffusion(cfg).eval()
+    g = torch.Generator().manual_seed(0)
+    m1, m2 = (torch.rand(1, cfg.C_m, 128, 128, generator=g) for _ in range(2))
+    tok, pad = torch.zeros(1, 0, AGENT_TOKEN_DIM), torch.zeros(1, 0, dtype=torch.bool)
+    glob = torch.as_tensor(global_token([1.0]))
+    z = [model.sample(m, tok, pad, glob, steps=3, noise=torch.ones(1, CFG.c_z, 16, 16)) for m in (m1, m2)]
+    assert not cfg.use_map and torch.equal(z[0], z[1])
+    model.cfg = DiffusionConfig(map_channels=(4, 8, 8, 8), unet=CFG)  # the same weights, map on
+    assert not torch.equal(model.encode_map(m1), model.encode_map(m2))
