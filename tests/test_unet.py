@@ -178,3 +178,13 @@ def test_no_map_ablation_ignores_the_map_and_survives_its_config_round_trip():
     assert not cfg.use_map and torch.equal(z[0], z[1])
     model.cfg = DiffusionConfig(map_channels=(4, 8, 8, 8), unet=CFG)  # the same weights, map on
     assert not torch.equal(model.encode_map(m1), model.encode_map(m2))
+
+
+def test_training_noise_levels_follow_the_config():
+    from sumo_scendiff.model.diffusion import DiffusionConfig, ScenarioDiffusion
+    from sumo_scendiff.model.edm import P_MEAN, P_STD
+    paper = ScenarioDiffusion(DiffusionConfig(map_channels=(4, 8, 8, 8), unet=CFG)).edm_loss
+    assert (paper.p_mean, paper.p_std) == (P_MEAN, P_STD) == (-0.5, 1.0)  # appendix D
+    shifted = ScenarioDiffusion(DiffusionConfig(map_channels=(4, 8, 8, 8), unet=CFG, P_mean=0.0, P_std=1.4))
+    log_sigma = shifted.edm_loss.sample_sigma(20_000, generator=torch.Generator().manual_seed(0)).log()
+    assert abs(float(log_sigma.mean())) < 0.05 and abs(float(log_sigma.std()) - 1.4) < 0.05

@@ -17,7 +17,7 @@ import torch
 from torch import Tensor, nn
 
 from .autoencoder import ConvEncoder
-from .edm import EDMLoss, EDMPrecond, initial_noise, karras_sigmas, sample_euler
+from .edm import P_MEAN, P_STD, EDMLoss, EDMPrecond, initial_noise, karras_sigmas, sample_euler
 from .unet import UNet, UNetConfig
 
 
@@ -29,6 +29,9 @@ class DiffusionConfig:
     map_channels: tuple[int, ...] = (16, 32, 64, 64)
     unet: UNetConfig = field(default_factory=UNetConfig)
     use_map: bool = True        # False: the paper's no-map ablation (m replaced by zeros)
+    # training noise levels, log(sigma) ~ N(P_mean, P_std^2) (eq. 1; appendix D: -0.5 and 1)
+    P_mean: float = P_MEAN
+    P_std: float = P_STD
 
 
 class ScenarioDiffusion(nn.Module):
@@ -39,7 +42,7 @@ class ScenarioDiffusion(nn.Module):
         self.cfg = cfg
         self.E_m = ConvEncoder(cfg.C_m, cfg.map_channels, cfg.unet.c_map)
         self.denoiser = EDMPrecond(UNet(cfg.unet))
-        self.edm_loss = EDMLoss()
+        self.edm_loss = EDMLoss(p_mean=cfg.P_mean, p_std=cfg.P_std)
 
     def encode_map(self, m: Tensor) -> Tensor:
         if not self.cfg.use_map:
