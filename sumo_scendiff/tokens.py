@@ -216,6 +216,7 @@ class TokenMaskConfig:
     """Partial tokenisation (paper sec. 4.3.1) and feature dropout hyper-parameters."""
 
     p_keep_all_tokens: float = 0.4      # P(p_mask = 0)
+    p_map_only: float = 0.0             # P(p_mask = 1: no agent token, the map alone); not in the paper
     beta_a: float = 2.0                 # otherwise p_mask ~ Beta(a, b)
     beta_b: float = 1.0
     p_all_features: float = 0.5         # a kept token keeps every feature with this probability
@@ -225,12 +226,19 @@ class TokenMaskConfig:
 
 def sample_token_mask(n_agents: int, rng: np.random.Generator,
                       cfg: TokenMaskConfig = TokenMaskConfig()) -> tuple[float, np.ndarray]:
-    """Draw p_mask (0 w.p. 0.4, else Beta(2, 1)) and drop each agent token with probability p_mask.
+    """Draw p_mask (0 w.p. 0.4, 1 w.p. ``p_map_only``, else Beta(2, 1)) and drop each agent token
+    with probability p_mask.
 
     Returns ``(p_mask, keep)`` with keep (n_agents,) bool; encode the global token with
     ``global_token(p_mask)``.
     """
-    p_mask = 0.0 if rng.random() < cfg.p_keep_all_tokens else float(rng.beta(cfg.beta_a, cfg.beta_b))
+    u = rng.random()
+    if u < cfg.p_keep_all_tokens:
+        p_mask = 0.0
+    elif u < cfg.p_keep_all_tokens + cfg.p_map_only:
+        p_mask = 1.0
+    else:
+        p_mask = float(rng.beta(cfg.beta_a, cfg.beta_b))
     keep = rng.random(n_agents) >= p_mask
     return p_mask, keep
 

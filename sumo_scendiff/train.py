@@ -31,6 +31,7 @@ from .model import checkpoint as ckpt  # noqa: E402
 from .model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from .model.diffusion import DiffusionConfig, ScenarioDiffusion
 from .model.unet import widen_conv_in
+from .tokens import TokenMaskConfig
 from .train_loop import Loop, conditioning, distributed_setup, estimate_latent_scale
 
 PROG = "python -m sumo_scendiff.train"
@@ -50,6 +51,8 @@ class TrainConfig:
     lr_drop_at: int = 0           # step at which lr /= 10 (a fixed schedule); 0: the plateau rule
     ema_halflife: float = 0.0     # weight average half-life in steps (0: none); export uses it
     ema_rampup: float = 0.05      # ... but at most this fraction of the steps so far (EDM's rule)
+    p_keep_all_tokens: float = 0.4  # diffusion: P(p_mask = 0), every agent a token (sec. 4.3.1)
+    p_map_only: float = 0.0       # diffusion: P(p_mask = 1), the map alone; else p_mask ~ Beta(2, 1)
     seed: int = 0
     workers: int = 0              # DataLoader worker processes (rendering is ~2 % of a step)
     rotate: bool = True           # rotation augmentation of the training windows
@@ -128,6 +131,9 @@ def train_autoencoder(o) -> None:
 
 def train_diffusion(o) -> None:
     cfg = train_config(o, TrainConfig(steps=8000, lr=3e-4, weight_decay=1e-5, ema_halflife=250.0))
+    if not (0 <= cfg.p_keep_all_tokens and 0 <= cfg.p_map_only and cfg.p_keep_all_tokens + cfg.p_map_only <= 1):
+        o.parser.exit(2, f"{PROG}: error: --p-keep-all-tokens {cfg.p_keep_all_tokens:g} and --p-map-only "
+                         f"{cfg.p_map_only:g}: need two probabilities summing to at most 1\n")
     ae_ck = ckpt.load(o.autoencoder, "autoencoder-train")
     ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ae_ck["model_config"]))
     ckpt.load_state(ae, ae_ck["state"], o.autoencoder)
@@ -135,13 +141,15 @@ def train_diffusion(o) -> None:
     model = ScenarioDiffusion(model_config(o, DiffusionConfig, use_map=not o.no_map))
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     scale = {"value": None}
+    mask_cfg = TokenMaskConfig(p_keep_all_tokens=cfg.p_keep_all_tokens, p_map_only=cfg.p_map_only)
 
     def step_loss(module, batch, step):
         if scale["value"] is None:
             raise RuntimeError("latent scale not set")
         with torch.no_grad():
             z0 = ae.encode(batch["agents"])[0] * scale["value"]
-        tokens, pad, glob = conditioning(batch, seed=cfg.seed, step=step, device=z0.device)
+        tokens, pad, glob = conditioning(batch, seed=cfg.seed, step=step, device=z0.device,
+                                         mask_cfg=mask_cfg)
         loss = module.loss(z0, batch["map"], tokens, pad, glob)
         return loss, {"edm": float(loss.detach())}
 

@@ -23,7 +23,7 @@ from torch.utils.data import DataLoader, DistributedSampler, RandomSampler
 from .data.dataset import SceneDataset, collate_scenes
 from .data.shards import DataError, read_manifest
 from .model import checkpoint as ckpt
-from .tokens import features_from_scene, pad_tokens, partial_tokens
+from .tokens import TokenMaskConfig, features_from_scene, pad_tokens, partial_tokens
 
 VAL_STEP = 1_000_000_000  # "step" given to step_loss in validation: its token masks never repeat training's
 
@@ -62,7 +62,8 @@ class _LossModule(nn.Module):
         return self.step_loss(self.model, batch, step)
 
 
-def conditioning(batch: dict, seed: int, step: int, device) -> tuple:
+def conditioning(batch: dict, seed: int, step: int, device,
+                 mask_cfg: TokenMaskConfig = TokenMaskConfig()) -> tuple:
     """Partial tokenisation of a batch (paper sec. 4.3.1): agent tokens, padding mask, global token."""
     toks, globs = [], []
     for i in range(batch["boxes"].shape[0]):
@@ -70,7 +71,7 @@ def conditioning(batch: dict, seed: int, step: int, device) -> tuple:
         arrays = [batch[k][i].cpu().numpy()[v] for k in ("boxes", "traj", "traj_mask", "speed")]
         feats, present = features_from_scene(*arrays)
         rng = np.random.default_rng([seed, step, int(batch["index"][i]), rank()])
-        tok, glob, _ = partial_tokens(feats, present, rng)
+        tok, glob, _ = partial_tokens(feats, present, rng, mask_cfg)
         toks.append(tok)
         globs.append(glob)
     tokens, pad = pad_tokens(toks)

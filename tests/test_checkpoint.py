@@ -79,3 +79,11 @@ def test_cli_bad_checkpoint_exit_2(tmp_path):
                           "--diffusion", str(bad), "-o", str(tmp_path / "out.pt")], capture_output=True, text=True)
     assert res.returncode == 2 and "Traceback" not in res.stderr and "x.pt" in res.stderr
     assert not (tmp_path / "out.pt").exists()
+
+
+def test_cli_token_mix_that_is_not_a_distribution_exit_2(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "diffusion", "--autoencoder", "a.pt",
+                          "--data", str(tmp_path), "-o", str(tmp_path / "run"), "--p-keep-all-tokens", "0.5",
+                          "--p-map-only", "0.6"], capture_output=True, text=True)
+    assert res.returncode == 2 and "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1
+    assert "--p-map-only 0.6" in res.stderr and not (tmp_path / "run").exists()

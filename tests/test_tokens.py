@@ -119,6 +119,15 @@ def test_sample_token_mask_statistics():
     assert (1 - keep.mean(1))[p > 0].mean() == pytest.approx(2 / 3, abs=0.02)
 
 
+def test_map_only_share_of_the_token_mask():
+    cfg = TokenMaskConfig(p_keep_all_tokens=0.3, p_map_only=0.25)
+    rng = np.random.default_rng(0)
+    draws = [sample_token_mask(5, rng, cfg) for _ in range(8000)]
+    p = np.array([d[0] for d in draws])
+    assert (p == 0).mean() == pytest.approx(0.3, abs=0.02) and (p == 1).mean() == pytest.approx(0.25, abs=0.02)
+    assert not np.stack([d[1] for d in draws])[p == 1].any()  # the map alone: no token kept
+
+
 def test_feature_dropout_statistics():
     cfg = TokenMaskConfig()
     keep = sample_feature_dropout(200_000, np.random.default_rng(1), cfg)
