@@ -3,6 +3,7 @@
     python -m sumo_scendiff.train autoencoder --data data/train --val data/val -o runs/ae --steps 6000
     python -m sumo_scendiff.train diffusion --autoencoder runs/ae/last.pt --data data/train \\
         --val data/val -o runs/diffusion --steps 8000
+    python -m sumo_scendiff.train autoencoder --init-from runs/ae/last.pt --freeze-encoder ...  # decoder only
     python -m sumo_scendiff.train export --autoencoder runs/ae/last.pt \\
         --diffusion runs/diffusion/last.pt -o sumo_scendiff/weights/scendiff.pt
 
@@ -77,13 +78,17 @@ def get_options(args=None):
                 s.add_argument("--" + f.replace("_", "-"), type=type(default), default=None)
         s.add_argument("--model-config", type=json.loads, default={}, metavar="JSON",
                        help='override model config fields, e.g. \'{"enc_channels": [8, 16, 32, 32]}\'')
+        s.add_argument("--init-from", default=None, metavar="CKPT",
+                       help=f"warm start a new run from the weights of an earlier {name} run (its "
+                            "last.pt; for diffusion its weight average, new input channels at zero); "
+                            "ignored when resuming")
+        if name == "autoencoder":
+            s.add_argument("--freeze-encoder", action="store_true",
+                           help="train the decoder only (needs --init-from): the latent space stays "
+                                "the same, so a diffusion model trained on it stays valid")
         if name == "diffusion":
             s.add_argument("--autoencoder", required=True, help="autoencoder checkpoint (last.pt)")
             s.add_argument("--no-map", action="store_true", help="the paper's no-map ablation")
-            s.add_argument("--init-from", default=None, metavar="CKPT",
-                           help="warm start a new run from the weights of an earlier diffusion run "
-                                "(its last.pt; new input channels start at zero); ignored when "
-                                "resuming")
     e = sub.add_parser("export")
     e.add_argument("--autoencoder", required=True)
     e.add_argument("--diffusion", required=True)
@@ -105,9 +110,10 @@ def _merge(base: dict, over: dict) -> dict:
                 else over.get(k, v)) for k, v in base.items()} | {k: v for k, v in over.items() if k not in base}
 
 
-def model_config(o, cls, **fixed):
-    """The model config: defaults, then ``--model-config`` overrides (nested dicts merge)."""
-    merged = _merge(asdict(cls(**fixed)), o.model_config)
+def model_config(o, cls, base: dict | None = None, **fixed):
+    """The model config: ``base`` (a saved config) or the defaults, then ``--model-config``
+    overrides (nested dicts merge)."""
+    merged = _merge(base if base is not None else asdict(cls(**fixed)), o.model_config)
     try:
         return ckpt.config_from_dict(cls, merged)
     except (ckpt.CheckpointError, TypeError) as e:
@@ -116,8 +122,27 @@ def model_config(o, cls, **fixed):
 
 def train_autoencoder(o) -> None:
     cfg = train_config(o, TrainConfig(steps=6000, lr=3e-4, weight_decay=1e-4))
-    model = ScenarioAutoencoder(model_config(o, AutoencoderConfig))
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    last = os.path.join(o.out, "last.pt")
+    saved = ckpt.load(last, "autoencoder-train") if os.path.exists(last) else None
+    init = ckpt.load(o.init_from, "autoencoder-train") if o.init_from and saved is None else None
+    # a run continues with its own config, a warm start with its source's (--model-config on top)
+    base = (saved or init or {}).get("model_config")
+    model = ScenarioAutoencoder(model_config(o, AutoencoderConfig, base=base))
+    extra = {"model_config": ckpt.config_to_dict(model.cfg)}
+    if saved is not None:  # a decoder-only run stays one when resumed
+        o.freeze_encoder = o.freeze_encoder or "encoder_from_sha256" in saved
+    elif init is not None:
+        ckpt.load_state(model, init["state"], o.init_from)
+        extra["init_from_sha256"] = ckpt.sha256(o.init_from)
+        if o.freeze_encoder:  # the encoder whose latents a diffusion model may have been trained on
+            extra["encoder_from_sha256"] = init.get("encoder_from_sha256", extra["init_from_sha256"])
+        print(f"{o.init_from}: warm start from step {init['step']}")
+    elif o.freeze_encoder:
+        o.parser.exit(2, f"{PROG}: error: --freeze-encoder needs --init-from (a trained encoder to keep)\n")
+    if o.freeze_encoder:
+        model.E.requires_grad_(False)
+    opt = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=cfg.lr,
+                           weight_decay=cfg.weight_decay)
 
     def step_loss(module, batch, step):
         out = module.loss({"x": batch["agents"], "m": batch["map"], "boxes": batch["boxes"],
@@ -125,8 +150,7 @@ def train_autoencoder(o) -> None:
                            "valid": batch["valid"]})
         return out["total"], {k: float(v.detach()) for k, v in out.items() if v.ndim == 0}
 
-    Loop("autoencoder", o, cfg, model, opt, step_loss,
-         extra={"model_config": ckpt.config_to_dict(model.cfg)}).run()
+    Loop("autoencoder", o, cfg, model, opt, step_loss, extra=extra).run()
 
 
 def train_diffusion(o) -> None:
@@ -160,6 +184,8 @@ def train_diffusion(o) -> None:
         state = widen_conv_in(init.get("ema", init["state"]), model.denoiser.net, prefix="denoiser.net.")
         ckpt.load_state(model, state, o.init_from)
         extra["init_from_sha256"] = ckpt.sha256(o.init_from)
+        if init.get("autoencoder_sha256") == extra["autoencoder_sha256"] and "latent_scale" in init:
+            extra["latent_scale"] = init["latent_scale"]  # same latent space: same scale, on any data
         print(f"{o.init_from}: warm start from step {init['step']}")
     loop = Loop("diffusion", o, cfg, model, opt, step_loss, extra=extra, frozen=[ae])
     scale["value"] = loop.extra.get("latent_scale") or estimate_latent_scale(ae, loop)
@@ -172,7 +198,8 @@ def export(o) -> None:
         o.parser.exit(2, f"{PROG}: error: {o.output}: exists (add --force to replace it)\n")
     ae_ck = ckpt.load(o.autoencoder, "autoencoder-train")
     df_ck = ckpt.load(o.diffusion, "diffusion-train")
-    if df_ck["autoencoder_sha256"] != ckpt.sha256(o.autoencoder):
+    # a decoder-only fine-tune (--freeze-encoder) keeps the latent space the diffusion was trained in
+    if df_ck["autoencoder_sha256"] not in (ckpt.sha256(o.autoencoder), ae_ck.get("encoder_from_sha256")):
         o.parser.exit(2, f"{PROG}: error: {o.diffusion}: was trained on another autoencoder than "
                          f"{o.autoencoder}\n")
 

@@ -22,15 +22,16 @@ TINY_DIFF = {"map_channels": [4, 8, 8, 8],
              "unet": {"channels": [16, 32, 32], "d_model": 32, "heads": 4, "c_map": 8}}
 
 
-def one_scene_dataset(root: str, net_path: str) -> Scene:
-    """One window with one car standing on the eastbound lane west of the crossing."""
+def one_scene_dataset(root: str, net_path: str, xs=(-12.0,)) -> Scene:
+    """One window with one car (or one per ``xs``) driving on the eastbound lane west of the crossing."""
     net = Network.load(net_path)
     lane = next(ln for ln in net.lanes if ln.edge == "wc")
     y = float(lane.shape[0][1])
     window = Window(-30.0, 0.0, 0.0)
-    box = np.array([[-12.0, y, 0.0, 4.6, 1.8]])  # scene frame = world frame shifted by 30 m
-    traj = np.array([[[-12.0 + 5.0 * t, y, 0.0] for t in (-2, -1, 0, 1, 2)]])
-    scene = Scene(window, box, traj, np.ones((1, 5), bool), np.full((1, 5), 5.0), np.zeros(1), "cross")
+    n = len(xs)
+    box = np.array([[x, y, 0.0, 4.6, 1.8] for x in xs])  # scene frame = world frame shifted by 30 m
+    traj = np.array([[[x + 5.0 * t, y, 0.0] for t in (-2, -1, 0, 1, 2)] for x in xs])
+    scene = Scene(window, box, traj, np.ones((n, 5), bool), np.full((n, 5), 5.0), np.zeros(n), "cross")
     os.makedirs(root)
     entry = write_shard(os.path.join(root, "shard-000-0000.npz"), [scene], 0)
     write_manifest(root, [net_entry(net_path, root, "cross")], [entry])
@@ -111,7 +112,7 @@ def test_sigterm_saves_and_resume_continues(tmp_path, cross_net):
 
 def test_init_from_warm_starts_a_wider_unet(tmp_path, cross_net):
     """--init-from: a diffusion run without the token splat continues as one with it, computing the
-    same function at its first step (new input channels start at zero)."""
+    same function at its first step (new input channels start at zero) with the same latent scale."""
     import torch
 
     from sumo_scendiff.model import checkpoint as ckpt
@@ -123,7 +124,9 @@ def test_init_from_warm_starts_a_wider_unet(tmp_path, cross_net):
     narrow = {**TINY_DIFF, "unet": {**TINY_DIFF["unet"], "splat_ch": 0}}
     ae = ["--autoencoder", tmp_path / "ae" / "last.pt"]
     train("diffusion", *common, *ae, "-o", tmp_path / "d0", "--steps", 3, "--model-config", json.dumps(narrow))
-    res = train("diffusion", *common, *ae, "-o", tmp_path / "d1", "--steps", 0,
+    one_scene_dataset(str(tmp_path / "busy"), cross_net, xs=(-40.0, -25.0, -12.0))  # another latent std
+    res = train("diffusion", "--data", tmp_path / "busy", "--batch-size", 1, "--no-rotate", *ae,
+                "-o", tmp_path / "d1", "--steps", 0,
                 "--init-from", tmp_path / "d0" / "last.pt", "--model-config", json.dumps(TINY_DIFF))
     assert "warm start from step 3" in res.stdout
     nets = []
@@ -133,6 +136,8 @@ def test_init_from_warm_starts_a_wider_unet(tmp_path, cross_net):
         model.load_state_dict(ck["ema"] if run == "d0" else ck["state"])  # warm starts take the average
         nets.append(model.eval())
     assert nets[1].cfg.unet.splat_ch == 16 and ck["init_from_sha256"] == ckpt.sha256(str(tmp_path / "d0" / "last.pt"))
+    d0 = ckpt.load(str(tmp_path / "d0" / "last.pt"), "diffusion-train")
+    assert ck["latent_scale"] == d0["latent_scale"]  # same autoencoder: the scale carries over
     w0, w1 = (n.denoiser.net.conv_in.weight for n in nets)
     assert torch.equal(w1[:, : w0.shape[1]], w0) and w1.shape[1] == w0.shape[1] + 16
     assert not w1[:, w0.shape[1]:].any()
@@ -171,3 +176,38 @@ def test_fixed_lr_drop_and_weight_average_reach_the_export(tmp_path, cross_net):
     shipped = ckpt.load(str(out), "scenario-diffusion")
     assert shipped["trained"]["diffusion_ema"]
     assert all(torch.equal(shipped["diffusion"][k], ck["ema"][k]) for k in ck["ema"])
+
+
+def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, cross_net):
+    """--init-from with --freeze-encoder: the encoder's weights stay bit-identical, the decoder
+    trains, the run inherits its source's config (and keeps it when resumed), and a diffusion model
+    trained on the source autoencoder exports with the fine-tuned one; without --init-from: exit 2."""
+    import torch
+
+    from sumo_scendiff.model import checkpoint as ckpt
+    data = str(tmp_path / "data")
+    one_scene_dataset(data, cross_net)
+    common = ["--data", data, "--batch-size", 1, "--no-rotate"]
+    train("autoencoder", *common, "-o", tmp_path / "ae", "--steps", 2, "--model-config", json.dumps(TINY_AE))
+    src = tmp_path / "ae" / "last.pt"
+    train("diffusion", *common, "--autoencoder", src, "-o", tmp_path / "d", "--steps", 1,
+          "--model-config", json.dumps(TINY_DIFF))
+    weights = json.dumps({"loss": {"category_weights": [1.0, 1.0, 4.0]}})
+    fine = [*common, "-o", tmp_path / "dec", "--lr", 1e-2, "--model-config", weights]
+    res = train("autoencoder", *fine, "--steps", 3, "--init-from", src, "--freeze-encoder")
+    assert "warm start from step 2" in res.stdout
+    train("autoencoder", *fine, "--steps", 5)  # resumed without the flags: still decoder-only
+    a, b = (ckpt.load(str(p), "autoencoder-train") for p in (src, tmp_path / "dec" / "last.pt"))
+    assert b["step"] == 5 and b["encoder_from_sha256"] == ckpt.sha256(str(src))
+    assert tuple(b["model_config"]["enc_channels"]) == (8, 8, 16, 16)
+    assert tuple(b["model_config"]["loss"]["category_weights"]) == (1.0, 1.0, 4.0)
+    enc = [k for k in a["state"] if k.startswith("E.")]
+    assert enc and all(torch.equal(a["state"][k], b["state"][k]) for k in enc)
+    assert any(not torch.equal(a["state"][k], b["state"][k]) for k in a["state"] if k.startswith("D_up."))
+    train("export", "--autoencoder", tmp_path / "dec" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
+          "-o", tmp_path / "model.pt")
+    bad = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "autoencoder", *map(str, common),
+                          "-o", str(tmp_path / "x"), "--steps", "1", "--freeze-encoder"],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "--freeze-encoder needs --init-from" in bad.stderr
+    assert "Traceback" not in bad.stderr and not (tmp_path / "x" / "last.pt").exists()
