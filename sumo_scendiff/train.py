@@ -134,6 +134,7 @@ def train_autoencoder(o) -> None:
     elif init is not None:
         ckpt.load_state(model, init["state"], o.init_from)
         extra["init_from_sha256"] = ckpt.sha256(o.init_from)
+        extra["steps_before"] = init["step"] + init.get("steps_before", 0)  # the warm start's history
         if o.freeze_encoder:  # the encoder whose latents a diffusion model may have been trained on
             extra["encoder_from_sha256"] = init.get("encoder_from_sha256", extra["init_from_sha256"])
         print(f"{o.init_from}: warm start from step {init['step']}")
@@ -184,6 +185,7 @@ def train_diffusion(o) -> None:
         state = widen_conv_in(init.get("ema", init["state"]), model.denoiser.net, prefix="denoiser.net.")
         ckpt.load_state(model, state, o.init_from)
         extra["init_from_sha256"] = ckpt.sha256(o.init_from)
+        extra["steps_before"] = init["step"] + init.get("steps_before", 0)
         if init.get("autoencoder_sha256") == extra["autoencoder_sha256"] and "latent_scale" in init:
             extra["latent_scale"] = init["latent_scale"]  # same latent space: same scale, on any data
         print(f"{o.init_from}: warm start from step {init['step']}")
@@ -211,7 +213,9 @@ def export(o) -> None:
                     diffusion_config=df_ck["model_config"],
                     diffusion=cast(df_ck.get("ema", df_ck["state"])),  # the weight average when kept
                     latent_scale=float(df_ck["latent_scale"]),
-                    trained={"autoencoder_steps": ae_ck["step"], "diffusion_steps": df_ck["step"],
+                    # steps over every warm start (a run's own steps plus those it started from)
+                    trained={"autoencoder_steps": ae_ck["step"] + ae_ck.get("steps_before", 0),
+                             "diffusion_steps": df_ck["step"] + df_ck.get("steps_before", 0),
                              "diffusion_ema": "ema" in df_ck,
                              "autoencoder_val": ae_ck.get("best_val"),
                              "diffusion_val": df_ck.get("best_val"),

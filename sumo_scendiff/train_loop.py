@@ -147,7 +147,8 @@ class Loop:
             self._set_lr(min(self.opt.param_groups[0]["lr"], 0.1 * self.cfg.lr))
         if self.ema is not None and "ema" in ck:  # (a run saved without an average starts one here)
             ckpt.load_state(self.ema.model, ck["ema"], self.path)
-        self.extra.update({k: ck[k] for k in ("latent_scale", "init_from_sha256", "encoder_from_sha256") if k in ck})
+        self.extra.update({k: ck[k] for k in ("latent_scale", "init_from_sha256", "encoder_from_sha256",
+                                                "steps_before") if k in ck})
         if rank() == 0:
             print(f"{self.path}: resuming at step {self.step}")
 

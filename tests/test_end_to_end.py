@@ -206,6 +206,7 @@ def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, cross_net):
     assert any(not torch.equal(a["state"][k], b["state"][k]) for k in a["state"] if k.startswith("D_up."))
     train("export", "--autoencoder", tmp_path / "dec" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
           "-o", tmp_path / "model.pt")
+    assert ckpt.load(str(tmp_path / "model.pt"), "scenario-diffusion")["trained"]["autoencoder_steps"] == 2 + 5
     bad = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "autoencoder", *map(str, common),
                           "-o", str(tmp_path / "x"), "--steps", "1", "--freeze-encoder"],
                          capture_output=True, text=True)
