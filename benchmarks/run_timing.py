@@ -71,7 +71,8 @@ def table(results: list[tuple[str, dict]], o, routes: str, command: str) -> str:
     lines = [f"Command: `{command}`", "",
              f"`python -m sumo_scendiff.run -n {os.path.relpath(o.net, ROOT)} -r {os.path.relpath(routes, ROOT)} "
              f"--scenes {o.scenes} --rollout {o.rollout:g} -s {o.seed} -o TMP [--begin B]` in-process, "
-             f"windows auto-chosen, 1 process (a training job shares the 2 cores)", "",
+             f"windows auto-chosen, 1 process; load average before the run {o.load_before:.2f} "
+             f"on {os.cpu_count()} cores (other jobs on the machine slow every phase)", "",
              "| | " + " | ".join(labels) + " |", "|---|" + "---|" * len(labels)]
 
     def row(name, cells):
@@ -123,6 +124,8 @@ def table(results: list[tuple[str, dict]], o, routes: str, command: str) -> str:
 
 def main(o) -> int:
     import tempfile
+
+    o.load_before = os.getloadavg()[0]
 
     from sumo_scendiff.evaluate import find_demand
     from sumo_scendiff.network import Network
