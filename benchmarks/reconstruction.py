@@ -18,8 +18,8 @@ heading within 0.2 rad):
 
 The table also gives the median centre and heading errors of the nearest prediction to each
 ground-truth agent, the speed MAE of matched pairs (speeds from the decoded trajectory: the
-autoencoder row is the ceiling of the token tables' speed MAE), and the posterior noise at agent cells (how much of the latent
-the KL term leaves usable).
+autoencoder row is the ceiling of the token tables' speed MAE), and the posterior noise at agent
+cells (how much of the latent the KL term leaves usable).
 """
 from __future__ import annotations
 

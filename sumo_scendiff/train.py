@@ -120,6 +120,11 @@ def model_config(o, cls, base: dict | None = None, **fixed):
         o.parser.exit(2, f"{PROG}: error: --model-config: {e}\n")
 
 
+def warm_start_record(init: dict, path: str) -> dict:
+    """What a warm-started run keeps of its source: its SHA-256 and the steps behind it."""
+    return {"init_from_sha256": ckpt.sha256(path), "steps_before": init["step"] + init.get("steps_before", 0)}
+
+
 def train_autoencoder(o) -> None:
     cfg = train_config(o, TrainConfig(steps=6000, lr=3e-4, weight_decay=1e-4))
     last = os.path.join(o.out, "last.pt")
@@ -133,8 +138,7 @@ def train_autoencoder(o) -> None:
         o.freeze_encoder = o.freeze_encoder or "encoder_from_sha256" in saved
     elif init is not None:
         ckpt.load_state(model, init["state"], o.init_from)
-        extra["init_from_sha256"] = ckpt.sha256(o.init_from)
-        extra["steps_before"] = init["step"] + init.get("steps_before", 0)  # the warm start's history
+        extra.update(warm_start_record(init, o.init_from))
         if o.freeze_encoder:  # the encoder whose latents a diffusion model may have been trained on
             extra["encoder_from_sha256"] = init.get("encoder_from_sha256", extra["init_from_sha256"])
         print(f"{o.init_from}: warm start from step {init['step']}")
@@ -184,8 +188,7 @@ def train_diffusion(o) -> None:
         init = ckpt.load(o.init_from, "diffusion-train")
         state = widen_conv_in(init.get("ema", init["state"]), model.denoiser.net, prefix="denoiser.net.")
         ckpt.load_state(model, state, o.init_from)
-        extra["init_from_sha256"] = ckpt.sha256(o.init_from)
-        extra["steps_before"] = init["step"] + init.get("steps_before", 0)
+        extra.update(warm_start_record(init, o.init_from))
         if init.get("autoencoder_sha256") == extra["autoencoder_sha256"] and "latent_scale" in init:
             extra["latent_scale"] = init["latent_scale"]  # same latent space: same scale, on any data
         print(f"{o.init_from}: warm start from step {init['step']}")
