@@ -67,7 +67,7 @@ def granularity_bound(spec: str, workers: int) -> tuple[float, int]:
     """The best speed-up the task split allows (longest-first on ``workers``), and the task count."""
     from sumo_scendiff.sweep.engines import tasks
     from sumo_scendiff.sweep.spec import load_spec
-    sizes = sorted((len(t) for t in tasks(load_spec(spec).scenarios(), workers)), reverse=True)
+    sizes = sorted((len(batch) for batch, _ in tasks(load_spec(spec).scenarios())), reverse=True)
     load = [0] * workers
     for s in sizes:
         load[load.index(min(load))] += s

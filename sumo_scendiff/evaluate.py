@@ -20,6 +20,7 @@ import hashlib
 import json
 import os
 import sys
+from dataclasses import replace
 
 import numpy as np
 
@@ -60,6 +61,8 @@ def get_options(args=None):
     p.add_argument("--tokens", action="store_true", help="also the token tables (2, 3, E.2)")
     p.add_argument("--token-scenes", type=int, default=100, help="scenes per net for --tokens")
     p.add_argument("--steps", type=int, default=None, help="sampler steps for the model")
+    p.add_argument("--guidance", type=float, default=None,
+                   help="classifier-free guidance weight of the agent tokens (default: generate's)")
     p.add_argument("--json", default=None, metavar="PATH", help="also write all results as JSON")
     p.add_argument("--pictures", default=None, metavar="DIR",
                    help="write DIR/<net>.png: three windows, ground truth beside every method")
@@ -233,7 +236,9 @@ def load_models(o) -> dict:
     if o.no_model:
         return {}
     from .generate import DEFAULT_CHECKPOINT, GenerationConfig, ScenarioGenerator
-    cfg = GenerationConfig(steps=o.steps) if o.steps else GenerationConfig()
+    cfg = GenerationConfig()
+    cfg = replace(cfg, steps=o.steps or cfg.steps,
+                  guidance=cfg.guidance if o.guidance is None else o.guidance)
     path = o.checkpoint or DEFAULT_CHECKPOINT
     if o.checkpoint is None and not os.path.exists(path):
         print(f"{PROG}: no shipped checkpoint at {path}: baselines only", file=sys.stderr)

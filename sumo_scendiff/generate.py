@@ -39,6 +39,8 @@ class GenerationConfig:
     sampler: Callable = sample_euler
     threshold: float = 0.8       # box probability (paper sec. 4.1: 80 %)
     batch_size: int = 32
+    guidance: float = 3.0        # classifier-free guidance weight of the agent tokens (1 = off);
+                                 # costs a second UNet pass only for batches that carry tokens
 
 
 def speeds_from_traj(traj: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -125,7 +127,7 @@ class ScenarioGenerator:
                                          self.diffusion.cfg.unet.res,
                                          generator=torch.Generator().manual_seed(s)) for s in seeds])
         z = self.diffusion.sample(m, tok, pad, glob, steps=cfg.steps, sampler=cfg.sampler,
-                                  noise=noise)
+                                  noise=noise, guidance=cfg.guidance)
         y = self.ae.decode(z / self.latent_scale, m)
         dec = decode_boxes(y, self.raster.size)
         return dec.prob.numpy(), dec.boxes.numpy(), dec.traj.numpy()

@@ -5,8 +5,8 @@ import pytest
 import torch
 
 from sumo_scendiff.model.edm import (SIGMA_DATA, EDMLoss, EDMPrecond, c_in, c_noise, c_out, c_skip,
-                                     initial_noise, karras_sigmas, loss_weight, num_evaluations,
-                                     sample_euler, sample_heun)
+                                     guided, initial_noise, karras_sigmas, loss_weight,
+                                     num_evaluations, sample_euler, sample_heun)
 
 SIGMAS = torch.tensor([1e-3, 0.02, 0.1, 0.5, 1.0, 5.0, 20.0, 80.0], dtype=torch.float64)
 
@@ -152,3 +152,20 @@ def test_num_evaluations():
     sample_heun(counter("heun"), torch.zeros(1, 1), s)
     assert n == {"euler": num_evaluations(sample_euler, s), "heun": num_evaluations(sample_heun, s)}
     assert n == {"euler": 20, "heun": 39}
+
+
+def test_guidance_interpolates_between_the_two_conditions_in_one_batch():
+    calls = []
+
+    def d(z, sigma, *, c):
+        calls.append(len(z))
+        return z * c[:, None]   # D(z | c) = c z, per example
+
+    z = torch.randn(3, 4)
+    cond, uncond = {"c": torch.tensor([1.0, 2.0, 3.0])}, {"c": torch.tensor([0.5, 0.5, 0.5])}
+    for w in (0.0, 1.0, 3.0):
+        expected = z * (0.5 + w * (cond["c"] - 0.5))[:, None]
+        assert torch.allclose(guided(d, cond, uncond, w)(z, 1.0), expected)
+    assert calls == [6, 6, 6]  # both branches in a single batch of 2B
+    out = sample_euler(guided(d, cond, uncond, 1.0), z, karras_sigmas(4))  # any sampler takes it
+    assert torch.allclose(out, sample_euler(d, z, karras_sigmas(4), cond=cond))

@@ -103,8 +103,9 @@ def test_sweep_index_pictures_and_a_failing_network(cross_net, tmp_path, capsys)
 
 @pytest.fixture(scope="module")
 def reference(spec_file, tmp_path_factory):
+    """An uninterrupted sweep on 2 one-thread workers (float results depend on the thread count)."""
     out = str(tmp_path_factory.mktemp("ref") / "out")
-    assert main(get_options(["--spec", spec_file, "--out", out, "--no-pictures"])) == 0
+    assert main(get_options(["--spec", spec_file, "--out", out, "--no-pictures", "--workers", "2"])) == 0
     return _index(out)
 
 

@@ -188,3 +188,27 @@ def test_training_noise_levels_follow_the_config():
     shifted = ScenarioDiffusion(DiffusionConfig(map_channels=(4, 8, 8, 8), unet=CFG, P_mean=0.0, P_std=1.4))
     log_sigma = shifted.edm_loss.sample_sigma(20_000, generator=torch.Generator().manual_seed(0)).log()
     assert abs(float(log_sigma.mean())) < 0.05 and abs(float(log_sigma.std()) - 1.4) < 0.05
+
+
+def test_guidance_follows_the_tokens_and_skips_a_map_only_batch():
+    from sumo_scendiff.model.diffusion import DiffusionConfig, ScenarioDiffusion
+    torch.manual_seed(0)
+    model = ScenarioDiffusion(DiffusionConfig(map_channels=(4, 8, 8, 8), unet=CFG)).eval()
+    with torch.no_grad():
+        for name, p in model.named_parameters():
+            if "conv_out" in name or ".attn.proj" in name:
+                p.normal_(0, 0.2)
+    g = torch.Generator().manual_seed(0)
+    m = torch.rand(2, 11, 128, 128, generator=g)
+    noise = torch.randn(2, CFG.c_z, 16, 16, generator=g)
+    tok, pad = pad_tokens([torch.rand(2, AGENT_TOKEN_DIM, generator=g), torch.zeros(0, AGENT_TOKEN_DIM)])
+    glob = torch.as_tensor(global_token([0.0, 0.3]))
+
+    def run(w, tok=tok, pad=pad, glob=glob):
+        return model.sample(m, tok, pad, glob, steps=3, noise=noise, guidance=w)
+    assert not torch.allclose(run(1.0), run(3.0))
+    assert torch.equal(run(3.0), run(3.0))  # deterministic
+    # a map-only batch (no token, p_mask = 1): the two conditions agree and guidance changes nothing
+    none, none_pad = pad_tokens([torch.zeros(0, AGENT_TOKEN_DIM)] * 2)
+    ones = torch.as_tensor(global_token([1.0, 1.0]))
+    assert torch.equal(run(1.0, none, none_pad, ones), run(3.0, none, none_pad, ones))

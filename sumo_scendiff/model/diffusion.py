@@ -17,7 +17,8 @@ import torch
 from torch import Tensor, nn
 
 from .autoencoder import ConvEncoder
-from .edm import P_MEAN, P_STD, EDMLoss, EDMPrecond, initial_noise, karras_sigmas, sample_euler
+from ..tokens import global_token as encode_global_token
+from .edm import P_MEAN, P_STD, EDMLoss, EDMPrecond, guided, initial_noise, karras_sigmas, sample_euler
 from .unet import UNet, UNetConfig
 
 
@@ -62,18 +63,27 @@ class ScenarioDiffusion(nn.Module):
     @torch.no_grad()
     def sample(self, m: Tensor, agent_tokens: Tensor, agent_pad_mask: Tensor, global_token: Tensor,
                steps: int = 20, sampler: Callable = sample_euler,
-               generator: Optional[torch.Generator] = None, noise: Optional[Tensor] = None) -> Tensor:
+               generator: Optional[torch.Generator] = None, noise: Optional[Tensor] = None,
+               guidance: float = 1.0) -> Tensor:
         """Integrate the probability-flow ODE from sigma_max to 0 (paper eq. 3); returns z (scaled).
 
         ``noise``: standard-normal (B, C_z, R, R) starting noise (scaled by sigma_max here); drawn
-        with ``generator`` when not given.
+        with ``generator`` when not given. ``guidance`` w != 1: classifier-free guidance of the
+        agent tokens against the map-only condition (no token, p_mask = 1), which training shows
+        the model ``p_map_only`` of the time; two UNet passes per step, except for a batch that is
+        map-only already (then the two conditions are the same and it is skipped).
         """
         cfg = self.cfg.unet
         cond = self.cond(m, agent_tokens, agent_pad_mask, global_token)
+        denoiser = self.denoiser
+        g1 = torch.from_numpy(encode_global_token(1.0)).to(global_token).expand_as(global_token)
+        if guidance != 1.0 and not (bool(agent_pad_mask.all()) and torch.equal(global_token, g1)):
+            uncond = dict(cond, agent_pad_mask=torch.ones_like(agent_pad_mask), global_token=g1)
+            denoiser, cond = guided(self.denoiser, cond, uncond, guidance), None
         sigmas = karras_sigmas(steps, device=m.device)
         if noise is None:
             z_t = initial_noise((m.shape[0], cfg.c_z, cfg.res, cfg.res), generator=generator,
                                 device=m.device)
         else:
             z_t = noise.to(m.device) * sigmas[0]
-        return sampler(self.denoiser, z_t, sigmas, cond=cond)
+        return sampler(denoiser, z_t, sigmas, cond=cond)

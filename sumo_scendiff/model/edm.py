@@ -202,6 +202,21 @@ def sample_heun(denoiser: Denoiser, z_T: Tensor, sigmas: Tensor, *, cond: Option
     return z
 
 
+def guided(denoiser: Denoiser, cond: dict, uncond: dict, w: float) -> Denoiser:
+    """Classifier-free guidance (Ho & Salimans 2022, eq. 6 in the denoiser form):
+    D_w(z; sigma) = D(z; sigma, uncond) + w (D(z; sigma, cond) - D(z; sigma, uncond)).
+
+    w = 1 is the conditional denoiser; w > 1 follows the condition more closely. Both branches run as
+    one batch of 2B. Returns a denoiser taking no condition, for any sampler (``cond=None``).
+    """
+    both = {k: torch.cat([cond[k], uncond[k]]) for k in cond}
+
+    def D(z: Tensor, sigma: Tensor | float, **_) -> Tensor:
+        d_c, d_u = denoiser(torch.cat([z, z]), sigma, **both).chunk(2)
+        return d_u + w * (d_c - d_u)
+    return D
+
+
 def num_evaluations(sampler: Callable, sigmas: Tensor) -> int:
     """Denoiser evaluations a built-in sampler makes for a schedule (for throughput budgets)."""
     n = len(sigmas) - 1
@@ -213,5 +228,5 @@ def num_evaluations(sampler: Callable, sigmas: Tensor) -> int:
 __all__ = [
     "SIGMA_DATA", "SIGMA_MIN", "SIGMA_MAX", "RHO", "P_MEAN", "P_STD",
     "c_skip", "c_out", "c_in", "c_noise", "loss_weight", "EDMPrecond", "EDMLoss",
-    "karras_sigmas", "initial_noise", "sample_euler", "sample_heun", "num_evaluations",
+    "karras_sigmas", "initial_noise", "sample_euler", "sample_heun", "guided", "num_evaluations",
 ]

@@ -107,9 +107,9 @@ def main(o) -> int:
                    unit=" scn", disable=not (sys.stderr.isatty() or o.verbose))
         try:
             if o.engine == "ray":
-                run_ray(tasks(todo, o.workers), spec, o.out, o.workers, o.checkpoint, bar, o.ray_address)
+                run_ray(tasks(scenarios, {s.id for s in todo}), spec, o.out, o.workers, o.checkpoint, bar, o.ray_address)
             else:
-                run_local(tasks(todo, o.workers), spec, o.out, o.workers, o.checkpoint, bar)
+                run_local(tasks(scenarios, {s.id for s in todo}), spec, o.out, o.workers, o.checkpoint, bar)
         except EngineError as e:
             o.parser.exit(2, f"{PROG}: error: {e}\n")
         finally:

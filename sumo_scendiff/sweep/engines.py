@@ -20,15 +20,25 @@ class EngineError(RuntimeError):
     """The engine cannot run (Ray missing, cluster unreachable): one line."""
 
 
-def tasks(scenarios: list[Scenario], workers: int = 1, size: int = TASK_SIZE) -> list[list[Scenario]]:
-    """Group by (network, step length, sampler settings), then cut into tasks of at most ``size``
-    scenarios, and small enough that every worker gets about four (the last tasks balance)."""
-    key = lambda s: (s.network, s.step_length, s.steps, s.threshold)  # noqa: E731
-    size = max(1, min(size, math.ceil(len(scenarios) / (4 * max(workers, 1)))))
+Task = tuple[list[Scenario], frozenset]   # (scenarios generated in one batch, ids done before)
+
+
+def tasks(scenarios: list[Scenario], todo: set[str] | None = None, size: int = TASK_SIZE) -> list[Task]:
+    """Group the whole plan by (network, step length, sampler settings), cut it into batches of at
+    most ``size`` scenarios (fewer for a small plan, so that there are about eight), and keep the
+    batches with a scenario in ``todo`` (default: all). The batches depend on the plan alone, not
+    on the worker count or on what a resumed sweep finished before, so every scene is generated in
+    the same batch: a resumed or re-partitioned sweep writes what an uninterrupted one does."""
+    key = lambda s: (s.network, s.step_length, s.steps, s.threshold, s.guidance)  # noqa: E731
+    size = max(1, min(size, math.ceil(len(scenarios) / 8)))
+    todo = {s.id for s in scenarios} if todo is None else set(todo)
     out = []
     for _, group in groupby(sorted(scenarios, key=lambda s: (key(s), s.id)), key=key):
         group = list(group)
-        out += [group[i:i + size] for i in range(0, len(group), size)]
+        for i in range(0, len(group), size):
+            batch = group[i:i + size]
+            if any(s.id in todo for s in batch):
+                out.append((batch, frozenset(s.id for s in batch if s.id not in todo)))
     return out
 
 
@@ -57,8 +67,8 @@ def _init(spec: Spec, out: str, checkpoint: str | None, threads: int, parent: in
     _WORKER = Worker(spec, out, checkpoint, threads=threads)
 
 
-def _run(task: list[Scenario]) -> list[str]:
-    return _WORKER.run(task)
+def _run(task: Task) -> list[str]:
+    return _WORKER.run(*task)
 
 
 def run_local(all_tasks, spec: Spec, out: str, workers: int, checkpoint=None, bar=None) -> None:
@@ -67,7 +77,9 @@ def run_local(all_tasks, spec: Spec, out: str, workers: int, checkpoint=None, ba
         w = Worker(spec, out, checkpoint)
         try:
             for t in all_tasks:
-                bar.update(len(w.run(t))) if bar is not None else w.run(t)
+                done = w.run(*t)
+                if bar is not None:
+                    bar.update(len(done))
         finally:
             w.close()
         return
@@ -99,7 +111,7 @@ def run_ray(all_tasks, spec: Spec, out: str, workers: int, checkpoint=None, bar=
         actor = ray.remote(num_cpus=1)(Worker)
         actors = [actor.remote(spec, out, checkpoint, threads=1) for _ in range(workers)]
         pool = ActorPool(actors)
-        for done in pool.map_unordered(lambda a, t: a.run.remote(t), all_tasks):
+        for done in pool.map_unordered(lambda a, t: a.run.remote(*t), all_tasks):
             if bar is not None:
                 bar.update(len(done))
         ray.get([a.close.remote() for a in actors])

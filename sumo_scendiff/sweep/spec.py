@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 KEYS = {"name": str, "networks": list, "locations": list, "token_sets": list, "p_mask": list,
-        "seeds": (list, int), "steps": int, "threshold": float, "rollout": float, "step_length": float,
+        "seeds": (list, int), "steps": int, "threshold": float, "guidance": float, "rollout": float, "step_length": float,
         "replay": float,
         "scenarios": list}
 NET_KEYS = {"net": str, "routes": str, "begin": float}
@@ -49,6 +49,7 @@ class Scenario:
     seed: int
     steps: int
     threshold: float
+    guidance: float
     rollout: float
     step_length: float
     replay: float = 0.0          # seconds the agents follow their generated future first
@@ -202,11 +203,12 @@ def parse_spec(data: dict, source: str, here: str = ".") -> Spec:
     if not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds):
         raise _err(source, "seeds", f"must be integers (or a count), got {seeds!r}")
     settings = {"steps": int(data.get("steps", 20)), "threshold": float(data.get("threshold", 0.8)),
+                "guidance": float(data.get("guidance", 3.0)),
                 "rollout": float(data.get("rollout", 60.0)), "step_length": float(data.get("step_length", 0.5)),
                 "replay": float(data.get("replay", 0.0))}
     if settings["steps"] < 1 or not 0 < settings["threshold"] <= 1 or settings["rollout"] < 0 \
-            or settings["step_length"] <= 0 or not 0 <= settings["replay"] <= 2:
-        raise _err(source, "steps/threshold/rollout/step_length/replay", f"out of range: {settings}")
+            or settings["step_length"] <= 0 or not 0 <= settings["replay"] <= 2 or not settings["guidance"] >= 0:
+        raise _err(source, "steps/threshold/guidance/rollout/step_length/replay", f"out of range: {settings}")
     explicit = None
     if "scenarios" in data:
         explicit = []

@@ -83,9 +83,13 @@ class Worker:
         return window_at(net, x, y, yaw[0] if yaw else 0.0), "center"
 
     # ---- one task -----------------------------------------------------------------------------
-    def run(self, scenarios: list[Scenario]) -> list[str]:
-        """Run scenarios that share network, step length and sampler settings; returns their ids.
-        A scenario whose network, location or tokens fail is recorded as failed, the rest go on."""
+    def run(self, scenarios: list[Scenario], done: frozenset[str] = frozenset()) -> list[str]:
+        """Run scenarios that share network, step length and sampler settings; returns the ids run.
+        A scenario whose network, location or tokens fail is recorded as failed, the rest go on.
+
+        Scenarios in ``done`` (finished before a resume) are generated again but not written: the
+        model call then sees the same batch as in an uninterrupted sweep, and float results depend
+        on the batch (the classifier-free guidance amplifies that noise)."""
         from ..data.demand import DemandError
         from ..generate import GenerationConfig
         from ..locations import LocationError
@@ -98,9 +102,10 @@ class Worker:
         try:
             session = self.session(entry, first.step_length)
         except bad as e:
-            for s in scenarios:
+            todo = [s for s in scenarios if s.id not in done]
+            for s in todo:
                 write_failure(self.out, s, str(e))
-            return [s.id for s in scenarios]
+            return [s.id for s in todo]
         ready = []
         for s in scenarios:
             try:
@@ -113,23 +118,27 @@ class Worker:
                 p_mask = s.p_mask if s.p_mask is not None else spec_tokens.p_mask
                 ready.append((s, window, kind, tokens, sources, existing, p_mask))
             except bad as e:
-                write_failure(self.out, s, str(e))
+                if s.id not in done:
+                    write_failure(self.out, s, str(e))
         if ready:
-            cfg = GenerationConfig(steps=first.steps, threshold=first.threshold)
+            cfg = GenerationConfig(steps=first.steps, threshold=first.threshold, guidance=first.guidance)
             scenes = self.generator.generate(session.net, [r[1] for r in ready], tokens=[r[3] for r in ready],
                                              p_mask=[r[6] for r in ready], config=cfg,
                                              noise_seeds=[noise_seed(r[0]) for r in ready])
             for (s, window, kind, tokens, sources, existing, p_mask), scene in zip(ready, scenes):
+                if s.id in done:
+                    continue
                 info = {"scene": s.id, "location": kind, "sweep": {**s.params(), "kind": kind,
                                                                     "p_mask_used": p_mask},
-                        "model": {"sha256": self.generator.sha256, "steps": s.steps, "threshold": s.threshold},
+                        "model": {"sha256": self.generator.sha256, "steps": s.steps, "threshold": s.threshold,
+                                  "guidance": s.guidance},
                         "sumo_options": session.cfg.options()}
                 try:
                     session.realise(scene, tokens, sources, existing, self.out, s.id, info, s.rollout,
                                     seed=s.seed, p_mask=p_mask, replay=s.replay)
                 except bad as e:
                     write_failure(self.out, s, str(e))
-        return [s.id for s in scenarios]
+        return [s.id for s in scenarios if s.id not in done]
 
     def close(self) -> None:
         for s in self._sessions.values():
