@@ -4,7 +4,9 @@ and the bare UNet forward rate beside it.
     python benchmarks/generate.py [--checkpoint PATH] [--steps 20] [--batch 32] [--scenes 128]
 
 Windows are random road points of networks/city.net.xml. Map rasters are rendered beforehand and
-timed separately (they are the same for every sampler setting).
+timed separately (they are the same for every sampler setting). The first rows are map-only
+generation; the last two give every window two position tokens, with and without the classifier-free
+guidance (which doubles the UNet batch).
 """
 from __future__ import annotations
 
@@ -55,6 +57,17 @@ def main(o) -> None:
         scenes = gen.generate(net, wins, seed=o.seed)
         dt = time.perf_counter() - t
         rows.append((f"{name}, {steps} steps", len(wins) / dt, np.mean([len(s) for s in scenes])))
+    # with two position tokens per window the classifier-free guidance runs a second UNet pass
+    tokens = [[{"x": float(x), "y": float(y)} for x, y in rng.uniform(-30, 30, (2, 2))] for _ in wins]
+    for w in (3.0, 1.0):
+        gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(steps=o.steps, batch_size=o.batch,
+                                                                    guidance=w))
+        gen.generate(net, wins[: o.batch], tokens=tokens[: o.batch], p_mask=0.5, seed=o.seed)
+        t = time.perf_counter()
+        scenes = gen.generate(net, wins, tokens=tokens, p_mask=0.5, seed=o.seed)
+        dt = time.perf_counter() - t
+        rows.append((f"Euler, {o.steps} steps, 2 tokens, guidance {w:g}", len(wins) / dt,
+                     np.mean([len(s) for s in scenes])))
 
     # bare UNet forward rate at the same batch size
     unet = gen.diffusion.denoiser
