@@ -12,14 +12,16 @@ heading within 0.2 rad):
 * ``diffusion, no tokens``: p_mask = 1, map only -- precision/recall here say how often a free sample
   happens to reproduce *this* scene, i.e. they are low by nature; the count column is the check;
 * ``diffusion, every token``: p_mask = 0, every agent given as a full token -- the token match rate;
+  once without and once with the classifier-free guidance of the tokens (``--guidance``, default 3);
 * ``diffusion from the data at sigma``: the scene's own latent noised to sigma, then integrated back
   to 0 (map only, 40-step schedule below sigma): where along the noise levels the model loses agents.
   A model that keeps them from sigma = 1 but not from 4 is undertrained at high noise.
 
 The table also gives the median centre and heading errors of the nearest prediction to each
 ground-truth agent, the speed MAE of matched pairs (speeds from the decoded trajectory: the
-autoencoder row is the ceiling of the token tables' speed MAE), and the posterior noise at agent
-cells (how much of the latent the KL term leaves usable).
+autoencoder row is the ceiling of the token tables' speed MAE), the share of decoded agents standing
+(< 1 m/s; the header gives the ground truth's), and the posterior noise at agent cells (how much of
+the latent the KL term leaves usable).
 """
 from __future__ import annotations
 
@@ -54,6 +56,7 @@ def get_options(args=None):
     p.add_argument("--scenes", type=int, default=96)
     p.add_argument("--threshold", type=float, default=0.8)
     p.add_argument("--steps", type=int, default=20)
+    p.add_argument("--guidance", type=float, default=3.0, help="the guided every-token row's weight")
     p.add_argument("--sigmas", type=float, nargs="*", default=[1.0, 2.0, 4.0, 8.0],
                    help="noise levels of the 'from the data' rows")
     p.add_argument("-s", "--seed", type=int, default=0)
@@ -68,7 +71,7 @@ def score(dec, gts: list[np.ndarray], threshold: float, speeds: list[np.ndarray]
     as ``ScenarioGenerator`` gives them; final speed where the ground truth has t = +2 s)."""
     prob, boxes, traj = dec.prob.numpy(), dec.boxes.numpy(), dec.traj.numpy()
     tp = fp = fn = 0
-    counts, dist, dyaw, cur, fin = [], [], [], [], []
+    counts, dist, dyaw, cur, fin, still = [], [], [], [], [], []
     for i, gt in enumerate(gts):
         keep = select_boxes(WINDOW, prob[i], boxes[i], threshold)
         gen = boxes[i][keep]
@@ -79,6 +82,7 @@ def score(dec, gts: list[np.ndarray], threshold: float, speeds: list[np.ndarray]
         seen = traj_masks[i][ti, -1]
         fin += list(np.abs(v[seen, -1] - speeds[i][ti[seen], -1]))
         counts.append(len(gen))
+        still += list(speeds_from_traj(traj[i][keep], np.ones((len(gen), len(TIMES)), bool))[:, T0] < 1.0)
         if len(gen):
             for t in gt:
                 d = np.hypot(*(gen[:, :2] - t[:2]).T)
@@ -88,7 +92,8 @@ def score(dec, gts: list[np.ndarray], threshold: float, speeds: list[np.ndarray]
             "dist": float(np.median(dist)) if dist else float("nan"),
             "dyaw": float(np.median(dyaw)) if dyaw else float("nan"),
             "speed": float(np.mean(cur)) if cur else float("nan"),
-            "final": float(np.mean(fin)) if fin else float("nan")}
+            "final": float(np.mean(fin)) if fin else float("nan"),
+            "still": float(np.mean(still)) if still else float("nan")}
 
 
 def from_noised_data(gen, z0: torch.Tensor, m: torch.Tensor, gts: list, o, truth: tuple) -> dict:
@@ -132,10 +137,12 @@ def main(o) -> None:
                                      for k in ("boxes", "traj", "traj_mask", "speed"))) for i in range(n)]
         runs = (("diffusion, no tokens (p_mask 1)", [np.zeros((0, AGENT_TOKEN_DIM), np.float32)] * n, 1.0),
                 ("diffusion, every token (p_mask 0)", every, 0.0))
-        for row, toks, p in runs if not o.autoencoder else ():
+        runs = [(row, toks, p, 1.0) for row, toks, p in runs]
+        runs.append((f"diffusion, every token (p_mask 0), guidance {o.guidance:g}", every, 0.0, o.guidance))
+        for row, toks, p, w in runs if not o.autoencoder else ():
             tok, pad = pad_tokens(toks)
             glob = torch.from_numpy(global_token(np.full(n, p)).reshape(n, -1))
-            z = gen.diffusion.sample(m, tok, pad, glob, steps=o.steps,
+            z = gen.diffusion.sample(m, tok, pad, glob, steps=o.steps, guidance=w,
                                      generator=torch.Generator().manual_seed(o.seed))
             rows[row] = score(decode_boxes(gen.ae.decode(z / gen.latent_scale, m)), gts, o.threshold, *truth)
         if not o.autoencoder:
@@ -149,13 +156,15 @@ def main(o) -> None:
         mabs = mu.abs().flatten(2).transpose(1, 2)
     lines = [f"checkpoint `{name}` (sha256 {sha[:12]}…), "
              f"{n} scenes of `{os.path.relpath(o.data, ROOT)}` ({sum(map(len, gts)) / n:.2f} agents per "
-             f"scene), threshold {o.threshold}, {o.steps} Euler steps", "",
+             f"scene, {np.mean(np.concatenate(truth[0])[:, T0] < 1.0):.0%} of them standing, < 1 m/s), "
+             f"threshold {o.threshold}, {o.steps} Euler steps", "",
              "| decoding | agents/scene | precision | recall | F1 | median centre error m | median heading error rad "
-             "| speed MAE m/s | final speed MAE m/s |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| speed MAE m/s | final speed MAE m/s | standing share |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for label, r in rows.items():
         lines.append(f"| {label} | {r['count']:.2f} | {r['precision']:.3f} | {r['recall']:.3f} | "
-                     f"{r['f1']:.3f} | {r['dist']:.2f} | {r['dyaw']:.3f} | {r['speed']:.2f} | {r['final']:.2f} |")
+                     f"{r['f1']:.3f} | {r['dist']:.2f} | {r['dyaw']:.3f} | {r['speed']:.2f} | {r['final']:.2f} | "
+                     f"{r['still']:.2f} |")
     lines += ["", f"latent at agent cells: |mu| {mabs[occ].mean():.2f}, posterior std {sd[occ].mean():.2f}; "
                   f"elsewhere |mu| {mabs[~occ].mean():.2f}, std {sd[~occ].mean():.2f}"]
     emit("\n".join(lines) + "\n", o.output, "Reconstruction vs generation on held-out scenes")
