@@ -59,12 +59,27 @@ def test_spec_expands_the_cross_product(spec_file):
     assert {s.location for s in sc} == {"0,0", "auto:0"} and {s.seed for s in sc} == {0, 1}
 
 
+def test_batches_depend_on_the_plan_alone(spec_file):
+    from sumo_scendiff.sweep.engines import tasks
+    sc = load_spec(spec_file).scenarios()
+    full = tasks(sc)
+    assert sorted(s.id for batch, _ in full for s in batch) == sorted(s.id for s in sc)
+    assert all(not done for _, done in full) and max(len(b) for b, _ in full) == 2  # 16 -> 8 batches
+    # a resume with some scenarios finished: the same batches (those with work left), done ones marked
+    todo = {s.id for s in sc[5:]}
+    resumed = tasks(sc, todo)
+    assert [b for b, _ in resumed] == [b for b, _ in full if any(s.id in todo for s in b)]
+    assert set().union(*(done for _, done in resumed)) == {s.id for s in sc[:5]} - \
+        {s.id for b, _ in full if all(x.id not in todo for x in b) for s in b}
+
+
 @pytest.mark.parametrize("body, message", [
     ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\nsedes = [1]\n', "sedes: unknown key"),
     ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\nseeds = "many"\n', "seeds: must be"),
     ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\nseeds = []\n', "empty"),
     ('networks = ["x.net.xml"]\nlocations = [{somewhere = 1}]\n', "locations[0].somewhere: unknown key"),
     ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\np_mask = [1.5]\n', "p_mask"),
+    ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\nguidance = -1.0\n', "guidance"),
     ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\n[[token_sets]]\nagents = [{speed = -1}]\n',
      "token_sets[0]: agents[0]"),
     ('networks = ["x.net.xml"]\n[[scenarios]]\nlocation = "auto:0"\ntoken_set = "nope"\n', "not defined"),
