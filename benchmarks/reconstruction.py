@@ -145,6 +145,7 @@ def main(o) -> None:
             z = gen.diffusion.sample(m, tok, pad, glob, steps=o.steps, guidance=w,
                                      generator=torch.Generator().manual_seed(o.seed))
             rows[row] = score(decode_boxes(gen.ae.decode(z / gen.latent_scale, m)), gts, o.threshold, *truth)
+            rows[row]["z_std"] = float(z.std())
         if not o.autoencoder:
             rows.update(from_noised_data(gen, mu * gen.latent_scale, m, gts, o, truth))
         # posterior std at the latent cells holding an agent vs elsewhere
@@ -167,6 +168,9 @@ def main(o) -> None:
                      f"{r['still']:.2f} |")
     lines += ["", f"latent at agent cells: |mu| {mabs[occ].mean():.2f}, posterior std {sd[occ].mean():.2f}; "
                   f"elsewhere |mu| {mabs[~occ].mean():.2f}, std {sd[~occ].mean():.2f}"]
+    if not o.autoencoder:  # a sampler that loses agents leaves latents with too little energy
+        lines.append(f"scaled latent std: data {float((mu * gen.latent_scale).std()):.3f}, samples " + ", ".join(
+            f"{label.split(', ', 1)[1]} {r['z_std']:.3f}" for label, r in rows.items() if "z_std" in r))
     emit("\n".join(lines) + "\n", o.output, "Reconstruction vs generation on held-out scenes")
 
 
