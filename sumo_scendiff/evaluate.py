@@ -63,6 +63,8 @@ def get_options(args=None):
     p.add_argument("--steps", type=int, default=None, help="sampler steps for the model")
     p.add_argument("--guidance", type=float, default=None,
                    help="classifier-free guidance weight of the agent tokens (default: generate's)")
+    p.add_argument("--scene-guidance", type=float, default=None,
+                   help="classifier-free guidance weight of the global token (default: generate's)")
     p.add_argument("--json", default=None, metavar="PATH", help="also write all results as JSON")
     p.add_argument("--pictures", default=None, metavar="DIR",
                    help="write DIR/<net>.png: three windows, ground truth beside every method")
@@ -238,7 +240,8 @@ def load_models(o) -> dict:
     from .generate import DEFAULT_CHECKPOINT, GenerationConfig, ScenarioGenerator
     cfg = GenerationConfig()
     cfg = replace(cfg, steps=o.steps or cfg.steps,
-                  guidance=cfg.guidance if o.guidance is None else o.guidance)
+                  guidance=cfg.guidance if o.guidance is None else o.guidance,
+                  scene_guidance=cfg.scene_guidance if o.scene_guidance is None else o.scene_guidance)
     path = o.checkpoint or DEFAULT_CHECKPOINT
     if o.checkpoint is None and not os.path.exists(path):
         print(f"{PROG}: no shipped checkpoint at {path}: baselines only", file=sys.stderr)

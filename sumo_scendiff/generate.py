@@ -41,6 +41,7 @@ class GenerationConfig:
     batch_size: int = 32
     guidance: float = 3.0        # classifier-free guidance weight of the agent tokens (1 = off);
                                  # costs a second UNet pass only for batches that carry tokens
+    scene_guidance: float = 1.0  # ... of the global token, for windows without agent tokens (1 = off)
 
 
 def speeds_from_traj(traj: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -127,7 +128,8 @@ class ScenarioGenerator:
                                          self.diffusion.cfg.unet.res,
                                          generator=torch.Generator().manual_seed(s)) for s in seeds])
         z = self.diffusion.sample(m, tok, pad, glob, steps=cfg.steps, sampler=cfg.sampler,
-                                  noise=noise, guidance=cfg.guidance)
+                                  noise=noise, guidance=cfg.guidance,
+                                  scene_guidance=cfg.scene_guidance)
         y = self.ae.decode(z / self.latent_scale, m)
         dec = decode_boxes(y, self.raster.size)
         return dec.prob.numpy(), dec.boxes.numpy(), dec.traj.numpy()

@@ -60,26 +60,42 @@ class ScenarioDiffusion(nn.Module):
         cond = self.cond(m, agent_tokens, agent_pad_mask, global_token)
         return self.edm_loss(self.denoiser, z0, cond=cond, generator=generator).mean()
 
+    @staticmethod
+    def null_condition(cond: dict, guidance: float, scene_guidance: float) -> tuple[dict, Tensor]:
+        """The condition each example is guided away from, and its weight (B,):
+
+        * with agent tokens: the map alone (no token, p_mask = 1), weight ``guidance`` -- the
+          tokens' agents are followed more closely;
+        * without: the empty scene (no token, p_mask = 0: nothing to add), weight
+          ``scene_guidance`` -- the global token's "add agents" is followed more closely.
+
+        Both nulls are conditions training shows the model (``p_map_only``; scenes whose every
+        token is kept)."""
+        pad, glob = cond["agent_pad_mask"], cond["global_token"]
+        has_tokens = ~pad.all(dim=1) if pad.shape[1] else torch.zeros(len(glob), dtype=torch.bool)
+        g = {p: torch.from_numpy(encode_global_token(p)).to(glob).expand_as(glob) for p in (0.0, 1.0)}
+        null_glob = torch.where(has_tokens[:, None], g[1.0], g[0.0])
+        w = torch.where(has_tokens, torch.tensor(float(guidance)), torch.tensor(float(scene_guidance)))
+        return dict(cond, agent_pad_mask=torch.ones_like(pad), global_token=null_glob), w
+
     @torch.no_grad()
     def sample(self, m: Tensor, agent_tokens: Tensor, agent_pad_mask: Tensor, global_token: Tensor,
                steps: int = 20, sampler: Callable = sample_euler,
                generator: Optional[torch.Generator] = None, noise: Optional[Tensor] = None,
-               guidance: float = 1.0) -> Tensor:
+               guidance: float = 1.0, scene_guidance: float = 1.0) -> Tensor:
         """Integrate the probability-flow ODE from sigma_max to 0 (paper eq. 3); returns z (scaled).
 
         ``noise``: standard-normal (B, C_z, R, R) starting noise (scaled by sigma_max here); drawn
-        with ``generator`` when not given. ``guidance`` w != 1: classifier-free guidance of the
-        agent tokens against the map-only condition (no token, p_mask = 1), which training shows
-        the model ``p_map_only`` of the time; two UNet passes per step, except for a batch that is
-        map-only already (then the two conditions are the same and it is skipped).
+        with ``generator`` when not given. Classifier-free guidance (:meth:`null_condition`):
+        ``guidance`` for examples with agent tokens, ``scene_guidance`` for those without; a weight
+        of 1 is off. Guided examples cost two UNet passes per step.
         """
         cfg = self.cfg.unet
         cond = self.cond(m, agent_tokens, agent_pad_mask, global_token)
         denoiser = self.denoiser
-        g1 = torch.from_numpy(encode_global_token(1.0)).to(global_token).expand_as(global_token)
-        if guidance != 1.0 and not (bool(agent_pad_mask.all()) and torch.equal(global_token, g1)):
-            uncond = dict(cond, agent_pad_mask=torch.ones_like(agent_pad_mask), global_token=g1)
-            denoiser, cond = guided(self.denoiser, cond, uncond, guidance), None
+        null, w = self.null_condition(cond, guidance, scene_guidance)
+        if bool((w != 1.0).any()):
+            denoiser, cond = guided(self.denoiser, cond, null, w), None
         sigmas = karras_sigmas(steps, device=m.device)
         if noise is None:
             z_t = initial_noise((m.shape[0], cfg.c_z, cfg.res, cfg.res), generator=generator,

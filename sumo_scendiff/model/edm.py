@@ -202,18 +202,20 @@ def sample_heun(denoiser: Denoiser, z_T: Tensor, sigmas: Tensor, *, cond: Option
     return z
 
 
-def guided(denoiser: Denoiser, cond: dict, uncond: dict, w: float) -> Denoiser:
+def guided(denoiser: Denoiser, cond: dict, uncond: dict, w: float | Tensor) -> Denoiser:
     """Classifier-free guidance (Ho & Salimans 2022, eq. 6 in the denoiser form):
     D_w(z; sigma) = D(z; sigma, uncond) + w (D(z; sigma, cond) - D(z; sigma, uncond)).
 
-    w = 1 is the conditional denoiser; w > 1 follows the condition more closely. Both branches run as
-    one batch of 2B. Returns a denoiser taking no condition, for any sampler (``cond=None``).
+    w = 1 is the conditional denoiser; w > 1 follows the condition more closely; ``w`` is a number
+    or one weight per example (B,). Both branches run as one batch of 2B. Returns a denoiser taking
+    no condition, for any sampler (``cond=None``).
     """
     both = {k: torch.cat([cond[k], uncond[k]]) for k in cond}
 
     def D(z: Tensor, sigma: Tensor | float, **_) -> Tensor:
         d_c, d_u = denoiser(torch.cat([z, z]), sigma, **both).chunk(2)
-        return d_u + w * (d_c - d_u)
+        wz = w.to(z).reshape(-1, *[1] * (z.ndim - 1)) if isinstance(w, Tensor) else w
+        return d_u + wz * (d_c - d_u)
     return D
 
 
