@@ -5,8 +5,9 @@ and the bare UNet forward rate beside it.
 
 Windows are random road points of networks/city.net.xml. Map rasters are rendered beforehand and
 timed separately (they are the same for every sampler setting). The first rows are map-only
-generation; the last two give every window two position tokens, with and without the classifier-free
-guidance (which doubles the UNet batch).
+generation at the default settings (the global token's classifier-free guidance on, which doubles the
+UNet batch), then without it; the last two give every window two position tokens, with and without
+the tokens' guidance.
 """
 from __future__ import annotations
 
@@ -57,6 +58,13 @@ def main(o) -> None:
         scenes = gen.generate(net, wins, seed=o.seed)
         dt = time.perf_counter() - t
         rows.append((f"{name}, {steps} steps", len(wins) / dt, np.mean([len(s) for s in scenes])))
+    gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(steps=o.steps, batch_size=o.batch,
+                                                                scene_guidance=1.0))
+    gen.generate(net, wins[: o.batch], seed=o.seed)
+    t = time.perf_counter()
+    scenes = gen.generate(net, wins, seed=o.seed)
+    rows.append((f"Euler, {o.steps} steps, scene guidance off", len(wins) / (time.perf_counter() - t),
+                 np.mean([len(s) for s in scenes])))
     # with two position tokens per window the classifier-free guidance runs a second UNet pass
     tokens = [[{"x": float(x), "y": float(y)} for x, y in rng.uniform(-30, 30, (2, 2))] for _ in wins]
     for w in (3.0, 1.0):

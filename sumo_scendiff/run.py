@@ -19,6 +19,7 @@ import json
 import os
 import sys
 import time
+from dataclasses import replace
 
 PROG = "python -m sumo_scendiff.run"
 
@@ -43,6 +44,9 @@ def get_options(args=None):
     p.add_argument("--threshold", type=float, default=0.8, help="box probability threshold")
     p.add_argument("--guidance", type=float, default=3.0,
                    help="classifier-free guidance weight of the agent tokens (default 3; 1 = off)")
+    p.add_argument("--scene-guidance", type=float, default=None,
+                   help="classifier-free guidance weight of the global token for windows without agent "
+                        "tokens: more agents above 1 (default: the model's calibrated value; 1 = off)")
     p.add_argument("--rollout", type=float, default=60.0, help="seconds SUMO drives after seeding (0: none)")
     p.add_argument("--replay-future", type=float, default=0.0, metavar="SECONDS",
                    help="hold the agents on their generated 0..+2 s future before SUMO takes over (max 2)")
@@ -57,8 +61,9 @@ def get_options(args=None):
         p.error("--ego needs --route-files (the demand the ego drives in)")
     if o.scenes < 1:
         p.error("--scenes must be >= 1")
-    if o.rollout < 0 or o.step_length <= 0 or o.steps < 1 or not o.guidance >= 0:
-        p.error("--rollout must be >= 0, --step-length > 0, --steps >= 1, --guidance >= 0")
+    if o.rollout < 0 or o.step_length <= 0 or o.steps < 1 or not o.guidance >= 0 \
+            or not (o.scene_guidance is None or o.scene_guidance >= 0):
+        p.error("--rollout must be >= 0, --step-length > 0, --steps >= 1, --guidance and --scene-guidance >= 0")
     if not 0.0 <= o.replay_future <= 2.0:
         p.error(f"--replay-future must be in [0, 2] seconds, got {o.replay_future}")
     if o.p_mask is not None and not 0.0 <= o.p_mask <= 1.0:
@@ -132,8 +137,10 @@ def run(o) -> dict:
     net = Network.load(o.net)
     spec = load_tokens(o.tokens) if o.tokens else None
     _check_output(o)
-    gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(steps=o.steps, threshold=o.threshold,
-                                                                    guidance=o.guidance))
+    cfg = GenerationConfig(steps=o.steps, threshold=o.threshold, guidance=o.guidance)
+    if o.scene_guidance is not None:
+        cfg = replace(cfg, scene_guidance=o.scene_guidance)
+    gen = ScenarioGenerator.load(o.checkpoint, cfg)
     routes = tuple(r for r in (o.routes or "").split(",") if r)
     edges = {ln.edge for ln in net.lanes}
     try:  # matches the network; the simulation starts at the first departure

@@ -122,4 +122,4 @@ def test_bad_input_one_line_exit_2(case, expect, cross_net, demand, tmp_path, ca
 
 def test_negative_guidance_is_a_usage_error(cross_net, tmp_path, capsys):
     code, _, err = _run(["-n", cross_net, "--center", "0,0", "--guidance", "-1", "-o", str(tmp_path / "o")], capsys)
-    assert code == 2 and "--guidance >= 0" in err and not (tmp_path / "o").exists()
+    assert code == 2 and "--guidance and --scene-guidance >= 0" in err and not (tmp_path / "o").exists()

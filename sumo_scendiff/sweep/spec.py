@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 KEYS = {"name": str, "networks": list, "locations": list, "token_sets": list, "p_mask": list,
-        "seeds": (list, int), "steps": int, "threshold": float, "guidance": float, "rollout": float, "step_length": float,
+        "seeds": (list, int), "steps": int, "threshold": float, "guidance": float, "scene_guidance": float, "rollout": float, "step_length": float,
         "replay": float,
         "scenarios": list}
 NET_KEYS = {"net": str, "routes": str, "begin": float}
@@ -50,6 +50,7 @@ class Scenario:
     steps: int
     threshold: float
     guidance: float
+    scene_guidance: float | None  # None: the generator's default
     rollout: float
     step_length: float
     replay: float = 0.0          # seconds the agents follow their generated future first
@@ -204,11 +205,13 @@ def parse_spec(data: dict, source: str, here: str = ".") -> Spec:
         raise _err(source, "seeds", f"must be integers (or a count), got {seeds!r}")
     settings = {"steps": int(data.get("steps", 20)), "threshold": float(data.get("threshold", 0.8)),
                 "guidance": float(data.get("guidance", 3.0)),
+                "scene_guidance": None if data.get("scene_guidance") is None else float(data["scene_guidance"]),
                 "rollout": float(data.get("rollout", 60.0)), "step_length": float(data.get("step_length", 0.5)),
                 "replay": float(data.get("replay", 0.0))}
     if settings["steps"] < 1 or not 0 < settings["threshold"] <= 1 or settings["rollout"] < 0 \
-            or settings["step_length"] <= 0 or not 0 <= settings["replay"] <= 2 or not settings["guidance"] >= 0:
-        raise _err(source, "steps/threshold/guidance/rollout/step_length/replay", f"out of range: {settings}")
+            or settings["step_length"] <= 0 or not 0 <= settings["replay"] <= 2 or not settings["guidance"] >= 0 \
+            or not (settings["scene_guidance"] is None or settings["scene_guidance"] >= 0):
+        raise _err(source, "steps/threshold/guidance/scene_guidance/rollout/step_length/replay", f"out of range: {settings}")
     explicit = None
     if "scenarios" in data:
         explicit = []

@@ -8,6 +8,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from dataclasses import replace
 
 from .spec import NetworkEntry, Scenario, Spec
 
@@ -122,6 +123,8 @@ class Worker:
                     write_failure(self.out, s, str(e))
         if ready:
             cfg = GenerationConfig(steps=first.steps, threshold=first.threshold, guidance=first.guidance)
+            if first.scene_guidance is not None:
+                cfg = replace(cfg, scene_guidance=first.scene_guidance)
             scenes = self.generator.generate(session.net, [r[1] for r in ready], tokens=[r[3] for r in ready],
                                              p_mask=[r[6] for r in ready], config=cfg,
                                              noise_seeds=[noise_seed(r[0]) for r in ready])
@@ -131,7 +134,7 @@ class Worker:
                 info = {"scene": s.id, "location": kind, "sweep": {**s.params(), "kind": kind,
                                                                     "p_mask_used": p_mask},
                         "model": {"sha256": self.generator.sha256, "steps": s.steps, "threshold": s.threshold,
-                                  "guidance": s.guidance},
+                                  "guidance": s.guidance, "scene_guidance": cfg.scene_guidance},
                         "sumo_options": session.cfg.options()}
                 try:
                     session.realise(scene, tokens, sources, existing, self.out, s.id, info, s.rollout,
