@@ -12,7 +12,7 @@ sampled latent against the data's (a sampler that loses agents leaves too little
 
 The suggested weight is where the agents per window meet the ground truth's (interpolated): a
 calibration on validation data of the training distribution, so the real cities of the evaluation
-stay unseen.
+stay unseen. Store it in the checkpoint with ``train export --scene-guidance W``.
 """
 from __future__ import annotations
 

@@ -241,7 +241,7 @@ def load_models(o) -> dict:
     cfg = GenerationConfig()
     cfg = replace(cfg, steps=o.steps or cfg.steps,
                   guidance=cfg.guidance if o.guidance is None else o.guidance,
-                  scene_guidance=cfg.scene_guidance if o.scene_guidance is None else o.scene_guidance)
+                  scene_guidance=o.scene_guidance)
     path = o.checkpoint or DEFAULT_CHECKPOINT
     if o.checkpoint is None and not os.path.exists(path):
         print(f"{PROG}: no shipped checkpoint at {path}: baselines only", file=sys.stderr)

@@ -41,7 +41,8 @@ class GenerationConfig:
     batch_size: int = 32
     guidance: float = 3.0        # classifier-free guidance weight of the agent tokens (1 = off);
                                  # costs a second UNet pass only for batches that carry tokens
-    scene_guidance: float = 1.0  # ... of the global token, for windows without agent tokens (1 = off)
+    scene_guidance: float | None = None  # ... of the global token, for windows without agent tokens
+                                         # (1 = off; None: the checkpoint's calibrated weight)
 
 
 def speeds_from_traj(traj: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -90,12 +91,13 @@ def select_boxes(window: Window, prob: np.ndarray, boxes: np.ndarray, threshold:
 class ScenarioGenerator:
     def __init__(self, autoencoder: ScenarioAutoencoder, diffusion: ScenarioDiffusion,
                  latent_scale: float, raster: RasterConfig = RasterConfig(), sha256: str = "",
-                 config: GenerationConfig = GenerationConfig()):
+                 config: GenerationConfig = GenerationConfig(), scene_guidance: float = 1.0):
         # channels-last: oneDNN's faster convolution layout on CPU (the 128 px map encoder: 0.34 ->
         # 0.25 s per batch of 32, measured)
         self.ae = autoencoder.eval().to(memory_format=torch.channels_last)
         self.diffusion = diffusion.eval().to(memory_format=torch.channels_last)
         self.latent_scale = latent_scale
+        self.scene_guidance = scene_guidance   # the checkpoint's calibrated weight (export --scene-guidance)
         self.raster = raster
         self.sha256 = sha256
         self.config = config
@@ -115,7 +117,8 @@ class ScenarioGenerator:
             raise ckpt.CheckpointError(f"{path}: incomplete or incompatible checkpoint ({e})") from None
         ckpt.load_state(ae, {k: v.float() for k, v in ck["autoencoder"].items()}, path)
         ckpt.load_state(df, {k: v.float() for k, v in ck["diffusion"].items()}, path)
-        return cls(ae, df, float(ck["latent_scale"]), sha256=ckpt.sha256(path), config=config)
+        return cls(ae, df, float(ck["latent_scale"]), sha256=ckpt.sha256(path), config=config,
+                   scene_guidance=float(ck.get("scene_guidance", 1.0)))
 
     # ---- one batch ------------------------------------------------------------------------
     @torch.no_grad()
@@ -129,7 +132,8 @@ class ScenarioGenerator:
                                          generator=torch.Generator().manual_seed(s)) for s in seeds])
         z = self.diffusion.sample(m, tok, pad, glob, steps=cfg.steps, sampler=cfg.sampler,
                                   noise=noise, guidance=cfg.guidance,
-                                  scene_guidance=cfg.scene_guidance)
+                                  scene_guidance=self.scene_guidance if cfg.scene_guidance is None
+                                  else cfg.scene_guidance)
         y = self.ae.decode(z / self.latent_scale, m)
         dec = decode_boxes(y, self.raster.size)
         return dec.prob.numpy(), dec.boxes.numpy(), dec.traj.numpy()

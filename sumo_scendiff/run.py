@@ -19,7 +19,6 @@ import json
 import os
 import sys
 import time
-from dataclasses import replace
 
 PROG = "python -m sumo_scendiff.run"
 
@@ -137,10 +136,8 @@ def run(o) -> dict:
     net = Network.load(o.net)
     spec = load_tokens(o.tokens) if o.tokens else None
     _check_output(o)
-    cfg = GenerationConfig(steps=o.steps, threshold=o.threshold, guidance=o.guidance)
-    if o.scene_guidance is not None:
-        cfg = replace(cfg, scene_guidance=o.scene_guidance)
-    gen = ScenarioGenerator.load(o.checkpoint, cfg)
+    gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(steps=o.steps, threshold=o.threshold,
+                                                                guidance=o.guidance, scene_guidance=o.scene_guidance))
     routes = tuple(r for r in (o.routes or "").split(",") if r)
     edges = {ln.edge for ln in net.lanes}
     try:  # matches the network; the simulation starts at the first departure
@@ -176,7 +173,9 @@ def run(o) -> dict:
         for k in tqdm(range(len(scenes)), desc="seeding and rolling out", disable=not progress):
             name = f"scene_{k:03d}"
             info = {"scene": name, "location": places[k][1], "window_index": k,
-                    "model": {"sha256": gen.sha256, "steps": o.steps, "threshold": o.threshold},
+                    "model": {"sha256": gen.sha256, "steps": o.steps, "threshold": o.threshold,
+                              "guidance": o.guidance, "scene_guidance": gen.scene_guidance
+                              if o.scene_guidance is None else o.scene_guidance},
                     "sumo_options": cfg.options()}
             row = session.realise(scenes[k], tokens[k], sources[k], existing[k], o.out, name, info,
                                   o.rollout, seed=o.seed, p_mask=p_mask[k], force=o.force,

@@ -95,6 +95,9 @@ def get_options(args=None):
     e.add_argument("-o", "--output", required=True)
     e.add_argument("--fp16", action="store_true", help="store weights in float16 (half the size)")
     e.add_argument("--force", action="store_true", help="replace an existing output file")
+    e.add_argument("--scene-guidance", type=float, default=1.0, metavar="W",
+                   help="the global token's guidance weight generation uses by default (1 = off; "
+                        "calibrate with benchmarks/scene_guidance.py)")
     o = p.parse_args(args)
     o.parser = p
     return o
@@ -199,6 +202,8 @@ def train_diffusion(o) -> None:
 
 
 def export(o) -> None:
+    if not o.scene_guidance >= 0:
+        o.parser.exit(2, f"{PROG}: error: --scene-guidance must be >= 0\n")
     if os.path.exists(o.output) and not o.force:
         o.parser.exit(2, f"{PROG}: error: {o.output}: exists (add --force to replace it)\n")
     ae_ck = ckpt.load(o.autoencoder, "autoencoder-train")
@@ -216,6 +221,7 @@ def export(o) -> None:
                     diffusion_config=df_ck["model_config"],
                     diffusion=cast(df_ck.get("ema", df_ck["state"])),  # the weight average when kept
                     latent_scale=float(df_ck["latent_scale"]),
+                    scene_guidance=float(o.scene_guidance),
                     # steps over every warm start (a run's own steps plus those it started from)
                     trained={"autoencoder_steps": ae_ck["step"] + ae_ck.get("steps_before", 0),
                              "diffusion_steps": df_ck["step"] + df_ck.get("steps_before", 0),

@@ -176,6 +176,18 @@ def test_fixed_lr_drop_and_weight_average_reach_the_export(tmp_path, cross_net):
     shipped = ckpt.load(str(out), "scenario-diffusion")
     assert shipped["trained"]["diffusion_ema"]
     assert all(torch.equal(shipped["diffusion"][k], ck["ema"][k]) for k in ck["ema"])
+    # the calibrated scene guidance travels with the weights; a GenerationConfig value overrides it
+    from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
+    assert ScenarioGenerator.load(str(out)).scene_guidance == 1.0
+    train("export", "--autoencoder", tmp_path / "ae" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
+          "-o", out, "--force", "--scene-guidance", 1.7)
+    gen = ScenarioGenerator.load(str(out))
+    assert gen.scene_guidance == pytest.approx(1.7)
+    net = Network.load(cross_net)
+    win = [Window(0.0, 0.0, 0.0)]
+    a, b, c = (ScenarioGenerator.load(str(out), GenerationConfig(steps=3, threshold=0.0, scene_guidance=w)
+                                      ).generate(net, win, seed=1)[0] for w in (None, 1.7, 1.0))
+    assert np.array_equal(a.boxes, b.boxes) and not np.array_equal(a.boxes, c.boxes)
 
 
 def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, cross_net):

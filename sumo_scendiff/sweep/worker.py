@@ -8,7 +8,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from dataclasses import replace
 
 from .spec import NetworkEntry, Scenario, Spec
 
@@ -122,9 +121,8 @@ class Worker:
                 if s.id not in done:
                     write_failure(self.out, s, str(e))
         if ready:
-            cfg = GenerationConfig(steps=first.steps, threshold=first.threshold, guidance=first.guidance)
-            if first.scene_guidance is not None:
-                cfg = replace(cfg, scene_guidance=first.scene_guidance)
+            cfg = GenerationConfig(steps=first.steps, threshold=first.threshold, guidance=first.guidance,
+                                   scene_guidance=first.scene_guidance)
             scenes = self.generator.generate(session.net, [r[1] for r in ready], tokens=[r[3] for r in ready],
                                              p_mask=[r[6] for r in ready], config=cfg,
                                              noise_seeds=[noise_seed(r[0]) for r in ready])
@@ -134,7 +132,8 @@ class Worker:
                 info = {"scene": s.id, "location": kind, "sweep": {**s.params(), "kind": kind,
                                                                     "p_mask_used": p_mask},
                         "model": {"sha256": self.generator.sha256, "steps": s.steps, "threshold": s.threshold,
-                                  "guidance": s.guidance, "scene_guidance": cfg.scene_guidance},
+                                  "guidance": s.guidance, "scene_guidance": self.generator.scene_guidance if s.scene_guidance is None
+                                  else s.scene_guidance},
                         "sumo_options": session.cfg.options()}
                 try:
                     session.realise(scene, tokens, sources, existing, self.out, s.id, info, s.rollout,
