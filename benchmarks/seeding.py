@@ -72,6 +72,8 @@ def get_options(args=None):
                    help="random trips (nets without demand): vehicles / h / km of lane")
     p.add_argument("--step-length", type=float, default=0.5)
     p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
+    p.add_argument("--scene-guidance", type=float, default=None,
+                   help="the global token's guidance weight (default: the checkpoint's)")
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("-o", "--output", default=None, metavar="FILE", help="also write the tables here")
     return p.parse_args(args)
@@ -348,12 +350,12 @@ def tables(results: list[dict], o, command: str) -> str:
 def main(o) -> int:
     import torch
 
-    from sumo_scendiff.generate import ScenarioGenerator
+    from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
     torch.manual_seed(o.seed)
     command = "python benchmarks/seeding.py " + " ".join(sys.argv[1:]) if sys.argv[0].endswith(
         "seeding.py") else "benchmarks/seeding.py (in-process)"
     t = time.perf_counter()
-    gen = ScenarioGenerator.load(o.checkpoint)
+    gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(scene_guidance=o.scene_guidance))
     results = []
     for path in (o.nets or default_nets()):
         r = bench_net(path, gen, o, explicit=o.nets is not None)
