@@ -71,6 +71,8 @@ def get_options(args=None):
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("-v", "--verbose", action="store_true")
     o = p.parse_args(args)
+    if not all(w is None or w >= 0 for w in (o.guidance, o.scene_guidance)):
+        p.error("--guidance and --scene-guidance must be >= 0")
     o.parser = p
     return o
 
@@ -238,10 +240,8 @@ def load_models(o) -> dict:
     if o.no_model:
         return {}
     from .generate import DEFAULT_CHECKPOINT, GenerationConfig, ScenarioGenerator
-    cfg = GenerationConfig()
-    cfg = replace(cfg, steps=o.steps or cfg.steps,
-                  guidance=cfg.guidance if o.guidance is None else o.guidance,
-                  scene_guidance=o.scene_guidance)
+    cfg = replace(GenerationConfig(), scene_guidance=o.scene_guidance,
+                  **{k: v for k, v in (("steps", o.steps), ("guidance", o.guidance)) if v is not None})
     path = o.checkpoint or DEFAULT_CHECKPOINT
     if o.checkpoint is None and not os.path.exists(path):
         print(f"{PROG}: no shipped checkpoint at {path}: baselines only", file=sys.stderr)

@@ -120,6 +120,10 @@ class ScenarioGenerator:
         return cls(ae, df, float(ck["latent_scale"]), sha256=ckpt.sha256(path), config=config,
                    scene_guidance=float(ck.get("scene_guidance", 1.0)))
 
+    def scene_guidance_for(self, cfg: GenerationConfig) -> float:
+        """The global token's guidance weight a config generates with (None: the checkpoint's)."""
+        return self.scene_guidance if cfg.scene_guidance is None else cfg.scene_guidance
+
     # ---- one batch ------------------------------------------------------------------------
     @torch.no_grad()
     def _batch(self, maps: np.ndarray, tokens: list[np.ndarray], p_mask: np.ndarray,
@@ -132,8 +136,7 @@ class ScenarioGenerator:
                                          generator=torch.Generator().manual_seed(s)) for s in seeds])
         z = self.diffusion.sample(m, tok, pad, glob, steps=cfg.steps, sampler=cfg.sampler,
                                   noise=noise, guidance=cfg.guidance,
-                                  scene_guidance=self.scene_guidance if cfg.scene_guidance is None
-                                  else cfg.scene_guidance)
+                                  scene_guidance=self.scene_guidance_for(cfg))
         y = self.ae.decode(z / self.latent_scale, m)
         dec = decode_boxes(y, self.raster.size)
         return dec.prob.numpy(), dec.boxes.numpy(), dec.traj.numpy()

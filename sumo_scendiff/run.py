@@ -62,7 +62,8 @@ def get_options(args=None):
         p.error("--scenes must be >= 1")
     if o.rollout < 0 or o.step_length <= 0 or o.steps < 1 or not o.guidance >= 0 \
             or not (o.scene_guidance is None or o.scene_guidance >= 0):
-        p.error("--rollout must be >= 0, --step-length > 0, --steps >= 1, --guidance and --scene-guidance >= 0")
+        p.error("--rollout must be >= 0, --step-length > 0, --steps >= 1, "
+                "--guidance and --scene-guidance >= 0")
     if not 0.0 <= o.replay_future <= 2.0:
         p.error(f"--replay-future must be in [0, 2] seconds, got {o.replay_future}")
     if o.p_mask is not None and not 0.0 <= o.p_mask <= 1.0:
@@ -136,8 +137,8 @@ def run(o) -> dict:
     net = Network.load(o.net)
     spec = load_tokens(o.tokens) if o.tokens else None
     _check_output(o)
-    gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(steps=o.steps, threshold=o.threshold,
-                                                                guidance=o.guidance, scene_guidance=o.scene_guidance))
+    gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(
+        steps=o.steps, threshold=o.threshold, guidance=o.guidance, scene_guidance=o.scene_guidance))
     routes = tuple(r for r in (o.routes or "").split(",") if r)
     edges = {ln.edge for ln in net.lanes}
     try:  # matches the network; the simulation starts at the first departure
@@ -174,8 +175,7 @@ def run(o) -> dict:
             name = f"scene_{k:03d}"
             info = {"scene": name, "location": places[k][1], "window_index": k,
                     "model": {"sha256": gen.sha256, "steps": o.steps, "threshold": o.threshold,
-                              "guidance": o.guidance, "scene_guidance": gen.scene_guidance
-                              if o.scene_guidance is None else o.scene_guidance},
+                              "guidance": o.guidance, "scene_guidance": gen.scene_guidance_for(gen.config)},
                     "sumo_options": cfg.options()}
             row = session.realise(scenes[k], tokens[k], sources[k], existing[k], o.out, name, info,
                                   o.rollout, seed=o.seed, p_mask=p_mask[k], force=o.force,

@@ -72,7 +72,7 @@ class ScenarioDiffusion(nn.Module):
         Both nulls are conditions training shows the model (``p_map_only``; scenes whose every
         token is kept)."""
         pad, glob = cond["agent_pad_mask"], cond["global_token"]
-        has_tokens = ~pad.all(dim=1) if pad.shape[1] else torch.zeros(len(glob), dtype=torch.bool)
+        has_tokens = ~pad.all(dim=1)    # False for every example when the batch has no token at all
         g = {p: torch.from_numpy(encode_global_token(p)).to(glob).expand_as(glob) for p in (0.0, 1.0)}
         null_glob = torch.where(has_tokens[:, None], g[1.0], g[0.0])
         w = torch.where(has_tokens, torch.tensor(float(guidance)), torch.tensor(float(scene_guidance)))

@@ -105,11 +105,12 @@ def main(o) -> int:
               f"{len(todo)} to run on {o.workers} {o.engine} worker(s)", file=sys.stderr)
         bar = tqdm(total=len(scenarios), initial=len(scenarios) - len(todo), desc="scenarios",
                    unit=" scn", disable=not (sys.stderr.isatty() or o.verbose))
+        batches = tasks(scenarios, {s.id for s in todo})
         try:
             if o.engine == "ray":
-                run_ray(tasks(scenarios, {s.id for s in todo}), spec, o.out, o.workers, o.checkpoint, bar, o.ray_address)
+                run_ray(batches, spec, o.out, o.workers, o.checkpoint, bar, o.ray_address)
             else:
-                run_local(tasks(scenarios, {s.id for s in todo}), spec, o.out, o.workers, o.checkpoint, bar)
+                run_local(batches, spec, o.out, o.workers, o.checkpoint, bar)
         except EngineError as e:
             o.parser.exit(2, f"{PROG}: error: {e}\n")
         finally:

@@ -18,8 +18,8 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 KEYS = {"name": str, "networks": list, "locations": list, "token_sets": list, "p_mask": list,
-        "seeds": (list, int), "steps": int, "threshold": float, "guidance": float, "scene_guidance": float, "rollout": float, "step_length": float,
-        "replay": float,
+        "seeds": (list, int), "steps": int, "threshold": float, "guidance": float, "scene_guidance": float,
+        "rollout": float, "step_length": float, "replay": float,
         "scenarios": list}
 NET_KEYS = {"net": str, "routes": str, "begin": float}
 LOC_KEYS = {"auto": int, "center": list, "yaw": float}
@@ -211,7 +211,8 @@ def parse_spec(data: dict, source: str, here: str = ".") -> Spec:
     if settings["steps"] < 1 or not 0 < settings["threshold"] <= 1 or settings["rollout"] < 0 \
             or settings["step_length"] <= 0 or not 0 <= settings["replay"] <= 2 or not settings["guidance"] >= 0 \
             or not (settings["scene_guidance"] is None or settings["scene_guidance"] >= 0):
-        raise _err(source, "steps/threshold/guidance/scene_guidance/rollout/step_length/replay", f"out of range: {settings}")
+        raise _err(source, "steps/threshold/guidance/scene_guidance/rollout/step_length/replay",
+                   f"out of range: {settings}")
     explicit = None
     if "scenarios" in data:
         explicit = []

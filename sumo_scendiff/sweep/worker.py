@@ -132,8 +132,7 @@ class Worker:
                 info = {"scene": s.id, "location": kind, "sweep": {**s.params(), "kind": kind,
                                                                     "p_mask_used": p_mask},
                         "model": {"sha256": self.generator.sha256, "steps": s.steps, "threshold": s.threshold,
-                                  "guidance": s.guidance, "scene_guidance": self.generator.scene_guidance if s.scene_guidance is None
-                                  else s.scene_guidance},
+                                  "guidance": s.guidance, "scene_guidance": self.generator.scene_guidance_for(cfg)},
                         "sumo_options": session.cfg.options()}
                 try:
                     session.realise(scene, tokens, sources, existing, self.out, s.id, info, s.rollout,
