@@ -1,13 +1,13 @@
 """Benchmark: generated scenes per second on this CPU (sampler + decoding + box filtering), batched,
 and the bare UNet forward rate beside it.
 
-    python benchmarks/generate.py [--checkpoint PATH] [--steps 20] [--batch 32] [--scenes 128]
+    python benchmarks/generate.py [--checkpoint PATH] [--batch 32] [--scenes 128]
 
 Windows are random road points of networks/city.net.xml. Map rasters are rendered beforehand and
 timed separately (they are the same for every sampler setting). The first rows are map-only
-generation at the default settings (the global token's classifier-free guidance on, which doubles the
-UNet batch), then without it; the last two give every window two position tokens, with and without
-the tokens' guidance.
+generation: at the defaults, then with other solvers and guidance intervals (a guided step runs a
+second UNet pass), then without the global token's guidance; the last two give every window two
+position tokens, with and without the tokens' guidance.
 """
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ import torch
 
 from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
 from sumo_scendiff.geometry import Window
-from sumo_scendiff.model.edm import sample_euler, sample_heun
+from sumo_scendiff.model.edm import sample_dpmpp_2m, sample_euler, sample_heun
 from sumo_scendiff.network import Network
 from sumo_scendiff.raster import render_map
 
@@ -31,7 +31,6 @@ def get_options(args=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--checkpoint", default=None)
     p.add_argument("-n", "--net-file", default=os.path.join(ROOT, "networks", "city.net.xml"))
-    p.add_argument("--steps", type=int, default=20)
     p.add_argument("--batch", type=int, default=32)
     p.add_argument("--scenes", type=int, default=128)
     p.add_argument("-s", "--seed", type=int, default=0)
@@ -49,33 +48,27 @@ def main(o) -> None:
         render_map(net, w)
     raster = (time.perf_counter() - t) / len(wins)
 
-    rows = []
-    for name, sampler, steps in (("Euler", sample_euler, o.steps), ("Heun", sample_heun, o.steps // 2)):
-        gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(steps=steps, sampler=sampler,
-                                                                    batch_size=o.batch))
-        gen.generate(net, wins[: o.batch], seed=o.seed)  # warm-up
-        t = time.perf_counter()
-        scenes = gen.generate(net, wins, seed=o.seed)
-        dt = time.perf_counter() - t
-        rows.append((f"{name}, {steps} steps", len(wins) / dt, np.mean([len(s) for s in scenes])))
-    gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(steps=o.steps, batch_size=o.batch,
-                                                                scene_guidance=1.0))
-    gen.generate(net, wins[: o.batch], seed=o.seed)
-    t = time.perf_counter()
-    scenes = gen.generate(net, wins, seed=o.seed)
-    rows.append((f"Euler, {o.steps} steps, scene guidance off", len(wins) / (time.perf_counter() - t),
-                 np.mean([len(s) for s in scenes])))
-    # with two position tokens per window the classifier-free guidance runs a second UNet pass
+    # (label, GenerationConfig overrides, with two position tokens per window)
+    settings = [("defaults", {}, False),
+                ("Euler, 20 steps, scene guidance at every step", dict(sampler=sample_euler, steps=20,
+                                                                   scene_guidance_sigma=0.0), False),
+                ("Euler, 20 steps, scene guidance at sigma > 1", dict(sampler=sample_euler, steps=20,
+                                                                  scene_guidance_sigma=1.0), False),
+                ("DPM-Solver++(2M), 10 steps", dict(sampler=sample_dpmpp_2m, steps=10), False),
+                ("Heun, 10 steps", dict(sampler=sample_heun, steps=10), False),
+                ("defaults, scene guidance off", dict(scene_guidance=1.0), False),
+                ("defaults, 2 tokens, guidance 3", dict(guidance=3.0), True),
+                ("defaults, 2 tokens, guidance off", dict(guidance=1.0), True)]
     tokens = [[{"x": float(x), "y": float(y)} for x, y in rng.uniform(-30, 30, (2, 2))] for _ in wins]
-    for w in (3.0, 1.0):
-        gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(steps=o.steps, batch_size=o.batch,
-                                                                    guidance=w))
-        gen.generate(net, wins[: o.batch], tokens=tokens[: o.batch], p_mask=0.5, seed=o.seed)
+    rows = []
+    for name, overrides, with_tokens in settings:
+        gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(batch_size=o.batch, **overrides))
+        kw = dict(tokens=tokens, p_mask=0.5) if with_tokens else {}
+        gen.generate(net, wins[: o.batch], seed=o.seed, **{k: v[: o.batch] if k == "tokens" else v
+                                                           for k, v in kw.items()})  # warm-up
         t = time.perf_counter()
-        scenes = gen.generate(net, wins, tokens=tokens, p_mask=0.5, seed=o.seed)
-        dt = time.perf_counter() - t
-        rows.append((f"Euler, {o.steps} steps, 2 tokens, guidance {w:g}", len(wins) / dt,
-                     np.mean([len(s) for s in scenes])))
+        scenes = gen.generate(net, wins, seed=o.seed, **kw)
+        rows.append((name, len(wins) / (time.perf_counter() - t), np.mean([len(s) for s in scenes])))
 
     # bare UNet forward rate at the same batch size
     unet = gen.diffusion.denoiser

@@ -74,6 +74,8 @@ def get_options(args=None):
     p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
     p.add_argument("--scene-guidance", type=float, default=None,
                    help="the global token's guidance weight (default: the checkpoint's)")
+    p.add_argument("--scene-guidance-sigma", type=float, default=None, metavar="SIGMA",
+                   help="... applied only above this noise level (default: the checkpoint's)")
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("-o", "--output", default=None, metavar="FILE", help="also write the tables here")
     return p.parse_args(args)
@@ -355,7 +357,8 @@ def main(o) -> int:
     command = "python benchmarks/seeding.py " + " ".join(sys.argv[1:]) if sys.argv[0].endswith(
         "seeding.py") else "benchmarks/seeding.py (in-process)"
     t = time.perf_counter()
-    gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(scene_guidance=o.scene_guidance))
+    gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(scene_guidance=o.scene_guidance,
+                                                                   scene_guidance_sigma=o.scene_guidance_sigma))
     results = []
     for path in (o.nets or default_nets()):
         r = bench_net(path, gen, o, explicit=o.nets is not None)

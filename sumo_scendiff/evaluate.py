@@ -31,6 +31,8 @@ from .metrics import evaluate_scenes
 from .network import Network, NetworkError
 from .scene import crop_to_window, rotate_scene
 
+SAMPLER_NAMES = ("dpmpp-2m", "euler", "heun")  # model.edm.SAMPLERS' keys (torch is imported lazily)
+
 PROG = "python -m sumo_scendiff.evaluate"
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHARED_NETS = os.path.join(ROOT, "..", "shared", "nets")
@@ -61,18 +63,23 @@ def get_options(args=None):
     p.add_argument("--tokens", action="store_true", help="also the token tables (2, 3, E.2)")
     p.add_argument("--token-scenes", type=int, default=100, help="scenes per net for --tokens")
     p.add_argument("--steps", type=int, default=None, help="sampler steps for the model")
+    p.add_argument("--sampler", choices=SAMPLER_NAMES, default=None,
+                   help="ODE solver for the model (default: generate's)")
     p.add_argument("--guidance", type=float, default=None,
                    help="classifier-free guidance weight of the agent tokens (default: generate's)")
     p.add_argument("--scene-guidance", type=float, default=None,
                    help="classifier-free guidance weight of the global token (default: generate's)")
+    p.add_argument("--scene-guidance-sigma", type=float, default=None, metavar="SIGMA",
+                   help="apply the global token's guidance only above this noise level "
+                        "(default: generate's)")
     p.add_argument("--json", default=None, metavar="PATH", help="also write all results as JSON")
     p.add_argument("--pictures", default=None, metavar="DIR",
                    help="write DIR/<net>.png: three windows, ground truth beside every method")
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("-v", "--verbose", action="store_true")
     o = p.parse_args(args)
-    if not all(w is None or w >= 0 for w in (o.guidance, o.scene_guidance)):
-        p.error("--guidance and --scene-guidance must be >= 0")
+    if not all(w is None or w >= 0 for w in (o.guidance, o.scene_guidance, o.scene_guidance_sigma)):
+        p.error("--guidance, --scene-guidance and --scene-guidance-sigma must be >= 0")
     o.parser = p
     return o
 
@@ -240,8 +247,11 @@ def load_models(o) -> dict:
     if o.no_model:
         return {}
     from .generate import DEFAULT_CHECKPOINT, GenerationConfig, ScenarioGenerator
+    from .model.edm import SAMPLERS
     cfg = replace(GenerationConfig(), scene_guidance=o.scene_guidance,
-                  **{k: v for k, v in (("steps", o.steps), ("guidance", o.guidance)) if v is not None})
+                  scene_guidance_sigma=o.scene_guidance_sigma,
+                  **{k: v for k, v in (("steps", o.steps), ("guidance", o.guidance),
+                                       ("sampler", o.sampler and SAMPLERS[o.sampler])) if v is not None})
     path = o.checkpoint or DEFAULT_CHECKPOINT
     if o.checkpoint is None and not os.path.exists(path):
         print(f"{PROG}: no shipped checkpoint at {path}: baselines only", file=sys.stderr)

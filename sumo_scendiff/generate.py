@@ -43,6 +43,8 @@ class GenerationConfig:
                                  # costs a second UNet pass only for batches that carry tokens
     scene_guidance: float | None = None  # ... of the global token, for windows without agent tokens
                                          # (1 = off; None: the checkpoint's calibrated weight)
+    scene_guidance_sigma: float | None = None  # ... applied only at noise levels above this
+                                               # (None: the checkpoint's, calibrated with the weight)
 
 
 def speeds_from_traj(traj: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -91,13 +93,15 @@ def select_boxes(window: Window, prob: np.ndarray, boxes: np.ndarray, threshold:
 class ScenarioGenerator:
     def __init__(self, autoencoder: ScenarioAutoencoder, diffusion: ScenarioDiffusion,
                  latent_scale: float, raster: RasterConfig = RasterConfig(), sha256: str = "",
-                 config: GenerationConfig = GenerationConfig(), scene_guidance: float = 1.0):
+                 config: GenerationConfig = GenerationConfig(), scene_guidance: float = 1.0,
+                 scene_guidance_sigma: float = 0.0):
         # channels-last: oneDNN's faster convolution layout on CPU (the 128 px map encoder: 0.34 ->
         # 0.25 s per batch of 32, measured)
         self.ae = autoencoder.eval().to(memory_format=torch.channels_last)
         self.diffusion = diffusion.eval().to(memory_format=torch.channels_last)
         self.latent_scale = latent_scale
-        self.scene_guidance = scene_guidance   # the checkpoint's calibrated weight (export --scene-guidance)
+        # the checkpoint's calibrated weight and interval (export --scene-guidance/--scene-guidance-sigma)
+        self.scene_guidance, self.scene_guidance_sigma = scene_guidance, scene_guidance_sigma
         self.raster = raster
         self.sha256 = sha256
         self.config = config
@@ -118,11 +122,16 @@ class ScenarioGenerator:
         ckpt.load_state(ae, {k: v.float() for k, v in ck["autoencoder"].items()}, path)
         ckpt.load_state(df, {k: v.float() for k, v in ck["diffusion"].items()}, path)
         return cls(ae, df, float(ck["latent_scale"]), sha256=ckpt.sha256(path), config=config,
-                   scene_guidance=float(ck.get("scene_guidance", 1.0)))
+                   scene_guidance=float(ck.get("scene_guidance", 1.0)),
+                   scene_guidance_sigma=float(ck.get("scene_guidance_sigma", 0.0)))
 
     def scene_guidance_for(self, cfg: GenerationConfig) -> float:
         """The global token's guidance weight a config generates with (None: the checkpoint's)."""
         return self.scene_guidance if cfg.scene_guidance is None else cfg.scene_guidance
+
+    def scene_guidance_sigma_for(self, cfg: GenerationConfig) -> float:
+        """The noise level below which that guidance stops (None: the checkpoint's)."""
+        return self.scene_guidance_sigma if cfg.scene_guidance_sigma is None else cfg.scene_guidance_sigma
 
     # ---- one batch ------------------------------------------------------------------------
     @torch.no_grad()
@@ -136,7 +145,8 @@ class ScenarioGenerator:
                                          generator=torch.Generator().manual_seed(s)) for s in seeds])
         z = self.diffusion.sample(m, tok, pad, glob, steps=cfg.steps, sampler=cfg.sampler,
                                   noise=noise, guidance=cfg.guidance,
-                                  scene_guidance=self.scene_guidance_for(cfg))
+                                  scene_guidance=self.scene_guidance_for(cfg),
+                                  scene_guidance_sigma=self.scene_guidance_sigma_for(cfg))
         y = self.ae.decode(z / self.latent_scale, m)
         dec = decode_boxes(y, self.raster.size)
         return dec.prob.numpy(), dec.boxes.numpy(), dec.traj.numpy()

@@ -175,7 +175,8 @@ def run(o) -> dict:
             name = f"scene_{k:03d}"
             info = {"scene": name, "location": places[k][1], "window_index": k,
                     "model": {"sha256": gen.sha256, "steps": o.steps, "threshold": o.threshold,
-                              "guidance": o.guidance, "scene_guidance": gen.scene_guidance_for(gen.config)},
+                              "guidance": o.guidance, "scene_guidance": gen.scene_guidance_for(gen.config),
+                              "scene_guidance_sigma": gen.scene_guidance_sigma_for(gen.config)},
                     "sumo_options": cfg.options()}
             row = session.realise(scenes[k], tokens[k], sources[k], existing[k], o.out, name, info,
                                   o.rollout, seed=o.seed, p_mask=p_mask[k], force=o.force,

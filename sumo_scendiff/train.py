@@ -98,6 +98,8 @@ def get_options(args=None):
     e.add_argument("--scene-guidance", type=float, default=1.0, metavar="W",
                    help="the global token's guidance weight generation uses by default (1 = off; "
                         "calibrate with benchmarks/scene_guidance.py)")
+    e.add_argument("--scene-guidance-sigma", type=float, default=0.0, metavar="SIGMA",
+                   help="apply that guidance only at noise levels above SIGMA (0 = at every step)")
     o = p.parse_args(args)
     o.parser = p
     return o
@@ -204,6 +206,8 @@ def train_diffusion(o) -> None:
 def export(o) -> None:
     if not o.scene_guidance >= 0:
         o.parser.exit(2, f"{PROG}: error: --scene-guidance must be >= 0\n")
+    if not o.scene_guidance_sigma >= 0:
+        o.parser.exit(2, f"{PROG}: error: --scene-guidance-sigma must be >= 0\n")
     if os.path.exists(o.output) and not o.force:
         o.parser.exit(2, f"{PROG}: error: {o.output}: exists (add --force to replace it)\n")
     ae_ck = ckpt.load(o.autoencoder, "autoencoder-train")
@@ -222,6 +226,7 @@ def export(o) -> None:
                     diffusion=cast(df_ck.get("ema", df_ck["state"])),  # the weight average when kept
                     latent_scale=float(df_ck["latent_scale"]),
                     scene_guidance=float(o.scene_guidance),
+                    scene_guidance_sigma=float(o.scene_guidance_sigma),
                     # steps over every warm start (a run's own steps plus those it started from)
                     trained={"autoencoder_steps": ae_ck["step"] + ae_ck.get("steps_before", 0),
                              "diffusion_steps": df_ck["step"] + df_ck.get("steps_before", 0),

@@ -6,7 +6,7 @@ import torch
 
 from sumo_scendiff.model.edm import (SIGMA_DATA, EDMLoss, EDMPrecond, c_in, c_noise, c_out, c_skip,
                                      guided, initial_noise, karras_sigmas, loss_weight,
-                                     num_evaluations, sample_euler, sample_heun)
+                                     num_evaluations, sample_dpmpp_2m, sample_euler, sample_heun)
 
 SIGMAS = torch.tensor([1e-3, 0.02, 0.1, 0.5, 1.0, 5.0, 20.0, 80.0], dtype=torch.float64)
 
@@ -93,7 +93,7 @@ def _point_denoiser(z_star):
     return d
 
 
-@pytest.mark.parametrize("sampler", [sample_euler, sample_heun])
+@pytest.mark.parametrize("sampler", [sample_euler, sample_heun, sample_dpmpp_2m])
 def test_samplers_converge_to_single_point(sampler):
     z_star = torch.tensor([1.0, -2.0, 0.5, 3.0]).reshape(1, 4, 1, 1)
     g = torch.Generator().manual_seed(0)
@@ -115,9 +115,11 @@ def test_samplers_on_gaussian_data_convergence_order():
     z_T = initial_noise((1000, 1), generator=g, dtype=torch.float64)
     exact = mu + (z_T - mu) * sd / math.sqrt(sd**2 + 20.0**2)
     err = {(s.__name__, n): (s(d, z_T, karras_sigmas(n, dtype=torch.float64)) - exact).abs().max().item()
-           for s in (sample_euler, sample_heun) for n in (20, 40)}
+           for s in (sample_euler, sample_heun, sample_dpmpp_2m) for n in (20, 40)}
     assert err["sample_euler", 40] < 0.1 and err["sample_heun", 40] < 0.01
+    assert err["sample_dpmpp_2m", 40] < 0.01
     assert 1.6 < err["sample_euler", 20] / err["sample_euler", 40] < 2.5
+    assert err["sample_dpmpp_2m", 20] / err["sample_dpmpp_2m", 40] > 3.5
     assert err["sample_heun", 20] / err["sample_heun", 40] > 3.5
 
 
@@ -166,6 +168,29 @@ def test_guidance_interpolates_between_the_two_conditions_in_one_batch():
     for w in (0.0, 1.0, 3.0):
         expected = z * (0.5 + w * (cond["c"] - 0.5))[:, None]
         assert torch.allclose(guided(d, cond, uncond, w)(z, 1.0), expected)
-    assert calls == [6, 6, 6]  # both branches in a single batch of 2B
+    assert calls == [6, 3, 6]  # both branches in a single batch of 2B; w = 1 needs no second one
     out = sample_euler(guided(d, cond, uncond, 1.0), z, karras_sigmas(4))  # any sampler takes it
     assert torch.allclose(out, sample_euler(d, z, karras_sigmas(4), cond=cond))
+
+
+def test_guidance_stops_below_each_examples_sigma_lo_and_only_guided_rows_pay_a_second_pass():
+    calls = []
+
+    def d(z, sigma, *, c):
+        calls.append((len(z), sigma.tolist()))
+        return z * c[:, None]
+
+    z = torch.randn(3, 4)
+    cond, uncond = {"c": torch.tensor([1.0, 2.0, 3.0])}, {"c": torch.tensor([0.5, 0.5, 0.5])}
+    w, sigma_lo = torch.tensor([3.0, 3.0, 1.0]), torch.tensor([0.0, 1.0, 0.0])
+    D = guided(d, cond, uncond, w, sigma_lo)
+    guided_c = 0.5 + 3.0 * (cond["c"] - 0.5)
+    # sigma 2: rows 0 and 1 guided, row 2 has w = 1 (its null branch is not run)
+    assert torch.allclose(D(z, 2.0), z * torch.tensor([guided_c[0], guided_c[1], 3.0])[:, None])
+    assert calls[-1][0] == 5
+    # sigma 0.5: row 1 is below its sigma_lo, so it gets the conditional denoiser
+    assert torch.allclose(D(z, 0.5), z * torch.tensor([guided_c[0], 2.0, 3.0])[:, None])
+    assert calls[-1][0] == 4
+    # no row guided: one plain pass
+    assert torch.allclose(guided(d, cond, uncond, 3.0, 5.0)(z, 1.0), z * cond["c"][:, None])
+    assert calls[-1] == (3, [1.0, 1.0, 1.0])

@@ -180,14 +180,17 @@ def test_fixed_lr_drop_and_weight_average_reach_the_export(tmp_path, cross_net):
     from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
     assert ScenarioGenerator.load(str(out)).scene_guidance == 1.0
     train("export", "--autoencoder", tmp_path / "ae" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
-          "-o", out, "--force", "--scene-guidance", 1.7)
+          "-o", out, "--force", "--scene-guidance", 1.7, "--scene-guidance-sigma", 1.0)
     gen = ScenarioGenerator.load(str(out))
-    assert gen.scene_guidance == pytest.approx(1.7)
+    assert gen.scene_guidance == pytest.approx(1.7) and gen.scene_guidance_sigma == pytest.approx(1.0)
     net = Network.load(cross_net)
     win = [Window(0.0, 0.0, 0.0)]
-    a, b, c = (ScenarioGenerator.load(str(out), GenerationConfig(steps=3, threshold=0.0, scene_guidance=w)
-                                      ).generate(net, win, seed=1)[0] for w in (None, 1.7, 1.0))
+    a, b, c, d, e = (ScenarioGenerator.load(str(out), GenerationConfig(
+        steps=3, threshold=0.0, scene_guidance=w, scene_guidance_sigma=s)).generate(net, win, seed=1)[0]
+        for w, s in ((None, None), (1.7, 1.0), (1.0, None), (1.7, 0.0), (1.7, 100.0)))
     assert np.array_equal(a.boxes, b.boxes) and not np.array_equal(a.boxes, c.boxes)
+    assert not np.array_equal(a.boxes, d.boxes)     # guiding the low-noise steps too changes the scene
+    assert np.array_equal(e.boxes, c.boxes)         # guiding no step at all is no guidance
 
 
 def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, cross_net):

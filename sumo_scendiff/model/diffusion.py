@@ -61,13 +61,17 @@ class ScenarioDiffusion(nn.Module):
         return self.edm_loss(self.denoiser, z0, cond=cond, generator=generator).mean()
 
     @staticmethod
-    def null_condition(cond: dict, guidance: float, scene_guidance: float) -> tuple[dict, Tensor]:
-        """The condition each example is guided away from, and its weight (B,):
+    def null_condition(cond: dict, guidance: float, scene_guidance: float,
+                       scene_guidance_sigma: float = 0.0) -> tuple[dict, Tensor, Tensor]:
+        """The condition each example is guided away from, its weight and the noise level below
+        which its guidance stops (each (B,)):
 
         * with agent tokens: the map alone (no token, p_mask = 1), weight ``guidance`` -- the
           tokens' agents are followed more closely;
         * without: the empty scene (no token, p_mask = 0: nothing to add), weight
-          ``scene_guidance`` -- the global token's "add agents" is followed more closely.
+          ``scene_guidance`` -- the global token's "add agents" is followed more closely, only
+          while sigma > ``scene_guidance_sigma``: how many agents there are is decided at high
+          noise; guiding the fine steps too pushes agents off their lanes.
 
         Both nulls are conditions training shows the model (``p_map_only``; scenes whose every
         token is kept)."""
@@ -76,26 +80,29 @@ class ScenarioDiffusion(nn.Module):
         g = {p: torch.from_numpy(encode_global_token(p)).to(glob).expand_as(glob) for p in (0.0, 1.0)}
         null_glob = torch.where(has_tokens[:, None], g[1.0], g[0.0])
         w = torch.where(has_tokens, torch.tensor(float(guidance)), torch.tensor(float(scene_guidance)))
-        return dict(cond, agent_pad_mask=torch.ones_like(pad), global_token=null_glob), w
+        sigma_lo = torch.where(has_tokens, torch.tensor(0.0), torch.tensor(float(scene_guidance_sigma)))
+        return dict(cond, agent_pad_mask=torch.ones_like(pad), global_token=null_glob), w, sigma_lo
 
     @torch.no_grad()
     def sample(self, m: Tensor, agent_tokens: Tensor, agent_pad_mask: Tensor, global_token: Tensor,
                steps: int = 20, sampler: Callable = sample_euler,
                generator: Optional[torch.Generator] = None, noise: Optional[Tensor] = None,
-               guidance: float = 1.0, scene_guidance: float = 1.0) -> Tensor:
+               guidance: float = 1.0, scene_guidance: float = 1.0,
+               scene_guidance_sigma: float = 0.0) -> Tensor:
         """Integrate the probability-flow ODE from sigma_max to 0 (paper eq. 3); returns z (scaled).
 
         ``noise``: standard-normal (B, C_z, R, R) starting noise (scaled by sigma_max here); drawn
         with ``generator`` when not given. Classifier-free guidance (:meth:`null_condition`):
-        ``guidance`` for examples with agent tokens, ``scene_guidance`` for those without; a weight
-        of 1 is off. Guided examples cost two UNet passes per step.
+        ``guidance`` for examples with agent tokens, ``scene_guidance`` for those without (at
+        sigma > ``scene_guidance_sigma`` only); a weight of 1 is off. A guided step costs an example
+        two UNet passes.
         """
         cfg = self.cfg.unet
         cond = self.cond(m, agent_tokens, agent_pad_mask, global_token)
         denoiser = self.denoiser
-        null, w = self.null_condition(cond, guidance, scene_guidance)
+        null, w, sigma_lo = self.null_condition(cond, guidance, scene_guidance, scene_guidance_sigma)
         if bool((w != 1.0).any()):
-            denoiser, cond = guided(self.denoiser, cond, null, w), None
+            denoiser, cond = guided(self.denoiser, cond, null, w, sigma_lo), None
         sigmas = karras_sigmas(steps, device=m.device)
         if noise is None:
             z_t = initial_noise((m.shape[0], cfg.c_z, cfg.res, cfg.res), generator=generator,

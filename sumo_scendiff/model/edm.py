@@ -202,21 +202,66 @@ def sample_heun(denoiser: Denoiser, z_T: Tensor, sigmas: Tensor, *, cond: Option
     return z
 
 
-def guided(denoiser: Denoiser, cond: dict, uncond: dict, w: float | Tensor) -> Denoiser:
-    """Classifier-free guidance (Ho & Salimans 2022, eq. 6 in the denoiser form):
-    D_w(z; sigma) = D(z; sigma, uncond) + w (D(z; sigma, cond) - D(z; sigma, uncond)).
+@torch.no_grad()
+def sample_dpmpp_2m(denoiser: Denoiser, z_T: Tensor, sigmas: Tensor, *, cond: Optional[dict] = None,
+                    generator: Optional[torch.Generator] = None) -> Tensor:
+    """DPM-Solver++(2M) (Lu et al. 2022, Algorithm 2; as in k-diffusion's ``sample_dpmpp_2m``).
 
-    w = 1 is the conditional denoiser; w > 1 follows the condition more closely; ``w`` is a number
-    or one weight per example (B,). Both branches run as one batch of 2B. Returns a denoiser taking
-    no condition, for any sampler (``cond=None``).
+    The ODE in t = -log(sigma) is integrated exactly for a denoised estimate that is linear in t,
+    from this step's and the previous step's denoiser outputs: 2nd order at one evaluation per step
+    (len(sigmas) - 1 evaluations), so half of Heun's cost for the same order. The first step and the
+    last one (to sigma = 0) are 1st order. ``generator`` is unused (signature uniformity).
     """
-    both = {k: torch.cat([cond[k], uncond[k]]) for k in cond}
+    cond = cond or {}
+    z, d_prev, h_prev = z_T, None, None
+    for s_cur, s_next in zip(sigmas[:-1], sigmas[1:]):
+        d = denoiser(z, s_cur, **cond)
+        if s_next == 0:
+            z = d
+            break
+        h = torch.log(s_cur / s_next)                       # t_next - t, t = -log(sigma)
+        if d_prev is not None:
+            r = h_prev / h
+            d_lin = (1 + 1 / (2 * r)) * d - (1 / (2 * r)) * d_prev
+        else:
+            d_lin = d
+        z = (s_next / s_cur) * z - torch.expm1(-h) * d_lin  # exact step for that estimate
+        d_prev, h_prev = d, h
+    return z
+
+
+def guided(denoiser: Denoiser, cond: dict, uncond: dict, w: float | Tensor,
+           sigma_lo: float | Tensor = 0.0) -> Denoiser:
+    """Classifier-free guidance (Ho & Salimans 2022, eq. 6 in the denoiser form):
+    D_w(z; sigma) = D(z; sigma, uncond) + w (D(z; sigma, cond) - D(z; sigma, uncond)),
+    applied only while sigma > ``sigma_lo`` (guidance in a limited interval, Kynkaanniemi et al.
+    2024); below it, D_w = D(z; sigma, cond).
+
+    w = 1 is the conditional denoiser; w > 1 follows the condition more closely. ``w`` and
+    ``sigma_lo`` are numbers or one value per example (B,). The unconditional branch runs, in the
+    same batch as the conditional one, only for the examples guided at that sigma. Returns a
+    denoiser taking no condition, for any sampler (``cond=None``).
+    """
+    def per_example(v: float | Tensor, z: Tensor) -> Tensor:
+        return (v.to(z) if isinstance(v, Tensor) else torch.tensor(float(v), dtype=z.dtype,
+                                                                   device=z.device)).expand(len(z))
 
     def D(z: Tensor, sigma: Tensor | float, **_) -> Tensor:
-        d_c, d_u = denoiser(torch.cat([z, z]), sigma, **both).chunk(2)
-        wz = w.to(z).reshape(-1, *[1] * (z.ndim - 1)) if isinstance(w, Tensor) else w
-        return d_u + wz * (d_c - d_u)
+        s = _as_batch_sigma(sigma, z)
+        wz = per_example(w, z)
+        on = (wz != 1.0) & (s > per_example(sigma_lo, z))
+        if not bool(on.any()):
+            return denoiser(z, s, **cond)
+        both = {k: torch.cat([cond[k], uncond[k][on]]) for k in cond}
+        out = denoiser(torch.cat([z, z[on]]), torch.cat([s, s[on]]), **both)
+        d, d_u = out[:len(z)], out[len(z):]
+        d = d.clone()
+        d[on] = d_u + wz[on].reshape(-1, *[1] * (z.ndim - 1)) * (d[on] - d_u)
+        return d
     return D
+
+
+SAMPLERS = {"euler": sample_euler, "heun": sample_heun, "dpmpp-2m": sample_dpmpp_2m}  # CLI names
 
 
 def num_evaluations(sampler: Callable, sigmas: Tensor) -> int:
@@ -230,5 +275,6 @@ def num_evaluations(sampler: Callable, sigmas: Tensor) -> int:
 __all__ = [
     "SIGMA_DATA", "SIGMA_MIN", "SIGMA_MAX", "RHO", "P_MEAN", "P_STD",
     "c_skip", "c_out", "c_in", "c_noise", "loss_weight", "EDMPrecond", "EDMLoss",
-    "karras_sigmas", "initial_noise", "sample_euler", "sample_heun", "guided", "num_evaluations",
+    "karras_sigmas", "initial_noise", "sample_euler", "sample_heun", "sample_dpmpp_2m", "SAMPLERS", "guided",
+    "num_evaluations",
 ]
