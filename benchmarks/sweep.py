@@ -55,7 +55,7 @@ def _common(p: argparse.ArgumentParser, scenarios: int | None, rollout: float | 
     if scenarios is not None:
         p.add_argument("--scenarios", type=int, default=scenarios, help=f"sweep size (default {scenarios})")
         p.add_argument("--rollout", type=float, default=rollout, help=f"rollout seconds (default {rollout:g})")
-        p.add_argument("--steps", type=int, default=20, help="sampler steps (default 20, the sweep's)")
+        p.add_argument("--steps", type=int, default=10, help="sampler steps (default 10, the sweep's)")
         p.add_argument("--pictures", action="store_true", help="let the sweep draw its pictures (timed too)")
     p.add_argument("-s", "--seed", type=int, default=0, help="subsample and kill draws (default 0)")
     p.add_argument("-o", "--output", default=None, metavar="FILE", help="also write the tables here")

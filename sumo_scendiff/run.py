@@ -39,7 +39,7 @@ def get_options(args=None):
     p.add_argument("--p-mask", type=float, default=None, help="global scene token (overrides the token file)")
     p.add_argument("--scenes", type=int, default=4, help="number of scenes (default 4)")
     p.add_argument("-s", "--seed", type=int, default=0)
-    p.add_argument("--steps", type=int, default=20, help="sampler steps (default 20)")
+    p.add_argument("--steps", type=int, default=10, help="sampler steps (default 10, DPM-Solver++(2M))")
     p.add_argument("--threshold", type=float, default=0.8, help="box probability threshold")
     p.add_argument("--guidance", type=float, default=3.0,
                    help="classifier-free guidance weight of the agent tokens (default 3; 1 = off)")
@@ -174,7 +174,8 @@ def run(o) -> dict:
         for k in tqdm(range(len(scenes)), desc="seeding and rolling out", disable=not progress):
             name = f"scene_{k:03d}"
             info = {"scene": name, "location": places[k][1], "window_index": k,
-                    "model": {"sha256": gen.sha256, "steps": o.steps, "threshold": o.threshold,
+                    "model": {"sha256": gen.sha256, "sampler": gen.config.sampler.__name__, "steps": o.steps,
+                              "threshold": o.threshold,
                               "guidance": o.guidance, "scene_guidance": gen.scene_guidance_for(gen.config),
                               "scene_guidance_sigma": gen.scene_guidance_sigma_for(gen.config)},
                     "sumo_options": cfg.options()}

@@ -52,7 +52,7 @@ def test_run_center_tokens_and_rollout(cross_net, tmp_path, capsys):
     doc = json.load(open(out / "scene_000" / "scene.json"))
     assert doc["window"] == {"cx": 0.0, "cy": 0.0, "yaw": 0.0, "size": 100.0}
     assert doc["p_mask"] == 0.6 and doc["tokens"][0]["x"] == 20.0 and doc["tokens"][0]["source"] == "user"
-    assert len(doc["model"]["sha256"]) == 64
+    assert len(doc["model"]["sha256"]) == 64 and doc["model"]["sampler"] == "sample_dpmpp_2m"
     for a in doc["agents"]:
         assert abs(a["x"]) <= 50 and abs(a["y"]) <= 50 and len(a["poses"]) == 5
         assert a["status"] in ("placed", "refused", "misplaced")
@@ -123,3 +123,10 @@ def test_bad_input_one_line_exit_2(case, expect, cross_net, demand, tmp_path, ca
 def test_negative_guidance_is_a_usage_error(cross_net, tmp_path, capsys):
     code, _, err = _run(["-n", cross_net, "--center", "0,0", "--guidance", "-1", "-o", str(tmp_path / "o")], capsys)
     assert code == 2 and "--guidance and --scene-guidance >= 0" in err and not (tmp_path / "o").exists()
+
+
+def test_cli_defaults_are_the_generators():
+    from sumo_scendiff.generate import GenerationConfig
+    o = run_cli.get_options(["-n", "x.net.xml"])
+    assert (o.steps, o.guidance, o.threshold) == (GenerationConfig().steps, GenerationConfig().guidance,
+                                                  GenerationConfig().threshold)

@@ -59,6 +59,16 @@ def test_spec_expands_the_cross_product(spec_file):
     assert {s.location for s in sc} == {"0,0", "auto:0"} and {s.seed for s in sc} == {0, 1}
 
 
+
+def test_unset_sampler_settings_are_the_generators_defaults(cross_net, tmp_path):
+    from sumo_scendiff.generate import GenerationConfig
+    path = tmp_path / "bare.toml"
+    path.write_text(f'networks = ["{cross_net}"]\nlocations = [{{center = [0.0, 0.0]}}]\n')
+    (s,) = load_spec(str(path)).scenarios()
+    g = GenerationConfig()
+    assert (s.steps, s.guidance, s.threshold, s.scene_guidance) == (g.steps, g.guidance, g.threshold, None)
+
+
 def test_batches_depend_on_the_plan_alone(spec_file):
     from sumo_scendiff.sweep.engines import tasks
     sc = load_spec(spec_file).scenarios()

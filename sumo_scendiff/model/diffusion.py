@@ -2,7 +2,7 @@
 
     model = ScenarioDiffusion(DiffusionConfig())
     loss = model.loss(z0, m, agent_tokens, agent_pad_mask, global_token)         # training
-    z = model.sample(m, agent_tokens, agent_pad_mask, global_token, steps=20)    # inference
+    z = model.sample(m, agent_tokens, agent_pad_mask, global_token, steps=10)    # inference
 
 ``z0`` is the autoencoder's latent (mu of E(x)) multiplied by ``latent_scale`` so that its standard
 deviation matches sigma_data = 0.5 (latent-diffusion's scale factor); :meth:`sample` returns
@@ -18,7 +18,8 @@ from torch import Tensor, nn
 
 from .autoencoder import ConvEncoder
 from ..tokens import global_token as encode_global_token
-from .edm import P_MEAN, P_STD, EDMLoss, EDMPrecond, guided, initial_noise, karras_sigmas, sample_euler
+from .edm import (P_MEAN, P_STD, EDMLoss, EDMPrecond, guided, initial_noise, karras_sigmas,
+                  sample_dpmpp_2m)
 from .unet import UNet, UNetConfig
 
 
@@ -85,7 +86,7 @@ class ScenarioDiffusion(nn.Module):
 
     @torch.no_grad()
     def sample(self, m: Tensor, agent_tokens: Tensor, agent_pad_mask: Tensor, global_token: Tensor,
-               steps: int = 20, sampler: Callable = sample_euler,
+               steps: int = 10, sampler: Callable = sample_dpmpp_2m,
                generator: Optional[torch.Generator] = None, noise: Optional[Tensor] = None,
                guidance: float = 1.0, scene_guidance: float = 1.0,
                scene_guidance_sigma: float = 0.0) -> Tensor:

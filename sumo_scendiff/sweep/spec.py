@@ -203,7 +203,7 @@ def parse_spec(data: dict, source: str, here: str = ".") -> Spec:
     seeds = list(range(seeds)) if isinstance(seeds, int) else seeds
     if not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds):
         raise _err(source, "seeds", f"must be integers (or a count), got {seeds!r}")
-    settings = {"steps": int(data.get("steps", 20)), "threshold": float(data.get("threshold", 0.8)),
+    settings = {"steps": int(data.get("steps", 10)), "threshold": float(data.get("threshold", 0.8)),
                 "guidance": float(data.get("guidance", 3.0)),
                 "scene_guidance": None if data.get("scene_guidance") is None else float(data["scene_guidance"]),
                 "rollout": float(data.get("rollout", 60.0)), "step_length": float(data.get("step_length", 0.5)),
