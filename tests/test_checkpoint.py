@@ -87,3 +87,12 @@ def test_cli_token_mix_that_is_not_a_distribution_exit_2(tmp_path):
                           "--p-map-only", "0.6"], capture_output=True, text=True)
     assert res.returncode == 2 and "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1
     assert "--p-map-only 0.6" in res.stderr and not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("flag", ["--scene-guidance", "--scene-guidance-sigma"])
+def test_cli_export_negative_guidance_setting_exit_2(tmp_path, flag):
+    res = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "export", "--autoencoder", "a.pt",
+                          "--diffusion", "d.pt", "-o", str(tmp_path / "out.pt"), flag, "-1"],
+                         capture_output=True, text=True)
+    assert res.returncode == 2 and "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1
+    assert f"{flag} must be >= 0" in res.stderr and not (tmp_path / "out.pt").exists()
