@@ -57,7 +57,6 @@ def main(o) -> None:
     sigma_lo = gen.scene_guidance_sigma if o.sigma is None else o.sigma
     steps = o.steps or gen.config.steps
     sampler = SAMPLERS[o.sampler] if o.sampler else gen.config.sampler
-    sampler_name = next(k for k, v in SAMPLERS.items() if v is sampler)
     ds = SceneDataset(o.data, rotate=False)
     idx = np.random.default_rng(o.seed).choice(len(ds), min(o.scenes, len(ds)), replace=False)
     b = collate_scenes([ds[int(i)] for i in idx])
@@ -89,7 +88,7 @@ def main(o) -> None:
     order = np.argsort(counts)   # the count rises with w; interpolate where it meets the ground truth
     best = float(np.interp(gt_count, counts[order], ws[order]))
     lines = [f"checkpoint `{o.checkpoint or 'shipped'}` (sha256 {gen.sha256[:12]}…), {n} windows of "
-             f"`{os.path.relpath(o.data, ROOT)}`, map only, {steps} {sampler_name} steps, threshold {gen.config.threshold}, "
+             f"`{os.path.relpath(o.data, ROOT)}`, map only, {steps} steps of {sampler.__name__}, threshold {gen.config.threshold}, "
              f"guided at sigma > {sigma_lo:g}",
              "", "| scene guidance w | agents / window | standing share | latent std |", "|---|---|---|---|",
              f"| ground truth | {gt_count:.2f} | {gt_still:.2f} | {float((mu * gen.latent_scale).std()):.3f} |"]

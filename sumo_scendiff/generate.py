@@ -36,7 +36,7 @@ DEFAULT_CHECKPOINT = os.path.join(os.path.dirname(__file__), "weights", "scendif
 @dataclass
 class GenerationConfig:
     # DPM-Solver++(2M) at 10 steps: the quality of 20 Euler steps (the paper's solver) at half the
-    # UNet passes (README, "Benchmarks"); any solver of model.edm fits (sampler=sample_euler)
+    # UNet passes (README, "The model"); any solver of model.edm fits (sampler=sample_euler)
     steps: int = 10
     sampler: Callable = sample_dpmpp_2m
     threshold: float = 0.8       # box probability (paper sec. 4.1: 80 %)

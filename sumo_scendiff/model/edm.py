@@ -255,7 +255,6 @@ def guided(denoiser: Denoiser, cond: dict, uncond: dict, w: float | Tensor,
         both = {k: torch.cat([cond[k], uncond[k][on]]) for k in cond}
         out = denoiser(torch.cat([z, z[on]]), torch.cat([s, s[on]]), **both)
         d, d_u = out[:len(z)], out[len(z):]
-        d = d.clone()
         d[on] = d_u + wz[on].reshape(-1, *[1] * (z.ndim - 1)) * (d[on] - d_u)
         return d
     return D
