@@ -51,6 +51,37 @@ def test_shapes_default_config():
     assert torch.allclose(ae.decode(mu, m), y)  # eval: z = mu
 
 
+def test_map_skips_join_the_decoder_at_their_resolution():
+    """With map_skips, D_up's blocks at 32 and 64 px also take D_down's features of that size (and
+    the output depends on them); without, the decoder is the paper's (shipped weights keep loading)."""
+    plain, skips = (ScenarioAutoencoder(AutoencoderConfig(**{**TINY.__dict__, "map_skips": s})).eval()
+                    for s in (False, True))
+    assert set(plain.state_dict()) < set(skips.state_dict()) and not plain.D_up.skip_at
+    x, m = torch.rand(1, 15, 128, 128), torch.rand(1, TINY.C_m, 128, 128)
+    seen = {}
+    for k in skips.D_up.skip_at:
+        skips.D_up.body[k].register_forward_pre_hook(lambda mod, a, k=k: seen.update({k: a[0].shape}) or None)
+    y = skips(x, m)[0]
+    assert y.shape == (1, C_Y, 64, 64)
+    assert seen == {3: (1, 16 + 8, 32, 32), 5: (1, 16 + 8, 64, 64)}  # dec 16 + enc_channels 8
+    _, feats = skips.D_down.pyramid(m)
+    assert [f.shape[-1] for f in feats] == [128, 64, 32]
+    with torch.no_grad():
+        y0 = skips.D_up(skips.encode(x)[0], skips.D_down(m), [torch.zeros_like(f) for f in feats])
+    assert not torch.allclose(y0, y)
+
+
+def test_latent_noise_scales_the_reparameterisation():
+    torch.manual_seed(0)
+    x, m = torch.rand(1, 15, 128, 128), torch.rand(1, TINY.C_m, 128, 128)
+    for noise, same in ((0.0, True), (1.0, False)):
+        ae = ScenarioAutoencoder(AutoencoderConfig(**{**TINY.__dict__, "latent_noise": noise}))
+        with torch.no_grad():
+            train_y = ae.train()(x, m)[0]
+            eval_y = ae.eval()(x, m)[0]
+        assert torch.allclose(train_y, eval_y) == same
+
+
 def test_overfit_one_scene():
     """Train a tiny autoencoder on one 2-box scene; after overlap removal ("keep the most probable
     detection near each box") both boxes and their trajectories are recovered."""

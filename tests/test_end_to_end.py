@@ -227,3 +227,37 @@ def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, cross_net):
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "--freeze-encoder needs --init-from" in bad.stderr
     assert "Traceback" not in bad.stderr and not (tmp_path / "x" / "last.pt").exists()
+
+
+def test_new_decoder_keeps_the_encoder_and_changes_the_decoder(tmp_path, cross_net):
+    """--new-decoder: a decoder of another architecture (map skips) trains from scratch on the frozen
+    encoder of --init-from; the diffusion model trained on the source exports and samples with it.
+    Without --freeze-encoder: exit 2, nothing written."""
+    import torch
+
+    from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
+    from sumo_scendiff.model import checkpoint as ckpt
+    data = str(tmp_path / "data")
+    one_scene_dataset(data, cross_net)
+    common = ["--data", data, "--batch-size", 1, "--no-rotate"]
+    train("autoencoder", *common, "-o", tmp_path / "ae", "--steps", 2, "--model-config", json.dumps(TINY_AE))
+    src = tmp_path / "ae" / "last.pt"
+    train("diffusion", *common, "--autoencoder", src, "-o", tmp_path / "d", "--steps", 1,
+          "--model-config", json.dumps(TINY_DIFF))
+    train("autoencoder", *common, "-o", tmp_path / "dec", "--steps", 2, "--init-from", src, "--freeze-encoder",
+          "--new-decoder", "--model-config", json.dumps({"map_skips": True}))
+    a, b = (ckpt.load(str(p), "autoencoder-train") for p in (src, tmp_path / "dec" / "last.pt"))
+    assert b["model_config"]["map_skips"] and not a["model_config"].get("map_skips")
+    assert all(torch.equal(a["state"][k], b["state"][k]) for k in a["state"] if k.startswith("E."))
+    assert any(k.startswith("D_up.") and k not in a["state"] for k in b["state"])
+    out = tmp_path / "model.pt"
+    train("export", "--autoencoder", tmp_path / "dec" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
+          "-o", out)
+    gen = ScenarioGenerator.load(str(out), GenerationConfig(steps=2))
+    assert gen.ae.cfg.map_skips
+    gen.generate(Network.load(cross_net), [Window(0.0, 0.0, 0.0)], seed=0)
+    bad = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "autoencoder", *map(str, common),
+                          "-o", str(tmp_path / "x"), "--steps", "1", "--init-from", str(src), "--new-decoder"],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "--new-decoder needs --freeze-encoder" in bad.stderr
+    assert "Traceback" not in bad.stderr and not (tmp_path / "x" / "last.pt").exists()
