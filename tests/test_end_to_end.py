@@ -193,13 +193,9 @@ def test_fixed_lr_drop_and_weight_average_reach_the_export(tmp_path, cross_net):
     assert np.array_equal(e.boxes, c.boxes)         # guiding no step at all is no guidance
 
 
-def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, cross_net):
-    """--init-from with --freeze-encoder: the encoder's weights stay bit-identical, the decoder
-    trains, the run inherits its source's config (and keeps it when resumed), and a diffusion model
-    trained on the source autoencoder exports with the fine-tuned one; without --init-from: exit 2."""
-    import torch
-
-    from sumo_scendiff.model import checkpoint as ckpt
+def autoencoder_and_diffusion(tmp_path, cross_net) -> tuple[list, object]:
+    """A one-scene dataset, a 2-step autoencoder (tmp_path/ae) and a 1-step diffusion model on it
+    (tmp_path/d): the training flags shared by both, and the autoencoder's last.pt."""
     data = str(tmp_path / "data")
     one_scene_dataset(data, cross_net)
     common = ["--data", data, "--batch-size", 1, "--no-rotate"]
@@ -207,6 +203,17 @@ def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, cross_net):
     src = tmp_path / "ae" / "last.pt"
     train("diffusion", *common, "--autoencoder", src, "-o", tmp_path / "d", "--steps", 1,
           "--model-config", json.dumps(TINY_DIFF))
+    return common, src
+
+
+def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, cross_net):
+    """--init-from with --freeze-encoder: the encoder's weights stay bit-identical, the decoder
+    trains, the run inherits its source's config (and keeps it when resumed), and a diffusion model
+    trained on the source autoencoder exports with the fine-tuned one; without --init-from: exit 2."""
+    import torch
+
+    from sumo_scendiff.model import checkpoint as ckpt
+    common, src = autoencoder_and_diffusion(tmp_path, cross_net)
     weights = json.dumps({"loss": {"category_weights": [1.0, 1.0, 4.0]}})
     fine = [*common, "-o", tmp_path / "dec", "--lr", 1e-2, "--model-config", weights]
     res = train("autoencoder", *fine, "--steps", 3, "--init-from", src, "--freeze-encoder")
@@ -237,13 +244,7 @@ def test_new_decoder_keeps_the_encoder_and_changes_the_decoder(tmp_path, cross_n
 
     from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
     from sumo_scendiff.model import checkpoint as ckpt
-    data = str(tmp_path / "data")
-    one_scene_dataset(data, cross_net)
-    common = ["--data", data, "--batch-size", 1, "--no-rotate"]
-    train("autoencoder", *common, "-o", tmp_path / "ae", "--steps", 2, "--model-config", json.dumps(TINY_AE))
-    src = tmp_path / "ae" / "last.pt"
-    train("diffusion", *common, "--autoencoder", src, "-o", tmp_path / "d", "--steps", 1,
-          "--model-config", json.dumps(TINY_DIFF))
+    common, src = autoencoder_and_diffusion(tmp_path, cross_net)
     train("autoencoder", *common, "-o", tmp_path / "dec", "--steps", 2, "--init-from", src, "--freeze-encoder",
           "--new-decoder", "--model-config", json.dumps({"map_skips": True}))
     a, b = (ckpt.load(str(p), "autoencoder-train") for p in (src, tmp_path / "dec" / "last.pt"))
