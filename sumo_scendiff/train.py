@@ -86,10 +86,6 @@ def get_options(args=None):
             s.add_argument("--freeze-encoder", action="store_true",
                            help="train the decoder only (needs --init-from): the latent space stays "
                                 "the same, so a diffusion model trained on it stays valid")
-            s.add_argument("--new-decoder", action="store_true",
-                           help="with --freeze-encoder: keep only the encoder of --init-from and train "
-                                "the decoder (D_down, D_up) from scratch, e.g. with another "
-                                "architecture ('{\"map_skips\": true}')")
         if name == "diffusion":
             s.add_argument("--autoencoder", required=True, help="autoencoder checkpoint (last.pt)")
             s.add_argument("--no-map", action="store_true", help="the paper's no-map ablation")
@@ -146,19 +142,16 @@ def train_autoencoder(o) -> None:
     if saved is not None:  # a decoder-only run stays one when resumed
         o.freeze_encoder = o.freeze_encoder or "encoder_from_sha256" in saved
     elif init is not None:
-        if o.new_decoder:
-            ckpt.load_state(model.E, {k[2:]: v for k, v in init["state"].items() if k.startswith("E.")},
-                            o.init_from)
-        else:
-            ckpt.load_state(model, init["state"], o.init_from)
+        state = init["state"]
+        if all(k.startswith("D_up.skips.") for k in set(model.state_dict()) - set(state)):
+            state = {**model.state_dict(), **state}  # map skips the source lacks start at zero
+        ckpt.load_state(model, state, o.init_from)
         extra.update(warm_start_record(init, o.init_from))
         if o.freeze_encoder:  # the encoder whose latents a diffusion model may have been trained on
             extra["encoder_from_sha256"] = init.get("encoder_from_sha256", extra["init_from_sha256"])
         print(f"{o.init_from}: warm start from step {init['step']}")
     elif o.freeze_encoder:
         o.parser.exit(2, f"{PROG}: error: --freeze-encoder needs --init-from (a trained encoder to keep)\n")
-    if o.new_decoder and not (o.freeze_encoder and init is not None or saved is not None):
-        o.parser.exit(2, f"{PROG}: error: --new-decoder needs --freeze-encoder and --init-from\n")
     if o.freeze_encoder:
         model.E.requires_grad_(False)
     opt = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=cfg.lr,

@@ -52,23 +52,27 @@ def test_shapes_default_config():
 
 
 def test_map_skips_join_the_decoder_at_their_resolution():
-    """With map_skips, D_up's blocks at 32 and 64 px also take D_down's features of that size (and
-    the output depends on them); without, the decoder is the paper's (shipped weights keep loading)."""
+    """With map_skips, D_down's features at 32 and 64 px are added into D_up's blocks of that size.
+    The projections start at zero: with the weights of a decoder without skips, the output is that
+    decoder's (a warm start begins where its source was); once trained, the output depends on them."""
     plain, skips = (ScenarioAutoencoder(AutoencoderConfig(**{**TINY.__dict__, "map_skips": s})).eval()
                     for s in (False, True))
-    assert set(plain.state_dict()) < set(skips.state_dict()) and not plain.D_up.skip_at
+    assert not plain.D_up.skip_at and set(plain.state_dict()) < set(skips.state_dict())
+    skips.load_state_dict({**skips.state_dict(), **plain.state_dict()})
     x, m = torch.rand(1, 15, 128, 128), torch.rand(1, TINY.C_m, 128, 128)
-    seen = {}
-    for k in skips.D_up.skip_at:
-        skips.D_up.body[k].register_forward_pre_hook(lambda mod, a, k=k: seen.update({k: a[0].shape}) or None)
-    y = skips(x, m)[0]
-    assert y.shape == (1, C_Y, 64, 64)
-    assert seen == {3: (1, 16 + 8, 32, 32), 5: (1, 16 + 8, 64, 64)}  # dec 16 + enc_channels 8
-    _, feats = skips.D_down.pyramid(m)
-    assert [f.shape[-1] for f in feats] == [128, 64, 32]
     with torch.no_grad():
-        y0 = skips.D_up(skips.encode(x)[0], skips.D_down(m), [torch.zeros_like(f) for f in feats])
-    assert not torch.allclose(y0, y)
+        assert torch.equal(plain(x, m)[0], skips(x, m)[0])
+        for conv in skips.D_up.skips.values():
+            conv.weight.normal_()
+        seen = {}
+        for k in skips.D_up.skip_at:
+            skips.D_up.body[k].register_forward_pre_hook(lambda mod, a, k=k: seen.update({k: a[0].shape}) or None)
+        y = skips(x, m)[0]
+        assert y.shape == (1, C_Y, 64, 64) and not torch.allclose(y, plain(x, m)[0])
+        assert seen == {3: (1, 16, 32, 32), 5: (1, 16, 64, 64)}
+        _, feats = skips.D_down.pyramid(m)
+        assert [f.shape[-1] for f in feats] == [128, 64, 32]
+        assert torch.equal(skips.D_down.pyramid(m)[0], skips.D_down(m))
 
 
 def test_latent_noise_scales_the_reparameterisation():

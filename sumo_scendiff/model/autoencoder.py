@@ -7,9 +7,9 @@ resolution, narrowed for CPU training and without the mid-block self-attention:
 * D_down: m (B, C_m, 128, 128) -> (B, C_map, 16, 16), same architecture as E, own weights
 * D_up:   concat(z, D_down(m)) at 16 -> upsample 16 -> 32 -> 64 -> y (B, 19, 64, 64); the output
   resolution is truncated at 64 px as in appendix C.1. See ``detection.py`` for the layout of y.
-  With ``map_skips`` (beyond the paper) D_down's 32 and 64 px features join D_up at those
-  resolutions, U-Net fashion: the 16 px bottleneck (6.25 m cells) alone leaves the decoded headings
-  ~0.07 rad off their lanes.
+  With ``map_skips`` (beyond the paper) D_down's 32 and 64 px features are added (1x1 projections)
+  into D_up at those resolutions, U-Net fashion: through the 16 px bottleneck (6.25 m cells) alone
+  the decoded headings stay ~0.07 rad off their lanes.
 
 Training objective (appendix C.3): L = L_rec + kl_weight * L_KL, both per-scene sums averaged
 over the batch.
@@ -96,17 +96,22 @@ class DetectionDecoder(nn.Module):
         ch = cfg.dec_channels
         self.conv_in = nn.Conv2d(cfg.C_z + cfg.C_map, ch[0], 3, padding=1)
         layers = [ResnetBlock(ch[0], ch[0], dropout=cfg.dropout)]  # mid block
-        # with map_skips, the ResnetBlock of level i >= 1 (16 * 2^i px, body index 1 + 2 i) also
-        # takes D_down's features at that resolution: its encoder level is len(enc_channels) - 1 - i
-        top = len(cfg.enc_channels) - 1
-        self.skip_at = {1 + 2 * i: top - i for i in range(1, len(ch))} if cfg.map_skips else {}
         prev = ch[0]
         for i, c in enumerate(ch):
-            extra = cfg.enc_channels[top - i] if 1 + 2 * i in self.skip_at else 0
-            layers.append(ResnetBlock(prev + extra, c, dropout=cfg.dropout))
+            layers.append(ResnetBlock(prev, c, dropout=cfg.dropout))
             if i < len(ch) - 1:
                 layers.append(Upsample(c))
             prev = c
+        # with map_skips, D_down's features at 16 * 2^i px (its level top - i) are projected (1x1)
+        # and added to the input of the ResnetBlock of level i >= 1 (body index 1 + 2 i); the
+        # projections start at zero, so a decoder warm-started from one without skips begins as it
+        top = len(cfg.enc_channels) - 1
+        self.skip_at, self.skips = {}, nn.ModuleDict()
+        for i in range(1, len(ch)) if cfg.map_skips else ():
+            self.skip_at[1 + 2 * i] = top - i
+            self.skips[str(1 + 2 * i)] = conv = nn.Conv2d(cfg.enc_channels[top - i], ch[i - 1], 1)
+            nn.init.zeros_(conv.weight)
+            nn.init.zeros_(conv.bias)
         self.body = nn.Sequential(*layers)
         self.norm_out = group_norm(prev)
         self.conv_out = nn.Conv2d(prev, C_Y, 3, padding=1)
@@ -124,7 +129,7 @@ class DetectionDecoder(nn.Module):
         h = self.conv_in(torch.cat([z, m_enc], dim=1))
         for k, layer in enumerate(self.body):
             if k in self.skip_at:
-                h = torch.cat([h, m_feats[self.skip_at[k]]], dim=1)
+                h = h + self.skips[str(k)](m_feats[self.skip_at[k]])
             h = layer(h)
         return self.conv_out(F.silu(self.norm_out(h))) * self.out_scale
 
