@@ -1,6 +1,7 @@
 """Does the model follow each token feature? Counterfactual tokens on held-out scenes.
 
     python benchmarks/token_response.py [--checkpoint PATH] [--data data/val_dense] [--scenes 96] [-o FILE]
+    python benchmarks/token_response.py --autoencoder runs/ae/last.pt   # a training run's autoencoder alone
 
 On held-out windows of the training networks, every agent is given as a full token; in each window
 one moving agent (> 6 m/s now and at +2 s) is the probe. For each feature, the probe's value is
@@ -12,6 +13,10 @@ generated vehicle nearest the probe's position (within 2.2 m) is read: its speed
 
 1 when the generated vehicle does what the token asks, 0 when the feature is ignored. The row
 "as recorded" gives the probe's own values and what is generated from them.
+
+A model can only follow a speed its latent carries, so the autoencoder gets the same question: the
+probe is re-rendered with its trajectory scaled about its current position (speed x 0.2 and x 1.5),
+encoded and decoded (D(mu(E(x)), m)), and the decoded speed at the probe is read.
 """
 from __future__ import annotations
 
@@ -25,7 +30,10 @@ from report import emit
 from sumo_scendiff.data.dataset import SceneDataset, collate_scenes
 from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator, select_boxes, speeds_from_traj
 from sumo_scendiff.geometry import T0, TIMES, Window, wrap_angle
+from sumo_scendiff.model import checkpoint as ckpt
+from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from sumo_scendiff.model.detection import decode_boxes
+from sumo_scendiff.raster import render_agents
 from sumo_scendiff.tokens import encode_agent_tokens, features_from_scene, global_token, pad_tokens
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
@@ -38,6 +46,8 @@ PROBES = {"speed": (2.0, 14.0, "speed now, m/s"), "final_speed": (2.0, 14.0, "sp
 def get_options(args=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--checkpoint", default=None, help="scenario-diffusion checkpoint (default: shipped)")
+    p.add_argument("--autoencoder", default=None,
+                   help="an autoencoder training checkpoint: its speed response only")
     p.add_argument("--data", default=os.path.join(ROOT, "data", "val_dense"))
     p.add_argument("--scenes", type=int, default=96)
     p.add_argument("--guidance", type=float, default=None, help="token guidance (default: generate's)")
@@ -87,42 +97,89 @@ def generate(gen, batch, picked, override: tuple[str, float] | None, cfg, seed: 
         z = gen.diffusion.sample(batch["map"], tok, pad, glob, steps=cfg.steps, sampler=cfg.sampler,
                                  guidance=cfg.guidance, generator=torch.Generator().manual_seed(seed))
         dec = decode_boxes(gen.ae.decode(z / gen.latent_scale, batch["map"]))
+    return at_probes(dec, picked, cfg.threshold)
+
+
+def at_probes(dec, picked, threshold: float) -> list:
+    """Per window, the probed quantities of the decoded vehicle nearest the probe (None beyond 2.2 m)."""
     prob, boxes, traj = dec.prob.numpy(), dec.boxes.numpy(), dec.traj.numpy()
     out = []
     for k, (s, j) in enumerate(picked):
-        keep = select_boxes(WINDOW, prob[k], boxes[k], cfg.threshold)
+        keep = select_boxes(WINDOW, prob[k], boxes[k], threshold)
         d = np.hypot(*(boxes[k][keep][:, :2] - np.asarray(s["boxes"])[j, :2]).T) if len(keep) else np.zeros(0)
         out.append(read(traj[k][keep][d.argmin()], boxes[k][keep][d.argmin()]) if len(d) and d.min() <= 2.2
                    else None)
     return out
 
 
+def autoencoder_row(ae, ds, picked, threshold: float) -> str:
+    """The autoencoder's speed response: the probe re-rendered at 0.2 / 1.5 times its speed."""
+    got, asked = {}, {}
+    for scale in (0.2, 1.5):
+        xs = []
+        for s, j in picked:
+            traj, tm = np.asarray(s["traj"]).copy(), np.asarray(s["traj_mask"])
+            c = traj[j, T0, :2].copy()
+            traj[j, :, :2] = c + scale * (traj[j, :, :2] - c)
+            xs.append(render_agents(np.asarray(s["boxes"]), traj, tm, ds.raster))
+        m = torch.from_numpy(np.stack([np.asarray(s["map"]) for s, _ in picked]))
+        with torch.no_grad():
+            got[scale] = at_probes(decode_boxes(ae.decode(ae.encode(torch.from_numpy(np.stack(xs)))[0], m)),
+                                   picked, threshold)
+        asked[scale] = [scale * float(np.asarray(s["speed"])[j, T0]) for s, j in picked]
+    both = [k for k in range(len(picked)) if got[0.2][k] and got[1.5][k]]
+    a_lo, a_hi = (float(np.mean([asked[sc][k] for k in both])) for sc in (0.2, 1.5))
+    g_lo, g_hi = (float(np.mean([got[sc][k]["speed"] for k in both])) for sc in (0.2, 1.5))
+    return (f"| autoencoder D(mu(E(x)), m), probe re-rendered | speed now, m/s | – | {a_lo:.2f} → {g_lo:.2f} | "
+            f"{a_hi:.2f} → {g_hi:.2f} | {(g_hi - g_lo) / (a_hi - a_lo):.2f} | {len(both)} / {len(picked)} |")
+
+
+
+
 def main(o) -> None:
     torch.set_num_threads(2)
-    gen = ScenarioGenerator.load(o.checkpoint)
+    if o.autoencoder:
+        ck = ckpt.load(o.autoencoder, "autoencoder-train")
+        ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ck["model_config"]))
+        ckpt.load_state(ae, ck["state"], o.autoencoder)
+        gen, name, sha = None, f"{o.autoencoder} (step {ck['step']})", ckpt.sha256(o.autoencoder)
+    else:
+        gen = ScenarioGenerator.load(o.checkpoint)
+        ae, name, sha = gen.ae, o.checkpoint or "shipped", gen.sha256
+    ae.eval()
     cfg = GenerationConfig(**({"guidance": o.guidance} if o.guidance is not None else {}))
-    picked = probes(SceneDataset(o.data, rotate=False), o.scenes, o.seed)
-    batch = collate_scenes([s for s, _ in picked])
-    asked = [features_from_scene(*(np.asarray(s[k]) for k in ("boxes", "traj", "traj_mask", "speed")))[0]
-             for s, _ in picked]
-    base = generate(gen, batch, picked, None, cfg, o.seed)
-    lines = [f"checkpoint `{o.checkpoint or 'shipped'}` (sha256 {gen.sha256[:12]}…), {len(picked)} windows of "
+    ds = SceneDataset(o.data, rotate=False)
+    picked = probes(ds, o.scenes, o.seed)
+    lines = [f"checkpoint `{name}` (sha256 {sha[:12]}…), {len(picked)} windows of "
              f"`{os.path.relpath(o.data, ROOT)}` with a moving probe agent, every agent a full token, "
              f"{cfg.steps} steps of {cfg.sampler.__name__}, token guidance {cfg.guidance:g}", "",
              "| feature | read from the generated vehicle | as recorded: asked / generated | asked low → generated "
              "| asked high → generated | response (1 = follows, 0 = ignores) | probes found |",
              "|---|---|---|---|---|---|---|"]
+    if gen is not None:
+        lines += diffusion_rows(gen, picked, cfg, o.seed)
+    lines.append(autoencoder_row(ae, ds, picked, cfg.threshold))
+    emit("\n".join(lines) + "\n", o.output, "Token feature response on held-out scenes")
+
+
+def diffusion_rows(gen, picked, cfg, seed: int) -> list[str]:
+    """One row per feature of PROBES: the diffusion model's response to a counterfactual token."""
+    batch = collate_scenes([s for s, _ in picked])
+    asked = [features_from_scene(*(np.asarray(s[k]) for k in ("boxes", "traj", "traj_mask", "speed")))[0]
+             for s, _ in picked]
+    base = generate(gen, batch, picked, None, cfg, seed)
+    rows = []
     for name, (lo, hi, what) in PROBES.items():
-        low = generate(gen, batch, picked, (name, lo), cfg, o.seed)
-        high = generate(gen, batch, picked, (name, hi), cfg, o.seed)
+        low = generate(gen, batch, picked, (name, lo), cfg, seed)
+        high = generate(gen, batch, picked, (name, hi), cfg, seed)
         both = [k for k in range(len(picked)) if low[k] and high[k]]
         rec = [k for k in range(len(picked)) if base[k]]
         g_lo, g_hi = (float(np.mean([r[k][name] for k in both])) for r in (low, high))
         rec_asked = float(np.mean([asked[k][name][picked[k][1]] for k in rec]))
         rec_gen = float(np.mean([base[k][name] for k in rec]))
-        lines.append(f"| `{name}` | {what} | {rec_asked:.2f} / {rec_gen:.2f} | {lo:g} → {g_lo:.2f} | "
-                     f"{hi:g} → {g_hi:.2f} | {(g_hi - g_lo) / (hi - lo):.2f} | {len(both)} / {len(picked)} |")
-    emit("\n".join(lines) + "\n", o.output, "Token feature response on held-out scenes")
+        rows.append(f"| `{name}` | {what} | {rec_asked:.2f} / {rec_gen:.2f} | {lo:g} → {g_lo:.2f} | "
+                    f"{hi:g} → {g_hi:.2f} | {(g_hi - g_lo) / (hi - lo):.2f} | {len(both)} / {len(picked)} |")
+    return rows
 
 
 if __name__ == "__main__":
