@@ -8,8 +8,8 @@ resolution, narrowed for CPU training and without the mid-block self-attention:
 * D_up:   concat(z, D_down(m)) at 16 -> upsample 16 -> 32 -> 64 -> y (B, 19, 64, 64); the output
   resolution is truncated at 64 px as in appendix C.1. See ``detection.py`` for the layout of y.
   With ``map_skips`` (beyond the paper) D_down's 32 and 64 px features are added (1x1 projections)
-  into D_up at those resolutions, U-Net fashion: through the 16 px bottleneck (6.25 m cells) alone
-  the decoded headings stay ~0.07 rad off their lanes.
+  into D_up at those resolutions, U-Net fashion, so the decoder sees the lanes finer than the 16 px
+  bottleneck's 6.25 m cells (README "The model": a small gain in lane heading).
 
 Training objective (appendix C.3): L = L_rec + kl_weight * L_KL, both per-scene sums averaged
 over the batch.
