@@ -31,13 +31,11 @@ import os
 import numpy as np
 import torch
 
-from report import emit
+from report import add_model_options, emit, load_models
 from sumo_scendiff.data.dataset import SceneDataset, collate_scenes
-from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator, select_boxes, speeds_from_traj
+from sumo_scendiff.generate import GenerationConfig, select_boxes, speeds_from_traj
 from sumo_scendiff.geometry import T0, TIMES, Window, wrap_angle
 from sumo_scendiff.metrics import match_agents, precision_recall_f1
-from sumo_scendiff.model import checkpoint as ckpt
-from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from sumo_scendiff.model.detection import decode_boxes
 from sumo_scendiff.model.edm import karras_sigmas, sample_euler
 from sumo_scendiff.tokens import (AGENT_TOKEN_DIM, global_token, pad_tokens, token_cells,
@@ -49,9 +47,7 @@ WINDOW = Window(0.0, 0.0)  # boxes are already in the scene frame; only the wind
 
 def get_options(args=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--checkpoint", default=None, help="scenario-diffusion checkpoint (default: shipped)")
-    p.add_argument("--autoencoder", default=None,
-                   help="an autoencoder training checkpoint: measure its reconstruction only")
+    add_model_options(p, "measure its reconstruction only")
     p.add_argument("--data", default=os.path.join(ROOT, "data", "val"))
     p.add_argument("--scenes", type=int, default=96)
     p.add_argument("--threshold", type=float, default=0.8)
@@ -113,15 +109,7 @@ def from_noised_data(gen, z0: torch.Tensor, m: torch.Tensor, gts: list, o, truth
 
 def main(o) -> None:
     torch.set_num_threads(2)
-    if o.autoencoder:
-        ck = ckpt.load(o.autoencoder, "autoencoder-train")
-        ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ck["model_config"]))
-        ckpt.load_state(ae, ck["state"], o.autoencoder)
-        ae.eval()
-        name, sha = f"{o.autoencoder} (step {ck['step']})", ckpt.sha256(o.autoencoder)
-    else:
-        gen = ScenarioGenerator.load(o.checkpoint)
-        ae, name, sha = gen.ae, o.checkpoint or "shipped", gen.sha256
+    gen, ae, name, sha = load_models(o.checkpoint, o.autoencoder)
     ds = SceneDataset(o.data, rotate=False)
     idx = np.random.default_rng(o.seed).choice(len(ds), min(o.scenes, len(ds)), replace=False)
     b = collate_scenes([ds[int(i)] for i in idx])

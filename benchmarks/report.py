@@ -1,4 +1,5 @@
-"""Shared by the benchmark scripts: print a markdown report and, with ``-o``, write it to a file."""
+"""Shared by the benchmark scripts: the model options and loading, and a markdown report printed and,
+with ``-o``, written to a file."""
 from __future__ import annotations
 
 import os
@@ -10,3 +11,27 @@ def emit(text: str, output: str | None, title: str) -> None:
         os.makedirs(os.path.dirname(os.path.abspath(output)), exist_ok=True)
         with open(output, "w") as f:
             f.write(f"# {title}\n\n{text}")
+
+
+def add_model_options(p, autoencoder_help: str) -> None:
+    """``--checkpoint`` (a scenario-diffusion checkpoint) and ``--autoencoder`` (a training run's)."""
+    p.add_argument("--checkpoint", default=None, help="scenario-diffusion checkpoint (default: shipped)")
+    p.add_argument("--autoencoder", default=None, help=f"an autoencoder training checkpoint: {autoencoder_help}")
+
+
+def load_models(checkpoint: str | None, autoencoder: str | None):
+    """``(generator, autoencoder, name, sha256)``: the scenario-diffusion checkpoint (default: the
+    shipped one), or with ``autoencoder`` that training run's autoencoder alone (generator None).
+    The autoencoder is in eval mode."""
+    from sumo_scendiff.generate import ScenarioGenerator
+    from sumo_scendiff.model import checkpoint as ckpt
+    from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
+    if autoencoder:
+        ck = ckpt.load(autoencoder, "autoencoder-train")
+        ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ck["model_config"]))
+        ckpt.load_state(ae, ck["state"], autoencoder)
+        gen, name, sha = None, f"{autoencoder} (step {ck['step']})", ckpt.sha256(autoencoder)
+    else:
+        gen = ScenarioGenerator.load(checkpoint)
+        ae, name, sha = gen.ae, checkpoint or "shipped", gen.sha256
+    return gen, ae.eval(), name, sha

@@ -26,12 +26,10 @@ import os
 import numpy as np
 import torch
 
-from report import emit
+from report import add_model_options, emit, load_models
 from sumo_scendiff.data.dataset import SceneDataset, collate_scenes
-from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator, select_boxes, speeds_from_traj
+from sumo_scendiff.generate import GenerationConfig, select_boxes, speeds_from_traj
 from sumo_scendiff.geometry import T0, TIMES, Window, wrap_angle
-from sumo_scendiff.model import checkpoint as ckpt
-from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from sumo_scendiff.model.detection import decode_boxes
 from sumo_scendiff.raster import render_agents
 from sumo_scendiff.tokens import encode_agent_tokens, features_from_scene, global_token, pad_tokens
@@ -45,9 +43,7 @@ PROBES = {"speed": (2.0, 14.0, "speed now, m/s"), "final_speed": (2.0, 14.0, "sp
 
 def get_options(args=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--checkpoint", default=None, help="scenario-diffusion checkpoint (default: shipped)")
-    p.add_argument("--autoencoder", default=None,
-                   help="an autoencoder training checkpoint: its speed response only")
+    add_model_options(p, "its speed response only")
     p.add_argument("--data", default=os.path.join(ROOT, "data", "val_dense"))
     p.add_argument("--scenes", type=int, default=96)
     p.add_argument("--guidance", type=float, default=None, help="token guidance (default: generate's)")
@@ -138,15 +134,7 @@ def autoencoder_row(ae, ds, picked, threshold: float) -> str:
 
 def main(o) -> None:
     torch.set_num_threads(2)
-    if o.autoencoder:
-        ck = ckpt.load(o.autoencoder, "autoencoder-train")
-        ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ck["model_config"]))
-        ckpt.load_state(ae, ck["state"], o.autoencoder)
-        gen, name, sha = None, f"{o.autoencoder} (step {ck['step']})", ckpt.sha256(o.autoencoder)
-    else:
-        gen = ScenarioGenerator.load(o.checkpoint)
-        ae, name, sha = gen.ae, o.checkpoint or "shipped", gen.sha256
-    ae.eval()
+    gen, ae, name, sha = load_models(o.checkpoint, o.autoencoder)
     cfg = GenerationConfig(**({"guidance": o.guidance} if o.guidance is not None else {}))
     ds = SceneDataset(o.data, rotate=False)
     picked = probes(ds, o.scenes, o.seed)
