@@ -2,7 +2,7 @@
 # The recipe that produces the shipped checkpoint sumo_scendiff/weights/scendiff.pt from a fresh clone,
 # using only the project's own generated networks (networks/splits.json "train").
 # Every step is resumable: run the script again after an interruption and it continues.
-# About 7 h 30 min of training on an idle 2-core CPU plus ~15 minutes of recording (README "Training").
+# About 10 h of training on an idle 2-core CPU plus ~15 minutes of recording (README "Training").
 set -euo pipefail
 cd "$(dirname "$0")/.."
 TRAIN_NETS=$(python -c "import json; print(' '.join('-n networks/' + n for n in json.load(open('networks/splits.json'))['train']))")
@@ -33,20 +33,6 @@ $DIFF --steps 1300 --lr 6e-4 --lr-drop-at 3000
 $DIFF --steps 3600 --lr 6e-4 --lr-drop-at 3000 --model-config "$SIGMA"
 $DIFF --steps 4200 --lr 2e-4 --lr-drop-at 4000 --model-config "$SIGMA" --p-keep-all-tokens 0.2 --p-map-only 0.3
 
-# 3. The decoder alone, 3 000 steps (~40 min at ~0.75 s/step). The encoder is frozen, so the diffusion
-#    model above stays valid. The paper's trajectory weights (0.1 stationary / 0.3 straight) left the
-#    decoded speeds 2.1 m/s off (benchmarks/reconstruction.py: held-out scenes, speeds from the decoded
-#    trajectory); at 1 / 1 the same latents decode to 1.39 m/s. Then 4x the box and 2x the vertex
-#    weight: median heading error 0.080 -> 0.070 rad, reconstruction F1 0.87 -> 0.89, speed 1.31 m/s.
-python -m sumo_scendiff.train autoencoder --data data/train --val data/val \
-    -o runs/ae_dec --init-from runs/ae_kl01/last.pt --freeze-encoder --steps 800 --lr 1e-4 --lr-drop-at 650 \
-    --model-config '{"loss": {"category_weights": [1.0, 1.0, 4.0]}}'
-python -m sumo_scendiff.train autoencoder --data data/train --val data/val -o runs/ae_dec --steps 2000 \
-    --lr 1e-4 --lr-drop-at 1700
-python -m sumo_scendiff.train autoencoder --data data/train --val data/val \
-    -o runs/ae_dec_box --init-from runs/ae_dec/last.pt --freeze-encoder --steps 1000 --lr 1e-4 --lr-drop-at 800 \
-    --model-config '{"loss": {"box_weight": 4.0, "vertex_weight": 2.0}}'
-
 # 4. Denser traffic for the diffusion model: the recordings above average 4.0 vehicles per window,
 #    the real cities 7.0; at 40-800 veh/h/km they average 8.0. 2 400 steps from the step-4 200 weight
 #    average (~55 min), same latent space and scale.
@@ -73,23 +59,40 @@ python -m sumo_scendiff.train diffusion --autoencoder runs/ae_kl01/last.pt --dat
     --val-batches 4 --steps 3000 --lr 2e-4 --lr-drop-at 2400 --model-config '{"P_mean": 0.3, "P_std": 1.4}' \
     --p-keep-all-tokens 0.2 --p-map-only 0.3
 
-# 7. The decoder once more, on the latents the diffusion model learns (mu itself: latent_noise 0, no
-#    reparameterisation noise), 1 000 steps on the denser set (~15 min): median heading error of the
-#    reconstruction 0.070 -> 0.032 rad, F1 0.89 -> 0.93, speed 1.31 -> 1.07 m/s. Then 1 200 steps with
-#    D_down's 32 / 64 px map features added into the decoder (map skips, zero-initialised; ~17 min).
+# 7. A second autoencoder, from scratch on the denser recording, 7 700 steps (~2 h 10 min at ~1 s/step):
+#    KL weight 0.01 from the start, trajectory weights 1 / 1 / 4, 4x box, 2x vertex weight. The first
+#    one's encoder carried no speed: a probe re-rendered at 0.2x / 1.5x its speed decoded to the same
+#    speed (benchmarks/token_response.py --autoencoder: response 0.00), so no diffusion model trained in
+#    its latent space could follow a speed token. This one's: 0.82.
+python -m sumo_scendiff.train autoencoder --data data/train_dense --val data/val_dense -o runs/ae_v2 \
+    --steps 7700 --lr-drop-at 7000 --model-config '{"kl_weight": 0.01, "loss": {"category_weights":
+    [1.0, 1.0, 4.0], "box_weight": 4.0, "vertex_weight": 2.0}}'
+
+# 8. Its decoder alone on the latents the diffusion model learns (mu itself: latent_noise 0, no
+#    reparameterisation noise), 1 000 steps (~17 min): reconstruction F1 0.939 -> 0.977, median heading
+#    error 0.069 -> 0.031 rad, speed MAE 1.85 -> 0.46 m/s. Then 1 200 steps with D_down's 32 / 64 px map
+#    features added into the decoder (map skips, zero-initialised; ~20 min).
 python -m sumo_scendiff.train autoencoder --data data/train_dense --val data/val_dense \
-    -o runs/ae_dec_mu0 --init-from runs/ae_dec_box/last.pt --freeze-encoder --steps 1000 --lr 1e-4 \
+    -o runs/ae_v2_mu0 --init-from runs/ae_v2/last.pt --freeze-encoder --steps 1000 --lr 1e-4 \
     --lr-drop-at 800 --model-config '{"latent_noise": 0}'
 python -m sumo_scendiff.train autoencoder --data data/train_dense --val data/val_dense \
-    -o runs/ae_mu0_skips --init-from runs/ae_dec_mu0/last.pt --freeze-encoder --steps 1200 --lr 1e-4 \
+    -o runs/ae_v2_skips --init-from runs/ae_v2_mu0/last.pt --freeze-encoder --steps 1200 --lr 1e-4 \
     --lr-drop-at 1000 --model-config '{"map_skips": true}'
 
-# 8. Export, calibrate the global token's guidance (applied above sigma = 1) on the dense validation
+# 9. The diffusion model in the new latent space, 2 700 steps (~60 min at ~1.3 s/step), warm-started
+#    from step 6's weight average (its map encoder and token path; the latent scale is re-estimated);
+#    the lr drops at 2 300.
+python -m sumo_scendiff.train diffusion --autoencoder runs/ae_v2/last.pt --data data/train_dense \
+    --val data/val_dense -o runs/diffusion_v2 --init-from runs/diffusion_r7/last.pt --batch-size 32 \
+    --val-batches 4 --steps 2700 --lr 3e-4 --lr-drop-at 2300 --model-config '{"P_mean": 0.3, "P_std": 1.4}' \
+    --p-keep-all-tokens 0.2 --p-map-only 0.3
+
+# 10. Export, calibrate the global token's guidance (applied above sigma = 1) on the dense validation
 #    windows (the weight where map-only generation draws as many vehicles as the ground truth), export
 #    again with it (~3 min).
-python -m sumo_scendiff.train export --autoencoder runs/ae_mu0_skips/last.pt --diffusion runs/diffusion_r7/last.pt \
+python -m sumo_scendiff.train export --autoencoder runs/ae_v2_skips/last.pt --diffusion runs/diffusion_v2/last.pt \
     -o sumo_scendiff/weights/scendiff.pt --fp16 --force --scene-guidance-sigma 1
 W=$(python benchmarks/scene_guidance.py --checkpoint sumo_scendiff/weights/scendiff.pt | grep -o "at w = [0-9.]*" \
     | grep -o "[0-9.]*$" | xargs printf "%.1f")
-python -m sumo_scendiff.train export --autoencoder runs/ae_mu0_skips/last.pt --diffusion runs/diffusion_r7/last.pt \
+python -m sumo_scendiff.train export --autoencoder runs/ae_v2_skips/last.pt --diffusion runs/diffusion_v2/last.pt \
     -o sumo_scendiff/weights/scendiff.pt --fp16 --force --scene-guidance "$W" --scene-guidance-sigma 1
