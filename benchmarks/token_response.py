@@ -130,8 +130,6 @@ def autoencoder_row(ae, ds, picked, threshold: float) -> str:
             f"{a_hi:.2f} → {g_hi:.2f} | {(g_hi - g_lo) / (a_hi - a_lo):.2f} | {len(both)} / {len(picked)} |")
 
 
-
-
 def main(o) -> None:
     torch.set_num_threads(2)
     gen, ae, name, sha = load_models(o.checkpoint, o.autoencoder)
