@@ -4,6 +4,8 @@
     python -m sumo_scendiff.train diffusion --autoencoder runs/ae/last.pt --data data/train \\
         --val data/val -o runs/diffusion --steps 8000
     python -m sumo_scendiff.train autoencoder --init-from runs/ae/last.pt --freeze-encoder ...  # decoder only
+    python -m sumo_scendiff.train diffusion --autoencoder sumo_scendiff/weights/scendiff.pt \\
+        --init-from sumo_scendiff/weights/scendiff.pt ...  # fine-tune the shipped model
     python -m sumo_scendiff.train export --autoencoder runs/ae/last.pt \\
         --diffusion runs/diffusion/last.pt -o sumo_scendiff/weights/scendiff.pt
 
@@ -80,14 +82,16 @@ def get_options(args=None):
                        help='override model config fields, e.g. \'{"enc_channels": [8, 16, 32, 32]}\'')
         s.add_argument("--init-from", default=None, metavar="CKPT",
                        help=f"warm start a new run from the weights of an earlier {name} run (its "
-                            "last.pt; for diffusion its weight average, new input channels at zero); "
+                            "last.pt; for diffusion its weight average, new input channels at zero) or of "
+                            "an exported model (the shipped one); "
                             "ignored when resuming")
         if name == "autoencoder":
             s.add_argument("--freeze-encoder", action="store_true",
                            help="train the decoder only (needs --init-from): the latent space stays "
                                 "the same, so a diffusion model trained on it stays valid")
         if name == "diffusion":
-            s.add_argument("--autoencoder", required=True, help="autoencoder checkpoint (last.pt)")
+            s.add_argument("--autoencoder", required=True, help="autoencoder checkpoint (last.pt, or an exported "
+                           "model such as the shipped one)")
             s.add_argument("--no-map", action="store_true", help="the paper's no-map ablation")
     e = sub.add_parser("export")
     e.add_argument("--autoencoder", required=True)
@@ -130,11 +134,26 @@ def warm_start_record(init: dict, path: str) -> dict:
     return {"init_from_sha256": ckpt.sha256(path), "steps_before": init["step"] + init.get("steps_before", 0)}
 
 
+def load_training(path: str, kind: str) -> dict:
+    """A training checkpoint of ``kind`` ("autoencoder-train" or "diffusion-train"), or that half of an
+    exported model (the shipped weights) in the same form: fine-tune the shipped model without its runs."""
+    ck = ckpt.load(path, (kind, "scenario-diffusion"))
+    if ck["kind"] == kind:
+        return ck
+    part, trained = kind.split("-")[0], ck.get("trained", {})
+    view = {"kind": kind, "model_config": ck[part + "_config"], "step": trained.get(part + "_steps", 0),
+            "state": {k: v.float() if v.is_floating_point() else v for k, v in ck[part].items()},
+            "best_val": trained.get(part + "_val")}
+    if part == "diffusion":  # exported weights are the weight average; the latent space is this file's
+        view.update(ema=view["state"], latent_scale=ck["latent_scale"], autoencoder_sha256=ckpt.sha256(path))
+    return view
+
+
 def train_autoencoder(o) -> None:
     cfg = train_config(o, TrainConfig(steps=6000, lr=3e-4, weight_decay=1e-4))
     last = os.path.join(o.out, "last.pt")
     saved = ckpt.load(last, "autoencoder-train") if os.path.exists(last) else None
-    init = ckpt.load(o.init_from, "autoencoder-train") if o.init_from and saved is None else None
+    init = load_training(o.init_from, "autoencoder-train") if o.init_from and saved is None else None
     # a run continues with its own config, a warm start with its source's (--model-config on top)
     base = (saved or init or {}).get("model_config")
     model = ScenarioAutoencoder(model_config(o, AutoencoderConfig, base=base))
@@ -171,7 +190,7 @@ def train_diffusion(o) -> None:
     if not (0 <= cfg.p_keep_all_tokens and 0 <= cfg.p_map_only and cfg.p_keep_all_tokens + cfg.p_map_only <= 1):
         o.parser.exit(2, f"{PROG}: error: --p-keep-all-tokens {cfg.p_keep_all_tokens:g} and --p-map-only "
                          f"{cfg.p_map_only:g}: need two probabilities summing to at most 1\n")
-    ae_ck = ckpt.load(o.autoencoder, "autoencoder-train")
+    ae_ck = load_training(o.autoencoder, "autoencoder-train")
     ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ae_ck["model_config"]))
     ckpt.load_state(ae, ae_ck["state"], o.autoencoder)
     ae.eval().requires_grad_(False)
@@ -193,7 +212,7 @@ def train_diffusion(o) -> None:
     extra = {"model_config": ckpt.config_to_dict(model.cfg),
              "autoencoder_sha256": ckpt.sha256(o.autoencoder)}
     if o.init_from and not os.path.exists(os.path.join(o.out, "last.pt")):
-        init = ckpt.load(o.init_from, "diffusion-train")
+        init = load_training(o.init_from, "diffusion-train")
         state = widen_conv_in(init.get("ema", init["state"]), model.denoiser.net, prefix="denoiser.net.")
         ckpt.load_state(model, state, o.init_from)
         extra.update(warm_start_record(init, o.init_from))
@@ -213,8 +232,8 @@ def export(o) -> None:
         o.parser.exit(2, f"{PROG}: error: --scene-guidance-sigma must be >= 0\n")
     if os.path.exists(o.output) and not o.force:
         o.parser.exit(2, f"{PROG}: error: {o.output}: exists (add --force to replace it)\n")
-    ae_ck = ckpt.load(o.autoencoder, "autoencoder-train")
-    df_ck = ckpt.load(o.diffusion, "diffusion-train")
+    ae_ck = load_training(o.autoencoder, "autoencoder-train")
+    df_ck = load_training(o.diffusion, "diffusion-train")
     # a decoder-only fine-tune (--freeze-encoder) keeps the latent space the diffusion was trained in
     if df_ck["autoencoder_sha256"] not in (ckpt.sha256(o.autoencoder), ae_ck.get("encoder_from_sha256")):
         o.parser.exit(2, f"{PROG}: error: {o.diffusion}: was trained on another autoencoder than "

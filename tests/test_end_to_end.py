@@ -265,3 +265,28 @@ def test_decoder_fine_tune_adds_map_skips(tmp_path, cross_net):
     gen = ScenarioGenerator.load(str(out), GenerationConfig(steps=2))
     assert gen.ae.cfg.map_skips
     assert len(gen.generate(Network.load(cross_net), [Window(0.0, 0.0, 0.0)], seed=0)) == 1
+
+
+def test_fine_tune_the_exported_model(tmp_path, cross_net):
+    """An exported model (the shipped weights) is a warm start: its autoencoder serves as --autoencoder,
+    its weight average as --init-from, its latent scale carries over, and the fine-tuned run exports
+    against it again (at learning rate 0 the weights come back unchanged, the steps add up)."""
+    import torch
+
+    from sumo_scendiff.model import checkpoint as ckpt
+    common, src = autoencoder_and_diffusion(tmp_path, cross_net)
+    model = tmp_path / "model.pt"
+    train("export", "--autoencoder", src, "--diffusion", tmp_path / "d" / "last.pt", "-o", model, "--fp16")
+    res = train("diffusion", *common, "--autoencoder", model, "--init-from", model, "-o", tmp_path / "ft",
+                "--steps", 2, "--lr", 0.0, "--weight-decay", 0.0, "--model-config", json.dumps(TINY_DIFF))
+    assert "warm start from step 1" in res.stdout
+    train("export", "--autoencoder", model, "--diffusion", tmp_path / "ft" / "last.pt", "-o", tmp_path / "again.pt")
+    a, b = (ckpt.load(str(p), "scenario-diffusion") for p in (model, tmp_path / "again.pt"))
+    assert b["latent_scale"] == a["latent_scale"]
+    assert b["trained"]["diffusion_steps"] == 1 + 2 and b["trained"]["autoencoder_steps"] == 2
+    for part in ("autoencoder", "diffusion"):
+        assert all(torch.equal(b[part][k].half(), a[part][k]) for k in a[part])
+    bad = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "export", "--autoencoder", src,
+                          "--diffusion", str(model), "-o", str(tmp_path / "x.pt")], capture_output=True, text=True)
+    assert bad.returncode == 2 and "was trained on another autoencoder" in bad.stderr
+    assert "Traceback" not in bad.stderr and not (tmp_path / "x.pt").exists()
