@@ -20,7 +20,8 @@ Every rollout runs in a freshly started SUMO that loads the state (as ``run``'s 
 each method starts from the same state and random streams. Every method gets one step (the seeding
 step for the generated ones) and ``rollout`` of ``--rollout`` s. Placement = agents within 0.5 m /
 0.1 rad of their generated pose after that step, over the agents generated (refused, misplaced and
-dropped-on-existing ones count against it).
+dropped-on-existing ones count against it). "Slowed" counts agents that departed below their generated
+speed, capped at the Krauss safe speed behind the vehicle or red light ahead (``Seeder.seed`` / ``settle``).
 Rollout rates are per 100 agents; "x SUMO" columns are the method's rate over SUMO's.
 
 Determinism: with libsumo 1.28 the steps after a ``loadState`` depend on where SUMO's objects lie
@@ -223,7 +224,7 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
     finally:
         close(sim)
     res = {m: {"stats": [], "generated": 0, "dropped": 0, "refused": Counter(), "absent": 0,
-               "off_pose": 0, "placed": 0} for m in METHODS}
+               "off_pose": 0, "placed": 0, "slowed": 0} for m in METHODS}
     t = time.perf_counter()
     for k, w in enumerate(windows):
         for name, scene in zip(METHODS, (None, scenes[k], lu_scenes[k])):
@@ -253,6 +254,7 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
                 r["absent"] += sum(1 for e in rep.misplaced.values() if not np.isfinite(e))
                 r["off_pose"] += sum(1 for e in rep.misplaced.values() if np.isfinite(e))
                 r["placed"] += rep.placed
+                r["slowed"] += len(rep.slowed)
                 r["stats"].append(rollout(sim, seeding.agent_ids, o.rollout))
             finally:
                 close(sim)
@@ -287,12 +289,12 @@ def _ratio(a: float, b: float) -> str:
 
 def _merge(results: list[dict], method: str) -> dict:
     out = {"stats": [], "generated": 0, "dropped": 0, "refused": Counter(), "absent": 0, "off_pose": 0,
-           "placed": 0}
+           "placed": 0, "slowed": 0}
     for r in results:
         m = r["methods"][method]
         out["stats"] += m["stats"]
         out["refused"].update(m["refused"])
-        for k in ("generated", "dropped", "absent", "off_pose", "placed"):
+        for k in ("generated", "dropped", "absent", "off_pose", "placed", "slowed"):
             out[k] += m[k]
     return out
 
@@ -316,14 +318,15 @@ def tables(results: list[dict], o, command: str) -> str:
 
     lines += ["", "### Placement: generated agents within 0.5 m / 0.1 rad of their pose after the first step",
               "", "| network | method | generated | dropped (on existing) | refused | absent after step "
-              "| off pose | placed | placement (placed / generated) |", "|---|---|---|---|---|---|---|---|---|"]
+              "| off pose | placed | placement (placed / generated) | slowed to a safe speed |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for label, methods in groups:
         for k, name in enumerate(METHODS[1:]):
             m = methods[name]
             rate = 100.0 * m["placed"] / m["generated"] if m["generated"] else float("nan")
             lines.append(f"| {label if k == 0 else ''} | {name} | {m['generated']} | {m['dropped']} | "
                          f"{sum(m['refused'].values())} | {m['absent']} | {m['off_pose']} | {m['placed']} | "
-                         f"{_f(rate, '{:.1f} %')} |")
+                         f"{_f(rate, '{:.1f} %')} | {m['slowed']} |")
     for name in METHODS[1:]:
         refused = Counter()
         for r in results:

@@ -6,7 +6,7 @@
     ...                                                  # the caller steps as it likes
     seeding = cosim.seed_around("ego", p_mask=0.7)       # fill the 100 m around the ego
     sim.simulationStep()
-    cosim.verify(seeding)                                # who stands where it was generated
+    cosim.verify(seeding)                                # who stands where it was generated, settled
     while running:
         sim.simulationStep()
         cosim.reseed_ahead("ego", every=60.0)            # new traffic ahead as the ego drives
@@ -129,7 +129,7 @@ class CoSimulation:
         self.seeder.prefix = f"{self.seeder.prefix.split('.')[0]}.{self.count}."
         self.seeder.count = 0
         self.count += 1
-        report = self.seeder.seed(sub)
+        report = self.seeder.seed(sub, others=(existing.boxes, existing.speed))
         return Seeding(sub, report, tokens, token_source, [token_of[i] for i in idx],
                        dropped=int(len(scene) - len(idx)), seed=seed, p_mask=p_mask)
 
@@ -203,8 +203,10 @@ class CoSimulation:
             self.sim.simulationStep()
 
     def verify(self, seeding: Seeding) -> Seeding:
-        """After the host's next step: agents not within 0.5 m / 0.1 rad of their generated pose."""
+        """After the host's next step: agents not within 0.5 m / 0.1 rad of their generated pose;
+        then none faster than it can stop behind its leader (:meth:`Seeder.settle`)."""
         self.seeder.verify(seeding.report)
+        self.seeder.settle(seeding.report)
         return seeding
 
 

@@ -5,12 +5,14 @@
     report = seeder.seed(scene)                # vehicle.add + vehicle.moveToXY(keepRoute=1) per agent
     sim.simulationStep()
     report = seeder.verify(report)             # who stands where it was generated (0.5 m, 0.1 rad)
+    report = seeder.settle(report)             # none faster than it can stop behind its SUMO leader
 
 For each agent:
 the lane it stands on (heading agreement; an internal junction lane gives the route its incoming
 and outgoing edges, never starts a route), a route through the lanes of its +1/+2 s poses and on
 along the network (no u-turns) to a fringe or 30 edges, a vehicle type with its box and a minGap that
-fits the gap to the vehicle ahead in the scene, then ``vehicle.add`` and ``vehicle.moveToXY``. SUMO
+fits the gap to the vehicle ahead in the scene, a departure speed that is its generated speed capped
+at the Krauss safe speed behind that vehicle, then ``vehicle.add`` and ``vehicle.moveToXY``. SUMO
 refusing a vehicle never crashes the host simulation: the agent is reported as refused.
 
 Generated agents are rarely on a lane's centre line. With SUMO's sublane model
@@ -40,10 +42,19 @@ class SeedReport:
     refused: dict[int, str] = field(default_factory=dict)    # agent index -> reason
     misplaced: dict[int, float] = field(default_factory=dict)  # agent index -> position error (m)
     targets: dict[int, tuple] = field(default_factory=dict)  # agent index -> (x_front, y_front, angle)
+    slowed: dict[int, tuple] = field(default_factory=dict)   # agent index -> (generated, departure speed)
 
     @property
     def placed(self) -> int:
         return len(self.ids) - len(self.misplaced)
+
+
+def krauss_safe_speed(gap: float, v_leader: float, decel: float, tau: float) -> float:
+    """The fastest speed that can still stop behind a leader braking at the same ``decel``: Krauss's
+    safe speed (Krauss 1998, eq. 2.12 in its ballistic form), ``v tau + v^2 / 2b <= g + v_l^2 / 2b``,
+    the bound SUMO's default car-following model keeps to (``MSCFModel_Krauss::vsafe``)."""
+    b = decel
+    return float(-b * tau + np.sqrt((b * tau) ** 2 + v_leader ** 2 + 2.0 * b * max(gap, 0.0)))
 
 
 def sublane(sim) -> bool:
@@ -134,11 +145,12 @@ class Seeder:
         return tid
 
     @staticmethod
-    def min_gaps(scene: Scene) -> np.ndarray:
-        """Per agent, a minGap that fits the bumper gap to the nearest agent ahead in its lane."""
-        n = len(scene)
-        gaps = np.full(n, DEFAULT_MIN_GAP)
-        b = scene.boxes.astype(np.float64)
+    def leaders(boxes: np.ndarray, others: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Per box, the nearest box ahead in its lane (|lateral| < 1.5 m, heading within 0.5 rad) among
+        ``boxes`` and then ``others`` (index into their concatenation, -1: none) and the bumper gap to it."""
+        n = len(boxes)
+        b = np.concatenate([boxes[:, :5], np.zeros((0, 5)) if others is None else others[:, :5]]).astype(np.float64)
+        lead, gap = np.full(n, -1), np.full(n, np.inf)
         for i in range(n):
             d = b[:, :2] - b[i, :2]
             c, s = np.cos(b[i, 2]), np.sin(b[i, 2])
@@ -147,16 +159,30 @@ class Seeder:
             same[i] = False
             if same.any():
                 j = np.flatnonzero(same)[np.argmin(ahead[same])]
-                bumper_gap = ahead[j] - 0.5 * (b[i, 3] + b[j, 3])
-                gaps[i] = float(np.clip(bumper_gap - 0.2, 0.3, DEFAULT_MIN_GAP))
-        return gaps
+                lead[i], gap[i] = j, ahead[j] - 0.5 * (b[i, 3] + b[j, 3])
+        return lead, gap
+
+    @staticmethod
+    def min_gaps(bumper_gap: np.ndarray) -> np.ndarray:
+        """A minGap per agent that fits the bumper gap to the agent ahead in its lane."""
+        return np.clip(np.nan_to_num(bumper_gap - 0.2, posinf=DEFAULT_MIN_GAP), 0.3, DEFAULT_MIN_GAP)
 
     # ---- seeding --------------------------------------------------------------------------------
-    def seed(self, scene: Scene) -> SeedReport:
-        """Add every agent of ``scene``; call ``simulationStep`` and then :meth:`verify`."""
+    def seed(self, scene: Scene, others: tuple[np.ndarray, np.ndarray] | None = None) -> SeedReport:
+        """Add every agent of ``scene``; call ``simulationStep`` and then :meth:`verify`.
+
+        ``others``: (boxes (M, 5), speeds (M,)) in the scene frame of the host's vehicles around the
+        window, which can be the vehicle ahead of an agent. An agent departs at its generated speed,
+        or at the Krauss safe speed for the gap to the vehicle ahead when that is lower (a generated
+        queue can have a moving car a metre behind a standing one; SUMO would brake it at once beyond
+        its ``decel``): those are in ``report.slowed``.
+        """
         sim, report = self.sim, SeedReport()
         w = scene.window
-        gaps = self.min_gaps(scene)
+        other_boxes, other_speed = others if others is not None else (np.zeros((0, 5)), np.zeros(0))
+        lead, bumper_gap = self.leaders(scene.boxes, other_boxes)
+        gaps = self.min_gaps(bumper_gap)
+        lead_speed = np.concatenate([scene.speed[:, T0], other_speed]).astype(np.float64)
         for i in range(len(scene)):
             world = w.scene_to_world(scene.traj[i, :, :2])
             yaws = np.asarray(w.yaw_to_world(scene.traj[i, :, 2]))
@@ -171,9 +197,15 @@ class Seeder:
             try:
                 sim.route.add(f"{vid}_route", edges)
                 tid = self.vtype(vid, scene.boxes[i, 3], scene.boxes[i, 4], scene.vclass[i], gaps[i])
+                speed, slowed = max(float(scene.speed[i, T0]), 0.0), None
+                if lead[i] >= 0:
+                    safe = krauss_safe_speed(bumper_gap[i] - gaps[i], max(float(lead_speed[lead[i]]), 0.0),
+                                             sim.vehicletype.getDecel(tid), sim.vehicletype.getTau(tid))
+                    if safe < speed:
+                        slowed, speed = (speed, safe), safe
                 sim.vehicle.add(vid, f"{vid}_route", typeID=tid, depart="now",
                                 departLane=str(lane_index) if not lane.internal else "best",
-                                departPos="base", departSpeed=f"{max(float(scene.speed[i, T0]), 0.0):.3f}")
+                                departPos="base", departSpeed=f"{speed:.3f}")
                 sim.vehicle.moveToXY(vid, "" if lane.internal else lane.edge, lane.index,
                                      float(fx), float(fy), float(angle), keepRoute=self.keep_route)
             except Exception as e:  # libsumo.TraCIException / traci.TraCIException
@@ -181,6 +213,8 @@ class Seeder:
                 continue
             report.ids[i] = vid
             report.targets[i] = (float(fx), float(fy), float(angle))
+            if slowed is not None:
+                report.slowed[i] = slowed
         return report
 
     def verify(self, report: SeedReport) -> SeedReport:
@@ -198,5 +232,33 @@ class Seeder:
                 report.misplaced[i] = err
         return report
 
+    def settle(self, report: SeedReport, reach: float = 100.0) -> SeedReport:
+        """After the seeding step: slow every seeded vehicle that is faster than the Krauss safe speed
+        behind its leader as SUMO sees it (any vehicle within ``reach`` m along its route, across
+        junctions, which the scene's own leaders at :meth:`seed` time miss; or a red light) to that speed
+        (``setPreviousSpeed``: the speed it ends the seeding step with). Repeats until no vehicle
+        changes, since slowing a leader can make its follower too fast."""
+        sim, present = self.sim, set(self.sim.vehicle.getIDList())
+        vids = [(i, v) for i, v in report.ids.items() if v in present]
+        for _ in range(len(vids)):
+            changed = False
+            for i, vid in vids:
+                lead = sim.vehicle.getLeader(vid, reach)
+                stops = [(float(lead[1]), float(sim.vehicle.getSpeed(lead[0])))] if lead and lead[0] else []
+                stops += [(float(d), 0.0) for _, _, d, state in sim.vehicle.getNextTLS(vid)[:1]
+                          if state in "rR" and d < reach]        # a red light: a standing leader
+                if not stops:
+                    continue
+                speed = float(sim.vehicle.getSpeed(vid))
+                decel, tau = float(sim.vehicle.getDecel(vid)), float(sim.vehicle.getTau(vid))
+                safe = min(krauss_safe_speed(g, v, decel, tau) for g, v in stops)
+                if speed > safe + 1e-3:
+                    sim.vehicle.setPreviousSpeed(vid, safe)
+                    report.slowed[i] = (report.slowed.get(i, (speed,))[0], safe)
+                    changed = True
+            if not changed:
+                break
+        return report
 
-__all__ = ["Seeder", "SeedReport"]
+
+__all__ = ["Seeder", "SeedReport", "krauss_safe_speed"]

@@ -30,3 +30,43 @@ def test_seeded_vehicles_stand_where_generated(cross_net, cross_scene):
         assert sim.simulation.getCollidingVehiclesNumber() == 0
     finally:
         sim.close()
+
+
+def test_krauss_safe_speed():
+    from sumo_scendiff.seeding import krauss_safe_speed
+    assert krauss_safe_speed(0.0, 0.0, 4.5, 1.0) == pytest.approx(0.0)
+    v = krauss_safe_speed(20.0, 5.0, 4.5, 1.0)    # v tau + v^2 / 2b == g + v_l^2 / 2b
+    assert v * 1.0 + v * v / 9.0 == pytest.approx(20.0 + 25.0 / 9.0)
+    assert krauss_safe_speed(-3.0, 0.0, 4.5, 1.0) == pytest.approx(0.0)   # overlapping: stand
+
+
+def test_no_seeded_vehicle_departs_faster_than_it_can_stop(cross_net, cross_scene):
+    """A generated queue whose follower moves at 10 m/s a metre behind a standing car departs at the
+    Krauss safe speed (seed time, from the scene); one that has a host vehicle standing ahead of it,
+    which the scene does not know, is slowed after the seeding step (settle). Neither then brakes
+    beyond its decel."""
+    import libsumo as sim
+    net = Network.load(cross_net)
+    scene = cross_scene(net)
+    scene.speed[1] = 10.0
+    sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--step-length", "0.5"])
+    try:
+        sim.route.add("blocker_route", ["sc", "cn"])
+        sim.vehicle.add("blocker", "blocker_route", depart="now", departPos="135", departSpeed="0")
+        sim.vehicle.setSpeed("blocker", 0.0)
+        seeder = Seeder(sim, net)
+        report = seeder.seed(scene)
+        generated, departure = report.slowed[1]
+        assert generated == pytest.approx(10.0) and departure < 1.5 and set(report.slowed) == {1}
+        sim.simulationStep()
+        report = seeder.settle(seeder.verify(report))
+        assert report.placed == 4
+        assert report.slowed[2][0] == pytest.approx(8.0) and report.slowed[2][1] < 6.0
+        assert sim.vehicle.getSpeed(report.ids[2]) == pytest.approx(report.slowed[2][1], abs=1e-3)
+        for _ in range(10):
+            sim.simulationStep()
+            for vid in report.ids.values():
+                assert sim.vehicle.getAcceleration(vid) >= -sim.vehicle.getDecel(vid) - 0.05
+        assert sim.simulation.getCollidingVehiclesNumber() == 0
+    finally:
+        sim.close()
