@@ -12,7 +12,8 @@ heading within 0.2 rad):
 * ``diffusion, no tokens``: p_mask = 1, map only -- precision/recall here say how often a free sample
   happens to reproduce *this* scene, i.e. they are low by nature; the count column is the check;
 * ``diffusion, every token``: p_mask = 0, every agent given as a full token -- the token match rate;
-  once without and once with the classifier-free guidance of the tokens (``--guidance``, default 3);
+  once without and once with the classifier-free guidance of the tokens (``--guidance``, default 3),
+  and guided with every token pinned in the latent (``sumo_scendiff/pinning.py``);
 * ``diffusion from the data at sigma``: the scene's own latent noised to sigma, then integrated back
   to 0 (map only, 40-step schedule below sigma): where along the noise levels the model loses agents.
   A model that keeps them from sigma = 1 but not from 4 is undertrained at high noise.
@@ -38,8 +39,9 @@ from sumo_scendiff.geometry import T0, TIMES, Window, wrap_angle
 from sumo_scendiff.metrics import match_agents, precision_recall_f1
 from sumo_scendiff.model.detection import decode_boxes
 from sumo_scendiff.model.edm import karras_sigmas, sample_euler
-from sumo_scendiff.tokens import (AGENT_TOKEN_DIM, global_token, pad_tokens, token_cells,
-                                  tokens_from_scene)
+from sumo_scendiff.pinning import pinned_latent
+from sumo_scendiff.tokens import (AGENT_TOKEN_DIM, feature_dicts, features_from_scene, global_token,
+                                  pad_tokens, token_cells, tokens_from_scene)
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 WINDOW = Window(0.0, 0.0)  # boxes are already in the scene frame; only the window's extent matters
@@ -127,13 +129,20 @@ def main(o) -> None:
                                      for k in ("boxes", "traj", "traj_mask", "speed"))) for i in range(n)]
         runs = (("diffusion, no tokens (p_mask 1)", [np.zeros((0, AGENT_TOKEN_DIM), np.float32)] * n, 1.0),
                 ("diffusion, every token (p_mask 0)", every, 0.0))
-        runs = [(row, toks, p, 1.0) for row, toks, p in runs]
-        runs.append((f"diffusion, every token (p_mask 0), guidance {o.guidance:g}", every, 0.0, o.guidance))
-        for row, toks, p, w in runs if not o.autoencoder else ():
+        runs = [(row, toks, p, 1.0, None) for row, toks, p in runs]
+        guided_row = f"diffusion, every token (p_mask 0), guidance {o.guidance:g}"
+        runs.append((guided_row, every, 0.0, o.guidance, None))
+        if not o.autoencoder:  # every token pinned in the latent (sumo_scendiff/pinning.py)
+            dicts = [feature_dicts(*features_from_scene(*(b[k][i][b["valid"][i]].numpy() for k in
+                                                          ("boxes", "traj", "traj_mask", "speed"))))
+                     for i in range(n)]
+            runs.append((guided_row + ", pinned", every, 0.0, o.guidance,
+                         pinned_latent(ae, dicts, gen.latent_scale)))
+        for row, toks, p, w, known in runs if not o.autoencoder else ():
             tok, pad = pad_tokens(toks)
             glob = torch.from_numpy(global_token(np.full(n, p)).reshape(n, -1))
             z = gen.diffusion.sample(m, tok, pad, glob, steps=steps, sampler=sampler, guidance=w,
-                                     generator=torch.Generator().manual_seed(o.seed))
+                                     generator=torch.Generator().manual_seed(o.seed), known=known)
             rows[row] = score(decode_boxes(gen.ae.decode(z / gen.latent_scale, m)), gts, o.threshold, *truth)
             rows[row]["z_std"] = float(z.std())
         if not o.autoencoder:

@@ -5,7 +5,8 @@
 
 On held-out windows of the training networks, every agent is given as a full token; in each window
 one moving agent (> 6 m/s now and at +2 s) is the probe. For each feature, the probe's value is
-replaced by a low and a high value (everything else, the noise included, unchanged) and the
+replaced by a low and a high value (everything else, the noise included, unchanged; tokens pinned
+unless ``--no-pin-tokens``, see ``sumo_scendiff/pinning.py``) and the
 generated vehicle nearest the probe's position (within 2.2 m) is read: its speed now, its speed at
 +2 s, its length, the direction of its +2 s displacement. The **response** is
 
@@ -32,7 +33,8 @@ from sumo_scendiff.generate import GenerationConfig, select_boxes, speeds_from_t
 from sumo_scendiff.geometry import T0, TIMES, Window, wrap_angle
 from sumo_scendiff.model.detection import decode_boxes
 from sumo_scendiff.raster import render_agents
-from sumo_scendiff.tokens import encode_agent_tokens, features_from_scene, global_token, pad_tokens
+from sumo_scendiff.pinning import pinned_latent
+from sumo_scendiff.tokens import encode_agent_tokens, feature_dicts, features_from_scene, global_token, pad_tokens
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 WINDOW = Window(0.0, 0.0)  # boxes are already in the scene frame
@@ -47,6 +49,8 @@ def get_options(args=None):
     p.add_argument("--data", default=os.path.join(ROOT, "data", "val_dense"))
     p.add_argument("--scenes", type=int, default=96)
     p.add_argument("--guidance", type=float, default=None, help="token guidance (default: generate's)")
+    p.add_argument("--no-pin-tokens", dest="pin_tokens", action="store_false",
+                   help="tokens as conditions only (the paper), not pinned in the latent")
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("-o", "--output", default=None, help="also write the report here")
     return p.parse_args(args)
@@ -76,7 +80,7 @@ def read(traj: np.ndarray, box: np.ndarray) -> dict[str, float]:
 
 def generate(gen, batch, picked, override: tuple[str, float] | None, cfg, seed: int) -> list:
     """Per window, the probed quantities of the vehicle generated at the probe (None if none)."""
-    toks = []
+    toks, dicts = [], []
     for s, j in picked:
         feats, pres = features_from_scene(*(np.asarray(s[k]) for k in ("boxes", "traj", "traj_mask", "speed")))
         if override:
@@ -86,12 +90,14 @@ def generate(gen, batch, picked, override: tuple[str, float] | None, cfg, seed: 
             pres[name] = pres[name].copy()
             pres[name][j] = True
         toks.append(encode_agent_tokens(feats, pres))
+        dicts.append(feature_dicts(feats, pres))
     tok, pad = pad_tokens(toks)
     n = len(picked)
     glob = torch.from_numpy(global_token(np.zeros(n)).reshape(n, -1))
     with torch.no_grad():
         z = gen.diffusion.sample(batch["map"], tok, pad, glob, steps=cfg.steps, sampler=cfg.sampler,
-                                 guidance=cfg.guidance, generator=torch.Generator().manual_seed(seed))
+                                 guidance=cfg.guidance, generator=torch.Generator().manual_seed(seed),
+                                 known=pinned_latent(gen.ae, dicts, gen.latent_scale) if cfg.pin_tokens else None)
         dec = decode_boxes(gen.ae.decode(z / gen.latent_scale, batch["map"]))
     return at_probes(dec, picked, cfg.threshold)
 
@@ -133,12 +139,13 @@ def autoencoder_row(ae, ds, picked, threshold: float) -> str:
 def main(o) -> None:
     torch.set_num_threads(2)
     gen, ae, name, sha = load_models(o.checkpoint, o.autoencoder)
-    cfg = GenerationConfig(**({"guidance": o.guidance} if o.guidance is not None else {}))
+    cfg = GenerationConfig(pin_tokens=o.pin_tokens, **({"guidance": o.guidance} if o.guidance is not None else {}))
     ds = SceneDataset(o.data, rotate=False)
     picked = probes(ds, o.scenes, o.seed)
     lines = [f"checkpoint `{name}` (sha256 {sha[:12]}…), {len(picked)} windows of "
              f"`{os.path.relpath(o.data, ROOT)}` with a moving probe agent, every agent a full token, "
-             f"{cfg.steps} steps of {cfg.sampler.__name__}, token guidance {cfg.guidance:g}", "",
+             f"{cfg.steps} steps of {cfg.sampler.__name__}, token guidance {cfg.guidance:g}, tokens "
+             f"{'pinned' if cfg.pin_tokens else 'conditions only'}", "",
              "| feature | read from the generated vehicle | as recorded: asked / generated | asked low → generated "
              "| asked high → generated | response (1 = follows, 0 = ignores) | probes found |",
              "|---|---|---|---|---|---|---|"]

@@ -72,6 +72,9 @@ def get_options(args=None):
     p.add_argument("--scene-guidance-sigma", type=float, default=None, metavar="SIGMA",
                    help="apply the global token's guidance only above this noise level "
                         "(default: generate's)")
+    p.add_argument("--no-pin-tokens", dest="pin_tokens", action="store_false",
+                   help="agent tokens are conditions only, as in the paper (default: a token with "
+                        "pose, size and speed is pinned in the latent; README \"Token control\")")
     p.add_argument("--json", default=None, metavar="PATH", help="also write all results as JSON")
     p.add_argument("--pictures", default=None, metavar="DIR",
                    help="write DIR/<net>.png: three windows, ground truth beside every method")
@@ -249,7 +252,7 @@ def load_models(o) -> dict:
     from .generate import DEFAULT_CHECKPOINT, GenerationConfig, ScenarioGenerator
     from .model.edm import SAMPLERS
     cfg = replace(GenerationConfig(), scene_guidance=o.scene_guidance,
-                  scene_guidance_sigma=o.scene_guidance_sigma,
+                  scene_guidance_sigma=o.scene_guidance_sigma, pin_tokens=o.pin_tokens,
                   **{k: v for k, v in (("steps", o.steps), ("guidance", o.guidance),
                                        ("sampler", o.sampler and SAMPLERS[o.sampler])) if v is not None})
     path = o.checkpoint or DEFAULT_CHECKPOINT

@@ -5,7 +5,8 @@
     scenes = gen.generate(net, windows, tokens=[[{"x": 0, "y": 0, "heading": 0, "speed": 0}]], p_mask=0.5)
 
 Pipeline per batch: map raster m -> initial noise (one generator per window, so a window's scene does
-not depend on what else is in the batch) -> Euler/Heun ODE from sigma_max to 0 -> D(z, m) ->
+not depend on what else is in the batch) -> pinned tokens' latent cells (pinning.py) -> ODE from
+sigma_max to 0 (DPM-Solver++(2M) by default) -> D(z, m) ->
 boxes above ``threshold`` -> overlapping boxes removed (most probable kept) -> scene-frame
 :class:`~sumo_scendiff.scene.Scene` with speeds from the trajectory.
 """
@@ -25,6 +26,7 @@ from .model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from .model.detection import decode_boxes
 from .model.diffusion import DiffusionConfig, ScenarioDiffusion
 from .model.edm import sample_dpmpp_2m
+from .pinning import pinned_latent
 from .raster import RasterConfig, render_map
 from .scene import Scene, vclass_from_size
 from .tokens import AGENT_TOKEN_DIM, agent_tokens_from_dicts, global_token, pad_tokens
@@ -47,6 +49,8 @@ class GenerationConfig:
                                          # (1 = off; None: the checkpoint's calibrated weight)
     scene_guidance_sigma: float | None = None  # ... applied only at noise levels above this
                                                # (None: the checkpoint's, calibrated with the weight)
+    pin_tokens: bool = True      # a token giving pose, size and speed is imposed in the latent
+                                 # (pinning.py); False: every token is a condition only (the paper)
 
 
 def speeds_from_traj(traj: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -138,7 +142,7 @@ class ScenarioGenerator:
     # ---- one batch ------------------------------------------------------------------------
     @torch.no_grad()
     def _batch(self, maps: np.ndarray, tokens: list[np.ndarray], p_mask: np.ndarray,
-               seeds: list[int], cfg: GenerationConfig):
+               seeds: list[int], cfg: GenerationConfig, pins: Sequence | None = None):
         m = torch.from_numpy(maps).contiguous(memory_format=torch.channels_last)
         tok, pad = pad_tokens(tokens)
         glob = torch.from_numpy(global_token(p_mask).reshape(len(maps), -1))
@@ -148,7 +152,9 @@ class ScenarioGenerator:
         z = self.diffusion.sample(m, tok, pad, glob, steps=cfg.steps, sampler=cfg.sampler,
                                   noise=noise, guidance=cfg.guidance,
                                   scene_guidance=self.scene_guidance_for(cfg),
-                                  scene_guidance_sigma=self.scene_guidance_sigma_for(cfg))
+                                  scene_guidance_sigma=self.scene_guidance_sigma_for(cfg),
+                                  known=pinned_latent(self.ae, pins, self.latent_scale, self.raster)
+                                  if cfg.pin_tokens and pins is not None else None)
         y = self.ae.decode(z / self.latent_scale, m)
         dec = decode_boxes(y, self.raster.size)
         return dec.prob.numpy(), dec.boxes.numpy(), dec.traj.numpy()
@@ -170,8 +176,9 @@ class ScenarioGenerator:
 
         ``tokens``: per window, agent tokens as a list of feature dicts (any subset of
         :data:`~sumo_scendiff.tokens.FEATURES`, scene frame of that window) or an encoded
-        (T, 170) array; ``None`` for no tokens. ``p_mask``: the global scene token per window (or
-        one for all); 1.0 with no tokens = map-only generation. The same ``seed`` gives the same
+        (T, 170) array; ``None`` for no tokens. A dict with pose, size and speed is pinned
+        (:mod:`~sumo_scendiff.pinning`) unless ``config.pin_tokens`` is False. ``p_mask``: the
+        global scene token per window (or one for all); 1.0 with no tokens = map-only generation. The same ``seed`` gives the same
         scenes; window ``i`` uses the seed ``(seed, i)``. ``maps``: the windows' map rasters when
         already rendered (``render_map``), else rendered here. ``noise_seeds``: one seed per
         window instead (window ``i`` starts from the noise of ``noise_seeds[i]`` alone, whatever
@@ -193,7 +200,8 @@ class ScenarioGenerator:
             sl = slice(s, min(n, s + cfg.batch_size))
             m = maps[sl] if maps is not None else np.stack([render_map(net, w, self.raster)
                                                              for w in windows[sl]])
-            prob, boxes, traj = self._batch(m, toks[sl], pm[sl], seeds[sl], cfg)
+            prob, boxes, traj = self._batch(m, toks[sl], pm[sl], seeds[sl], cfg,
+                                            tokens[sl] if tokens is not None else None)
             for k, w in enumerate(windows[sl]):
                 out.append(self._scene(w, prob[k], boxes[k], traj[k], cfg.threshold, net.name))
         return out

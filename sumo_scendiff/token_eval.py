@@ -16,7 +16,7 @@ import numpy as np
 
 from .metrics import token_metrics
 from .scene import Scene
-from .tokens import features_from_scene
+from .tokens import feature_dicts, features_from_scene
 
 P_MASKS = (0.0, 0.1, 0.3, 0.5, 0.7, 0.9)
 THRESHOLDS = (0.5, 0.6, 0.7, 0.8, 0.9)
@@ -29,10 +29,8 @@ FEATURE_SETS = (("pose + extents", POSE_EXTENTS),
 def token_dicts(scene: Scene, keep: np.ndarray, features: Sequence[str]) -> list[dict]:
     """Feature dicts (the user-facing token format) for the kept agents of a ground-truth scene."""
     feats, present = features_from_scene(scene.boxes, scene.traj, scene.traj_mask, scene.speed)
-    out = []
-    for i in np.flatnonzero(keep):
-        out.append({f: float(feats[f][i]) for f in features if present[f][i]})
-    return out
+    every = feature_dicts(feats, present, features)
+    return [every[i] for i in np.flatnonzero(keep)]
 
 
 def _kept(scenes: Sequence[Scene], p_mask: float, seed: int) -> list[np.ndarray]:

@@ -185,6 +185,14 @@ def features_from_scene(boxes: np.ndarray, traj: np.ndarray, traj_mask: np.ndarr
     return feats, pres
 
 
+def feature_dicts(features: Mapping[str, np.ndarray], present: Mapping[str, np.ndarray],
+                  names: Sequence[str] = FEATURES) -> list[dict]:
+    """The user-facing token format (one dict per agent, present features only) of
+    :func:`features_from_scene`'s arrays, restricted to ``names``."""
+    n = len(next(iter(features.values()))) if features else 0
+    return [{f: float(features[f][i]) for f in names if present[f][i]} for i in range(n)]
+
+
 def tokens_from_scene(boxes: np.ndarray, traj: np.ndarray, traj_mask: np.ndarray,
                       speed: np.ndarray) -> np.ndarray:
     """(N, AGENT_TOKEN_DIM) tokens with every computable feature of every agent."""

@@ -18,7 +18,7 @@ from torch import Tensor, nn
 
 from .autoencoder import ConvEncoder
 from ..tokens import global_token as encode_global_token
-from .edm import (P_MEAN, P_STD, EDMLoss, EDMPrecond, guided, initial_noise, karras_sigmas,
+from .edm import (P_MEAN, P_STD, EDMLoss, EDMPrecond, guided, initial_noise, inpainted, karras_sigmas,
                   sample_dpmpp_2m)
 from .unet import UNet, UNetConfig
 
@@ -89,14 +89,16 @@ class ScenarioDiffusion(nn.Module):
                steps: int = 10, sampler: Callable = sample_dpmpp_2m,
                generator: Optional[torch.Generator] = None, noise: Optional[Tensor] = None,
                guidance: float = 1.0, scene_guidance: float = 1.0,
-               scene_guidance_sigma: float = 0.0) -> Tensor:
+               scene_guidance_sigma: float = 0.0,
+               known: Optional[tuple[Tensor, Tensor]] = None) -> Tensor:
         """Integrate the probability-flow ODE from sigma_max to 0 (paper eq. 3); returns z (scaled).
 
         ``noise``: standard-normal (B, C_z, R, R) starting noise (scaled by sigma_max here); drawn
         with ``generator`` when not given. Classifier-free guidance (:meth:`null_condition`):
         ``guidance`` for examples with agent tokens, ``scene_guidance`` for those without (at
         sigma > ``scene_guidance_sigma`` only); a weight of 1 is off. A guided step costs an example
-        two UNet passes.
+        two UNet passes. ``known``: ``(z_known, mask)``, latent cells fixed to z_known where mask
+        is 1 and generated around them (:func:`~.edm.inpainted`; pinned tokens).
         """
         cfg = self.cfg.unet
         cond = self.cond(m, agent_tokens, agent_pad_mask, global_token)
@@ -104,6 +106,8 @@ class ScenarioDiffusion(nn.Module):
         null, w, sigma_lo = self.null_condition(cond, guidance, scene_guidance, scene_guidance_sigma)
         if bool((w != 1.0).any()):
             denoiser, cond = guided(self.denoiser, cond, null, w, sigma_lo), None
+        if known is not None:
+            denoiser = inpainted(denoiser, *known)
         sigmas = karras_sigmas(steps, device=m.device)
         if noise is None:
             z_t = initial_noise((m.shape[0], cfg.c_z, cfg.res, cfg.res), generator=generator,

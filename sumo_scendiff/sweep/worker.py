@@ -132,7 +132,7 @@ class Worker:
                 info = {"scene": s.id, "location": kind, "sweep": {**s.params(), "kind": kind,
                                                                     "p_mask_used": p_mask},
                         "model": {"sha256": self.generator.sha256, "sampler": cfg.sampler.__name__,
-                                  "steps": s.steps, "threshold": s.threshold,
+                                  "steps": s.steps, "threshold": s.threshold, "pin_tokens": cfg.pin_tokens,
                                   "guidance": s.guidance, "scene_guidance": self.generator.scene_guidance_for(cfg),
                                   "scene_guidance_sigma": self.generator.scene_guidance_sigma_for(cfg)},
                         "sumo_options": session.cfg.options()}
