@@ -92,7 +92,8 @@ def get_options(args=None):
         if name == "diffusion":
             s.add_argument("--autoencoder", required=True, help="autoencoder checkpoint (last.pt, or an exported "
                            "model such as the shipped one)")
-            s.add_argument("--no-map", action="store_true", help="the paper's no-map ablation")
+        s.add_argument("--no-map", action="store_true",
+                       help=f"the paper's no-map ablation: the {name} model sees the map as zeros")
     e = sub.add_parser("export")
     e.add_argument("--autoencoder", required=True)
     e.add_argument("--diffusion", required=True)
@@ -120,9 +121,9 @@ def _merge(base: dict, over: dict) -> dict:
 
 
 def model_config(o, cls, base: dict | None = None, **fixed):
-    """The model config: ``base`` (a saved config) or the defaults, then ``--model-config``
-    overrides (nested dicts merge)."""
-    merged = _merge(base if base is not None else asdict(cls(**fixed)), o.model_config)
+    """The model config: ``base`` (a saved config) or the defaults, then ``fixed``, then
+    ``--model-config`` overrides (nested dicts merge)."""
+    merged = _merge({**base, **fixed} if base is not None else asdict(cls(**fixed)), o.model_config)
     try:
         return ckpt.config_from_dict(cls, merged)
     except (ckpt.CheckpointError, TypeError) as e:
@@ -156,7 +157,8 @@ def train_autoencoder(o) -> None:
     init = load_training(o.init_from, "autoencoder-train") if o.init_from and saved is None else None
     # a run continues with its own config, a warm start with its source's (--model-config on top)
     base = (saved or init or {}).get("model_config")
-    model = ScenarioAutoencoder(model_config(o, AutoencoderConfig, base=base))
+    model = ScenarioAutoencoder(model_config(o, AutoencoderConfig, base=base,
+                                             **({"use_map": False} if o.no_map else {})))
     extra = {"model_config": ckpt.config_to_dict(model.cfg)}
     if saved is not None:  # a decoder-only run stays one when resumed
         o.freeze_encoder = o.freeze_encoder or "encoder_from_sha256" in saved

@@ -75,6 +75,16 @@ def test_map_skips_join_the_decoder_at_their_resolution():
         assert torch.equal(skips.D_down.pyramid(m)[0], skips.D_down(m))
 
 
+def test_no_map_decoder_ignores_the_map():
+    """use_map=False (the paper's no-map ablation, `train autoencoder --no-map`): D(z, m) = D(z, 0)."""
+    ae = ScenarioAutoencoder(AutoencoderConfig(**{**TINY.__dict__, "map_skips": True, "use_map": False})).eval()
+    z = torch.randn(2, TINY.C_z, 16, 16)
+    with torch.no_grad():
+        y = ae.decode(z, torch.rand(2, TINY.C_m, 128, 128))
+        assert torch.equal(y, ae.decode(z, torch.zeros(2, TINY.C_m, 128, 128)))
+        assert torch.equal(y, ae.decode(z, torch.rand(2, TINY.C_m, 128, 128)))
+
+
 def test_latent_noise_scales_the_reparameterisation():
     torch.manual_seed(0)
     x, m = torch.rand(1, 15, 128, 128), torch.rand(1, TINY.C_m, 128, 128)

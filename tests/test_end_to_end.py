@@ -229,6 +229,12 @@ def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, cross_net):
     train("export", "--autoencoder", tmp_path / "dec" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
           "-o", tmp_path / "model.pt")
     assert ckpt.load(str(tmp_path / "model.pt"), "scenario-diffusion")["trained"]["autoencoder_steps"] == 2 + 5
+    # the no-map ablation's decoder (scripts/train_nomap.sh): the source's config with use_map off
+    train("autoencoder", *common, "-o", tmp_path / "nomap", "--steps", 3, "--init-from", src,
+          "--freeze-encoder", "--no-map")
+    c = ckpt.load(str(tmp_path / "nomap" / "last.pt"), "autoencoder-train")
+    assert c["model_config"]["use_map"] is False and tuple(c["model_config"]["enc_channels"]) == (8, 8, 16, 16)
+    assert all(torch.equal(a["state"][k], c["state"][k]) for k in enc)
     bad = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "autoencoder", *map(str, common),
                           "-o", str(tmp_path / "x"), "--steps", "1", "--freeze-encoder"],
                          capture_output=True, text=True)

@@ -47,6 +47,7 @@ class AutoencoderConfig:
     # beyond appendix C.1: D_up also receives D_down's features at 32 and 64 px (U-Net skips), so
     # that boxes can follow the lanes at the output resolution, not only through the 16 px bottleneck
     map_skips: bool = False
+    use_map: bool = True  # False: the paper's no-map ablation (D sees m replaced by zeros)
     loss: DetectionLossConfig = field(default_factory=DetectionLossConfig)
 
 
@@ -155,6 +156,8 @@ class ScenarioAutoencoder(nn.Module):
 
     def decode(self, z: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
         """y = D(z, m) = D_up(z, D_down(m)), (B, 19, 64, 64)."""
+        if not self.cfg.use_map:
+            m = torch.zeros_like(m)
         if self.cfg.map_skips:
             return self.D_up(z, *self.D_down.pyramid(m))
         return self.D_up(z, self.D_down(m))
