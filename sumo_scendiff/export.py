@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from .geometry import sumo_to_pose, wrap_angle
+from .pinning import is_pinnable
 from .picture import draw_scene
 
 FORMAT, VERSION = "sumo-scendiff-scenario", 1
@@ -45,11 +46,13 @@ def _agents(seeding, sim) -> list[dict]:
 
 def scene_document(seeding, net, sim, info: dict) -> dict:
     w = seeding.scene.window
+    pin = bool(info.get("model", {}).get("pin_tokens", False))  # held in the latent (pinning.py)
     return {"format": FORMAT, "version": VERSION, **info,
             "network": {"path": os.path.abspath(net.path), "name": net.name},
             "window": {"cx": w.cx, "cy": w.cy, "yaw": w.yaw, "size": w.size},
             "time": float(sim.simulation.getTime()), "seed": seeding.seed, "p_mask": seeding.p_mask,
-            "tokens": [{**t, "source": s} for t, s in zip(seeding.tokens, seeding.token_source)],
+            "tokens": [{**t, "source": s, "pinned": pin and is_pinnable(t)}
+                       for t, s in zip(seeding.tokens, seeding.token_source)],
             "dropped_on_existing": seeding.dropped,
             "counts": {"generated": len(seeding.scene), "placed": seeding.report.placed,
                        "refused": len(seeding.report.refused),

@@ -52,6 +52,7 @@ def test_run_center_tokens_and_rollout(cross_net, tmp_path, capsys):
     doc = json.load(open(out / "scene_000" / "scene.json"))
     assert doc["window"] == {"cx": 0.0, "cy": 0.0, "yaw": 0.0, "size": 100.0}
     assert doc["p_mask"] == 0.6 and doc["tokens"][0]["x"] == 20.0 and doc["tokens"][0]["source"] == "user"
+    assert doc["model"]["pin_tokens"] and not doc["tokens"][0]["pinned"]   # no size: a condition only
     assert len(doc["model"]["sha256"]) == 64 and doc["model"]["sampler"] == "sample_dpmpp_2m"
     for a in doc["agents"]:
         assert abs(a["x"]) <= 50 and abs(a["y"]) <= 50 and len(a["poses"]) == 5
@@ -83,6 +84,7 @@ def test_run_ego_infill(cross_net, demand, tmp_path, capsys):
     doc = json.load(open(out / "scene_000" / "scene.json"))
     sources = [t["source"] for t in doc["tokens"]]
     assert "v3" in sources                      # the ego itself is a token: the model fills around it
+    assert all(t["pinned"] for t in doc["tokens"])  # existing vehicles: pose, size, speed -> pinned
     assert abs(doc["window"]["yaw"]) < 0.05     # the ego drives east: the window turns with it
     ids = {a["vehicle"] for a in doc["agents"]}
     assert not ids & {"v3"}                     # existing vehicles are kept, never re-seeded
