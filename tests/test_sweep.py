@@ -67,6 +67,10 @@ def test_unset_sampler_settings_are_the_generators_defaults(cross_net, tmp_path)
     (s,) = load_spec(str(path)).scenarios()
     g = GenerationConfig()
     assert (s.steps, s.guidance, s.threshold, s.scene_guidance) == (g.steps, g.guidance, g.threshold, None)
+    assert s.pin_tokens is g.pin_tokens is True
+    path.write_text(path.read_text() + "pin_tokens = false\n")
+    (s,) = load_spec(str(path)).scenarios()
+    assert s.pin_tokens is False and s.params()["pin_tokens"] is False
 
 
 def test_batches_depend_on_the_plan_alone(spec_file):
@@ -90,6 +94,7 @@ def test_batches_depend_on_the_plan_alone(spec_file):
     ('networks = ["x.net.xml"]\nlocations = [{somewhere = 1}]\n', "locations[0].somewhere: unknown key"),
     ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\np_mask = [1.5]\n', "p_mask"),
     ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\nguidance = -1.0\n', "guidance"),
+    ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\npin_tokens = 1\n', "pin_tokens: must be bool"),
     ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\n[[token_sets]]\nagents = [{speed = -1}]\n',
      "token_sets[0]: agents[0]"),
     ('networks = ["x.net.xml"]\n[[scenarios]]\nlocation = "auto:0"\ntoken_set = "nope"\n', "not defined"),

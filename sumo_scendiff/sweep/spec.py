@@ -19,7 +19,7 @@ from typing import Any
 
 KEYS = {"name": str, "networks": list, "locations": list, "token_sets": list, "p_mask": list,
         "seeds": (list, int), "steps": int, "threshold": float, "guidance": float, "scene_guidance": float,
-        "rollout": float, "step_length": float, "replay": float,
+        "pin_tokens": bool, "rollout": float, "step_length": float, "replay": float,
         "scenarios": list}
 NET_KEYS = {"net": str, "routes": str, "begin": float}
 LOC_KEYS = {"auto": int, "center": list, "yaw": float}
@@ -54,6 +54,7 @@ class Scenario:
     rollout: float
     step_length: float
     replay: float = 0.0          # seconds the agents follow their generated future first
+    pin_tokens: bool = True      # tokens with pose, size and speed held in the latent (pinning.py)
 
     def params(self) -> dict:
         return asdict(self)
@@ -102,8 +103,11 @@ def _check_keys(source: str, where: str, table: Any, allowed: dict) -> dict:
             raise _err(source, f"{where}.{k}" if where else k,
                        f"unknown key (expected {', '.join(allowed)})")
         want = allowed[k]
-        ok = isinstance(v, want) and not isinstance(v, bool) if want is not float else \
-            isinstance(v, (int, float)) and not isinstance(v, bool)
+        if want is bool:
+            ok = isinstance(v, bool)
+        else:
+            ok = isinstance(v, want) and not isinstance(v, bool) if want is not float else \
+                isinstance(v, (int, float)) and not isinstance(v, bool)
         if not ok:
             names = "/".join(t.__name__ for t in (want if isinstance(want, tuple) else (want,)))
             raise _err(source, f"{where}.{k}" if where else k, f"must be {names}, got {v!r}")
@@ -207,7 +211,7 @@ def parse_spec(data: dict, source: str, here: str = ".") -> Spec:
                 "guidance": float(data.get("guidance", 3.0)),
                 "scene_guidance": None if data.get("scene_guidance") is None else float(data["scene_guidance"]),
                 "rollout": float(data.get("rollout", 60.0)), "step_length": float(data.get("step_length", 0.5)),
-                "replay": float(data.get("replay", 0.0))}
+                "replay": float(data.get("replay", 0.0)), "pin_tokens": data.get("pin_tokens", True)}
     if settings["steps"] < 1 or not 0 < settings["threshold"] <= 1 or settings["rollout"] < 0 \
             or settings["step_length"] <= 0 or not 0 <= settings["replay"] <= 2 or not settings["guidance"] >= 0 \
             or not (settings["scene_guidance"] is None or settings["scene_guidance"] >= 0):

@@ -122,7 +122,7 @@ class Worker:
                     write_failure(self.out, s, str(e))
         if ready:
             cfg = GenerationConfig(steps=first.steps, threshold=first.threshold, guidance=first.guidance,
-                                   scene_guidance=first.scene_guidance)
+                                   scene_guidance=first.scene_guidance, pin_tokens=first.pin_tokens)
             scenes = self.generator.generate(session.net, [r[1] for r in ready], tokens=[r[3] for r in ready],
                                              p_mask=[r[6] for r in ready], config=cfg,
                                              noise_seeds=[noise_seed(r[0]) for r in ready])
