@@ -34,7 +34,8 @@ from sumo_scendiff.geometry import T0, TIMES, Window, wrap_angle
 from sumo_scendiff.model.detection import decode_boxes
 from sumo_scendiff.raster import render_agents
 from sumo_scendiff.pinning import pinned_latent
-from sumo_scendiff.tokens import encode_agent_tokens, feature_dicts, features_from_scene, global_token, pad_tokens
+from sumo_scendiff.tokens import (encode_agent_tokens, feature_dicts, features_from_scene, global_token,
+                                  pad_tokens)
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 WINDOW = Window(0.0, 0.0)  # boxes are already in the scene frame
@@ -95,9 +96,9 @@ def generate(gen, batch, picked, override: tuple[str, float] | None, cfg, seed: 
     n = len(picked)
     glob = torch.from_numpy(global_token(np.zeros(n)).reshape(n, -1))
     with torch.no_grad():
+        known = pinned_latent(gen.ae, dicts, gen.latent_scale) if cfg.pin_tokens else None
         z = gen.diffusion.sample(batch["map"], tok, pad, glob, steps=cfg.steps, sampler=cfg.sampler,
-                                 guidance=cfg.guidance, generator=torch.Generator().manual_seed(seed),
-                                 known=pinned_latent(gen.ae, dicts, gen.latent_scale) if cfg.pin_tokens else None)
+                                 guidance=cfg.guidance, generator=torch.Generator().manual_seed(seed), known=known)
         dec = decode_boxes(gen.ae.decode(z / gen.latent_scale, batch["map"]))
     return at_probes(dec, picked, cfg.threshold)
 
@@ -139,7 +140,8 @@ def autoencoder_row(ae, ds, picked, threshold: float) -> str:
 def main(o) -> None:
     torch.set_num_threads(2)
     gen, ae, name, sha = load_models(o.checkpoint, o.autoencoder)
-    cfg = GenerationConfig(pin_tokens=o.pin_tokens, **({"guidance": o.guidance} if o.guidance is not None else {}))
+    cfg = GenerationConfig(pin_tokens=o.pin_tokens,
+                           **({"guidance": o.guidance} if o.guidance is not None else {}))
     ds = SceneDataset(o.data, rotate=False)
     picked = probes(ds, o.scenes, o.seed)
     lines = [f"checkpoint `{name}` (sha256 {sha[:12]}…), {len(picked)} windows of "

@@ -178,8 +178,8 @@ class ScenarioGenerator:
         :data:`~sumo_scendiff.tokens.FEATURES`, scene frame of that window) or an encoded
         (T, 170) array; ``None`` for no tokens. A dict with pose, size and speed is pinned
         (:mod:`~sumo_scendiff.pinning`) unless ``config.pin_tokens`` is False. ``p_mask``: the
-        global scene token per window (or one for all); 1.0 with no tokens = map-only generation. The same ``seed`` gives the same
-        scenes; window ``i`` uses the seed ``(seed, i)``. ``maps``: the windows' map rasters when
+        global scene token per window (or one for all); 1.0 with no tokens = map-only generation.
+        The same ``seed`` gives the same scenes; window ``i`` uses the seed ``(seed, i)``. ``maps``: the windows' map rasters when
         already rendered (``render_map``), else rendered here. ``noise_seeds``: one seed per
         window instead (window ``i`` starts from the noise of ``noise_seeds[i]`` alone, whatever
         else is in the batch: the same seed with other tokens gives the variant of the same scene).

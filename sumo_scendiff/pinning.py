@@ -13,7 +13,8 @@ acceleration, never backwards), the token agents alone are rendered to the agent
 by the autoencoder's E, and the latent cells they change (their *footprint*: the largest channel of
 |mu(tokens) - mu(empty)| above :data:`FOOTPRINT`) are fixed to that latent while the diffusion model
 generates the rest around them (:func:`~sumo_scendiff.model.edm.inpainted`). The decoder then finds
-each pinned agent as the autoencoder reconstructs it (F1 0.98 on held-out scenes). Tokens missing
+each pinned agent about as the autoencoder reconstructs it (every-token F1 0.971 against the
+autoencoder's 0.977 on held-out scenes, benchmarks/reconstruction.py). Tokens missing
 any of those features stay conditions only. A generated agent that would share a latent cell
 (6.25 m) with a pinned one is not drawn there: the cell holds the pinned agent alone.
 """
@@ -30,7 +31,7 @@ from .raster import RasterConfig, render_agents
 PIN_FEATURES = ("x", "y", "heading", "length", "width", "speed")
 # |delta mu| (autoencoder units) above which a latent cell belongs to a pinned agent: 3-4 cells per
 # agent. At 0.3 (12-19 cells) the pins crowd out the generated agents around them; at 2.5 (1 cell)
-# they no longer hold (README "Token control", pinned tokens)
+# they no longer hold (README "The model", pinned tokens)
 FOOTPRINT = 1.0
 
 
@@ -94,9 +95,7 @@ def pinned_latent(autoencoder, tokens: Sequence[Sequence[Mapping] | None], laten
             if not isinstance(toks, np.ndarray) else [] for toks in tokens]
     if not any(pins):
         return None
-    x = np.stack([render_agents(*token_trajectories(p), raster) if p else
-                  np.zeros_like(render_agents(np.zeros((0, 5)), np.zeros((0, 5, 3)), np.zeros((0, 5), bool),
-                                              raster)) for p in pins])
+    x = np.stack([render_agents(*token_trajectories(p), raster) for p in pins])  # [] renders empty
     x = torch.from_numpy(np.concatenate([x, np.zeros_like(x[:1])]))   # last: the empty scene
     mu = autoencoder.encode(x)[0]
     mu, empty = mu[:-1], mu[-1:]

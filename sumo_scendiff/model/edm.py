@@ -262,8 +262,8 @@ def guided(denoiser: Denoiser, cond: dict, uncond: dict, w: float | Tensor,
 
 def inpainted(denoiser: Denoiser, z_known: Tensor, mask: Tensor) -> Denoiser:
     """Inpainting by replacement in the denoiser form: D'(z; sigma) = mask z_known + (1 - mask)
-    D(z; sigma) (the replacement method of Song et al. 2021, sec. 5 / app. I.2, applied to the denoised estimate
-    rather than to z). On the masked entries the probability-flow ODE (paper eq. 3) then runs in a
+    D(z; sigma) (the replacement method of Song et al. 2021, sec. 5 / app. I.2, applied to the
+    denoised estimate rather than to z). On the masked entries the probability-flow ODE (paper eq. 3) then runs in a
     straight line from the starting noise to ``z_known``, which every sampler reaches at sigma = 0,
     and the rest of z is denoised around them. ``mask`` (B, 1 or C, R, R) in [0, 1] broadcasts over
     ``z_known``; works under :func:`guided` or on its own, with any condition."""
