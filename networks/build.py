@@ -34,6 +34,7 @@ import numpy as np
 
 sys.dont_write_bytecode = True   # keep networks/ free of __pycache__
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import _organic  # noqa: E402
 import _specs  # noqa: E402
 from _city import city  # noqa: E402
 
@@ -63,6 +64,9 @@ BUILDERS = [
     _specs.highway_ramps,
     _specs.t_junctions,
     _specs.y_junctions,
+    _organic.curvy_town,
+    _organic.organic_turnlanes,
+    _organic.grid_turnlanes_tls,
     city,
 ]
 # held-out evaluation nets: one grid variant, one tls arterial, one random net, and the city demo

@@ -67,8 +67,9 @@ def get_options(args=None):
     sub = p.add_subparsers(dest="stage", required=True)
     for name in ("autoencoder", "diffusion"):
         s = sub.add_parser(name)
-        s.add_argument("--data", required=True, help="training data directory (sumo_scendiff.data)")
-        s.add_argument("--val", default=None, help="validation data directory")
+        s.add_argument("--data", required=True, nargs="+",
+                       help="training data directory (sumo_scendiff.data); several are read as one")
+        s.add_argument("--val", default=None, nargs="+", help="validation data directory (or several)")
         s.add_argument("-o", "--output-dir", dest="out", required=True)
         s.add_argument("--max-minutes", type=float, default=None, help="stop (and save) after this")
         s.add_argument("-v", "--verbose", action="store_true")
@@ -144,7 +145,7 @@ def load_training(path: str, kind: str) -> dict:
     part, trained = kind.split("-")[0], ck.get("trained", {})
     view = {"kind": kind, "model_config": ck[part + "_config"], "step": trained.get(part + "_steps", 0),
             "state": {k: v.float() if v.is_floating_point() else v for k, v in ck[part].items()},
-            "best_val": trained.get(part + "_val")}
+            "best_val": trained.get(part + "_val"), "data_manifest": trained.get("data")}
     if part == "diffusion":  # exported weights are the weight average; the latent space is this file's
         view.update(ema=view["state"], latent_scale=ck["latent_scale"], autoencoder_sha256=ckpt.sha256(path))
     return view

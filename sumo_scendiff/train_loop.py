@@ -120,7 +120,9 @@ class Loop:
         self.step, self.best_val = 0, math.inf
         self.path = os.path.join(o.out, "last.pt")
         try:
-            self.data_manifest = read_manifest(o.data)
+            manifests = [read_manifest(d) for d in o.data]
+            self.data_manifest = {"scenes": sum(m["scenes"] for m in manifests),
+                                  "nets": [n["name"] for m in manifests for n in m["nets"]]}
             self.train_set = SceneDataset(o.data, rotate=cfg.rotate, seed=cfg.seed)
             self.val_set = SceneDataset(o.val, rotate=True, seed=12345) if o.val else None
         except DataError as e:
@@ -164,8 +166,7 @@ class Loop:
         ckpt.save(self.path, f"{self.kind}-train", state=self.model.state_dict(),
                   optimizer=self.opt.state_dict(), scheduler=self.sched.state_dict(), step=self.step,
                   best_val=self.best_val, train_config=asdict(self.cfg),
-                  data_manifest={"scenes": self.data_manifest["scenes"],
-                                 "nets": [n["name"] for n in self.data_manifest["nets"]]},
+                  data_manifest=self.data_manifest,
                   **self.extra)
 
     # ---- data -----------------------------------------------------------------------------

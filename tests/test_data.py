@@ -71,6 +71,26 @@ def test_dataset_items_and_rotation(recorded):
     assert batch["map"].dtype == torch.float32 and batch["valid"].shape[0] == 4
 
 
+def test_several_data_directories_read_as_one(recorded, cross_net, tmp_path):
+    """`train --data A B`: the scenes of A then B, each resolving its network against its own
+    directory (here B sits one level deeper, with a relative network path)."""
+    import json
+    import shutil
+
+    deeper = tmp_path / "x" / "copy"
+    shutil.copytree(recorded, deeper)
+    manifest = json.loads((deeper / "manifest.json").read_text())
+    for entry in manifest["nets"]:
+        entry["path"] = os.path.relpath(cross_net, deeper)
+    (deeper / "manifest.json").write_text(json.dumps(manifest))
+    one, both = SceneStore(recorded), SceneStore([recorded, str(deeper)])
+    assert len(both) == 2 * len(one)
+    for i in (0, len(one) - 1):
+        assert np.array_equal(both.scene(len(one) + i).boxes, one.scene(i).boxes)
+        assert os.path.samefile(both.net_path(len(one) + i), one.net_path(i))
+    assert both.net_name(len(one)) == one.net_name(0)
+
+
 @pytest.mark.parametrize("case", ["missing", "empty", "foreign_routes", "exists"])
 def test_bad_input_one_line_exit_2_no_output(tmp_path, cross_net, diagonal_net, case):
     out = tmp_path / "out"

@@ -48,7 +48,7 @@ def train(*args, runner=(sys.executable, "-m")):
 def test_train_then_sample_finds_the_trained_agent(tmp_path, cross_net):
     data = str(tmp_path / "data")
     scene = one_scene_dataset(data, cross_net)
-    common = ["--data", data, "--val", data, "--batch-size", 1, "--no-rotate", "--val-every", 100,
+    common = ["--data", data, data, "--val", data, "--batch-size", 1, "--no-rotate", "--val-every", 100,
               "--val-batches", 1, "--ckpt-every", 100]
     train("autoencoder", *common, "-o", tmp_path / "ae", "--steps", 300, "--lr", 3e-3,
           "--model-config", json.dumps(TINY_AE))

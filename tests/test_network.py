@@ -79,3 +79,25 @@ def test_heading_near_the_start_and_end_of_a_lane(cross_net):
     start, end = lane.shape[0], lane.shape[-1]
     pts = [start + [0.2, 0.0], end - [0.2, 0.0]]
     assert net.lane_heading_difference(pts, [0.0, 0.0], radius=0.0) == pytest.approx([0.0, 0.0], abs=1e-6)
+
+
+def test_networks_build_reproduces_the_repository_networks(tmp_path):
+    """networks/build.py rebuilds every shipped .net.xml byte for byte (seed 42), and the training
+    split names only networks it builds."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    root = os.path.join(os.path.dirname(__file__), "..", "networks")
+    res = subprocess.run([sys.executable, os.path.join(root, "build.py"), "-o", str(tmp_path), "-s", "42"],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr[-2000:]
+    built = sorted(p.name for p in tmp_path.glob("*.net.xml"))
+    assert built == sorted(f for f in os.listdir(root) if f.endswith(".net.xml"))
+    for name in built:
+        with open(os.path.join(root, name), "rb") as f:
+            assert (tmp_path / name).read_bytes() == f.read(), name
+    splits = json.loads((tmp_path / "splits.json").read_text())
+    assert set(splits["train"]) | set(splits["heldout"]) == set(built)
+    assert not set(splits["train"]) & set(splits["heldout"])

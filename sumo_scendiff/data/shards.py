@@ -122,27 +122,35 @@ def resolve_net_path(root: str, entry: dict) -> str:
 
 
 class SceneStore:
-    """All scenes of a data directory, loaded into memory (scenes are small: boxes, not rasters)."""
+    """All scenes of one or more data directories, loaded into memory (scenes are small: boxes, not
+    rasters); several directories are read as one, in the order given."""
 
-    def __init__(self, root: str, nets: list[str] | None = None):
-        self.root = root
-        self.manifest = read_manifest(root)
-        self.net_entries = self.manifest["nets"]
+    def __init__(self, root: str | list[str], nets: list[str] | None = None):
+        roots = [root] if isinstance(root, str) else list(root)
         wanted = None if nets is None else set(nets)
-        self.shards = [Shard.load(os.path.join(root, s["file"])) for s in self.manifest["shards"]
-                       if wanted is None or self.net_entries[s["net"]]["name"] in wanted]
+        self.shards, self.sources = [], []   # per shard: (its data directory, its manifest's nets)
+        for r in roots:
+            manifest = read_manifest(r)
+            entries = manifest["nets"]
+            for s in manifest["shards"]:
+                if wanted is None or entries[s["net"]]["name"] in wanted:
+                    self.shards.append(Shard.load(os.path.join(r, s["file"])))
+                    self.sources.append((r, entries))
         self.index = [(k, i) for k, sh in enumerate(self.shards) for i in range(len(sh))]
 
     def __len__(self):
         return len(self.index)
 
-    def net_name(self, scene_idx: int) -> str:
+    def _entry(self, scene_idx: int) -> tuple[str, dict]:
         k, i = self.index[scene_idx]
-        return self.net_entries[int(self.shards[k].net[i])]["name"]
+        root, entries = self.sources[k]
+        return root, entries[int(self.shards[k].net[i])]
+
+    def net_name(self, scene_idx: int) -> str:
+        return self._entry(scene_idx)[1]["name"]
 
     def net_path(self, scene_idx: int) -> str:
-        k, i = self.index[scene_idx]
-        return resolve_net_path(self.root, self.net_entries[int(self.shards[k].net[i])])
+        return resolve_net_path(*self._entry(scene_idx))
 
     def scene(self, idx: int) -> Scene:
         k, i = self.index[idx]
