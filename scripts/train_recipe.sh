@@ -101,22 +101,22 @@ python -m sumo_scendiff.train export --autoencoder runs/ae_v2_skips/last.pt --di
     -o sumo_scendiff/weights/scendiff.pt --fp16 --force --scene-guidance "$W" --scene-guidance-sigma 1
 
 # 11. The decoder alone once more (encoder frozen: the same latent space, so the diffusion model and its
-#     latent scale stay valid), 1 200 steps (~35 min) on the dense recording plus a recording of the three
-#     networks added to the training split (curvy_town, organic_turnlanes, grid_turnlanes_tls:
-#     12 000 + 300 scenes, ~25 min of recording). Then export it with the shipped diffusion model,
-#     recalibrate the global token's guidance and export again.
-[ -f data/train_organic/manifest.json ] || python -m sumo_scendiff.data $ADDED_NETS -o data/train_organic --scenes 12000 -s 4 \
-    --workers 2 --density 40 800 $(resume_flag data/train_organic)
+#     latent scale stay valid), 800 steps (~25 min) from the round-9 export on the dense recording plus
+#     a recording of the three networks added to the training split (curvy_town, organic_turnlanes,
+#     grid_turnlanes_tls: 12 000 + 300 scenes at 40-800 veh/h/km, ~25 min). Then export it with the
+#     round-9 diffusion model, recalibrate the global token's guidance and export again (~5 min).
+[ -f data/train_organic/manifest.json ] || python -m sumo_scendiff.data $ADDED_NETS -o data/train_organic --scenes 12000 \
+    -s 4 --workers 2 --density 40 800 $(resume_flag data/train_organic)
 [ -f data/val_organic/manifest.json ] || python -m sumo_scendiff.data $ADDED_NETS -o data/val_organic --scenes 300 -s 5 \
     --density 40 800 $(resume_flag data/val_organic)
 SHIPPED=sumo_scendiff/weights/scendiff.pt
-[ -f runs/scendiff_r9.pt ] || cp $SHIPPED runs/scendiff_r9.pt
-python -m sumo_scendiff.train autoencoder --init-from runs/scendiff_r9.pt --freeze-encoder \
-    --data data/train_dense data/train_organic --val data/val_dense data/val_organic -o runs/ae_r11 \
-    --steps 1200 --lr 1e-4 --lr-drop-at 1000
-python -m sumo_scendiff.train export --autoencoder runs/ae_r11/last.pt --diffusion runs/scendiff_r9.pt \
-    -o $SHIPPED --fp16 --force --scene-guidance-sigma 1
-W=$(python benchmarks/scene_guidance.py --checkpoint $SHIPPED | grep -o "at w = [0-9.]*" \
-    | grep -o "[0-9.]*$" | xargs printf "%.1f")
-python -m sumo_scendiff.train export --autoencoder runs/ae_r11/last.pt --diffusion runs/scendiff_r9.pt \
-    -o $SHIPPED --fp16 --force --scene-guidance "$W" --scene-guidance-sigma 1
+R9=runs/scendiff_r9.pt   # step 10's export, kept: the diffusion model and encoder of round 11
+[ -f $R9 ] || cp $SHIPPED $R9
+python -m sumo_scendiff.train autoencoder --init-from $R9 --freeze-encoder --data data/train_dense data/train_organic \
+    --val data/val_dense data/val_organic -o runs/ae_r11a --steps 800 --lr 1e-4 --lr-drop-at 650
+python -m sumo_scendiff.train export --autoencoder runs/ae_r11a/last.pt --diffusion $R9 -o $SHIPPED --fp16 --force \
+    --scene-guidance-sigma 1
+W=$(python benchmarks/scene_guidance.py --checkpoint $SHIPPED | grep -o "at w = [0-9.]*" | grep -o "[0-9.]*$" \
+    | xargs printf "%.1f")
+python -m sumo_scendiff.train export --autoencoder runs/ae_r11a/last.pt --diffusion $R9 -o $SHIPPED --fp16 --force \
+    --scene-guidance "$W" --scene-guidance-sigma 1

@@ -41,13 +41,13 @@ def is_pinnable(token: Mapping) -> bool:
 
 
 def _distance(v0: float, a: float, t: np.ndarray) -> np.ndarray:
-    """Signed distance travelled from t = 0 at speed v0 + a t, standing once that speed reaches 0."""
+    """Signed distance from t = 0 at the integer time stamps ``t``, in SUMO's 1-s Euler update (a
+    step moves a vehicle by its new speed, ``p(t) - p(t-1) = v(t)``), at speed ``v(t) = v0 + a t``
+    clipped at 0 (standing, never backwards)."""
     t = np.asarray(t, np.float64)
-    if a < 0:                                   # stops at -v0 / a in the future
-        t = np.minimum(t, -v0 / a)
-    elif a > 0:                                 # stood before -v0 / a in the past
-        t = np.maximum(t, -v0 / a)
-    return v0 * t + 0.5 * a * t ** 2
+    speed = lambda k: max(v0 + a * k, 0.0)  # noqa: E731
+    return np.array([sum(speed(k) for k in range(1, int(round(ti)) + 1)) if ti > 0 else
+                     -sum(speed(k) for k in range(int(round(ti)) + 1, 1)) for ti in t])
 
 
 def token_trajectories(tokens: Sequence[Mapping]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -55,6 +55,21 @@ def test_recorded_scenes_are_consistent(recorded, cross_net):
         assert np.all((s.boxes[:, 3] > 1.5) & (s.boxes[:, 3] < 20))
 
 
+def test_recorded_speeds_are_the_backward_differences_of_the_poses(recorded):
+    """The recorder steps SUMO by 1 s and SUMO moves a vehicle by its new speed, so the speed a
+    generated scene reports (speeds_from_traj, backward differences) is the recorded one."""
+    from sumo_scendiff.generate import speeds_from_traj
+    store = SceneStore(recorded)
+    errs = []
+    for i in range(len(store)):
+        s = store.scene(i)
+        full = s.traj_mask.all(1)
+        v = speeds_from_traj(s.traj[full], s.traj_mask[full])
+        errs.append(np.abs(v[:, 1:] - s.speed[full][:, 1:]).ravel())
+    errs = np.concatenate(errs)
+    assert len(errs) > 100 and np.median(errs) < 0.01 and errs.mean() < 0.1
+
+
 def test_dataset_items_and_rotation(recorded):
     import torch
 

@@ -167,3 +167,27 @@ def test_trajectory_categories():
     mask[2, 4] = False
     cat = trajectory_category(trajectory_targets(boxes, traj), mask, CFG)
     assert cat.tolist() == [STATIONARY, STRAIGHT, TURNING]
+
+
+def test_junction_weight_scales_the_positive_terms_of_boxes_on_a_junction():
+    """junction_weight multiplies cls_pos, box, vertex and the trajectory terms of a GT box whose
+    centre lies on the map's junction channel, and leaves the negatives and other boxes alone."""
+    from dataclasses import replace
+
+    from sumo_scendiff.model.detection import junction_weights
+    y = torch.randn(2, C_Y, 64, 64, generator=torch.Generator().manual_seed(0))
+    boxes = torch.tensor([[[10.0, -5.0, 0.3, 4.5, 1.8]], [[-20.0, 15.0, -1.0, 4.5, 1.8]]])
+    traj = boxes[:, :, None, :3].expand(2, 1, 5, 3).clone()
+    traj[..., 0] += torch.arange(-2.0, 3.0) * 5.0
+    mask = torch.ones(2, 1, 5, dtype=torch.bool)
+    valid = torch.ones(2, 1, dtype=torch.bool)
+    junction = torch.zeros(2, 128, 128)
+    junction[0, 64 + 4: 64 + 10, 64 + 10: 64 + 16] = 1.0  # around (10, -5) m: column right, row down
+    w4 = replace(CFG, junction_weight=4.0)
+    assert junction_weights(boxes[:, 0], junction, w4).tolist() == [4.0, 1.0]
+    base = [detection_loss(y[i:i + 1], boxes[i:i + 1], traj[i:i + 1], mask[i:i + 1], valid[i:i + 1], CFG)
+            for i in range(2)]
+    both = detection_loss(y, boxes, traj, mask, valid, w4, junction=junction)
+    for k in ("cls_pos", "box", "vertex", "traj_pos", "traj_yaw"):
+        assert torch.allclose(both[k], (4.0 * base[0][k] + base[1][k]) / 2, rtol=1e-5), k
+    assert torch.allclose(both["cls_neg"], (base[0]["cls_neg"] + base[1]["cls_neg"]) / 2, rtol=1e-5)

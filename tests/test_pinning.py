@@ -29,12 +29,26 @@ def test_stopping_turning_and_starting_trajectories():
         token_trajectories([{**CAR, "speed": 5.0, "final_speed": 0.0}]),
         token_trajectories([{**CAR, "speed": 10.0, "heading_to_final": 0.3}]),
         token_trajectories([{**CAR, "speed": 0.0, "final_speed": 4.0}]))
-    assert np.hypot(*(stop[0, 4, :2] - stop[0, T0, :2])) == pytest.approx(5.0, abs=1e-3)  # v t / 2
+    # SUMO's Euler step: p(t) - p(t-1) = v(t), so 5 m/s stopping in 2 s moves 2.5 + 0 m
+    assert np.hypot(*(stop[0, 4, :2] - stop[0, T0, :2])) == pytest.approx(2.5, abs=1e-3)
     chord = turn[0, 4, :2] - turn[0, T0, :2]
     assert np.arctan2(chord[1], chord[0]) - 0.5 == pytest.approx(0.3, abs=1e-6)        # heading_to_final
     assert turn[0, 4, 2] == pytest.approx(0.5 + 0.6)                                     # arc: twice the chord
     assert np.allclose(start[0, :T0 + 1, :2], [3, -2])                                   # never backwards
-    assert np.hypot(*(start[0, 4, :2] - [3, -2])) == pytest.approx(4.0, abs=1e-3)
+    assert np.hypot(*(start[0, 4, :2] - [3, -2])) == pytest.approx(2.0 + 4.0, abs=1e-3)
+
+
+@pytest.mark.parametrize("tok", [{"speed": 8.0}, {"speed": 5.0, "final_speed": 0.0},
+                                 {"speed": 0.0, "final_speed": 4.0}, {"speed": 12.0, "final_speed": 7.0}])
+def test_generated_speeds_read_back_the_token_speeds(tok):
+    """speeds_from_traj (what a generated scene reports) inverts the synthesis: speed at t = 0,
+    final_speed at +2 s, a constant acceleration in between."""
+    from sumo_scendiff.generate import speeds_from_traj
+    _, traj, mask = token_trajectories([{**CAR, **tok}])
+    v = speeds_from_traj(traj, mask)[0]
+    v2 = tok.get("final_speed", tok["speed"])
+    assert v[T0] == pytest.approx(tok["speed"], abs=1e-6) and v[-1] == pytest.approx(v2, abs=1e-6)
+    assert v[T0 + 1] == pytest.approx((tok["speed"] + v2) / 2, abs=1e-6)
 
 
 def test_pinnable_needs_pose_size_and_speed():

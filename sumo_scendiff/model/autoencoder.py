@@ -22,6 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..raster import MAP_CHANNELS
 from .blocks import Downsample, ResnetBlock, Upsample, group_norm
 from .detection import C_Y, DetectionLossConfig, detection_loss
 
@@ -183,7 +184,7 @@ class ScenarioAutoencoder(nn.Module):
         """
         y, mu, logvar = self(batch["x"], batch["m"])
         out = detection_loss(y, batch["boxes"], batch["traj"], batch["traj_mask"], batch["valid"],
-                             self.cfg.loss)
+                             self.cfg.loss, junction=batch["m"][:, MAP_CHANNELS.index("junction")])
         out["kl"] = self.kl(mu, logvar)
         out["total"] = out["rec"] + self.cfg.kl_weight * out["kl"]
         return out

@@ -43,6 +43,7 @@ class DetectionLossConfig:
     traj_pos_weight: float = 1.0  # L2 (Euclidean) on trajectory positions
     traj_yaw_weight: float = 1.0  # 1 - cos on trajectory headings
     category_weights: tuple[float, float, float] = (0.1, 0.3, 4.0)  # stationary/straight/turning
+    junction_weight: float = 1.0  # every positive term of a GT box whose centre is on a junction
     stationary_threshold: float = 1.0  # m: max |p_t - p_0| over observed steps below -> stationary
     turn_threshold: float = 0.3  # rad: range of observed yaw(t) - yaw(0) above -> turning
     neg_near_weight: float = 0.2  # unmatched cells within neg_near_distance of a GT box
@@ -280,8 +281,26 @@ def negative_weights(boxes: torch.Tensor, valid: torch.Tensor, cells: torch.Tens
     return torch.where(near, cfg.neg_near_weight, cfg.neg_far_weight).to(cells.dtype)
 
 
+def on_junction(boxes: torch.Tensor, junction: torch.Tensor, size: float) -> torch.Tensor:
+    """(M,) bool: whether the centre pixel of each box (M, 5) is set in its scene's junction channel
+    (M, H, W) of the map raster (a ``size`` m window)."""
+    h, w = junction.shape[-2:]
+    colrow = np.rint(metres_to_pixels(boxes[:, 0:2].detach().cpu().numpy(), size, (h, w)))
+    col = torch.as_tensor(np.clip(colrow[:, 0], 0, w - 1).astype(np.int64), device=boxes.device)
+    row = torch.as_tensor(np.clip(colrow[:, 1], 0, h - 1).astype(np.int64), device=boxes.device)
+    return junction[torch.arange(len(boxes), device=boxes.device), row, col] > 0.5
+
+
+def junction_weights(boxes: torch.Tensor, junction: torch.Tensor, cfg: DetectionLossConfig) -> torch.Tensor:
+    """(M,) ``cfg.junction_weight`` for GT boxes (M, 5) centred on a junction (:func:`on_junction`),
+    1 elsewhere."""
+    return torch.where(on_junction(boxes, junction, cfg.size), boxes.new_tensor(cfg.junction_weight),
+                       boxes.new_tensor(1.0))
+
+
 def detection_loss(y: torch.Tensor, boxes: torch.Tensor, traj: torch.Tensor, traj_mask: torch.Tensor,
-                   valid: torch.Tensor, cfg: DetectionLossConfig) -> dict[str, torch.Tensor]:
+                   valid: torch.Tensor, cfg: DetectionLossConfig,
+                   junction: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
     """Reconstruction loss L_rec (appendix C.2) of ``y`` (B, 19, H, W) against padded GT.
 
     Normalisation: every term is *summed* over the matched GT boxes (resp. over all unmatched
@@ -289,7 +308,9 @@ def detection_loss(y: torch.Tensor, boxes: torch.Tensor, traj: torch.Tensor, tra
     same reduction as the KL term of the autoencoder. Within a pair, the box L1 is the mean over
     its 6 parameters, the vertex loss the mean corner distance, the trajectory losses the mean
     over the observed steps t != 0 (positions: Euclidean distance in metres; headings: 1 - cos),
-    multiplied by the GT trajectory's category weight. Works with N = 0.
+    multiplied by the GT trajectory's category weight. With ``junction`` (B, H, W), the map raster's
+    junction channel, every positive term of a box centred on a junction is multiplied by
+    ``cfg.junction_weight``. Works with N = 0.
     """
     bsz, _, h, w = y.shape
     cells = cell_centres(cfg.size, (h, w), y.device)
@@ -308,16 +329,18 @@ def detection_loss(y: torch.Tensor, boxes: torch.Tensor, traj: torch.Tensor, tra
     pos = ((rel[..., 0:2] - rel_gt[..., 0:2]).norm(dim=-1) * mf).sum(-1) / steps
     yaw = ((1.0 - torch.cos(rel[..., 2] - rel_gt[..., 2])) * mf).sum(-1) / steps
     cat_w = y.new_tensor(cfg.category_weights)[trajectory_category(rel_gt, traj_mask[b, n], cfg)]
+    jw = (junction_weights(gt, junction[b], cfg) if junction is not None and cfg.junction_weight != 1.0
+          else y.new_ones(len(b)))
 
     neg_w = negative_weights(boxes, valid, cells, cfg)
     neg_w[b, c] = 0.0
     out = dict(
-        cls_pos=cfg.cls_weight * t["cls"].sum() / bsz,
+        cls_pos=cfg.cls_weight * (jw * t["cls"]).sum() / bsz,
         cls_neg=(neg_w * F.softplus(yf[:, 0])).sum() / bsz,
-        box=cfg.box_weight * t["box"].sum() / bsz,
-        vertex=cfg.vertex_weight * t["vertex"].sum() / bsz,
-        traj_pos=cfg.traj_pos_weight * (cat_w * pos).sum() / bsz,
-        traj_yaw=cfg.traj_yaw_weight * (cat_w * yaw).sum() / bsz,
+        box=cfg.box_weight * (jw * t["box"]).sum() / bsz,
+        vertex=cfg.vertex_weight * (jw * t["vertex"]).sum() / bsz,
+        traj_pos=cfg.traj_pos_weight * (jw * cat_w * pos).sum() / bsz,
+        traj_yaw=cfg.traj_yaw_weight * (jw * cat_w * yaw).sum() / bsz,
     )
     out["rec"] = sum(out.values())
     out["matched"] = torch.tensor(float(len(b)), device=y.device)  # diagnostic, not a loss
