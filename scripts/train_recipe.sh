@@ -2,7 +2,7 @@
 # The recipe that produces the shipped checkpoint sumo_scendiff/weights/scendiff.pt from a fresh clone,
 # using only the project's own generated networks (networks/splits.json "train").
 # Every step is resumable: run the script again after an interruption and it continues.
-# About 10 h of training on an idle 2-core CPU plus ~15 minutes of recording (README "Training").
+# About 10 h 30 min of training on an idle 2-core CPU plus ~40 minutes of recording (README "Training").
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # networks/splits.json "train": its first 12 networks feed steps 1-10; the 3 added later (curved
