@@ -125,10 +125,11 @@ def main(o) -> None:
     cfg = GenerationConfig()
     steps, sampler = o.steps or cfg.steps, cfg.sampler
     gts = [b["boxes"][i][b["valid"][i]].numpy() for i in range(n)]
-    junction = b["map"][:, MAP_CHANNELS.index("junction")]
+    scene, slot = torch.where(b["valid"])
+    junction = on_junction(b["boxes"][scene, slot], scene, b["map"][:, MAP_CHANNELS.index("junction")],
+                           RasterConfig().size).numpy()
     truth = tuple([b[k][i][b["valid"][i]].numpy() for i in range(n)] for k in ("speed", "traj_mask")) + (
-        [on_junction(b["boxes"][i][b["valid"][i]], junction[i:i + 1].expand(int(b["valid"][i].sum()), -1, -1),
-                     RasterConfig().size).numpy() for i in range(n)],)
+        np.split(junction, np.cumsum(b["valid"].sum(1).numpy())[:-1]),)
     m = b["map"]
     rows = {}
     with torch.no_grad():

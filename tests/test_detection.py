@@ -184,7 +184,7 @@ def test_junction_weight_scales_the_positive_terms_of_boxes_on_a_junction():
     junction = torch.zeros(2, 128, 128)
     junction[0, 64 + 4: 64 + 10, 64 + 10: 64 + 16] = 1.0  # around (10, -5) m: column right, row down
     w4 = replace(CFG, junction_weight=4.0)
-    assert junction_weights(boxes[:, 0], junction, w4).tolist() == [4.0, 1.0]
+    assert junction_weights(boxes[:, 0], torch.arange(2), junction, w4).tolist() == [4.0, 1.0]
     base = [detection_loss(y[i:i + 1], boxes[i:i + 1], traj[i:i + 1], mask[i:i + 1], valid[i:i + 1], CFG)
             for i in range(2)]
     both = detection_loss(y, boxes, traj, mask, valid, w4, junction=junction)

@@ -17,13 +17,14 @@ from .shards import SceneStore
 class SceneDataset(Dataset):
     """torch-style Dataset: item = dict of map raster, agent raster and the padded-free sparse arrays.
 
-    ``root`` is a data directory or a list of them, read as one. ``rotate=True`` turns each window by a uniform random angle (the agents with it) — the
-    augmentation of the recorded data; the angle comes from ``seed`` and the item index and epoch, so a
-    given (seed, epoch, index) always yields the same sample.
+    ``root`` is a data directory or a list of them, read as one. ``rotate=True`` turns each window
+    by a uniform random angle (the agents with it) — the augmentation of the recorded data; the angle
+    comes from ``seed`` and the item index and epoch, so a given (seed, epoch, index) always yields
+    the same sample.
     """
 
-    def __init__(self, root: str | list[str], nets: list[str] | None = None, rotate: bool = True, seed: int = 0,
-                 raster=None, max_agents: int = 256):
+    def __init__(self, root: str | list[str], nets: list[str] | None = None, rotate: bool = True,
+                 seed: int = 0, raster=None, max_agents: int = 256):
         self.store = SceneStore(root, nets)
         self.rotate, self.seed, self.epoch = rotate, seed, 0
         self.raster = raster or RasterConfig()

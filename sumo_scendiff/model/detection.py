@@ -281,20 +281,21 @@ def negative_weights(boxes: torch.Tensor, valid: torch.Tensor, cells: torch.Tens
     return torch.where(near, cfg.neg_near_weight, cfg.neg_far_weight).to(cells.dtype)
 
 
-def on_junction(boxes: torch.Tensor, junction: torch.Tensor, size: float) -> torch.Tensor:
-    """(M,) bool: whether the centre pixel of each box (M, 5) is set in its scene's junction channel
-    (M, H, W) of the map raster (a ``size`` m window)."""
+def on_junction(boxes: torch.Tensor, scene: torch.Tensor, junction: torch.Tensor, size: float) -> torch.Tensor:
+    """(M,) bool: whether the centre pixel of each box (M, 5) is set in the junction channel of its
+    scene's map raster, ``junction[scene]`` (``junction`` (B, H, W), a ``size`` m window)."""
     h, w = junction.shape[-2:]
     colrow = np.rint(metres_to_pixels(boxes[:, 0:2].detach().cpu().numpy(), size, (h, w)))
     col = torch.as_tensor(np.clip(colrow[:, 0], 0, w - 1).astype(np.int64), device=boxes.device)
     row = torch.as_tensor(np.clip(colrow[:, 1], 0, h - 1).astype(np.int64), device=boxes.device)
-    return junction[torch.arange(len(boxes), device=boxes.device), row, col] > 0.5
+    return junction[scene, row, col] > 0.5
 
 
-def junction_weights(boxes: torch.Tensor, junction: torch.Tensor, cfg: DetectionLossConfig) -> torch.Tensor:
+def junction_weights(boxes: torch.Tensor, scene: torch.Tensor, junction: torch.Tensor,
+                     cfg: DetectionLossConfig) -> torch.Tensor:
     """(M,) ``cfg.junction_weight`` for GT boxes (M, 5) centred on a junction (:func:`on_junction`),
     1 elsewhere."""
-    return torch.where(on_junction(boxes, junction, cfg.size), boxes.new_tensor(cfg.junction_weight),
+    return torch.where(on_junction(boxes, scene, junction, cfg.size), boxes.new_tensor(cfg.junction_weight),
                        boxes.new_tensor(1.0))
 
 
@@ -329,7 +330,7 @@ def detection_loss(y: torch.Tensor, boxes: torch.Tensor, traj: torch.Tensor, tra
     pos = ((rel[..., 0:2] - rel_gt[..., 0:2]).norm(dim=-1) * mf).sum(-1) / steps
     yaw = ((1.0 - torch.cos(rel[..., 2] - rel_gt[..., 2])) * mf).sum(-1) / steps
     cat_w = y.new_tensor(cfg.category_weights)[trajectory_category(rel_gt, traj_mask[b, n], cfg)]
-    jw = (junction_weights(gt, junction[b], cfg) if junction is not None and cfg.junction_weight != 1.0
+    jw = (junction_weights(gt, b, junction, cfg) if junction is not None and cfg.junction_weight != 1.0
           else y.new_ones(len(b)))
 
     neg_w = negative_weights(boxes, valid, cells, cfg)
