@@ -74,7 +74,7 @@ def main(o) -> None:
     unet = gen.diffusion.denoiser
     cfg = gen.diffusion.cfg.unet
     z = torch.randn(o.batch, cfg.c_z, cfg.res, cfg.res)
-    cond = gen.diffusion.cond(torch.zeros(o.batch, 11, 128, 128), torch.zeros(o.batch, 0, 170),
+    cond = gen.diffusion.cond(torch.zeros(o.batch, gen.diffusion.cfg.C_m, 128, 128), torch.zeros(o.batch, 0, 170),
                               torch.zeros(o.batch, 0, dtype=torch.bool), torch.zeros(o.batch, 10))
     with torch.no_grad():
         unet(z, 1.0, **cond)

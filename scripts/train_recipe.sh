@@ -2,16 +2,29 @@
 # The recipe that produces the shipped checkpoint sumo_scendiff/weights/scendiff.pt from a fresh clone,
 # using only the project's own generated networks (networks/splits.json "train").
 # Every step is resumable: run the script again after an interruption and it continues.
-# About 10 h 30 min of training on an idle 2-core CPU plus ~40 minutes of recording (README "Training").
+# About 10 h 55 min of training on an idle 2-core CPU plus ~40 minutes of recording (README "Training").
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # networks/splits.json "train": its first 12 networks feed steps 1-10; the 3 added later (curved
 # streets, turn lanes, uneven junction angles) are recorded in step 11 for the decoder.
 TRAIN_NETS=$(python -c "import json; print(' '.join('-n networks/' + n for n in json.load(open('networks/splits.json'))['train'][:12]))")
 ADDED_NETS=$(python -c "import json; print(' '.join('-n networks/' + n for n in json.load(open('networks/splits.json'))['train'][12:]))")
-SIGMA='{"P_mean": 0.0, "P_std": 1.4}'  # training noise levels shifted up from the paper's -0.5 / 1
+# Steps 1-10 read the first 11 map channels (C_m 11: the map raster before the lane-direction
+# histogram of step 12); warm starts and continuations keep their source's.
+SIGMA='{"P_mean": 0.0, "P_std": 1.4, "C_m": 11}'  # training noise levels shifted up from the paper's -0.5 / 1
 
 resume_flag() { [ -d "$1.partial" ] && echo --resume || true; }
+SHIPPED=sumo_scendiff/weights/scendiff.pt
+# export_calibrated AE DIFFUSION: export to $SHIPPED, calibrate the global token's guidance weight
+# on validation windows (benchmarks/scene_guidance.py, guided above sigma 1), export again with it
+export_calibrated() {
+    python -m sumo_scendiff.train export --autoencoder "$1" --diffusion "$2" -o $SHIPPED --fp16 --force \
+        --scene-guidance-sigma 1
+    W=$(python benchmarks/scene_guidance.py --checkpoint $SHIPPED | grep -o "at w = [0-9.]*" | grep -o "[0-9.]*$" \
+        | xargs printf "%.1f")
+    python -m sumo_scendiff.train export --autoencoder "$1" --diffusion "$2" -o $SHIPPED --fp16 --force \
+        --scene-guidance "$W" --scene-guidance-sigma 1
+}
 [ -f data/train/manifest.json ] || python -m sumo_scendiff.data $TRAIN_NETS -o data/train --scenes 36000 -s 0 --workers 2 $(resume_flag data/train)
 [ -f data/val/manifest.json ] || python -m sumo_scendiff.data $TRAIN_NETS -o data/val --scenes 1200 -s 1 $(resume_flag data/val)
 
@@ -20,7 +33,7 @@ resume_flag() { [ -d "$1.partial" ] && echo --resume || true; }
 #    (posterior std 0.58 against |mu| 0.94, reconstruction F1 0.66; benchmarks/reconstruction.py).
 #    The learning rate drops to a tenth at step 7 500, which took reconstruction F1 to 0.85.
 python -m sumo_scendiff.train autoencoder --data data/train --val data/val -o runs/ae --steps 4978 \
-    --lr-drop-at 7500
+    --lr-drop-at 7500 --model-config '{"C_m": 11}'
 [ -d runs/ae_kl01 ] || { mkdir -p runs/ae_kl01 && cp runs/ae/last.pt runs/ae_kl01/last.pt; }
 python -m sumo_scendiff.train autoencoder --data data/train --val data/val -o runs/ae_kl01 --steps 7700 \
     --lr-drop-at 7500 --model-config '{"kl_weight": 0.01}'
@@ -32,7 +45,7 @@ python -m sumo_scendiff.train autoencoder --data data/train --val data/val -o ru
 #    give 30 % of the examples no token at all (p_mask = 1) and 20 % every token (the paper: 0 % / 40 %).
 DIFF="python -m sumo_scendiff.train diffusion --autoencoder runs/ae_kl01/last.pt --data data/train --val data/val
       -o runs/diffusion_r4 --batch-size 32 --val-batches 4"
-$DIFF --steps 1300 --lr 6e-4 --lr-drop-at 3000
+$DIFF --steps 1300 --lr 6e-4 --lr-drop-at 3000 --model-config '{"C_m": 11}'
 $DIFF --steps 3600 --lr 6e-4 --lr-drop-at 3000 --model-config "$SIGMA"
 $DIFF --steps 4200 --lr 2e-4 --lr-drop-at 4000 --model-config "$SIGMA" --p-keep-all-tokens 0.2 --p-map-only 0.3
 
@@ -59,7 +72,7 @@ python -m sumo_scendiff.train diffusion --autoencoder runs/ae_kl01/last.pt --dat
 #    was found"); ~65 min; the lr drops at 2 400.
 python -m sumo_scendiff.train diffusion --autoencoder runs/ae_kl01/last.pt --data data/train_dense \
     --val data/val_dense -o runs/diffusion_r7 --init-from runs/diffusion_r6/last.pt --batch-size 32 \
-    --val-batches 4 --steps 3000 --lr 2e-4 --lr-drop-at 2400 --model-config '{"P_mean": 0.3, "P_std": 1.4}' \
+    --val-batches 4 --steps 3000 --lr 2e-4 --lr-drop-at 2400 --model-config '{"P_mean": 0.3, "P_std": 1.4, "C_m": 11}' \
     --p-keep-all-tokens 0.2 --p-map-only 0.3
 
 # 7. A second autoencoder, from scratch on the denser recording, 7 700 steps (~2 h 10 min at ~1 s/step):
@@ -68,7 +81,7 @@ python -m sumo_scendiff.train diffusion --autoencoder runs/ae_kl01/last.pt --dat
 #    speed (benchmarks/token_response.py --autoencoder: response 0.00), so no diffusion model trained in
 #    its latent space could follow a speed token. This one's: 0.82.
 python -m sumo_scendiff.train autoencoder --data data/train_dense --val data/val_dense -o runs/ae_v2 \
-    --steps 7700 --lr-drop-at 7000 --model-config '{"kl_weight": 0.01, "loss": {"category_weights":
+    --steps 7700 --lr-drop-at 7000 --model-config '{"C_m": 11, "kl_weight": 0.01, "loss": {"category_weights":
     [1.0, 1.0, 4.0], "box_weight": 4.0, "vertex_weight": 2.0}}'
 
 # 8. Its decoder alone on the latents the diffusion model learns (mu itself: latent_noise 0, no
@@ -87,18 +100,13 @@ python -m sumo_scendiff.train autoencoder --data data/train_dense --val data/val
 #    the lr drops at 2 300.
 python -m sumo_scendiff.train diffusion --autoencoder runs/ae_v2/last.pt --data data/train_dense \
     --val data/val_dense -o runs/diffusion_v2 --init-from runs/diffusion_r7/last.pt --batch-size 32 \
-    --val-batches 4 --steps 2700 --lr 3e-4 --lr-drop-at 2300 --model-config '{"P_mean": 0.3, "P_std": 1.4}' \
+    --val-batches 4 --steps 2700 --lr 3e-4 --lr-drop-at 2300 --model-config '{"P_mean": 0.3, "P_std": 1.4, "C_m": 11}' \
     --p-keep-all-tokens 0.2 --p-map-only 0.3
 
 # 10. Export, calibrate the global token's guidance (applied above sigma = 1) on the dense validation
 #    windows (the weight where map-only generation draws as many vehicles as the ground truth), export
 #    again with it (~3 min).
-python -m sumo_scendiff.train export --autoencoder runs/ae_v2_skips/last.pt --diffusion runs/diffusion_v2/last.pt \
-    -o sumo_scendiff/weights/scendiff.pt --fp16 --force --scene-guidance-sigma 1
-W=$(python benchmarks/scene_guidance.py --checkpoint sumo_scendiff/weights/scendiff.pt | grep -o "at w = [0-9.]*" \
-    | grep -o "[0-9.]*$" | xargs printf "%.1f")
-python -m sumo_scendiff.train export --autoencoder runs/ae_v2_skips/last.pt --diffusion runs/diffusion_v2/last.pt \
-    -o sumo_scendiff/weights/scendiff.pt --fp16 --force --scene-guidance "$W" --scene-guidance-sigma 1
+export_calibrated runs/ae_v2_skips/last.pt runs/diffusion_v2/last.pt
 
 # 11. The decoder alone once more (encoder frozen: the same latent space, so the diffusion model and its
 #     latent scale stay valid), 800 steps (~25 min) from the round-9 export on the dense recording plus
@@ -109,14 +117,19 @@ python -m sumo_scendiff.train export --autoencoder runs/ae_v2_skips/last.pt --di
     -s 4 --workers 2 --density 40 800 $(resume_flag data/train_organic)
 [ -f data/val_organic/manifest.json ] || python -m sumo_scendiff.data $ADDED_NETS -o data/val_organic --scenes 300 -s 5 \
     --density 40 800 $(resume_flag data/val_organic)
-SHIPPED=sumo_scendiff/weights/scendiff.pt
 R9=runs/scendiff_r9.pt   # step 10's export, kept: the diffusion model and encoder of round 11
 [ -f $R9 ] || cp $SHIPPED $R9
 python -m sumo_scendiff.train autoencoder --init-from $R9 --freeze-encoder --data data/train_dense data/train_organic \
     --val data/val_dense data/val_organic -o runs/ae_r11a --steps 800 --lr 1e-4 --lr-drop-at 650
-python -m sumo_scendiff.train export --autoencoder runs/ae_r11a/last.pt --diffusion $R9 -o $SHIPPED --fp16 --force \
-    --scene-guidance-sigma 1
-W=$(python benchmarks/scene_guidance.py --checkpoint $SHIPPED | grep -o "at w = [0-9.]*" | grep -o "[0-9.]*$" \
-    | xargs printf "%.1f")
-python -m sumo_scendiff.train export --autoencoder runs/ae_r11a/last.pt --diffusion $R9 -o $SHIPPED --fp16 --force \
-    --scene-guidance "$W" --scene-guidance-sigma 1
+export_calibrated runs/ae_r11a/last.pt $R9
+
+# 12. The decoder alone with the lane-direction histogram (map channels lane_dir000..lane_dir315,
+#     C_m 19; their weights in D_down start at zero): 1 000 steps (~21 min) from step 11's export on the
+#     same data, lr 1.5e-4, then 1.5e-5 from 800. The diffusion model keeps reading the first 11
+#     channels. Export, recalibrate the global token's guidance, export again (~5 min).
+R11=runs/scendiff_r11.pt   # step 11's export: the diffusion model and encoder of round 12
+[ -f $R11 ] || cp $SHIPPED $R11
+python -m sumo_scendiff.train autoencoder --init-from $R11 --freeze-encoder --data data/train_dense data/train_organic \
+    --val data/val_dense data/val_organic -o runs/ae_r12a --steps 1000 --lr 1.5e-4 --lr-drop-at 800 \
+    --model-config '{"C_m": 19}'
+export_calibrated runs/ae_r12a/last.pt $R11

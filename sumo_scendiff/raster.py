@@ -16,8 +16,15 @@ import numpy as np
 
 from .geometry import Window, box_corners, metres_to_pixels
 
+# Lane directions as a histogram over LANE_DIR_BINS headings (window frame, bin k centred on
+# k * 360 / LANE_DIR_BINS degrees, linear weights between the two nearest bins, the larger weight
+# kept where lanes overlap). Unlike lane_cos / lane_sin, where the lane drawn last overwrites the
+# others, crossing lanes inside a junction each keep their direction here.
+LANE_DIR_BINS = 8
+# Append-only: a model built for C_m channels reads the first C_m (older checkpoints: 11).
 MAP_CHANNELS = ("drivable", "centerline", "lane_cos", "lane_sin", "lane_boundary", "junction",
-                "stop_line", "tls", "sidewalk", "crossing", "speed_limit")
+                "stop_line", "tls", "sidewalk", "crossing", "speed_limit") + tuple(
+    f"lane_dir{k * 360 // LANE_DIR_BINS:03d}" for k in range(LANE_DIR_BINS))
 # Agent channels, paper appendix A: box fill, cos/sin of heading, then (mask, dx, dy) per delta.
 DELTA_STEPS = (-2, -1, 1, 2)
 AGENT_CHANNELS = ("occupancy", "cos", "sin") + tuple(
@@ -60,6 +67,30 @@ def _fill(img: np.ndarray, pix: list[np.ndarray], value: float = 1.0) -> None:
         cv2.fillPoly(img, pix, value, cv2.LINE_8, _SHIFT)
 
 
+def direction_bins(rel_yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(S,) window-frame yaws -> the two nearest direction bins (S, 2) and their weights (S, 2),
+    which sum to 1 and interpolate linearly: a single lane's yaw is recoverable exactly."""
+    u = np.mod(rel_yaw, 2 * np.pi) * (LANE_DIR_BINS / (2 * np.pi))
+    k0 = np.floor(u).astype(np.int64) % LANE_DIR_BINS
+    f = (u - np.floor(u)).astype(np.float32)
+    return np.stack([k0, (k0 + 1) % LANE_DIR_BINS], 1), np.stack([1 - f, f], 1)
+
+
+def _draw_direction_histogram(ch: dict, segments: list, rel_yaw: np.ndarray, thickness: np.ndarray) -> None:
+    """Each segment (a, b) drawn ``thickness`` px wide into its two direction bins with its weight;
+    within a bin, segments are drawn lightest first so that overlaps keep the larger weight."""
+    bins, weights = direction_bins(rel_yaw)
+    thick = thickness.astype(np.int64).tolist()
+    for k in range(LANE_DIR_BINS):
+        seg, side = np.nonzero((bins == k) & (weights > 0))
+        w = weights[seg, side]
+        order = np.argsort(w, kind="stable")
+        img = ch[MAP_CHANNELS[-LANE_DIR_BINS + k]]
+        for i, value in zip(seg[order].tolist(), w[order].tolist()):
+            a, b = segments[i]
+            cv2.line(img, a, b, value, thick[i], cv2.LINE_8, _SHIFT)
+
+
 def render_map(net, window: Window, cfg: RasterConfig = RasterConfig()) -> np.ndarray:
     """The map image m of ``window``: channels :data:`MAP_CHANNELS`, float32 in [-1, 1]."""
     h, w = cfg.shape
@@ -96,12 +127,11 @@ def render_map(net, window: Window, cfg: RasterConfig = RasterConfig()) -> np.nd
     if car:
         rel = np.concatenate([ln.seg_yaw for ln in car]) - window.yaw
         colours = np.stack([np.ones_like(rel), np.cos(rel), np.sin(rel)], axis=1).tolist()
-        k = 0
-        for pts in pix[: len(car)]:
-            pts = pts.tolist()
-            for a, b in zip(pts[:-1], pts[1:]):
-                cv2.line(centre, a, b, colours[k], 2, cv2.LINE_8, _SHIFT)
-                k += 1
+        segments = [(a, b) for pts in pix[: len(car)] for a, b in zip(pts.tolist()[:-1], pts.tolist()[1:])]
+        for (a, b), colour in zip(segments, colours):
+            cv2.line(centre, a, b, colour, 2, cv2.LINE_8, _SHIFT)
+        width = np.concatenate([np.full(len(ln.seg_yaw), ln.width) for ln in car])
+        _draw_direction_histogram(ch, segments, rel, np.maximum(np.round(width / cfg.metres_per_pixel), 1))
     for a, b in pix[len(car):]:
         cv2.line(ch["stop_line"], tuple(a.tolist()), tuple(b.tolist()), 1.0, 2, cv2.LINE_8, _SHIFT)
     ch["centerline"], ch["lane_cos"], ch["lane_sin"] = centre[..., 0], centre[..., 1], centre[..., 2]

@@ -32,6 +32,7 @@ import torch  # noqa: E402
 
 from .model import checkpoint as ckpt  # noqa: E402
 from .model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
+from .model.blocks import widen_input
 from .model.diffusion import DiffusionConfig, ScenarioDiffusion
 from .model.unet import widen_conv_in
 from .tokens import TokenMaskConfig
@@ -167,6 +168,8 @@ def train_autoencoder(o) -> None:
         state = init["state"]
         if all(k.startswith("D_up.skips.") for k in set(model.state_dict()) - set(state)):
             state = {**model.state_dict(), **state}  # map skips the source lacks start at zero
+        # map channels the source lacks (a larger C_m) start at zero
+        state = widen_input(state, "D_down.conv_in.weight", model.D_down.conv_in.weight)
         ckpt.load_state(model, state, o.init_from)
         extra.update(warm_start_record(init, o.init_from))
         if o.freeze_encoder:  # the encoder whose latents a diffusion model may have been trained on
@@ -197,7 +200,11 @@ def train_diffusion(o) -> None:
     ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ae_ck["model_config"]))
     ckpt.load_state(ae, ae_ck["state"], o.autoencoder)
     ae.eval().requires_grad_(False)
-    model = ScenarioDiffusion(model_config(o, DiffusionConfig, use_map=not o.no_map))
+    last = os.path.join(o.out, "last.pt")
+    saved = ckpt.load(last, "diffusion-train") if os.path.exists(last) else None
+    # a run continues with its own config (--model-config on top), a warm start with the defaults'
+    model = ScenarioDiffusion(model_config(o, DiffusionConfig, base=(saved or {}).get("model_config"),
+                                           use_map=not o.no_map))
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     scale = {"value": None}
     mask_cfg = TokenMaskConfig(p_keep_all_tokens=cfg.p_keep_all_tokens, p_map_only=cfg.p_map_only)
@@ -214,9 +221,10 @@ def train_diffusion(o) -> None:
 
     extra = {"model_config": ckpt.config_to_dict(model.cfg),
              "autoencoder_sha256": ckpt.sha256(o.autoencoder)}
-    if o.init_from and not os.path.exists(os.path.join(o.out, "last.pt")):
+    if o.init_from and saved is None:
         init = load_training(o.init_from, "diffusion-train")
         state = widen_conv_in(init.get("ema", init["state"]), model.denoiser.net, prefix="denoiser.net.")
+        state = widen_input(state, "E_m.conv_in.weight", model.E_m.conv_in.weight)  # map channels added
         ckpt.load_state(model, state, o.init_from)
         extra.update(warm_start_record(init, o.init_from))
         if init.get("autoencoder_sha256") == extra["autoencoder_sha256"] and "latent_scale" in init:

@@ -9,7 +9,8 @@ import pytest
 from sumo_scendiff.geometry import (Window, metres_to_pixels, pixels_to_metres, pose_to_sumo,
                                     sumo_angle_to_yaw, sumo_to_pose, wrap_angle, yaw_to_sumo_angle)
 from sumo_scendiff.network import Network
-from sumo_scendiff.raster import MAP_CHANNELS, RasterConfig, render_agents, render_map
+from sumo_scendiff.raster import (LANE_DIR_BINS, MAP_CHANNELS, RasterConfig, direction_bins, render_agents,
+                                  render_map)
 
 
 def test_sumo_angle_to_yaw_cardinal_directions():
@@ -98,6 +99,43 @@ def test_lane_direction_channels_have_cos_sin_at_the_right_pixels(diagonal_net):
         c2, r2 = np.round(metres_to_pixels(side, cfg.size, cfg.shape)).astype(int)
         assert m[li, r2, c2] == 0.0 and m[MAP_CHANNELS.index("drivable"), r2, c2] == 0.0
         assert m[MAP_CHANNELS.index("drivable"), row, col] == 1.0
+        # the direction histogram holds the lane's heading in its two nearest bins
+        bins, weights = direction_bins(np.array([rel]))
+        hist = np.zeros(LANE_DIR_BINS, np.float32)
+        hist[bins[0]] = weights[0]
+        assert m[len(MAP_CHANNELS) - LANE_DIR_BINS:, row, col] == pytest.approx(hist, abs=1e-5)
+
+
+def test_direction_bins_interpolate_linearly_and_recover_the_yaw():
+    yaw = np.array([0.0, 0.3, math.pi / 2, -0.1, math.pi, 2 * math.pi - 1e-4])
+    bins, weights = direction_bins(yaw)
+    step = 2 * math.pi / LANE_DIR_BINS
+    assert np.allclose(weights.sum(1), 1.0) and np.all(weights >= 0)
+    assert bins[:, 0].tolist() == [0, 0, 2, LANE_DIR_BINS - 1, LANE_DIR_BINS // 2, LANE_DIR_BINS - 1]
+    assert np.array_equal(bins[:, 1], (bins[:, 0] + 1) % LANE_DIR_BINS)
+    recovered = (bins[:, 0] + weights[:, 1]) * step
+    assert np.allclose(np.angle(np.exp(1j * (recovered - yaw))), 0.0, atol=1e-5)
+
+
+def test_lane_direction_histogram_keeps_both_crossing_lanes(cross_net):
+    """Inside a junction, where lane_cos / lane_sin hold the internal lane drawn last, the direction
+    histogram keeps every lane through the pixel: here the eastbound and northbound through lanes
+    crossing at (1.6, -1.6) (right-hand traffic, 3.2 m lanes)."""
+    net = Network.load(cross_net)
+    for win_yaw, east_bin in ((0.0, 0), (-math.pi / 2, 2)):  # a window turned by -90 deg sees east at +90
+        w = Window(0.0, 0.0, win_yaw)
+        m = render_map(net, w)
+        col, row = np.round(metres_to_pixels(w.world_to_scene([1.6, -1.6]), 100.0, (128, 128))).astype(int)
+        hist = m[len(MAP_CHANNELS) - LANE_DIR_BINS:, row, col]
+        north_bin = (east_bin + LANE_DIR_BINS // 4) % LANE_DIR_BINS
+        assert hist[east_bin] == pytest.approx(1.0) and hist[north_bin] == pytest.approx(1.0)
+        cos_sin = m[[MAP_CHANNELS.index("lane_cos"), MAP_CHANNELS.index("lane_sin")], row, col]
+        one = [np.allclose(cos_sin, [math.cos(a - win_yaw), math.sin(a - win_yaw)], atol=1e-5)
+               for a in (0.0, math.pi / 2)]
+        assert sum(one) == 1   # the single-direction channels kept only one of the two
+        # away from the roads the histogram is empty
+        col, row = np.round(metres_to_pixels(w.world_to_scene([30.0, 30.0]), 100.0, (128, 128))).astype(int)
+        assert not m[len(MAP_CHANNELS) - LANE_DIR_BINS:, row, col].any()
 
 
 def test_agent_raster_fills_the_box_with_heading_and_deltas():

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from sumo_scendiff.data.shards import SceneStore
+from sumo_scendiff.raster import MAP_CHANNELS
 
 CLI = [sys.executable, "-m", "sumo_scendiff.data"]
 
@@ -76,7 +77,7 @@ def test_dataset_items_and_rotation(recorded):
     from sumo_scendiff.data.dataset import SceneDataset, collate_scenes
     ds = SceneDataset(recorded, rotate=True, seed=0)
     items = [ds[i] for i in range(4)]
-    assert items[0]["map"].shape == (11, 128, 128) and items[0]["agents"].shape == (15, 128, 128)
+    assert items[0]["map"].shape == (len(MAP_CHANNELS), 128, 128) and items[0]["agents"].shape == (15, 128, 128)
     again = ds[0]
     assert np.array_equal(again["boxes"], items[0]["boxes"])  # same seed/epoch/index -> same sample
     ds.set_epoch(1)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -97,10 +98,15 @@ def test_sigterm_saves_and_resume_continues(tmp_path, cross_net):
     args = [sys.executable, "-m", "sumo_scendiff.train", "autoencoder", "--data", data, "-o",
             str(tmp_path / "ae"), "--steps", "100000", "--batch-size", "1", "--ckpt-every", "100000",
             "--model-config", json.dumps(TINY_AE)]
-    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(6)
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    # signal once the progress bar shows a finished step (the handler is in place by then), however
+    # slowly a loaded machine starts the process
+    err, deadline = b"", time.time() + 300
+    while not re.search(rb"\| [1-9]\d*/100000", err) and proc.poll() is None and time.time() < deadline:
+        err += os.read(proc.stderr.fileno(), 4096)
     proc.send_signal(signal.SIGTERM)
     out, _ = proc.communicate(timeout=60)
+    out = out.decode()
     assert proc.returncode == 0 and "stopped by signal" in out
     from sumo_scendiff.model import checkpoint as ckpt
     step = ckpt.load(str(tmp_path / "ae" / "last.pt"), "autoencoder-train")["step"]
@@ -111,8 +117,9 @@ def test_sigterm_saves_and_resume_continues(tmp_path, cross_net):
 
 
 def test_init_from_warm_starts_a_wider_unet(tmp_path, cross_net):
-    """--init-from: a diffusion run without the token splat continues as one with it, computing the
-    same function at its first step (new input channels start at zero) with the same latent scale."""
+    """--init-from: a diffusion run without the token splat that read 11 map channels continues as
+    one with the splat and every map channel, computing the same function at its first step (new
+    input channels of the UNet and of E_m start at zero) with the same latent scale."""
     import torch
 
     from sumo_scendiff.model import checkpoint as ckpt
@@ -121,7 +128,7 @@ def test_init_from_warm_starts_a_wider_unet(tmp_path, cross_net):
     one_scene_dataset(data, cross_net)
     common = ["--data", data, "--batch-size", 1, "--no-rotate"]
     train("autoencoder", *common, "-o", tmp_path / "ae", "--steps", 2, "--model-config", json.dumps(TINY_AE))
-    narrow = {**TINY_DIFF, "unet": {**TINY_DIFF["unet"], "splat_ch": 0}}
+    narrow = {**TINY_DIFF, "C_m": 11, "unet": {**TINY_DIFF["unet"], "splat_ch": 0}}
     ae = ["--autoencoder", tmp_path / "ae" / "last.pt"]
     train("diffusion", *common, *ae, "-o", tmp_path / "d0", "--steps", 3, "--model-config", json.dumps(narrow))
     one_scene_dataset(str(tmp_path / "busy"), cross_net, xs=(-40.0, -25.0, -12.0))  # another latent std
@@ -141,8 +148,11 @@ def test_init_from_warm_starts_a_wider_unet(tmp_path, cross_net):
     w0, w1 = (n.denoiser.net.conv_in.weight for n in nets)
     assert torch.equal(w1[:, : w0.shape[1]], w0) and w1.shape[1] == w0.shape[1] + 16
     assert not w1[:, w0.shape[1]:].any()
+    assert (nets[0].cfg.C_m, nets[1].cfg.C_m) == (11, 19)
+    e0, e1 = (n.E_m.conv_in.weight for n in nets)
+    assert torch.equal(e1[:, :11], e0) and not e1[:, 11:].any()
     g = torch.Generator().manual_seed(0)
-    z, m = torch.randn(2, 4, 16, 16, generator=g), torch.randn(2, 11, 128, 128, generator=g)
+    z, m = torch.randn(2, 4, 16, 16, generator=g), torch.randn(2, nets[1].cfg.C_m, 128, 128, generator=g)
     tok = torch.rand(2, 3, 170, generator=g)
     pad, glob = torch.zeros(2, 3, dtype=torch.bool), torch.zeros(2, 10)
     with torch.no_grad():
@@ -193,16 +203,18 @@ def test_fixed_lr_drop_and_weight_average_reach_the_export(tmp_path, cross_net):
     assert np.array_equal(e.boxes, c.boxes)         # guiding no step at all is no guidance
 
 
-def autoencoder_and_diffusion(tmp_path, cross_net) -> tuple[list, object]:
+def autoencoder_and_diffusion(tmp_path, cross_net, **model) -> tuple[list, object]:
     """A one-scene dataset, a 2-step autoencoder (tmp_path/ae) and a 1-step diffusion model on it
-    (tmp_path/d): the training flags shared by both, and the autoencoder's last.pt."""
+    (tmp_path/d), both with ``model`` config fields on top: the training flags shared by both, and
+    the autoencoder's last.pt."""
     data = str(tmp_path / "data")
     one_scene_dataset(data, cross_net)
     common = ["--data", data, "--batch-size", 1, "--no-rotate"]
-    train("autoencoder", *common, "-o", tmp_path / "ae", "--steps", 2, "--model-config", json.dumps(TINY_AE))
+    train("autoencoder", *common, "-o", tmp_path / "ae", "--steps", 2,
+          "--model-config", json.dumps({**TINY_AE, **model}))
     src = tmp_path / "ae" / "last.pt"
     train("diffusion", *common, "--autoencoder", src, "-o", tmp_path / "d", "--steps", 1,
-          "--model-config", json.dumps(TINY_DIFF))
+          "--model-config", json.dumps({**TINY_DIFF, **model}))
     return common, src
 
 
@@ -242,34 +254,39 @@ def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, cross_net):
     assert "Traceback" not in bad.stderr and not (tmp_path / "x" / "last.pt").exists()
 
 
-def test_decoder_fine_tune_adds_map_skips(tmp_path, cross_net):
-    """--freeze-encoder with '{"map_skips": true}': the new skip projections start at zero, so at
-    learning rate 0 the decoder still computes its source's function; the diffusion model trained on
-    the source exports and samples with it."""
+def test_decoder_fine_tune_adds_map_skips_and_map_channels(tmp_path, cross_net):
+    """--freeze-encoder with '{"map_skips": true, "C_m": 19}' from a model that read the first 11
+    map channels (before the lane-direction histogram): the new skip projections and map-channel
+    weights start at zero, so at learning rate 0 the decoder still computes its source's function;
+    the 11-channel diffusion model trained on the source exports and samples with it."""
     import torch
 
     from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
     from sumo_scendiff.model import checkpoint as ckpt
     from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
-    common, src = autoencoder_and_diffusion(tmp_path, cross_net)
+    from sumo_scendiff.raster import MAP_CHANNELS
+    common, src = autoencoder_and_diffusion(tmp_path, cross_net, C_m=11)
     train("autoencoder", *common, "-o", tmp_path / "dec", "--steps", 2, "--init-from", src, "--freeze-encoder",
-          "--lr", 0.0, "--model-config", json.dumps({"map_skips": True}))
+          "--lr", 0.0, "--model-config", json.dumps({"map_skips": True, "C_m": len(MAP_CHANNELS)}))
     a, b = (ckpt.load(str(p), "autoencoder-train") for p in (src, tmp_path / "dec" / "last.pt"))
     assert b["model_config"]["map_skips"] and not a["model_config"].get("map_skips")
-    assert all(torch.equal(a["state"][k], b["state"][k]) for k in a["state"])
+    assert (a["model_config"]["C_m"], b["model_config"]["C_m"]) == (11, len(MAP_CHANNELS)) == (11, 19)
+    w_a, w_b = a["state"]["D_down.conv_in.weight"], b["state"]["D_down.conv_in.weight"]
+    assert torch.equal(w_b[:, :11], w_a) and not w_b[:, 11:].any()
+    assert all(torch.equal(a["state"][k], b["state"][k]) for k in a["state"] if k != "D_down.conv_in.weight")
     assert any(k.startswith("D_up.skips.") for k in b["state"])
     ae_a, ae_b = (ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, c["model_config"])).eval()
                   for c in (a, b))
     ae_a.load_state_dict(a["state"])
     ae_b.load_state_dict(b["state"])
-    x, m = torch.rand(1, 15, 128, 128), torch.rand(1, ae_a.cfg.C_m, 128, 128)
+    x, m = torch.rand(1, 15, 128, 128), torch.rand(1, len(MAP_CHANNELS), 128, 128)
     with torch.no_grad():
-        assert torch.equal(ae_a(x, m)[0], ae_b(x, m)[0])
+        torch.testing.assert_close(ae_a(x, m)[0], ae_b(x, m)[0], atol=1e-5, rtol=1e-5)
     out = tmp_path / "model.pt"
     train("export", "--autoencoder", tmp_path / "dec" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
           "-o", out)
     gen = ScenarioGenerator.load(str(out), GenerationConfig(steps=2))
-    assert gen.ae.cfg.map_skips
+    assert gen.ae.cfg.map_skips and (gen.ae.cfg.C_m, gen.diffusion.cfg.C_m) == (19, 11)
     assert len(gen.generate(Network.load(cross_net), [Window(0.0, 0.0, 0.0)], seed=0)) == 1
 
 

@@ -199,7 +199,7 @@ def test_guidance_follows_the_tokens_and_skips_a_map_only_batch():
             if "conv_out" in name or ".attn.proj" in name:
                 p.normal_(0, 0.2)
     g = torch.Generator().manual_seed(0)
-    m = torch.rand(2, 11, 128, 128, generator=g)
+    m = torch.rand(2, model.cfg.C_m, 128, 128, generator=g)
     noise = torch.randn(2, CFG.c_z, 16, 16, generator=g)
     tok, pad = pad_tokens([torch.rand(2, AGENT_TOKEN_DIM, generator=g), torch.zeros(0, AGENT_TOKEN_DIM)])
     glob = torch.as_tensor(global_token([0.0, 0.3]))

@@ -32,7 +32,7 @@ class AutoencoderConfig:
     """Hyper-parameters of :class:`ScenarioAutoencoder` (names follow the paper's symbols)."""
 
     C_x: int = 15  # agent raster channels (appendix A)
-    C_m: int = 11  # map raster channels
+    C_m: int = len(MAP_CHANNELS)  # map raster channels: D_down reads the first C_m (11: no lane_dir*)
     C_z: int = 4  # latent channels
     C_map: int = 16  # channels of D_down(m)
     enc_channels: tuple[int, ...] = (16, 32, 64, 64)  # E and D_down, at 128, 64, 32, 16 px
@@ -157,6 +157,7 @@ class ScenarioAutoencoder(nn.Module):
 
     def decode(self, z: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
         """y = D(z, m) = D_up(z, D_down(m)), (B, 19, 64, 64)."""
+        m = m[:, : self.cfg.C_m]
         if not self.cfg.use_map:
             m = torch.zeros_like(m)
         if self.cfg.map_skips:

@@ -8,6 +8,7 @@ diffusion model. API is stable:
   after the first convolution.
 * ``Downsample(ch)``: stride-2 3x3 convolution (H -> H/2).
 * ``Upsample(ch)``: nearest-neighbour x2 followed by a 3x3 convolution.
+* ``widen_input(state, key, weight)``: a conv weight of a state dict grown to more input channels.
 """
 from __future__ import annotations
 
@@ -74,3 +75,15 @@ class Upsample(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.conv(F.interpolate(x, scale_factor=2.0, mode="nearest"))
+
+
+def widen_input(state: dict, key: str, weight: torch.Tensor) -> dict:
+    """``state`` with the conv weight ``state[key]`` (out, in_old, k, k) fitted to ``weight``'s shape
+    (out, in_new >= in_old, k, k): the new trailing input channels get zero weights, so a module
+    warm-started from the old state computes what it did until training teaches it the new input."""
+    old = state.get(key)
+    if old is None or old.shape[1] >= weight.shape[1]:
+        return state
+    w = torch.zeros_like(weight)
+    w[:, : old.shape[1]] = old
+    return {**state, key: w}

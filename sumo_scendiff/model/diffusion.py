@@ -16,8 +16,9 @@ from typing import Callable, Optional
 import torch
 from torch import Tensor, nn
 
-from .autoencoder import ConvEncoder
+from ..raster import MAP_CHANNELS
 from ..tokens import global_token as encode_global_token
+from .autoencoder import ConvEncoder
 from .edm import (P_MEAN, P_STD, EDMLoss, EDMPrecond, guided, initial_noise, inpainted, karras_sigmas,
                   sample_dpmpp_2m)
 from .unet import UNet, UNetConfig
@@ -27,7 +28,7 @@ from .unet import UNet, UNetConfig
 class DiffusionConfig:
     """E_m and the UNet. ``map_channels``: widths of E_m at 128, 64, 32, 16 px (appendix D.1)."""
 
-    C_m: int = 11
+    C_m: int = len(MAP_CHANNELS)  # E_m reads the first C_m map channels (11: no lane_dir*)
     map_channels: tuple[int, ...] = (16, 32, 64, 64)
     unet: UNetConfig = field(default_factory=UNetConfig)
     use_map: bool = True        # False: the paper's no-map ablation (m replaced by zeros)
@@ -47,6 +48,7 @@ class ScenarioDiffusion(nn.Module):
         self.edm_loss = EDMLoss(p_mean=cfg.P_mean, p_std=cfg.P_std)
 
     def encode_map(self, m: Tensor) -> Tensor:
+        m = m[:, : self.cfg.C_m]
         if not self.cfg.use_map:
             m = torch.zeros_like(m)
         return self.E_m(m)

@@ -42,7 +42,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ..tokens import AGENT_TOKEN_DIM, GLOBAL_TOKEN_DIM, token_cells
-from .blocks import Downsample, ResnetBlock, Upsample, group_norm
+from .blocks import Downsample, ResnetBlock, Upsample, group_norm, widen_input
 
 
 @dataclass
@@ -265,14 +265,8 @@ def widen_conv_in(state: dict, net: "UNet", prefix: str = "") -> dict:
     ``net``: the missing trailing input channels of ``conv_in`` get zero weights and the missing
     splat MLP keeps ``net``'s fresh initialisation, so the warm-started net computes what the old
     one did until training teaches it to use the new input."""
-    state = dict(state)
     own = net.state_dict()
-    key = prefix + "conv_in.weight"
-    w_old, w_new = state[key], own["conv_in.weight"]
-    if w_old.shape[1] < w_new.shape[1]:
-        w = torch.zeros_like(w_new)
-        w[:, : w_old.shape[1]] = w_old
-        state[key] = w
+    state = widen_input(state, prefix + "conv_in.weight", own["conv_in.weight"])
     for k, v in own.items():
         if k.startswith("splat.") and prefix + k not in state:
             state[prefix + k] = v
