@@ -44,10 +44,11 @@ def _distance(v0: float, a: float, t: np.ndarray) -> np.ndarray:
     """Signed distance from t = 0 at the integer time stamps ``t``, in SUMO's 1-s Euler update (a
     step moves a vehicle by its new speed, ``p(t) - p(t-1) = v(t)``), at speed ``v(t) = v0 + a t``
     clipped at 0 (standing, never backwards)."""
-    t = np.asarray(t, np.float64)
-    speed = lambda k: max(v0 + a * k, 0.0)  # noqa: E731
-    return np.array([sum(speed(k) for k in range(1, int(round(ti)) + 1)) if ti > 0 else
-                     -sum(speed(k) for k in range(int(round(ti)) + 1, 1)) for ti in t])
+    def speed(k: int) -> float:
+        return max(v0 + a * k, 0.0)
+    # ahead: + v(1) + ... + v(t); behind: - v(t + 1) - ... - v(0)
+    return np.array([sum(map(speed, range(1, ti + 1))) - sum(map(speed, range(ti + 1, 1)))
+                     for ti in np.rint(np.asarray(t, np.float64)).astype(np.int64).tolist()], np.float64)
 
 
 def token_trajectories(tokens: Sequence[Mapping]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -127,7 +127,7 @@ def render_map(net, window: Window, cfg: RasterConfig = RasterConfig()) -> np.nd
     if car:
         rel = np.concatenate([ln.seg_yaw for ln in car]) - window.yaw
         colours = np.stack([np.ones_like(rel), np.cos(rel), np.sin(rel)], axis=1).tolist()
-        segments = [(a, b) for pts in pix[: len(car)] for a, b in zip(pts.tolist()[:-1], pts.tolist()[1:])]
+        segments = [(a, b) for pts in (p.tolist() for p in pix[: len(car)]) for a, b in zip(pts[:-1], pts[1:])]
         for (a, b), colour in zip(segments, colours):
             cv2.line(centre, a, b, colour, 2, cv2.LINE_8, _SHIFT)
         width = np.concatenate([np.full(len(ln.seg_yaw), ln.width) for ln in car])
