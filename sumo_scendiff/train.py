@@ -32,7 +32,7 @@ import torch  # noqa: E402
 
 from .model import checkpoint as ckpt  # noqa: E402
 from .model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
-from .model.blocks import widen_input
+from .model.blocks import widen_input, widen_output
 from .model.diffusion import DiffusionConfig, ScenarioDiffusion
 from .model.unet import widen_conv_in
 from .tokens import TokenMaskConfig
@@ -170,6 +170,8 @@ def train_autoencoder(o) -> None:
             state = {**model.state_dict(), **state}  # map skips the source lacks start at zero
         # map channels the source lacks (a larger C_m) start at zero
         state = widen_input(state, "D_down.conv_in.weight", model.D_down.conv_in.weight)
+        for key in ("D_up.conv_out.weight", "D_up.conv_out.bias"):  # a heading head the source lacks
+            state = widen_output(state, key, model.state_dict()[key])
         ckpt.load_state(model, state, o.init_from)
         extra.update(warm_start_record(init, o.init_from))
         if o.freeze_encoder:  # the encoder whose latents a diffusion model may have been trained on

@@ -191,3 +191,70 @@ def test_junction_weight_scales_the_positive_terms_of_boxes_on_a_junction():
     for k in ("cls_pos", "box", "vertex", "traj_pos", "traj_yaw"):
         assert torch.allclose(both[k], (4.0 * base[0][k] + base[1][k]) / 2, rtol=1e-5), k
     assert torch.allclose(both["cls_neg"], (base[0]["cls_neg"] + base[1]["cls_neg"]) / 2, rtol=1e-5)
+
+
+def test_heading_bins_round_trip_across_the_wrap_and_bin_edges():
+    """heading_targets -> an ideal head decodes every heading back, on bin edges and at +-pi too;
+    the residuals trained are those of the ground-truth bin and its two neighbours."""
+    from sumo_scendiff.model.heading import bin_width, decode_heading, heading_loss, heading_targets
+    k = 16
+    w = bin_width(k)
+    yaw = torch.tensor([0.0, 0.1, 0.5 * w - 1e-4, 0.5 * w + 1e-4, -3.1, math.pi, -math.pi + 1e-3, 1.0])
+    gt, res, mask = heading_targets(yaw, k)
+    assert gt.tolist()[:4] == [0, 0, 0, 1] and gt[4] == gt[5] == k // 2
+    assert mask.sum(1).tolist() == [3] * len(yaw) and bool(mask[torch.arange(len(yaw)), gt].all())
+    assert bool((res.abs()[mask] <= 1.5 * w + 1e-5).all())
+    pred = torch.zeros(len(yaw), 2 * k)
+    pred[torch.arange(len(yaw)), gt] = 10.0
+    pred[:, k:] = res
+    err = torch.remainder(decode_heading(pred) - yaw + math.pi, 2 * math.pi) - math.pi
+    assert err.abs().max() < 1e-5
+    ce, l1 = heading_loss(pred, yaw)
+    assert ce.max() < 1e-3 and l1.max() < 1e-6
+
+
+def test_heading_head_commits_to_one_of_two_lanes():
+    """Trained on a cell whose car is on either of two lanes 45 degrees apart (60 / 40), the head
+    decodes the more frequent lane's heading, not a heading between the two."""
+    from sumo_scendiff.model.heading import decode_heading, heading_loss
+    k, lanes = 16, torch.tensor([0.3, 0.3 + math.pi / 4])
+    yaw = lanes[torch.tensor([0] * 6 + [1] * 4)]
+    pred = torch.zeros(1, 2 * k, requires_grad=True)
+    opt = torch.optim.Adam([pred], lr=0.05)
+    for _ in range(400):
+        opt.zero_grad()
+        ce, l1 = heading_loss(pred.expand(len(yaw), -1), yaw)
+        (ce + l1).mean().backward()
+        opt.step()
+    assert abs(float(decode_heading(pred.detach())[0]) - 0.3) < 0.02
+
+
+def test_decode_and_loss_with_a_heading_head():
+    """With 2K more channels the decoded box takes the head's heading (cos/sin are ignored), its
+    centre follows that heading, and the loss gains the two head terms, with gradients on the head."""
+    from sumo_scendiff.model.heading import heading_targets
+    k = 8
+    gt = torch.tensor([[3.1, -7.3, 2.9, 4.6, 1.9]])
+    cells = cell_centres(100.0, (64, 64))
+    c = int((cells - gt[0, :2]).norm(dim=-1).argmin())
+    y = torch.zeros(1, C_Y + 2 * k, 64 * 64)
+    y[0, 0] = -10.0
+    y[0, 0, c] = 10.0
+    y[0, 1:7, c] = box_targets(gt[0], cells[c], 0.1)
+    y[0, 1:3, c] = torch.tensor([1.0, 0.0])  # a wrong cos/sin heading: the head's wins
+    b, res, _ = heading_targets(gt[0, 2:3], k)
+    y[0, C_Y + int(b[0]), c] = 5.0
+    y[0, C_Y + k:, c] = res[0]
+    y = y.reshape(1, C_Y + 2 * k, 64, 64)
+    dec = decode_boxes(y)
+    assert torch.allclose(dec.boxes[0, c], gt[0], atol=1e-4)
+    y.requires_grad_(True)
+    traj = gt[:, None, :3].expand(1, 5, 3)[None].clone()
+    out = detection_loss(y, gt[None], traj, torch.ones(1, 1, 5, dtype=torch.bool),
+                         torch.ones(1, 1, dtype=torch.bool), CFG)
+    assert {"heading_bin", "heading_res"} <= set(out) and float(out["heading_res"]) < 1e-5
+    out["rec"].backward()
+    assert y.grad[0, C_Y:C_Y + k].abs().sum() > 0
+    plain = detection_loss(y[:, :C_Y], gt[None], traj, torch.ones(1, 1, 5, dtype=torch.bool),
+                           torch.ones(1, 1, dtype=torch.bool), CFG)
+    assert "heading_bin" not in plain

@@ -254,11 +254,12 @@ def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, cross_net):
     assert "Traceback" not in bad.stderr and not (tmp_path / "x" / "last.pt").exists()
 
 
-def test_decoder_fine_tune_adds_map_skips_and_map_channels(tmp_path, cross_net):
-    """--freeze-encoder with '{"map_skips": true, "C_m": 19}' from a model that read the first 11
-    map channels (before the lane-direction histogram): the new skip projections and map-channel
-    weights start at zero, so at learning rate 0 the decoder still computes its source's function;
-    the 11-channel diffusion model trained on the source exports and samples with it."""
+def test_decoder_fine_tune_adds_map_skips_map_channels_and_a_heading_head(tmp_path, cross_net):
+    """--freeze-encoder with '{"map_skips": true, "C_m": 19, "heading_bins": 8}' from a model that
+    read the first 11 map channels (before the lane-direction histogram) and had no heading head:
+    the new skip projections, map-channel weights and head channels start at zero, so at learning
+    rate 0 the decoder still computes its source's 19 outputs; the 11-channel diffusion model trained
+    on the source exports and samples with it."""
     import torch
 
     from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
@@ -267,13 +268,17 @@ def test_decoder_fine_tune_adds_map_skips_and_map_channels(tmp_path, cross_net):
     from sumo_scendiff.raster import MAP_CHANNELS
     common, src = autoencoder_and_diffusion(tmp_path, cross_net, C_m=11)
     train("autoencoder", *common, "-o", tmp_path / "dec", "--steps", 2, "--init-from", src, "--freeze-encoder",
-          "--lr", 0.0, "--model-config", json.dumps({"map_skips": True, "C_m": len(MAP_CHANNELS)}))
+          "--lr", 0.0, "--model-config", json.dumps({"map_skips": True, "C_m": len(MAP_CHANNELS), "heading_bins": 8}))
     a, b = (ckpt.load(str(p), "autoencoder-train") for p in (src, tmp_path / "dec" / "last.pt"))
     assert b["model_config"]["map_skips"] and not a["model_config"].get("map_skips")
     assert (a["model_config"]["C_m"], b["model_config"]["C_m"]) == (11, len(MAP_CHANNELS)) == (11, 19)
     w_a, w_b = a["state"]["D_down.conv_in.weight"], b["state"]["D_down.conv_in.weight"]
     assert torch.equal(w_b[:, :11], w_a) and not w_b[:, 11:].any()
-    assert all(torch.equal(a["state"][k], b["state"][k]) for k in a["state"] if k != "D_down.conv_in.weight")
+    head = ("D_up.conv_out.weight", "D_up.conv_out.bias")
+    assert all(torch.equal(b["state"][k][:19], a["state"][k]) and not b["state"][k][19:].any() for k in head)
+    assert b["state"][head[0]].shape[0] == 19 + 2 * 8
+    assert all(torch.equal(a["state"][k], b["state"][k]) for k in a["state"]
+               if k not in ("D_down.conv_in.weight", *head))
     assert any(k.startswith("D_up.skips.") for k in b["state"])
     ae_a, ae_b = (ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, c["model_config"])).eval()
                   for c in (a, b))
@@ -281,12 +286,12 @@ def test_decoder_fine_tune_adds_map_skips_and_map_channels(tmp_path, cross_net):
     ae_b.load_state_dict(b["state"])
     x, m = torch.rand(1, 15, 128, 128), torch.rand(1, len(MAP_CHANNELS), 128, 128)
     with torch.no_grad():
-        torch.testing.assert_close(ae_a(x, m)[0], ae_b(x, m)[0], atol=1e-5, rtol=1e-5)
+        torch.testing.assert_close(ae_a(x, m)[0], ae_b(x, m)[0][:, :19], atol=1e-5, rtol=1e-5)
     out = tmp_path / "model.pt"
     train("export", "--autoencoder", tmp_path / "dec" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
           "-o", out)
     gen = ScenarioGenerator.load(str(out), GenerationConfig(steps=2))
-    assert gen.ae.cfg.map_skips and (gen.ae.cfg.C_m, gen.diffusion.cfg.C_m) == (19, 11)
+    assert gen.ae.cfg.map_skips and gen.ae.cfg.heading_bins == 8 and (gen.ae.cfg.C_m, gen.diffusion.cfg.C_m) == (19, 11)
     assert len(gen.generate(Network.load(cross_net), [Window(0.0, 0.0, 0.0)], seed=0)) == 1
 
 

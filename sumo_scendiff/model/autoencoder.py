@@ -5,7 +5,7 @@ resolution, narrowed for CPU training and without the mid-block self-attention:
 
 * E:      x (B, 15, 128, 128) -> (mu, logvar), each (B, C_z, 16, 16)     (f = 3)
 * D_down: m (B, C_m, 128, 128) -> (B, C_map, 16, 16), same architecture as E, own weights
-* D_up:   concat(z, D_down(m)) at 16 -> upsample 16 -> 32 -> 64 -> y (B, 19, 64, 64); the output
+* D_up:   concat(z, D_down(m)) at 16 -> upsample 16 -> 32 -> 64 -> y (B, 19 [+ 2K], 64, 64); the output
   resolution is truncated at 64 px as in appendix C.1. See ``detection.py`` for the layout of y.
   With ``map_skips`` (beyond the paper) D_down's 32 and 64 px features are added (1x1 projections)
   into D_up at those resolutions, U-Net fashion, so the decoder sees the lanes finer than the 16 px
@@ -25,6 +25,7 @@ from torch import nn
 from ..raster import MAP_CHANNELS
 from .blocks import Downsample, ResnetBlock, Upsample, group_norm
 from .detection import C_Y, DetectionLossConfig, detection_loss
+from .heading import bin_width
 
 
 @dataclass
@@ -49,6 +50,9 @@ class AutoencoderConfig:
     # that boxes can follow the lanes at the output resolution, not only through the 16 px bottleneck
     map_skips: bool = False
     use_map: bool = True  # False: the paper's no-map ablation (D sees m replaced by zeros)
+    # beyond the paper: K > 0 adds a MultiBin heading head of K bins (2K output channels, heading.py)
+    # that commits to one heading where the cos/sin regression would average between lanes
+    heading_bins: int = 0
     loss: DetectionLossConfig = field(default_factory=DetectionLossConfig)
 
 
@@ -116,9 +120,12 @@ class DetectionDecoder(nn.Module):
             nn.init.zeros_(conv.bias)
         self.body = nn.Sequential(*layers)
         self.norm_out = group_norm(prev)
-        self.conv_out = nn.Conv2d(prev, C_Y, 3, padding=1)
-        scale = torch.ones(C_Y)
-        scale[7:] = torch.tensor(cfg.delta_scale).repeat(4)
+        k = cfg.heading_bins
+        self.conv_out = nn.Conv2d(prev, C_Y + 2 * k, 3, padding=1)
+        scale = torch.ones(C_Y + 2 * k)
+        scale[7:C_Y] = torch.tensor(cfg.delta_scale).repeat(4)
+        if k:
+            scale[C_Y + k:] = bin_width(k)  # residuals in units of the bin width
         self.register_buffer("out_scale", scale[:, None, None], persistent=False)
         with torch.no_grad():
             self.conv_out.bias.zero_()
@@ -156,7 +163,7 @@ class ScenarioAutoencoder(nn.Module):
         return mu + self.cfg.latent_noise * torch.exp(0.5 * logvar) * torch.randn_like(mu)
 
     def decode(self, z: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
-        """y = D(z, m) = D_up(z, D_down(m)), (B, 19, 64, 64)."""
+        """y = D(z, m) = D_up(z, D_down(m)), (B, 19 [+ 2 heading_bins], 64, 64)."""
         m = m[:, : self.cfg.C_m]
         if not self.cfg.use_map:
             m = torch.zeros_like(m)

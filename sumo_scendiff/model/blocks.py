@@ -87,3 +87,15 @@ def widen_input(state: dict, key: str, weight: torch.Tensor) -> dict:
     w = torch.zeros_like(weight)
     w[:, : old.shape[1]] = old
     return {**state, key: w}
+
+
+def widen_output(state: dict, key: str, param: torch.Tensor) -> dict:
+    """``state`` with the conv weight or bias ``state[key]`` (out_old, ...) fitted to ``param``'s shape
+    (out_new >= out_old, ...): the new trailing output channels start at zero, the old ones keep
+    their values (a head warm-started with more outputs computes the old outputs unchanged)."""
+    old = state.get(key)
+    if old is None or old.shape[0] >= param.shape[0]:
+        return state
+    w = torch.zeros_like(param)
+    w[: old.shape[0]] = old
+    return {**state, key: w}

@@ -11,6 +11,9 @@ Output layout of ``y`` (B, C_y = 19, H'', W''), one box proposal per cell:
   Future deltas are pose(t) - pose(t-1), past deltas pose(t) - pose(t+1); they are accumulated
   outward from the t = 0 box pose. (dx, dy) are expressed in the frame of the *t = 0 box*
   (x forward, y left), so the output is rotation-equivariant; dyaw is in radians.
+* 19..   optionally (beyond the paper) 2K channels of a MultiBin heading head (``heading.py``):
+  the decoded heading is then the head's, and cos/sin (1, 2) remain an auxiliary regression that
+  the matching and the box and vertex losses use.
 
 Conventions: cells are the pixels of ``geometry.pixel_centres(size, (H'', W''))`` flattened
 row-major (index = row * W'' + col); boxes are (x, y, yaw, length, width) in scene metres.
@@ -26,6 +29,7 @@ import torch.nn.functional as F
 from scipy.optimize import linear_sum_assignment
 
 from ..geometry import T0, metres_to_pixels, pixel_centres
+from .heading import decode_heading, heading_loss
 
 C_Y = 1 + 6 + 6 * 2  # channels of y for T = 2 (paper: 1 + 6 + 6T)
 STEPS = (0, 1, 3, 4)  # indices into TIMES of the trajectory delta blocks (t = -2, -1, +1, +2)
@@ -48,6 +52,8 @@ class DetectionLossConfig:
     turn_threshold: float = 0.3  # rad: range of observed yaw(t) - yaw(0) above -> turning
     neg_near_weight: float = 0.2  # unmatched cells within neg_near_distance of a GT box
     neg_far_weight: float = 0.05  # all other unmatched cells (paper: 0.002; see README "The model")
+    heading_bin_weight: float = 1.0  # cross-entropy of the MultiBin heading head (if the decoder has one)
+    heading_res_weight: float = 1.0  # L1 (radians) on its residuals
     neg_near_distance: float = 3.0  # m, cell centre to the GT box outline (0 inside)
     match_radius: float = 4.0  # m, candidate cells for a GT box lie within this of its centre
     min_edge_distance: float = 0.1  # m, GT edge distances are at least this (see box_targets)
@@ -122,12 +128,17 @@ class DecodedBoxes:
 
 
 def decode_boxes(y: torch.Tensor, size: float = 100.0) -> DecodedBoxes:
-    """Decode every cell of ``y`` (B, 19, H, W) into a box with a trajectory (section 3.1)."""
+    """Decode every cell of ``y`` (B, 19 [+ 2K], H, W) into a box with a trajectory (section 3.1).
+    With a heading head (channels 19..), the box heading is the head's argmax bin plus residual."""
     b, _, h, w = y.shape
-    yf = y.flatten(2).transpose(1, 2)  # (B, K, 19)
+    yf = y.flatten(2).transpose(1, 2)  # (B, K, 19 [+ 2K])
     cells = cell_centres(size, (h, w), y.device)
-    boxes = params_to_boxes(yf[..., 1:7], cells)
-    rel = accumulate_deltas(yf[..., 7:])  # (B, K, 5, 3) in the box frame
+    params = yf[..., 1:7]
+    if y.shape[1] > C_Y:
+        yaw = decode_heading(yf[..., C_Y:])
+        params = torch.cat([torch.cos(yaw)[..., None], torch.sin(yaw)[..., None], params[..., 2:]], -1)
+    boxes = params_to_boxes(params, cells)
+    rel = accumulate_deltas(yf[..., 7:C_Y])  # (B, K, 5, 3) in the box frame
     c, s = torch.cos(boxes[..., 2:3]), torch.sin(boxes[..., 2:3])
     xy = boxes[..., None, 0:2] + rotate(rel[..., 0:2], c, s)
     yaw = wrap_angle(boxes[..., None, 2] + rel[..., 2])
@@ -302,7 +313,7 @@ def junction_weights(boxes: torch.Tensor, scene: torch.Tensor, junction: torch.T
 def detection_loss(y: torch.Tensor, boxes: torch.Tensor, traj: torch.Tensor, traj_mask: torch.Tensor,
                    valid: torch.Tensor, cfg: DetectionLossConfig,
                    junction: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-    """Reconstruction loss L_rec (appendix C.2) of ``y`` (B, 19, H, W) against padded GT.
+    """Reconstruction loss L_rec (appendix C.2) of ``y`` (B, 19 [+ 2K], H, W) against padded GT.
 
     Normalisation: every term is *summed* over the matched GT boxes (resp. over all unmatched
     cells for ``cls_neg``) of a scene and averaged over the B scenes, i.e. a per-scene sum, the
@@ -311,7 +322,8 @@ def detection_loss(y: torch.Tensor, boxes: torch.Tensor, traj: torch.Tensor, tra
     over the observed steps t != 0 (positions: Euclidean distance in metres; headings: 1 - cos),
     multiplied by the GT trajectory's category weight. With ``junction`` (B, H, W), the map raster's
     junction channel, every positive term of a box centred on a junction is multiplied by
-    ``cfg.junction_weight``. Works with N = 0.
+    ``cfg.junction_weight``. A MultiBin heading head adds ``heading_bin`` (cross-entropy) and
+    ``heading_res`` (residual L1) per matched box. Works with N = 0.
     """
     bsz, _, h, w = y.shape
     cells = cell_centres(cfg.size, (h, w), y.device)
@@ -324,7 +336,7 @@ def detection_loss(y: torch.Tensor, boxes: torch.Tensor, traj: torch.Tensor, tra
     rel_gt = trajectory_targets(gt, traj[b, n])  # (M, 5, 3)
     m = traj_mask[b, n].clone()
     m[:, T0] = False
-    rel = accumulate_deltas(pred[:, 7:])
+    rel = accumulate_deltas(pred[:, 7:C_Y])
     mf = m.to(y.dtype)
     steps = mf.sum(-1).clamp_min(1.0)
     pos = ((rel[..., 0:2] - rel_gt[..., 0:2]).norm(dim=-1) * mf).sum(-1) / steps
@@ -343,6 +355,10 @@ def detection_loss(y: torch.Tensor, boxes: torch.Tensor, traj: torch.Tensor, tra
         traj_pos=cfg.traj_pos_weight * (jw * cat_w * pos).sum() / bsz,
         traj_yaw=cfg.traj_yaw_weight * (jw * cat_w * yaw).sum() / bsz,
     )
+    if y.shape[1] > C_Y:  # MultiBin heading head
+        ce, res = heading_loss(pred[:, C_Y:], gt[:, 2])
+        out["heading_bin"] = cfg.heading_bin_weight * (jw * ce).sum() / bsz
+        out["heading_res"] = cfg.heading_res_weight * (jw * res).sum() / bsz
     out["rec"] = sum(out.values())
     out["matched"] = torch.tensor(float(len(b)), device=y.device)  # diagnostic, not a loss
     return out
