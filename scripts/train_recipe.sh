@@ -2,7 +2,7 @@
 # The recipe that produces the shipped checkpoint sumo_scendiff/weights/scendiff.pt from a fresh clone,
 # using only the project's own generated networks (networks/splits.json "train").
 # Every step is resumable: run the script again after an interruption and it continues.
-# About 10 h 55 min of training on an idle 2-core CPU plus ~40 minutes of recording (README "Training").
+# About 11 h 55 min of training on an idle 2-core CPU plus ~40 minutes of recording (README "Training").
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # networks/splits.json "train": its first 12 networks feed steps 1-10; the 3 added later (curved
@@ -133,3 +133,18 @@ python -m sumo_scendiff.train autoencoder --init-from $R11 --freeze-encoder --da
     --val data/val_dense data/val_organic -o runs/ae_r12a --steps 1000 --lr 1.5e-4 --lr-drop-at 800 \
     --model-config '{"C_m": 19}'
 export_calibrated runs/ae_r12a/last.pt $R11
+
+# 13. The decoder with a MultiBin heading head (heading_bins 16: a logit and a residual angle per
+#     22.5-degree bin, 32 output channels that start at zero; model/heading.py), encoder frozen:
+#     1 000 steps from step 12's export (lr 1.5e-4, then 1.5e-5 from 800; ~22 min), then 1 500 more
+#     with the bin cross-entropy weighted 2 (lr 1.5e-4, then 1.5e-5 from 1 200; ~35 min). Export with
+#     the same diffusion model, recalibrate the global token's guidance, export again (~5 min).
+R12=runs/scendiff_r12.pt   # step 12's export: the diffusion model and encoder of round 13
+[ -f $R12 ] || cp $SHIPPED $R12
+python -m sumo_scendiff.train autoencoder --init-from $R12 --freeze-encoder --data data/train_dense data/train_organic \
+    --val data/val_dense data/val_organic -o runs/ae_r13_head --steps 1000 --lr 1.5e-4 --lr-drop-at 800 \
+    --model-config '{"heading_bins": 16}'
+python -m sumo_scendiff.train autoencoder --init-from runs/ae_r13_head/last.pt --freeze-encoder \
+    --data data/train_dense data/train_organic --val data/val_dense data/val_organic -o runs/ae_r13_head2 \
+    --steps 1500 --lr 1.5e-4 --lr-drop-at 1200 --model-config '{"loss": {"heading_bin_weight": 2.0}}'
+export_calibrated runs/ae_r13_head2/last.pt $R12
