@@ -117,10 +117,12 @@ export_calibrated runs/ae_v2_skips/last.pt runs/diffusion_v2/last.pt
     -s 4 --workers 2 --density 40 800 $(resume_flag data/train_organic)
 [ -f data/val_organic/manifest.json ] || python -m sumo_scendiff.data $ADDED_NETS -o data/val_organic --scenes 300 -s 5 \
     --density 40 800 $(resume_flag data/val_organic)
+# the decoder-only runs of steps 11-13 train on the dense recording plus the added networks' one
+DECODER_DATA="--data data/train_dense data/train_organic --val data/val_dense data/val_organic"
 R9=runs/scendiff_r9.pt   # step 10's export, kept: the diffusion model and encoder of round 11
 [ -f $R9 ] || cp $SHIPPED $R9
-python -m sumo_scendiff.train autoencoder --init-from $R9 --freeze-encoder --data data/train_dense data/train_organic \
-    --val data/val_dense data/val_organic -o runs/ae_r11a --steps 800 --lr 1e-4 --lr-drop-at 650
+python -m sumo_scendiff.train autoencoder --init-from $R9 --freeze-encoder $DECODER_DATA -o runs/ae_r11a \
+    --steps 800 --lr 1e-4 --lr-drop-at 650
 export_calibrated runs/ae_r11a/last.pt $R9
 
 # 12. The decoder alone with the lane-direction histogram (map channels lane_dir000..lane_dir315,
@@ -129,9 +131,8 @@ export_calibrated runs/ae_r11a/last.pt $R9
 #     channels. Export, recalibrate the global token's guidance, export again (~5 min).
 R11=runs/scendiff_r11.pt   # step 11's export: the diffusion model and encoder of round 12
 [ -f $R11 ] || cp $SHIPPED $R11
-python -m sumo_scendiff.train autoencoder --init-from $R11 --freeze-encoder --data data/train_dense data/train_organic \
-    --val data/val_dense data/val_organic -o runs/ae_r12a --steps 1000 --lr 1.5e-4 --lr-drop-at 800 \
-    --model-config '{"C_m": 19}'
+python -m sumo_scendiff.train autoencoder --init-from $R11 --freeze-encoder $DECODER_DATA -o runs/ae_r12a \
+    --steps 1000 --lr 1.5e-4 --lr-drop-at 800 --model-config '{"C_m": 19}'
 export_calibrated runs/ae_r12a/last.pt $R11
 
 # 13. The decoder with a MultiBin heading head (heading_bins 16: a logit and a residual angle per
@@ -141,10 +142,8 @@ export_calibrated runs/ae_r12a/last.pt $R11
 #     the same diffusion model, recalibrate the global token's guidance, export again (~5 min).
 R12=runs/scendiff_r12.pt   # step 12's export: the diffusion model and encoder of round 13
 [ -f $R12 ] || cp $SHIPPED $R12
-python -m sumo_scendiff.train autoencoder --init-from $R12 --freeze-encoder --data data/train_dense data/train_organic \
-    --val data/val_dense data/val_organic -o runs/ae_r13_head --steps 1000 --lr 1.5e-4 --lr-drop-at 800 \
-    --model-config '{"heading_bins": 16}'
-python -m sumo_scendiff.train autoencoder --init-from runs/ae_r13_head/last.pt --freeze-encoder \
-    --data data/train_dense data/train_organic --val data/val_dense data/val_organic -o runs/ae_r13_head2 \
-    --steps 1500 --lr 1.5e-4 --lr-drop-at 1200 --model-config '{"loss": {"heading_bin_weight": 2.0}}'
+python -m sumo_scendiff.train autoencoder --init-from $R12 --freeze-encoder $DECODER_DATA -o runs/ae_r13_head \
+    --steps 1000 --lr 1.5e-4 --lr-drop-at 800 --model-config '{"heading_bins": 16}'
+python -m sumo_scendiff.train autoencoder --init-from runs/ae_r13_head/last.pt --freeze-encoder $DECODER_DATA \
+    -o runs/ae_r13_head2 --steps 1500 --lr 1.5e-4 --lr-drop-at 1200 --model-config '{"loss": {"heading_bin_weight": 2.0}}'
 export_calibrated runs/ae_r13_head2/last.pt $R12
