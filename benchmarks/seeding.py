@@ -226,7 +226,7 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
     finally:
         close(sim)
     res = {m: {"stats": [], "generated": 0, "dropped": 0, "refused": Counter(), "absent": 0,
-               "off_pose": 0, "placed": 0, "slowed": 0} for m in METHODS}
+               "off_pose": 0, "placed": 0, "slowed": 0, "fitted": 0} for m in METHODS}
     t = time.perf_counter()
     for k, w in enumerate(windows):
         for name, scene in zip(METHODS, (None, scenes[k], lu_scenes[k])):
@@ -257,6 +257,7 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
                 r["off_pose"] += sum(1 for e in rep.misplaced.values() if np.isfinite(e))
                 r["placed"] += rep.placed
                 r["slowed"] += len(rep.slowed)
+                r["fitted"] += len(rep.gap_fitted)
                 r["stats"].append(rollout(sim, seeding.agent_ids, o.rollout))
             finally:
                 close(sim)
@@ -291,12 +292,12 @@ def _ratio(a: float, b: float) -> str:
 
 def _merge(results: list[dict], method: str) -> dict:
     out = {"stats": [], "generated": 0, "dropped": 0, "refused": Counter(), "absent": 0, "off_pose": 0,
-           "placed": 0, "slowed": 0}
+           "placed": 0, "slowed": 0, "fitted": 0}
     for r in results:
         m = r["methods"][method]
         out["stats"] += m["stats"]
         out["refused"].update(m["refused"])
-        for k in ("generated", "dropped", "absent", "off_pose", "placed", "slowed"):
+        for k in ("generated", "dropped", "absent", "off_pose", "placed", "slowed", "fitted"):
             out[k] += m[k]
     return out
 
@@ -320,15 +321,15 @@ def tables(results: list[dict], o, command: str) -> str:
 
     lines += ["", "### Placement: generated agents within 0.5 m / 0.1 rad of their pose after the first step",
               "", "| network | method | generated | dropped (on existing) | refused | absent after step "
-              "| off pose | placed | placement (placed / generated) | slowed to a safe speed |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
+              "| off pose | placed | placement (placed / generated) | slowed to a safe speed "
+              "| minGap fitted to SUMO's leader |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for label, methods in groups:
         for k, name in enumerate(METHODS[1:]):
             m = methods[name]
             rate = 100.0 * m["placed"] / m["generated"] if m["generated"] else float("nan")
             lines.append(f"| {label if k == 0 else ''} | {name} | {m['generated']} | {m['dropped']} | "
                          f"{sum(m['refused'].values())} | {m['absent']} | {m['off_pose']} | {m['placed']} | "
-                         f"{_f(rate, '{:.1f} %')} | {m['slowed']} |")
+                         f"{_f(rate, '{:.1f} %')} | {m['slowed']} | {m['fitted']} |")
     for name in METHODS[1:]:
         refused = Counter()
         for r in results:
@@ -351,6 +352,15 @@ def tables(results: list[dict], o, command: str) -> str:
             ratios = ["" if name == "SUMO" else _ratio(d[key], ref[key]) for key, _ in RATES]
             ratios.append("" if name == "SUMO" else _ratio(d["mean_speed"], ref["mean_speed"]))
             lines.append(f"| {label if k == 0 else ''} | {name} | " + " | ".join(cells + ratios) + " |")
+    kinds = (("collisions_junction", "on a junction"), ("collisions_host", "with a host vehicle"),
+             ("collisions_host_behind", "a host vehicle ran into the agent"),
+             ("collisions_early", f"in the first {results[0]['methods']['SUMO']['stats'][0].brake_window:g} s"))
+    lines += ["", "Collision events (all nets; an event can be in several columns):", "",
+              "| method | collisions | " + " | ".join(c for _, c in kinds) + " |", "|---|" + "---|" * (1 + len(kinds))]
+    for name in METHODS:
+        stats = [s for r in results for s in r["methods"][name]["stats"]]
+        lines.append(f"| {name} | {sum(s.collisions for s in stats)} | "
+                     + " | ".join(str(sum(getattr(s, key) for s in stats)) for key, _ in kinds) + " |")
     return "\n".join(lines)
 
 

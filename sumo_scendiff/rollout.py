@@ -9,7 +9,9 @@ agent (``--collision.check-junctions`` on); a *teleport* is an agent starting a 
 collision or wrong lane); an *emergency brake* is an agent decelerating harder than its vehicle
 type's ``decel`` (SUMO's own "emergency braking" warning threshold) — counted as agents that did so
 at least once within ``brake_window`` seconds after hand-off, and as agent-steps over the whole
-rollout.
+rollout. Collisions are also broken down by where and with whom: on a junction (an internal lane),
+with a host vehicle (the other party is not an agent), a host vehicle running into an agent (SUMO's
+collider is the follower), and within ``brake_window`` seconds of hand-off.
 """
 from __future__ import annotations
 
@@ -24,6 +26,10 @@ class RolloutStats:
     seconds: float = 0.0
     agents: int = 0                  # seeded agents handed to SUMO
     collisions: int = 0
+    collisions_junction: int = 0     # on an internal (junction) lane
+    collisions_host: int = 0         # the other party is a host vehicle, not an agent
+    collisions_host_behind: int = 0  # a host vehicle ran into an agent
+    collisions_early: int = 0        # within brake_window seconds of hand-off
     teleports: int = 0
     emergency_brakes: int = 0        # agents braking beyond decel in the first brake_window seconds
     emergency_brake_steps: int = 0   # agent-steps braking beyond decel, whole rollout
@@ -59,6 +65,10 @@ def rollout(sim, agent_ids, seconds: float, brake_window: float = 10.0,
         for c in sim.simulation.getCollisions():
             if c.collider in ids or c.victim in ids:
                 stats.collisions += 1
+                stats.collisions_junction += str(c.lane).startswith(":")
+                stats.collisions_host += not (c.collider in ids and c.victim in ids)
+                stats.collisions_host_behind += c.collider not in ids
+                stats.collisions_early += (k + 1) * dt <= brake_window
         stats.teleports += len(ids.intersection(sim.simulation.getStartingTeleportIDList()))
         stats.arrived += len(ids.intersection(sim.simulation.getArrivedIDList()))
         for v in [v for v in sim.vehicle.getIDList() if v in ids]:   # SUMO's order: reproducible

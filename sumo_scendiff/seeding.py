@@ -5,7 +5,7 @@
     report = seeder.seed(scene)                # vehicle.add + vehicle.moveToXY(keepRoute=1) per agent
     sim.simulationStep()
     report = seeder.verify(report)             # who stands where it was generated (0.5 m, 0.1 rad)
-    report = seeder.settle(report)             # none faster than it can stop behind its SUMO leader
+    report = seeder.settle(report)             # minGaps that fit, none faster than it can stop
 
 For each agent:
 the lane it stands on (heading agreement; an internal junction lane gives the route its incoming
@@ -34,6 +34,7 @@ from .scene import VEHICLE_CLASSES, Scene
 POS_TOLERANCE, YAW_TOLERANCE = 0.5, 0.1   # m, rad: "present where it was generated"
 MAX_ROUTE_EDGES = 30
 DEFAULT_MIN_GAP = 2.5
+MIN_GAP_MARGIN = 0.2   # m: a seeded vehicle's minGap stays this much below its bumper gap
 
 
 @dataclass
@@ -43,6 +44,7 @@ class SeedReport:
     misplaced: dict[int, float] = field(default_factory=dict)  # agent index -> position error (m)
     targets: dict[int, tuple] = field(default_factory=dict)  # agent index -> (x_front, y_front, angle)
     slowed: dict[int, tuple] = field(default_factory=dict)   # agent index -> (generated, departure speed)
+    gap_fitted: dict[int, tuple] = field(default_factory=dict)  # agent index -> (minGap, minGap fitted)
 
     @property
     def placed(self) -> int:
@@ -165,7 +167,7 @@ class Seeder:
     @staticmethod
     def min_gaps(bumper_gap: np.ndarray) -> np.ndarray:
         """A minGap per agent that fits the bumper gap to the agent ahead in its lane."""
-        return np.clip(np.nan_to_num(bumper_gap - 0.2, posinf=DEFAULT_MIN_GAP), 0.3, DEFAULT_MIN_GAP)
+        return np.clip(np.nan_to_num(bumper_gap - MIN_GAP_MARGIN, posinf=DEFAULT_MIN_GAP), 0.3, DEFAULT_MIN_GAP)
 
     # ---- seeding --------------------------------------------------------------------------------
     def seed(self, scene: Scene, others: tuple[np.ndarray, np.ndarray] | None = None) -> SeedReport:
@@ -232,18 +234,33 @@ class Seeder:
                 report.misplaced[i] = err
         return report
 
+    def fit_min_gap(self, i: int, vid: str, gap: float, report: SeedReport) -> None:
+        """SUMO sees a leader ``gap`` < 0 m beyond this vehicle's minGap (``getLeader``'s distance
+        counts from front bumper + minGap): SUMO registers a collision whenever a gap is below the
+        follower's minGap (``--collision.mingap-factor``, default: the whole minGap), so a vehicle
+        seeded that close would collide standing still. Its minGap shrinks to fit the bumper gap."""
+        tid = self.sim.vehicle.getTypeID(vid)
+        old = float(self.sim.vehicletype.getMinGap(tid))
+        new = max(old + gap - MIN_GAP_MARGIN, 0.0)
+        self.sim.vehicletype.setMinGap(tid, new)
+        report.gap_fitted[i] = (report.gap_fitted.get(i, (old,))[0], new)
+
     def settle(self, report: SeedReport, reach: float = 100.0) -> SeedReport:
-        """After the seeding step: slow every seeded vehicle that is faster than the Krauss safe speed
-        behind its leader as SUMO sees it (any vehicle within ``reach`` m along its route, across
-        junctions, which the scene's own leaders at :meth:`seed` time miss; or a red light) to that speed
-        (``setPreviousSpeed``: the speed it ends the seeding step with). Repeats until no vehicle
-        changes, since slowing a leader can make its follower too fast."""
+        """After the seeding step, against the leaders as SUMO sees them (any vehicle within ``reach``
+        m along its route, across junctions and sublanes, which the scene's own leaders at :meth:`seed`
+        time miss; or a red light): a seeded vehicle closer to its leader than its minGap gets a minGap
+        that fits (:meth:`fit_min_gap`); one faster than the Krauss safe speed behind it is slowed to
+        that speed (``setPreviousSpeed``: the speed it ends the seeding step with). Repeats until no
+        vehicle changes, since slowing a leader can make its follower too fast."""
         sim, present = self.sim, set(self.sim.vehicle.getIDList())
         vids = [(i, v) for i, v in report.ids.items() if v in present]
         for _ in range(len(vids)):
             changed = False
             for i, vid in vids:
                 lead = sim.vehicle.getLeader(vid, reach)
+                if lead and lead[0] and float(lead[1]) < 0.0:
+                    self.fit_min_gap(i, vid, float(lead[1]), report)
+                    lead = sim.vehicle.getLeader(vid, reach)
                 stops = [(float(lead[1]), float(sim.vehicle.getSpeed(lead[0])))] if lead and lead[0] else []
                 stops += [(float(d), 0.0) for _, _, d, state in sim.vehicle.getNextTLS(vid)[:1]
                           if state in "rR" and d < reach]        # a red light: a standing leader

@@ -109,7 +109,8 @@ class Session:
             row = {"user_tokens": len(user),
                    "user_tokens_matched": len(set(user) & set(t for t in seeding.token_of if t is not None)),
                    "generated": len(seeding.scene), "placed": rep.placed, "refused": len(rep.refused),
-                   "misplaced": len(rep.misplaced), "existing_vehicles": len(existing.token_ids()),
+                   "misplaced": len(rep.misplaced), "slowed": len(rep.slowed), "gap_fitted": len(rep.gap_fitted),
+                   "existing_vehicles": len(existing.token_ids()),
                    "dropped_on_existing": seeding.dropped, "replayed_s": replay, **stats.as_dict()}
             writer.finish(row)
             self.timing["export"] += time.perf_counter() - t

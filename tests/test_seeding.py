@@ -70,3 +70,38 @@ def test_no_seeded_vehicle_departs_faster_than_it_can_stop(cross_net, cross_scen
         assert sim.simulation.getCollidingVehiclesNumber() == 0
     finally:
         sim.close()
+
+
+@pytest.mark.parametrize("settle", [True, False])
+def test_a_seeded_vehicle_closer_to_its_leader_than_its_min_gap_gets_one_that_fits(cross_net, cross_scene, settle):
+    """SUMO registers a collision when a gap falls below the follower's minGap, even standing. The
+    scene's queue (1 m bumper gap) given a 3 m minGap, as when the scene's leader search misses a
+    leader SUMO sees (a sublane neighbour), the leader held standing: settle shrinks the minGap and
+    nothing collides; without settle SUMO counts a collision of the two standing cars (after 10 s,
+    measured with SUMO 1.28)."""
+    import libsumo as sim
+    net = Network.load(cross_net)
+    scene = cross_scene(net)
+    sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--step-length", "0.5",
+               "--lateral-resolution", "0.8", "--collision.check-junctions", "true"])
+    try:
+        seeder = Seeder(sim, net)
+        report = seeder.seed(scene)
+        sim.simulationStep()
+        report = seeder.verify(report)
+        follower = report.ids[1]
+        sim.vehicletype.setMinGap(sim.vehicle.getTypeID(follower), 3.0)
+        sim.vehicle.setSpeed(report.ids[0], 0.0)
+        assert sim.vehicle.getLeader(follower, 50.0)[1] == pytest.approx(1.0 - 3.0, abs=0.3)
+        if settle:
+            report = seeder.settle(report)
+            old, new = report.gap_fitted[1]
+            assert old == pytest.approx(3.0) and 0.5 < new < 1.0 and set(report.gap_fitted) == {1}
+            assert sim.vehicle.getLeader(follower, 50.0)[1] >= 0.0
+        collisions = 0
+        for _ in range(30):
+            sim.simulationStep()
+            collisions += sim.simulation.getCollidingVehiclesNumber()
+        assert (collisions == 0) == settle
+    finally:
+        sim.close()

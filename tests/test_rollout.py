@@ -1,0 +1,25 @@
+"""Hand-off statistics: SUMO's collision events counted and broken down (real libsumo)."""
+from __future__ import annotations
+
+from sumo_scendiff.rollout import rollout
+
+
+def test_a_host_vehicle_running_into_a_standing_agent_is_counted_as_such(cross_net):
+    import libsumo as sim
+    sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--step-length", "0.5",
+               "--collision.check-junctions", "true", "--collision.action", "remove"])
+    try:
+        sim.route.add("r", ["wc", "ce"])
+        sim.vehicle.add("agent", "r", depart="now", departPos="150", departSpeed="0")
+        sim.vehicle.add("host", "r", depart="now", departPos="60", departSpeed="13")
+        sim.simulationStep()
+        sim.vehicle.setSpeed("agent", 0.0)
+        sim.vehicle.setSpeedMode("host", 0)           # no safe-speed checks: it cannot stop in time
+        sim.vehicle.setSpeed("host", 13.0)
+        stats = rollout(sim, ["agent"], seconds=8.0, brake_window=10.0)
+    finally:
+        sim.close()
+    assert stats.agents == 1 and stats.collisions == 1
+    assert stats.collisions_host == 1 and stats.collisions_host_behind == 1   # SUMO: the follower collides
+    assert stats.collisions_junction == 0 and stats.collisions_early == 1
+    assert stats.as_dict()["collisions_per_100"] == 100.0
