@@ -303,6 +303,7 @@ def _merge(results: list[dict], method: str) -> dict:
 
 
 def tables(results: list[dict], o, command: str) -> str:
+    from sumo_scendiff.rollout import RolloutStats
     groups = [(r["net"], r["methods"]) for r in results]
     if len(results) > 1:
         groups.append((f"**all ({len(results)} nets)**", {m: _merge(results, m) for m in METHODS}))
@@ -354,9 +355,10 @@ def tables(results: list[dict], o, command: str) -> str:
             lines.append(f"| {label if k == 0 else ''} | {name} | " + " | ".join(cells + ratios) + " |")
     kinds = (("collisions_junction", "on a junction"), ("collisions_host", "with a host vehicle"),
              ("collisions_host_behind", "a host vehicle ran into the agent"),
-             ("collisions_early", f"in the first {results[0]['methods']['SUMO']['stats'][0].brake_window:g} s"))
+             ("collisions_early", f"in the first {RolloutStats().brake_window:g} s"))
     lines += ["", "Collision events (all nets; an event can be in several columns):", "",
-              "| method | collisions | " + " | ".join(c for _, c in kinds) + " |", "|---|" + "---|" * (1 + len(kinds))]
+              "| method | collisions | " + " | ".join(c for _, c in kinds) + " |",
+              "|---|" + "---|" * (1 + len(kinds))]
     for name in METHODS:
         stats = [s for r in results for s in r["methods"][name]["stats"]]
         lines.append(f"| {name} | {sum(s.collisions for s in stats)} | "

@@ -2,6 +2,7 @@
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from sumo_scendiff.geometry import box_corners as np_box_corners
@@ -258,3 +259,34 @@ def test_decode_and_loss_with_a_heading_head():
     plain = detection_loss(y[:, :C_Y], gt[None], traj, torch.ones(1, 1, 5, dtype=torch.bool),
                            torch.ones(1, 1, dtype=torch.bool), CFG)
     assert "heading_bin" not in plain
+
+
+def test_speed_term_is_the_l1_of_decoded_step_lengths():
+    """speed_weight adds the mean L1 between decoded and GT 1 s step lengths of a matched box: 0 for
+    the exact trajectory; a car that drives 5 m/s and is decoded at 7 m/s after t = 0 is off by
+    (0 + 0 + 2 + 2) / 4 m/s. Off by default (the paper's loss has no such term)."""
+    from dataclasses import replace
+    yaw, v = 0.7, 5.0
+    gt = torch.tensor([[3.1, -7.3, yaw, 4.6, 1.9]])
+    times = torch.arange(-2.0, 3.0)[:, None]
+    traj = torch.cat([gt[0, :2] + v * times * torch.tensor([math.cos(yaw), math.sin(yaw)]),
+                      torch.full((5, 1), yaw)], 1)[None]
+    cells = cell_centres(100.0, (64, 64))
+    k = int((cells - gt[0, :2]).norm(dim=-1).argmin())
+    rel = trajectory_targets(gt, traj)[0]
+    d = torch.stack([rel[0] - rel[1], rel[1], rel[3], rel[4] - rel[3]])  # deltas t=-2,-1,+1,+2
+    y = torch.zeros(1, C_Y, 64, 64).flatten(2)
+    y[0, 0, k] = 10.0
+    y[0, 1:7, k] = box_targets(gt[0], cells[k], 0.1)
+    y[0, 7:, k] = d.reshape(12)
+    args = (gt[None], traj[None], torch.ones(1, 1, 5, dtype=torch.bool), torch.ones(1, 1, dtype=torch.bool))
+    assert "speed" not in detection_loss(y.reshape(1, C_Y, 64, 64), *args, CFG)
+    cfg = replace(CFG, speed_weight=0.5)
+    assert float(detection_loss(y.reshape(1, C_Y, 64, 64), *args, cfg)["speed"]) < 1e-4
+    fast = y.clone()
+    fast[0, 7 + 6:7 + 12, k] *= 7.0 / 5.0          # the +1 and +2 s deltas: 7 m per step
+    fast = fast.reshape(1, C_Y, 64, 64).requires_grad_(True)
+    out = detection_loss(fast, *args, cfg)
+    assert float(out["speed"]) == pytest.approx(0.5 * (0 + 0 + 2 + 2) / 4, abs=1e-4)
+    out["speed"].backward()
+    assert fast.grad[0, 7 + 6:7 + 12].abs().sum() > 0

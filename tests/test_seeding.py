@@ -73,7 +73,8 @@ def test_no_seeded_vehicle_departs_faster_than_it_can_stop(cross_net, cross_scen
 
 
 @pytest.mark.parametrize("settle", [True, False])
-def test_a_seeded_vehicle_closer_to_its_leader_than_its_min_gap_gets_one_that_fits(cross_net, cross_scene, settle):
+def test_a_seeded_vehicle_closer_to_its_leader_than_its_min_gap_gets_a_fitting_one(cross_net, cross_scene,
+                                                                                    settle):
     """SUMO registers a collision when a gap falls below the follower's minGap, even standing. The
     scene's queue (1 m bumper gap) given a 3 m minGap, as when the scene's leader search misses a
     leader SUMO sees (a sublane neighbour), the leader held standing: settle shrinks the minGap and

@@ -54,6 +54,7 @@ class DetectionLossConfig:
     neg_far_weight: float = 0.05  # all other unmatched cells (paper: 0.002; see README "The model")
     heading_bin_weight: float = 1.0  # cross-entropy of the MultiBin heading head (if the decoder has one)
     heading_res_weight: float = 1.0  # L1 (radians) on its residuals
+    speed_weight: float = 0.0  # L1 (m/s) on the 1 s step lengths |p(t) - p(t-1)| (0: off, the paper)
     neg_near_distance: float = 3.0  # m, cell centre to the GT box outline (0 inside)
     match_radius: float = 4.0  # m, candidate cells for a GT box lie within this of its centre
     min_edge_distance: float = 0.1  # m, GT edge distances are at least this (see box_targets)
@@ -323,7 +324,10 @@ def detection_loss(y: torch.Tensor, boxes: torch.Tensor, traj: torch.Tensor, tra
     multiplied by the GT trajectory's category weight. With ``junction`` (B, H, W), the map raster's
     junction channel, every positive term of a box centred on a junction is multiplied by
     ``cfg.junction_weight``. A MultiBin heading head adds ``heading_bin`` (cross-entropy) and
-    ``heading_res`` (residual L1) per matched box. Works with N = 0.
+    ``heading_res`` (residual L1) per matched box. ``cfg.speed_weight`` > 0 adds ``speed``: the L1
+    between decoded and GT step lengths |p(t) - p(t-1)| over the 1 s steps with both ends observed
+    (the speeds ``generate.speeds_from_traj`` reports), mean per box, without the category weight
+    that scales straight-driving boxes' positions by 0.3. Works with N = 0.
     """
     bsz, _, h, w = y.shape
     cells = cell_centres(cfg.size, (h, w), y.device)
@@ -355,6 +359,14 @@ def detection_loss(y: torch.Tensor, boxes: torch.Tensor, traj: torch.Tensor, tra
         traj_pos=cfg.traj_pos_weight * (jw * cat_w * pos).sum() / bsz,
         traj_yaw=cfg.traj_yaw_weight * (jw * cat_w * yaw).sum() / bsz,
     )
+    if cfg.speed_weight > 0:
+        seen = traj_mask[b, n].clone()
+        seen[:, T0] = True                                  # the box pose itself
+        both = (seen[:, 1:] & seen[:, :-1]).to(y.dtype)    # (M, 4) steps with both ends observed
+        v = (rel[:, 1:, 0:2] - rel[:, :-1, 0:2]).norm(dim=-1)
+        v_gt = (rel_gt[:, 1:, 0:2] - rel_gt[:, :-1, 0:2]).norm(dim=-1)
+        err = ((v - v_gt).abs() * both).sum(-1) / both.sum(-1).clamp_min(1.0)
+        out["speed"] = cfg.speed_weight * (jw * err).sum() / bsz
     if y.shape[1] > C_Y:  # MultiBin heading head
         ce, res = heading_loss(pred[:, C_Y:], gt[:, 2])
         out["heading_bin"] = cfg.heading_bin_weight * (jw * ce).sum() / bsz
