@@ -30,7 +30,8 @@ vehicle positions one step later from run to run, even within one process; warm-
 repeat exactly). So the model's scenes are generated here, and SUMO runs in a fresh interpreter
 per net (``--worker``) that is given only that net's inputs and has nothing that varies between
 runs: no address space randomisation (``personality``, as ``setarch -R``), no torch, one BLAS
-thread, a fixed hash seed, fixed file names (``$TMPDIR/scendiff-bench-seeding-UID/work``, locked),
+thread, a fixed hash seed, a fixed environment (only ``WORKER_ENV``: its size moves the stack),
+fixed file names (``$TMPDIR/scendiff-bench-seeding-UID/work``, locked),
 stdout / stderr to a pipe / file, windows and methods in a fixed order, the begin time on the step
 grid. Then the same seed gives the same numbers, whatever other nets the command has (checked by
 repeating runs on this machine; another SUMO build or machine may give other numbers), for the same
@@ -59,6 +60,7 @@ REAL = ("resco_cologne1/cologne1.net.xml", "resco_cologne3/cologne3.net.xml",
         "resco_ingolstadt7/ingolstadt7.net.xml", "resco_ingolstadt21/ingolstadt21.net.xml",
         "berlin_doerpfeldstr/net.net.xml.gz")
 METHODS = ("SUMO", "Scenario Diffusion", "Lane-uniform")
+WORKER_ENV = ("PATH", "HOME", "TMPDIR", "SUMO_HOME", "PYTHONPATH", "LD_LIBRARY_PATH", "VIRTUAL_ENV")
 RATES = (("collisions", "collisions / 100"), ("teleports", "teleports / 100"),
          ("emergency_brakes", "e-brake agents (first 10 s) / 100"))
 
@@ -178,8 +180,11 @@ def bench_net(path: str, gen, o, explicit: bool) -> dict | None:
         with open(src, "wb") as f:
             pickle.dump({"path": os.path.abspath(path), "windows": windows, "scenes": scenes, "opts": opts,
                          "demand": demand(net, o, io), "dir": io}, f)
-        env = {**os.environ, "PYTHONHASHSEED": "0", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
-               "MKL_NUM_THREADS": "1"}
+        # only the variables a worker needs: without address space randomisation the environment's
+        # size moves the stack and with it SUMO's memory layout (measured: one more variable of 3 kB
+        # changed Lane-uniform's teleports on cologne1)
+        env = {k: os.environ[k] for k in WORKER_ENV if k in os.environ}
+        env.update(PYTHONHASHSEED="0", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
         with no_aslr() as fixed, open(log, "w") as err, \
                 tqdm(total=len(windows), desc=net.name, unit="window", leave=False) as bar:
             proc = subprocess.Popen([sys.executable, os.path.abspath(__file__), "--worker", src, dst],
