@@ -13,7 +13,8 @@ and outgoing edges, never starts a route), a route through the lanes of its +1/+
 along the network (no u-turns) to a fringe or 30 edges, a vehicle type with its box and a minGap that
 fits the gap to the vehicle ahead in the scene, a departure speed that is its generated speed capped
 at the Krauss safe speed behind that vehicle, then ``vehicle.add`` and ``vehicle.moveToXY``. SUMO
-refusing a vehicle never crashes the host simulation: the agent is reported as refused.
+refusing a vehicle never crashes the host simulation: the agent is reported as refused. After the
+seeding step, :meth:`Seeder.settle` checks both again against the leader SUMO itself sees.
 
 Generated agents are rarely on a lane's centre line. With SUMO's sublane model
 (``--lateral-resolution``, which :mod:`~sumo_scendiff.sumo_sim` turns on) ``moveToXY`` with
