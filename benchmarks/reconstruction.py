@@ -115,6 +115,26 @@ def from_noised_data(gen, z0: torch.Tensor, m: torch.Tensor, gts: list, o, truth
     return rows
 
 
+def lane_yaw(y: torch.Tensor, m: torch.Tensor, data: str, idx: np.ndarray) -> torch.Tensor | None:
+    """``lane_heading.junction_yaw`` for decoder outputs ``y`` of the scenes ``idx`` of ``data``
+    (each scene's own window and network); None without a heading head."""
+    from sumo_scendiff.data.shards import SceneStore
+    from sumo_scendiff.lane_heading import junction_yaw
+    from sumo_scendiff.network import Network
+    store = SceneStore(data)
+    paths = [store.net_path(int(i)) for i in idx]
+    yaw = None
+    for path in sorted(set(paths)):
+        sel = [k for k, p in enumerate(paths) if p == path]
+        part = junction_yaw(y[sel], [store.scene(int(idx[k])).window for k in sel], Network.load(path),
+                            m[sel, MAP_CHANNELS.index("junction")], RasterConfig().size)
+        if part is None:
+            return None
+        yaw = torch.zeros(y.shape[0], part.shape[1]) if yaw is None else yaw
+        yaw[sel] = part
+    return yaw
+
+
 def main(o) -> None:
     torch.set_num_threads(2)
     gen, ae, name, sha = load_models(o.checkpoint, o.autoencoder)
@@ -134,7 +154,12 @@ def main(o) -> None:
     rows = {}
     with torch.no_grad():
         mu, logvar = ae.encode(b["agents"])
-        rows["autoencoder D(mu, m)"] = score(decode_boxes(ae.decode(mu, m)), gts, o.threshold, *truth)
+        y = ae.decode(mu, m)
+        rows["autoencoder D(mu, m)"] = score(decode_boxes(y), gts, o.threshold, *truth)
+        yaw = lane_yaw(y, m, o.data, idx)
+        if yaw is not None:   # a heading head: junction boxes take the network's most probable lane
+            rows["autoencoder D(mu, m), lane headings (generator default)"] = score(
+                decode_boxes(y, yaw=yaw), gts, o.threshold, *truth)
         every = [tokens_from_scene(*(b[k][i][b["valid"][i]].numpy()
                                      for k in ("boxes", "traj", "traj_mask", "speed"))) for i in range(n)]
         runs = (("diffusion, no tokens (p_mask 1)", [np.zeros((0, AGENT_TOKEN_DIM), np.float32)] * n, 1.0),

@@ -21,13 +21,14 @@ import shapely
 import torch
 
 from .geometry import TIMES, Window, box_corners
+from .lane_heading import junction_yaw
 from .model import checkpoint as ckpt
 from .model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from .model.detection import decode_boxes
 from .model.diffusion import DiffusionConfig, ScenarioDiffusion
 from .model.edm import sample_dpmpp_2m
 from .pinning import pinned_latent
-from .raster import RasterConfig, render_map
+from .raster import MAP_CHANNELS, RasterConfig, render_map
 from .scene import Scene, vclass_from_size
 from .tokens import AGENT_TOKEN_DIM, agent_tokens_from_dicts, global_token, pad_tokens
 
@@ -51,6 +52,8 @@ class GenerationConfig:
                                                # (None: the checkpoint's, calibrated with the weight)
     pin_tokens: bool = True      # a token giving pose, size and speed is imposed in the latent
                                  # (pinning.py); False: every token is a condition only (the paper)
+    lane_headings: bool = True   # a box on a junction takes the heading of the network's lane through
+                                 # it that the heading head finds most probable (lane_heading.py)
 
 
 def speeds_from_traj(traj: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -152,7 +155,8 @@ class ScenarioGenerator:
     # ---- one batch ------------------------------------------------------------------------
     @torch.no_grad()
     def _batch(self, maps: np.ndarray, tokens: list[np.ndarray], p_mask: np.ndarray,
-               seeds: list[int], cfg: GenerationConfig, pins: Sequence | None = None):
+               seeds: list[int], cfg: GenerationConfig, pins: Sequence | None = None,
+               net=None, windows: Sequence[Window] = ()):
         m = torch.from_numpy(maps).contiguous(memory_format=torch.channels_last)
         tok, pad = pad_tokens(tokens)
         glob = torch.from_numpy(global_token(p_mask).reshape(len(maps), -1))
@@ -166,7 +170,9 @@ class ScenarioGenerator:
                                   known=pinned_latent(self.ae, pins, self.latent_scale, self.raster)
                                   if cfg.pin_tokens and pins is not None else None)
         y = self.ae.decode(z / self.latent_scale, m)
-        dec = decode_boxes(y, self.raster.size)
+        yaw = junction_yaw(y, windows, net, m[:, MAP_CHANNELS.index("junction")], self.raster.size) \
+            if cfg.lane_headings and net is not None else None
+        dec = decode_boxes(y, self.raster.size, yaw=yaw)
         return dec.prob.numpy(), dec.boxes.numpy(), dec.traj.numpy()
 
     def _scene(self, window: Window, prob, boxes, traj, threshold: float, net_name: str) -> Scene:
@@ -211,7 +217,8 @@ class ScenarioGenerator:
             m = maps[sl] if maps is not None else np.stack([render_map(net, w, self.raster)
                                                              for w in windows[sl]])
             prob, boxes, traj = self._batch(m, toks[sl], pm[sl], seeds[sl], cfg,
-                                            tokens[sl] if tokens is not None else None)
+                                            tokens[sl] if tokens is not None else None,
+                                            net=net, windows=windows[sl])
             for k, w in enumerate(windows[sl]):
                 out.append(self._scene(w, prob[k], boxes[k], traj[k], cfg.threshold, net.name))
         return out

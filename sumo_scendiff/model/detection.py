@@ -128,15 +128,17 @@ class DecodedBoxes:
     traj: torch.Tensor  # (B, K, 5, 3) x, y, yaw at t = -2, -1, 0, +1, +2
 
 
-def decode_boxes(y: torch.Tensor, size: float = 100.0) -> DecodedBoxes:
+def decode_boxes(y: torch.Tensor, size: float = 100.0, yaw: torch.Tensor | None = None) -> DecodedBoxes:
     """Decode every cell of ``y`` (B, 19 [+ 2K], H, W) into a box with a trajectory (section 3.1).
-    With a heading head (channels 19..), the box heading is the head's argmax bin plus residual."""
+    With a heading head (channels 19..), the box heading is the head's argmax bin plus residual;
+    ``yaw`` (B, H*W) gives the headings instead (``lane_heading.junction_yaw``)."""
     b, _, h, w = y.shape
     yf = y.flatten(2).transpose(1, 2)  # (B, K, 19 [+ 2K])
     cells = cell_centres(size, (h, w), y.device)
     params = yf[..., 1:7]
-    if y.shape[1] > C_Y:
+    if yaw is None and y.shape[1] > C_Y:
         yaw = decode_heading(yf[..., C_Y:])
+    if yaw is not None:
         params = torch.cat([torch.cos(yaw)[..., None], torch.sin(yaw)[..., None], params[..., 2:]], -1)
     boxes = params_to_boxes(params, cells)
     rel = accumulate_deltas(yf[..., 7:C_Y])  # (B, K, 5, 3) in the box frame

@@ -69,3 +69,16 @@ def decode_heading(pred: torch.Tensor) -> torch.Tensor:
     best = pred[..., :k].argmax(-1, keepdim=True)
     r = torch.gather(pred[..., k:], -1, best).squeeze(-1)
     return _wrap(best.squeeze(-1).to(pred.dtype) * bin_width(k) + r)
+
+
+def heading_probability(pred: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
+    """Head outputs (M, 2K) and one yaw per row (M,) -> the softmax bin posterior at that yaw (M,),
+    linear between the two nearest bin centres."""
+    k = pred.shape[-1] // 2
+    p = torch.softmax(pred[..., :k], -1)
+    u = torch.remainder(yaw, 2.0 * math.pi) / bin_width(k)
+    k0 = torch.floor(u).long() % k
+    f = (u - torch.floor(u)).to(p.dtype)
+    p0 = torch.gather(p, -1, k0[..., None]).squeeze(-1)
+    p1 = torch.gather(p, -1, ((k0 + 1) % k)[..., None]).squeeze(-1)
+    return (1.0 - f) * p0 + f * p1
