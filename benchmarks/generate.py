@@ -56,6 +56,7 @@ def main(o) -> None:
                                                                   scene_guidance_sigma=1.0), False),
                 ("DPM-Solver++(2M), 10 steps", dict(sampler=sample_dpmpp_2m, steps=10), False),
                 ("Heun, 10 steps", dict(sampler=sample_heun, steps=10), False),
+                ("defaults, lane headings off", dict(lane_headings=False), False),
                 ("defaults, scene guidance off", dict(scene_guidance=1.0), False),
                 ("defaults, 2 tokens, guidance 3", dict(guidance=3.0), True),
                 ("defaults, 2 tokens, guidance off", dict(guidance=1.0), True)]
