@@ -19,8 +19,8 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 import torch
 
-from .geometry import Window, metres_to_pixels, wrap_angle
-from .model.detection import C_Y, decode_boxes
+from .geometry import Window, wrap_angle
+from .model.detection import C_Y, decode_boxes, on_junction
 from .model.heading import decode_heading, heading_probability
 
 if TYPE_CHECKING:
@@ -38,18 +38,15 @@ def junction_yaw(y: torch.Tensor, windows: Sequence[Window], net: "Network", jun
     yf = y.flatten(2).transpose(1, 2)                       # (B, cells, C)
     yaw = decode_heading(yf[..., C_Y:])
     dec = decode_boxes(y[:, :C_Y], size, yaw=yaw)
-    h, w = junction.shape[-2:]
     for i, win in enumerate(windows):
         cells = torch.nonzero(dec.prob[i] >= min_prob).squeeze(1)
         if len(cells) == 0:
             continue
-        xy = dec.boxes[i, cells, :2].numpy()
-        colrow = np.rint(metres_to_pixels(xy, size, (h, w))).astype(np.int64)
-        col, row = np.clip(colrow[:, 0], 0, w - 1), np.clip(colrow[:, 1], 0, h - 1)
-        on = junction[i, row, col].numpy() > 0.5
+        on = on_junction(dec.boxes[i, cells], torch.zeros_like(cells), junction[i:i + 1], size)
         if not on.any():
             continue
-        cells, xy = cells[torch.from_numpy(on)], xy[on]
+        cells = cells[on]
+        xy = dec.boxes[i, cells, :2].numpy()
         point, _, heading = net.lane_headings_at(win.scene_to_world(xy), radius)
         if len(point) == 0:
             continue
