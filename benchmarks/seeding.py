@@ -81,6 +81,8 @@ def get_options(args=None):
                    help="the global token's guidance weight (default: the checkpoint's)")
     p.add_argument("--scene-guidance-sigma", type=float, default=None, metavar="SIGMA",
                    help="... applied only above this noise level (default: the checkpoint's)")
+    p.add_argument("--no-lane-snap", dest="lane_snap", action="store_false",
+                   help="seed the decoded poses, not snapped onto lane centre lines (generate's lane_snap)")
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("-o", "--output", default=None, metavar="FILE", help="also write the tables here")
     return p.parse_args(args)
@@ -380,7 +382,8 @@ def main(o) -> int:
         "seeding.py") else "benchmarks/seeding.py (in-process)"
     t = time.perf_counter()
     gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(scene_guidance=o.scene_guidance,
-                                                                   scene_guidance_sigma=o.scene_guidance_sigma))
+                                                                   scene_guidance_sigma=o.scene_guidance_sigma,
+                                                                   lane_snap=o.lane_snap))
     results = []
     for path in (o.nets or default_nets()):
         r = bench_net(path, gen, o, explicit=o.nets is not None)

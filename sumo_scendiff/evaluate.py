@@ -75,6 +75,10 @@ def get_options(args=None):
     p.add_argument("--no-pin-tokens", dest="pin_tokens", action="store_false",
                    help="agent tokens are conditions only, as in the paper (default: a token with "
                         "pose, size and speed is pinned in the latent; README \"Token control\")")
+    p.add_argument("--no-lane-headings", dest="lane_headings", action="store_false",
+                   help="junction boxes keep the heading head's argmax (generate's lane_headings)")
+    p.add_argument("--no-lane-snap", dest="lane_snap", action="store_false",
+                   help="poses stay as decoded, off the lane centre lines (generate's lane_snap)")
     p.add_argument("--json", default=None, metavar="PATH", help="also write all results as JSON")
     p.add_argument("--pictures", default=None, metavar="DIR",
                    help="write DIR/<net>.png: three windows, ground truth beside every method")
@@ -253,6 +257,7 @@ def load_models(o) -> dict:
     from .model.edm import SAMPLERS
     cfg = replace(GenerationConfig(), scene_guidance=o.scene_guidance,
                   scene_guidance_sigma=o.scene_guidance_sigma, pin_tokens=o.pin_tokens,
+                  lane_headings=o.lane_headings, lane_snap=o.lane_snap,
                   **{k: v for k, v in (("steps", o.steps), ("guidance", o.guidance),
                                        ("sampler", o.sampler and SAMPLERS[o.sampler])) if v is not None})
     path = o.checkpoint or DEFAULT_CHECKPOINT
@@ -261,7 +266,9 @@ def load_models(o) -> dict:
         return {}
     models = {"Scenario Diffusion": ScenarioGenerator.load(path, cfg)}
     if o.no_map_checkpoint:
-        models["Scenario Diffusion (no map)"] = ScenarioGenerator.load(o.no_map_checkpoint, cfg)
+        # the ablation sees no map at all: no lane headings or snapping from the network either
+        models["Scenario Diffusion (no map)"] = ScenarioGenerator.load(
+            o.no_map_checkpoint, replace(cfg, lane_headings=False, lane_snap=False))
     return models
 
 

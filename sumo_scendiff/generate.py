@@ -7,7 +7,9 @@
 Pipeline per batch: map raster m -> initial noise (one generator per window, so a window's scene does
 not depend on what else is in the batch) -> pinned tokens' latent cells (pinning.py) -> ODE from
 sigma_max to 0 (DPM-Solver++(2M) by default) -> D(z, m) ->
-boxes above ``threshold`` -> overlapping boxes removed (most probable kept) -> scene-frame
+boxes above ``threshold`` -> overlapping boxes removed (most probable kept) -> poses snapped onto
+lane centre lines (lane_snap.py; agents on no lane removed unless a token asked for them, overlaps
+removed again) -> scene-frame
 :class:`~sumo_scendiff.scene.Scene` with speeds from the trajectory.
 """
 from __future__ import annotations
@@ -20,8 +22,9 @@ import numpy as np
 import shapely
 import torch
 
-from .geometry import TIMES, Window, box_corners
+from .geometry import T0, TIMES, Window, box_corners
 from .lane_heading import junction_yaw
+from .lane_snap import snap_to_lanes
 from .model import checkpoint as ckpt
 from .model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from .model.detection import decode_boxes
@@ -30,9 +33,10 @@ from .model.edm import sample_dpmpp_2m
 from .pinning import pinned_latent
 from .raster import MAP_CHANNELS, RasterConfig, render_map
 from .scene import Scene, vclass_from_size
-from .tokens import AGENT_TOKEN_DIM, agent_tokens_from_dicts, global_token, pad_tokens
+from .tokens import AGENT_TOKEN_DIM, agent_tokens_from_dicts, global_token, pad_tokens, token_positions
 
 DECIMALS = 3   # generated poses are rounded to mm / mrad
+ASKED_RADIUS = 2.0  # m: a decoded agent this close to a token's position is what the token asked for
 DEFAULT_CHECKPOINT = os.path.join(os.path.dirname(__file__), "weights", "scendiff.pt")
 
 
@@ -54,6 +58,9 @@ class GenerationConfig:
                                  # (pinning.py); False: every token is a condition only (the paper)
     lane_headings: bool = True   # a box on a junction takes the heading of the network's lane through
                                  # it that the heading head finds most probable (lane_heading.py)
+    lane_snap: bool = True       # poses within 3 m of an agreeing car lane move onto its centre line
+                                 # and take its heading, as SUMO's traffic drives (lane_snap.py);
+                                 # an agent on no such lane is removed unless a token put it there
 
 
 def speeds_from_traj(traj: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -175,14 +182,32 @@ class ScenarioGenerator:
         dec = decode_boxes(y, self.raster.size, yaw=yaw)
         return dec.prob.numpy(), dec.boxes.numpy(), dec.traj.numpy()
 
-    def _scene(self, window: Window, prob, boxes, traj, threshold: float, net_name: str) -> Scene:
-        keep = select_boxes(window, prob, boxes, threshold)
+    def _scene(self, window: Window, prob, boxes, traj, cfg: GenerationConfig, net,
+               tokens: np.ndarray | None = None) -> Scene:
+        keep = select_boxes(window, prob, boxes, cfg.threshold)
+        boxes, traj = boxes[keep], traj[keep]
+        off_lane = 0
+        if cfg.lane_snap and net is not None:
+            boxes, traj, snapped = snap_to_lanes(boxes, traj, window, net)
+            # an agent on no car lane agreeing with it (off the road, or against a one-way street)
+            # is one SUMO cannot take: removed, unless a token asked for a vehicle there
+            asked = token_positions(tokens) if tokens is not None and len(tokens) else np.zeros((0, 2))
+            near = (np.linalg.norm(boxes[:, None, :2] - asked[None], axis=-1) <= ASKED_RADIUS).any(1)
+            ok = snapped[:, T0] | near
+            off_lane = int((~ok).sum())
+            # two boxes snapped onto one lane may now overlap, or a centre leave the window
+            ok = np.flatnonzero(ok)
+            ok = ok[remove_overlaps(boxes[ok], prob[keep][ok])]
+            ok = ok[window.contains(boxes[ok, :2])]
+            ok = ok[np.argsort(-prob[keep][ok], kind="stable")]
+            keep, boxes, traj = keep[ok], boxes[ok], traj[ok]
         # millimetres / milliradians: the float noise of batch composition and thread count
         # (~1e-6) must not make the same seed seed SUMO differently
-        b, t = np.round(boxes[keep], DECIMALS), np.round(traj[keep], DECIMALS)
+        b, t = np.round(boxes, DECIMALS).astype(np.float32), np.round(traj, DECIMALS).astype(np.float32)
         mask = np.ones((len(keep), len(TIMES)), bool)
         return Scene(window, b, t, mask, speeds_from_traj(t, mask), vclass_from_size(b[:, 3], b[:, 4]),
-                     net_name, meta={"score": np.round(prob[keep], 4).tolist(), "cell": keep.tolist()})
+                     net.name, meta={"score": np.round(prob[keep], 4).tolist(), "cell": keep.tolist(),
+                                     "off_lane_removed": off_lane})
 
     # ---- public API -----------------------------------------------------------------------
     def generate(self, net, windows: Sequence[Window], tokens=None, p_mask=1.0, seed: int = 0,
@@ -220,7 +245,7 @@ class ScenarioGenerator:
                                             tokens[sl] if tokens is not None else None,
                                             net=net, windows=windows[sl])
             for k, w in enumerate(windows[sl]):
-                out.append(self._scene(w, prob[k], boxes[k], traj[k], cfg.threshold, net.name))
+                out.append(self._scene(w, prob[k], boxes[k], traj[k], cfg, net, toks[s + k]))
         return out
 
 

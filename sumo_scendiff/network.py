@@ -3,6 +3,7 @@
     net = Network.load("networks/city.net.xml")
     lanes = net.lanes_in(window)               # indices into net.lanes, via an STRtree
     hit = net.lookup(x, y, yaw)                # nearest car lane whose direction agrees
+    m = net.match_poses(xy, yaws)              # ... for many poses at once (LaneMatch)
     net.on_drivable(points)                    # vectorised point-in-drivable-area test
     net.lane_heading_difference(points, yaws)  # the paper's lane heading metric
 
@@ -15,6 +16,7 @@ import gc
 import gzip
 import os
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import shapely
@@ -108,6 +110,18 @@ def _read(path: str):
 def _lane_polygon(shape: np.ndarray, width: float) -> shapely.Polygon:
     line = shapely.LineString(shape) if len(shape) > 1 else shapely.Point(shape[0])
     return line.buffer(0.5 * width, cap_style="flat", join_style="mitre", mitre_limit=3.0)
+
+
+@dataclass
+class LaneMatch:
+    """Per pose (:meth:`Network.match_poses`): lane index (-1: none), distance along it of the
+    projected point, distance from its centre line, its heading there, that point, and |yaw - heading|."""
+    lane: np.ndarray
+    pos: np.ndarray
+    lateral: np.ndarray
+    heading: np.ndarray
+    xy: np.ndarray
+    heading_diff: np.ndarray
 
 
 class Network:
@@ -257,31 +271,86 @@ class Network:
             np.fmin.at(out, pi, diff)
         return out.reshape(np.shape(yaws))
 
+    def match_poses(self, points, yaws=None, radius: float = 3.0, max_angle: float = np.pi / 3,
+                    allow_internal: bool = True) -> "LaneMatch":
+        """For each world pose, the car lane it stands on: among car lanes whose polygon lies within
+        ``radius`` m and whose direction agrees with the yaw within ``max_angle``, the one with the least
+        ``distance to the centre line + 2 m/rad x heading difference`` (0.5 rad of disagreement costs
+        like 1 m of offset). ``yaws`` None: direction ignored. Vectorised; ``lane`` is -1 where none."""
+        xy = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        n = len(xy)
+        yaw = np.zeros(n) if yaws is None else np.asarray(yaws, dtype=np.float64).reshape(-1)
+        out = LaneMatch(np.full(n, -1, np.int64), np.zeros(n), np.full(n, np.inf), np.zeros(n),
+                        xy.copy(), np.zeros(n))
+        if n == 0:
+            return out
+        pts = shapely.points(xy)
+        pi, li = self.lane_tree.query(pts, predicate="dwithin", distance=radius)
+        ok = np.isin(li, self.car_lane_ids)
+        if not allow_internal:
+            ok &= ~np.array([self.lanes[i].internal for i in li], dtype=bool)
+        pi, li = pi[ok], li[ok]
+        if len(pi) == 0:
+            return out
+        lines = self.lines[li]
+        dist = shapely.distance(lines, pts[pi])
+        heading = self._heading_on_lines(li, xy[pi])
+        hd = np.zeros(len(pi)) if yaws is None else np.abs(wrap_angle(yaw[pi] - heading))
+        agree = hd <= max_angle
+        pi, li, dist, heading, hd = pi[agree], li[agree], dist[agree], heading[agree], hd[agree]
+        score = dist + 2.0 * hd
+        order = np.lexsort((score, pi))                  # per point, best candidate first
+        first = order[np.r_[True, pi[order][1:] != pi[order][:-1]]] if len(order) else order
+        p, lane = pi[first], li[first]
+        pos = shapely.line_locate_point(self.lines[lane], pts[p])
+        out.lane[p], out.pos[p], out.lateral[p] = lane, pos, dist[first]
+        out.heading[p], out.heading_diff[p] = heading[first], hd[first]
+        out.xy[p] = shapely.get_coordinates(shapely.line_interpolate_point(self.lines[lane], pos))
+        return out
+
     def lookup(self, x: float, y: float, yaw: float | None = None, radius: float = 3.0,
                max_angle: float = np.pi / 3, allow_internal: bool = True):
-        """The car lane a pose stands on: nearest within ``radius`` whose direction agrees with ``yaw``.
+        """The car lane a pose stands on (:meth:`match_poses` for one pose).
 
         Returns ``(lane, pos, lateral, heading_diff)`` with ``pos`` the distance along the lane of the
         projected point, or ``None``.
         """
-        pt = shapely.Point(x, y)
-        cand = self.lane_tree.query(pt, predicate="dwithin", distance=radius)
-        best = None
-        for i in cand:
-            ln = self.lanes[i]
-            if not ln.car or (ln.internal and not allow_internal):
-                continue
-            line = self.lines[i]
-            dist = line.distance(pt)
-            pos = line.project(pt)
-            heading = float(self._heading_on_lines(np.array([i]), np.array([[x, y]]))[0])
-            hd = 0.0 if yaw is None else abs(float(wrap_angle(yaw - heading)))
-            if hd > max_angle:
-                continue
-            score = dist + 2.0 * hd  # metres; 0.5 rad of disagreement costs like 1 m of offset
-            if best is None or score < best[0]:
-                best = (score, ln, float(pos), float(dist), hd)
-        return None if best is None else best[1:]
+        m = self.match_poses([[x, y]], None if yaw is None else [yaw], radius, max_angle, allow_internal)
+        if m.lane[0] < 0:
+            return None
+        return self.lanes[m.lane[0]], float(m.pos[0]), float(m.lateral[0]), float(m.heading_diff[0])
+
+    # ---- the lane graph -------------------------------------------------------------------
+    @cached_property
+    def successors(self) -> list[list[int]]:
+        """Per lane index, the car lanes a vehicle drives onto from its end: the connection's internal
+        lane where the junction has one, else the next edge's lane (empty without a sumolib net)."""
+        out: list[list[int]] = [[] for _ in self.lanes]
+        if self.sumo_net is None:
+            return out
+        for i in self.car_lane_ids:
+            for c in self.sumo_net.getLane(self.lanes[i].id).getOutgoing():
+                j = self.lane_index.get(c.getViaLaneID() or c.getToLane().getID())
+                if j is not None and self.lanes[j].car and j not in out[i]:
+                    out[i].append(j)
+        return out
+
+    @cached_property
+    def predecessors(self) -> list[list[int]]:
+        """Per lane index, the car lanes that lead onto it (:attr:`successors` reversed)."""
+        out: list[list[int]] = [[] for _ in self.lanes]
+        for i, succ in enumerate(self.successors):
+            for j in succ:
+                out[j].append(i)
+        return out
+
+    def lane_pose(self, lane: int, pos: float) -> tuple[np.ndarray, float]:
+        """The world point ``pos`` m along lane ``lane``'s centre line (clamped to it) and the lane's
+        heading there (over +-0.5 m, as :meth:`match_poses` measures it)."""
+        line = self.lines[lane]
+        pos = min(max(pos, 0.0), line.length)
+        xy = np.asarray(line.interpolate(pos).coords[0])
+        return xy, float(self._heading_on_lines(np.array([lane]), xy[None])[0])
 
     def random_road_points(self, n: int, rng: np.random.Generator, internal: bool = False):
         """``n`` points uniformly along car lanes (by length) with their lane headings."""

@@ -52,6 +52,9 @@ def get_options(args=None):
     p.add_argument("--no-lane-headings", dest="lane_headings", action="store_false",
                    help="vehicles on a junction keep the decoder's own heading (default: the heading of the "
                         "network's lane through them that the decoder finds most probable)")
+    p.add_argument("--no-lane-snap", dest="lane_snap", action="store_false",
+                   help="vehicles keep their decoded pose (default: a pose within 3 m of an agreeing car "
+                        "lane moves onto its centre line and takes its heading, as SUMO's traffic drives)")
     p.add_argument("--rollout", type=float, default=60.0, help="seconds SUMO drives after seeding (0: none)")
     p.add_argument("--replay-future", type=float, default=0.0, metavar="SECONDS",
                    help="hold the agents on their generated 0..+2 s future before SUMO takes over (max 2)")
@@ -145,7 +148,7 @@ def run(o) -> dict:
     _check_output(o)
     gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(
         steps=o.steps, threshold=o.threshold, guidance=o.guidance, scene_guidance=o.scene_guidance,
-        pin_tokens=o.pin_tokens, lane_headings=o.lane_headings))
+        pin_tokens=o.pin_tokens, lane_headings=o.lane_headings, lane_snap=o.lane_snap))
     routes = tuple(r for r in (o.routes or "").split(",") if r)
     edges = {ln.edge for ln in net.lanes}
     try:  # matches the network; the simulation starts at the first departure
@@ -183,7 +186,7 @@ def run(o) -> dict:
             info = {"scene": name, "location": places[k][1], "window_index": k,
                     "model": {"sha256": gen.sha256, "sampler": gen.config.sampler.__name__, "steps": o.steps,
                               "threshold": o.threshold, "pin_tokens": o.pin_tokens,
-                              "lane_headings": o.lane_headings,
+                              "lane_headings": o.lane_headings, "lane_snap": o.lane_snap,
                               "guidance": o.guidance, "scene_guidance": gen.scene_guidance_for(gen.config),
                               "scene_guidance_sigma": gen.scene_guidance_sigma_for(gen.config)},
                     "sumo_options": cfg.options()}

@@ -382,6 +382,17 @@ def pad_tokens(tokens: Sequence[Any], dim: int = AGENT_TOKEN_DIM) -> tuple[torch
     return out, pad
 
 
+def token_positions(tokens: np.ndarray) -> np.ndarray:
+    """Scene-frame (x, y) (P, 2) of the encoded agent tokens (T, AGENT_TOKEN_DIM) that give a
+    position: their bins' centres (within 0.8 m of what was asked)."""
+    tokens = np.asarray(tokens)
+    has = (tokens[:, PRESENCE_SLICE.start + FEATURES.index("x")] > 0.5) & \
+        (tokens[:, PRESENCE_SLICE.start + FEATURES.index("y")] > 0.5)
+    width = 2 * WINDOW_HALF / POS_BINS
+    idx = np.stack([tokens[has, FEATURE_SLICES[f]].argmax(-1) for f in ("x", "y")], -1)
+    return (idx + 0.5) * width - WINDOW_HALF
+
+
 def token_cells(tokens: torch.Tensor, pad: torch.Tensor, res: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Which cell of a ``res`` x ``res`` grid over the window each token's position bin falls in.
 
