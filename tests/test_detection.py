@@ -253,7 +253,7 @@ def test_decode_and_loss_with_a_heading_head():
     traj = gt[:, None, :3].expand(1, 5, 3)[None].clone()
     out = detection_loss(y, gt[None], traj, torch.ones(1, 1, 5, dtype=torch.bool),
                          torch.ones(1, 1, dtype=torch.bool), CFG)
-    assert {"heading_bin", "heading_res"} <= set(out) and float(out["heading_res"]) < 1e-5
+    assert {"heading_bin", "heading_res"} <= set(out) and float(out["heading_res"].detach()) < 1e-5
     out["rec"].backward()
     assert y.grad[0, C_Y:C_Y + k].abs().sum() > 0
     plain = detection_loss(y[:, :C_Y], gt[None], traj, torch.ones(1, 1, 5, dtype=torch.bool),
