@@ -287,6 +287,6 @@ def test_speed_term_is_the_l1_of_decoded_step_lengths():
     fast[0, 7 + 6:7 + 12, k] *= 7.0 / 5.0          # the +1 and +2 s deltas: 7 m per step
     fast = fast.reshape(1, C_Y, 64, 64).requires_grad_(True)
     out = detection_loss(fast, *args, cfg)
-    assert float(out["speed"]) == pytest.approx(0.5 * (0 + 0 + 2 + 2) / 4, abs=1e-4)
+    assert float(out["speed"].detach()) == pytest.approx(0.5 * (0 + 0 + 2 + 2) / 4, abs=1e-4)
     out["speed"].backward()
     assert fast.grad[0, 7 + 6:7 + 12].abs().sum() > 0
