@@ -68,9 +68,11 @@ def test_unset_sampler_settings_are_the_generators_defaults(cross_net, tmp_path)
     g = GenerationConfig()
     assert (s.steps, s.guidance, s.threshold, s.scene_guidance) == (g.steps, g.guidance, g.threshold, None)
     assert s.pin_tokens is g.pin_tokens is True
-    path.write_text(path.read_text() + "pin_tokens = false\n")
+    assert s.lane_headings is g.lane_headings is True and s.lane_snap is g.lane_snap is True
+    path.write_text(path.read_text() + "pin_tokens = false\nlane_snap = false\n")
     (s,) = load_spec(str(path)).scenarios()
     assert s.pin_tokens is False and s.params()["pin_tokens"] is False
+    assert s.lane_snap is False and s.lane_headings is True
 
 
 def test_batches_depend_on_the_plan_alone(spec_file):
@@ -95,6 +97,7 @@ def test_batches_depend_on_the_plan_alone(spec_file):
     ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\np_mask = [1.5]\n', "p_mask"),
     ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\nguidance = -1.0\n', "guidance"),
     ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\npin_tokens = 1\n', "pin_tokens: must be bool"),
+    ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\nlane_snap = "no"\n', "lane_snap: must be bool"),
     ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\n[[token_sets]]\nagents = [{speed = -1}]\n',
      "token_sets[0]: agents[0]"),
     ('networks = ["x.net.xml"]\n[[scenarios]]\nlocation = "auto:0"\ntoken_set = "nope"\n', "not defined"),
