@@ -7,7 +7,8 @@
 Pipeline per batch: map raster m -> initial noise (one generator per window, so a window's scene does
 not depend on what else is in the batch) -> pinned tokens' latent cells (pinning.py) -> ODE from
 sigma_max to 0 (DPM-Solver++(2M) by default) -> D(z, m) ->
-boxes above ``threshold`` -> overlapping boxes removed (most probable kept) -> poses snapped onto
+boxes above ``threshold`` -> overlapping boxes removed (most probable kept) -> pinned tokens' agents
+turned to the tokens' headings (pinning.turn_to_pins) -> poses snapped onto
 lane centre lines (lane_snap.py; agents on no lane removed unless a token asked for them, overlaps
 removed again) -> scene-frame
 :class:`~sumo_scendiff.scene.Scene` with speeds from the trajectory.
@@ -30,7 +31,7 @@ from .model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from .model.detection import decode_boxes
 from .model.diffusion import DiffusionConfig, ScenarioDiffusion
 from .model.edm import sample_dpmpp_2m
-from .pinning import pinned_latent
+from .pinning import pinned_latent, pinned_poses, turn_to_pins
 from .raster import MAP_CHANNELS, RasterConfig, render_map
 from .scene import Scene, vclass_from_size
 from .tokens import AGENT_TOKEN_DIM, agent_tokens_from_dicts, global_token, pad_tokens, token_positions
@@ -55,7 +56,8 @@ class GenerationConfig:
     scene_guidance_sigma: float | None = None  # ... applied only at noise levels above this
                                                # (None: the checkpoint's, calibrated with the weight)
     pin_tokens: bool = True      # a token giving pose, size and speed is imposed in the latent
-                                 # (pinning.py); False: every token is a condition only (the paper)
+                                 # (pinning.py) and its agent takes the token's heading; False:
+                                 # every token is a condition only (the paper)
     lane_headings: bool = True   # a box on a junction takes the heading of the network's lane through
                                  # it that the heading head finds most probable (lane_heading.py)
     lane_snap: bool = True       # poses within 3 m of an agreeing car lane move onto its centre line
@@ -183,12 +185,15 @@ class ScenarioGenerator:
         return dec.prob.numpy(), dec.boxes.numpy(), dec.traj.numpy()
 
     def _scene(self, window: Window, prob, boxes, traj, cfg: GenerationConfig, net,
-               tokens: np.ndarray | None = None) -> Scene:
+               tokens: np.ndarray | None = None, pins: np.ndarray | None = None) -> Scene:
         keep = select_boxes(window, prob, boxes, cfg.threshold)
         boxes, traj = boxes[keep], traj[keep]
+        turned = np.zeros(len(keep), bool)
+        if cfg.pin_tokens and pins is not None and len(pins):
+            boxes, traj, turned = turn_to_pins(boxes, traj, pins, ASKED_RADIUS)
         off_lane = 0
         if cfg.lane_snap and net is not None:
-            boxes, traj, snapped = snap_to_lanes(boxes, traj, window, net)
+            boxes, traj, snapped = snap_to_lanes(boxes, traj, window, net, given=turned)
             # an agent on no car lane agreeing with it (off the road, or against a one-way street)
             # is one SUMO cannot take: removed, unless a token asked for a vehicle there
             asked = token_positions(tokens) if tokens is not None and len(tokens) else np.zeros((0, 2))
@@ -245,7 +250,8 @@ class ScenarioGenerator:
                                             tokens[sl] if tokens is not None else None,
                                             net=net, windows=windows[sl])
             for k, w in enumerate(windows[sl]):
-                out.append(self._scene(w, prob[k], boxes[k], traj[k], cfg, net, toks[s + k]))
+                out.append(self._scene(w, prob[k], boxes[k], traj[k], cfg, net, toks[s + k],
+                                       pinned_poses(tokens[s + k]) if tokens is not None else None))
         return out
 
 

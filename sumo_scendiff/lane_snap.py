@@ -38,6 +38,7 @@ if TYPE_CHECKING:
 
 SNAP_RADIUS = 3.0        # m: as far as seeding looks for a vehicle's lane (Network.lookup)
 SNAP_MAX_ANGLE = np.pi / 3
+GIVEN_MAX_ANGLE = 0.2    # rad: an agent whose heading a token gave keeps to lanes this close to it
 STILL = 0.5              # m: an agent whose poses all lie this close to t = 0 stands still
 FOLLOW_DEPTH = 6         # lane-graph edges a walk may cross (junction-internal lanes are short)
 
@@ -60,11 +61,14 @@ def walk_lanes(net: "Network", lane: int, pos: float, d: float, depth: int = FOL
 
 
 def snap_to_lanes(boxes: np.ndarray, traj: np.ndarray, window: Window, net: "Network",
-                  radius: float = SNAP_RADIUS, max_angle: float = SNAP_MAX_ANGLE
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  radius: float = SNAP_RADIUS, max_angle: float = SNAP_MAX_ANGLE,
+                  given: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Boxes (N, 5: x, y, yaw, length, width) and trajectories (N, T, 3: x, y, yaw) of one scene
-    (``window``'s frame) with their poses moved onto lane centre lines. Returns new arrays (the box
-    pose is the trajectory's t = 0 pose) and which poses moved (N, T)."""
+    (``window``'s frame) with their poses moved onto lane centre lines. ``given`` (N,) marks agents
+    whose heading a token stated (:func:`~sumo_scendiff.pinning.turn_to_pins`): their poses take a
+    lane within ``GIVEN_MAX_ANGLE`` of it where there is one, even past a nearer lane that turns
+    away (inside a junction the lanes overlap). Returns new arrays (the box pose is the
+    trajectory's t = 0 pose) and which poses moved (N, T)."""
     boxes, traj = np.array(boxes, np.float64), np.array(traj, np.float64)
     n, t = traj.shape[:2]
     if n == 0:
@@ -72,6 +76,11 @@ def snap_to_lanes(boxes: np.ndarray, traj: np.ndarray, window: Window, net: "Net
     xy = window.scene_to_world(traj[..., :2].reshape(-1, 2))
     yaw = window.yaw_to_world(traj[..., 2].reshape(-1))
     m = net.match_poses(xy, yaw, radius=radius, max_angle=max_angle)
+    if given is not None and np.any(given):
+        strict = net.match_poses(xy, yaw, radius=radius, max_angle=GIVEN_MAX_ANGLE)
+        take = np.repeat(np.asarray(given, bool), t) & (strict.lane >= 0)
+        for f in ("lane", "pos", "lateral", "heading", "xy", "heading_diff"):
+            getattr(m, f)[take] = getattr(strict, f)[take]
     snapped = (m.lane >= 0).reshape(n, t)
     lane, pos = m.lane.reshape(n, t).copy(), m.pos.reshape(n, t).copy()
     w_xy, w_yaw = m.xy.reshape(n, t, 2).copy(), m.heading.reshape(n, t).copy()

@@ -102,3 +102,38 @@ def pinned_latent(autoencoder, tokens: Sequence[Sequence[Mapping] | None], laten
     mu, empty = mu[:-1], mu[-1:]
     mask = ((mu - empty).abs().amax(dim=1, keepdim=True) > footprint).to(mu.dtype)
     return mu * latent_scale, mask
+
+
+def pinned_poses(tokens: Sequence[Mapping] | None) -> np.ndarray:
+    """(P, 3) scene-frame ``x, y, heading`` of the pinnable token dicts of one window."""
+    pins = [t for t in (tokens or ()) if isinstance(t, Mapping) and is_pinnable(t)]
+    return np.array([[float(t["x"]), float(t["y"]), float(t["heading"])] for t in pins],
+                    np.float64).reshape(-1, 3)
+
+
+def turn_to_pins(boxes: np.ndarray, traj: np.ndarray, pins: np.ndarray, radius: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each pinned token's agent takes the token's heading: the decoded agents (boxes (N, 5), traj
+    (N, T, 3), scene frame) are matched one-to-one to the pins ``(P, 3)`` within ``radius`` m
+    (scipy's Hungarian on centre distance), and a matched agent's box and trajectory turn rigidly
+    about its current pose by the difference. Inside a junction the decoder's heading is the least
+    certain part of a pinned agent (README "Token control"), and the token states it exactly.
+    Returns new arrays and which agents turned (N,)."""
+    from scipy.optimize import linear_sum_assignment
+    boxes, traj = np.array(boxes, np.float64), np.array(traj, np.float64)
+    turned = np.zeros(len(boxes), bool)
+    if len(boxes) == 0 or len(pins) == 0:
+        return boxes, traj, turned
+    d = np.linalg.norm(boxes[:, None, :2] - pins[None, :, :2], axis=-1)
+    rows, cols = linear_sum_assignment(np.where(d <= radius, d, 1e6))
+    for a, p in zip(rows, cols):
+        if d[a, p] > radius:
+            continue
+        delta = float(wrap_angle(pins[p, 2] - boxes[a, 2]))
+        c, s = np.cos(delta), np.sin(delta)
+        rel = traj[a, :, :2] - traj[a, T0, :2]
+        traj[a, :, :2] = traj[a, T0, :2] + rel @ np.array([[c, s], [-s, c]])
+        traj[a, :, 2] = wrap_angle(traj[a, :, 2] + delta)
+        boxes[a, 2] = traj[a, T0, 2]
+        turned[a] = True
+    return boxes, traj, turned

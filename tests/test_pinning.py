@@ -11,7 +11,7 @@ from sumo_scendiff.generate import ScenarioGenerator
 from sumo_scendiff.geometry import T0, Window
 from sumo_scendiff.model.edm import SAMPLERS, inpainted, karras_sigmas
 from sumo_scendiff.network import Network
-from sumo_scendiff.pinning import is_pinnable, pinned_latent, token_trajectories
+from sumo_scendiff.pinning import is_pinnable, pinned_latent, token_trajectories, turn_to_pins
 
 CAR = {"x": 3.0, "y": -2.0, "heading": 0.5, "length": 4.5, "width": 1.8}
 
@@ -130,3 +130,45 @@ def test_shipped_model_keeps_a_slow_truck_moving():
     s = gen.generate(net, window, tokens=[toks], p_mask=0.5, seed=3)[0]
     k, _ = nearest(s, toks[1])
     assert abs(s.speed[k, T0] - toks[1]["speed"]) < 1.5
+
+
+def test_turn_to_pins_turns_the_matched_agent_rigidly_about_its_pose():
+    boxes = np.array([[0.0, 0.0, 0.3, 4.5, 1.8], [20.0, 0.0, 0.0, 4.5, 1.8]])
+    t = np.arange(-2, 3, dtype=np.float64)
+    traj = np.zeros((2, 5, 3))
+    traj[0, :, 0], traj[0, :, 1], traj[0, :, 2] = 10 * t * np.cos(0.3), 10 * t * np.sin(0.3), 0.3
+    traj[1, :, 0] = 20.0
+    pins = np.array([[0.6, 0.4, 1.0],       # 0.7 m from the first agent, heading 1.0 rad
+                     [30.0, 0.0, 2.0]])     # 10 m from either: no agent of its own
+    b, tr, turned = turn_to_pins(boxes, traj, pins, radius=2.0)
+    assert turned.tolist() == [True, False]
+    assert np.allclose(tr[0, :, 2], 1.0) and b[0, 2] == pytest.approx(1.0)
+    assert np.allclose(tr[0, :, :2], np.c_[10 * t * np.cos(1.0), 10 * t * np.sin(1.0)])   # same steps
+    assert np.array_equal(b[1], boxes[1]) and np.array_equal(tr[1], traj[1])
+    assert np.allclose(b[0, [0, 1, 3, 4]], boxes[0, [0, 1, 3, 4]])       # position and size stay
+    two = turn_to_pins(boxes[:1], traj[:1], np.array([[0.5, 0.0, 1.0], [0.1, 0.0, -1.0]]), 2.0)
+    assert two[0][0, 2] == pytest.approx(-1.0)                          # one agent, the nearer pin
+
+
+def test_a_pinned_agent_on_a_junction_takes_the_tokens_lane(cross_net):
+    """Inside a junction the decoder's heading is its least certain output; a pinned token states
+    it, and the agent ends on the lane that heading follows, not on a nearer crossing one."""
+    from sumo_scendiff.generate import GenerationConfig
+    from sumo_scendiff.lane_snap import snap_to_lanes
+    net = Network.load(cross_net)
+    window = Window(0.0, 0.0, 0.0)
+    lane = next(i for i, ln in enumerate(net.lanes) if ln.internal and ln.car
+                and ln.shape[-1][1] - ln.shape[0][1] > 10 and abs(ln.shape[-1][0] - ln.shape[0][0]) < 0.5)
+    xy = np.asarray(net.lines[lane].interpolate(0.5, normalized=True).coords[0])   # northbound, mid-junction
+    token = {"x": float(xy[0]) + 0.5, "y": float(xy[1]), "heading": np.pi / 2, "length": 4.5,
+             "width": 1.8, "speed": 5.0}
+    decoded_yaw = 0.2                                    # the decoder says east, along the crossing lane
+    boxes = np.array([[xy[0] + 0.5, xy[1], decoded_yaw, 4.5, 1.8]], np.float32)
+    traj = np.repeat(boxes[:, None, :3], 5, 1)
+    gen = ScenarioGenerator.load()
+    scene = gen._scene(window, np.array([0.9], np.float32), boxes, traj, GenerationConfig(), net,
+                       pins=np.array([[token["x"], token["y"], token["heading"]]]))
+    assert len(scene) == 1 and scene.boxes[0, 2] == pytest.approx(np.pi / 2, abs=0.02)
+    assert abs(scene.boxes[0, 0] - xy[0]) < 1e-2                   # on the northbound lane's centre line
+    unpinned = snap_to_lanes(boxes, traj, window, net)[0]
+    assert abs(unpinned[0, 2] - np.pi / 2) > 0.5                   # as decoded: the eastbound lane
