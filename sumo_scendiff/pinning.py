@@ -16,7 +16,9 @@ generates the rest around them (:func:`~sumo_scendiff.model.edm.inpainted`). The
 each pinned agent about as the autoencoder reconstructs it (every-token F1 0.971 against the
 autoencoder's 0.977 on held-out scenes, benchmarks/reconstruction.py). Tokens missing
 any of those features stay conditions only. A generated agent that would share a latent cell
-(6.25 m) with a pinned one is not drawn there: the cell holds the pinned agent alone.
+(6.25 m) with a pinned one is not drawn there: the cell holds the pinned agent alone. After
+decoding, the agent found within 2 m of a pinned token takes the token's heading
+(:func:`turn_to_pins`): inside a junction the decoder's heading is its least certain output.
 """
 from __future__ import annotations
 
