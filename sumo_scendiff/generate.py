@@ -201,10 +201,10 @@ class ScenarioGenerator:
             ok = snapped[:, T0] | near
             off_lane = int((~ok).sum())
             # two boxes snapped onto one lane may now overlap, or a centre leave the window
-            ok = np.flatnonzero(ok)
-            ok = ok[remove_overlaps(boxes[ok], prob[keep][ok])]
+            p, ok = prob[keep], np.flatnonzero(ok)
+            ok = ok[remove_overlaps(boxes[ok], p[ok])]
             ok = ok[window.contains(boxes[ok, :2])]
-            ok = ok[np.argsort(-prob[keep][ok], kind="stable")]
+            ok = ok[np.argsort(-p[ok], kind="stable")]
             keep, boxes, traj = keep[ok], boxes[ok], traj[ok]
         # millimetres / milliradians: the float noise of batch composition and thread count
         # (~1e-6) must not make the same seed seed SUMO differently

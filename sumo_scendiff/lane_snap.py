@@ -76,11 +76,12 @@ def snap_to_lanes(boxes: np.ndarray, traj: np.ndarray, window: Window, net: "Net
     xy = window.scene_to_world(traj[..., :2].reshape(-1, 2))
     yaw = window.yaw_to_world(traj[..., 2].reshape(-1))
     m = net.match_poses(xy, yaw, radius=radius, max_angle=max_angle)
-    if given is not None and np.any(given):
-        strict = net.match_poses(xy, yaw, radius=radius, max_angle=GIVEN_MAX_ANGLE)
-        take = np.repeat(np.asarray(given, bool), t) & (strict.lane >= 0)
+    if given is not None and np.any(given):                        # only the given agents' poses
+        rows = np.flatnonzero(np.repeat(np.asarray(given, bool), t))
+        strict = net.match_poses(xy[rows], yaw[rows], radius=radius, max_angle=GIVEN_MAX_ANGLE)
+        found = strict.lane >= 0
         for f in ("lane", "pos", "lateral", "heading", "xy", "heading_diff"):
-            getattr(m, f)[take] = getattr(strict, f)[take]
+            getattr(m, f)[rows[found]] = getattr(strict, f)[found]
     snapped = (m.lane >= 0).reshape(n, t)
     lane, pos = m.lane.reshape(n, t).copy(), m.pos.reshape(n, t).copy()
     w_xy, w_yaw = m.xy.reshape(n, t, 2).copy(), m.heading.reshape(n, t).copy()
@@ -101,8 +102,7 @@ def snap_to_lanes(boxes: np.ndarray, traj: np.ndarray, window: Window, net: "Net
     new_yaw = window.yaw_to_scene(w_yaw).reshape(n, t)
     traj[..., :2] = np.where(snapped[..., None], new_xy, traj[..., :2])
     traj[..., 2] = np.where(snapped, new_yaw, traj[..., 2])
-    still = (np.linalg.norm(xy.reshape(n, t, 2) - xy.reshape(n, t, 2)[:, T0:T0 + 1], axis=-1)
-             <= STILL).all(1) & snapped[:, T0]
+    still = (np.linalg.norm(dec - dec[:, T0:T0 + 1], axis=-1) <= STILL).all(1) & snapped[:, T0]
     traj[still] = traj[still, T0:T0 + 1]
     snapped[still] = True
     boxes[:, :3] = traj[:, T0]
