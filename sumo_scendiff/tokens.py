@@ -22,8 +22,8 @@ presence bit, and an absent feature is encoded as zeros with its bit 0. The agen
 The global scene token is p_mask bucketed into 10 one-hot bins [0, 0.1), ..., [0.9, 1.0]
 (1.0 falls in the last bin). It is always present.
 
-Training-time partial tokenisation (:func:`sample_token_mask`, :func:`sample_feature_dropout`,
-:func:`partial_tokens`): 40 % of scenes keep every token (p_mask = 0), 60 % draw
+Training-time partial tokenisation (:mod:`~sumo_scendiff.token_masking`: ``sample_token_mask``,
+``sample_feature_dropout``, ``partial_tokens``): 40 % of scenes keep every token (p_mask = 0), 60 % draw
 p_mask ~ Beta(2, 1); each agent token is dropped with probability p_mask. Kept tokens then undergo
 *feature dropout* so the model learns every feature subset: with probability 0.5 a token keeps
 all its features; otherwise each feature group -- position (x, y), heading, extents
@@ -38,7 +38,6 @@ Encoding is numpy (float32); :func:`pad_tokens` turns token lists into batched t
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
@@ -213,70 +212,6 @@ def global_token(p_mask: float | Sequence[float] | np.ndarray) -> np.ndarray:
     idx = np.minimum(np.floor(p * GLOBAL_TOKEN_DIM), GLOBAL_TOKEN_DIM - 1).astype(np.int64)
     out = _one_hot(idx.reshape(-1), GLOBAL_TOKEN_DIM)
     return out[0] if p.ndim == 0 else out
-
-
-# --------------------------------------------------------------------------------------------
-# Training-time partial tokenisation
-# --------------------------------------------------------------------------------------------
-
-@dataclass
-class TokenMaskConfig:
-    """Partial tokenisation (paper sec. 4.3.1) and feature dropout hyper-parameters."""
-
-    p_keep_all_tokens: float = 0.4      # P(p_mask = 0)
-    p_map_only: float = 0.0             # P(p_mask = 1: no agent token, the map alone); not in the paper
-    beta_a: float = 2.0                 # otherwise p_mask ~ Beta(a, b)
-    beta_b: float = 1.0
-    p_all_features: float = 0.5         # a kept token keeps every feature with this probability
-    p_drop_group: float = 0.3           # otherwise each group is dropped with this probability
-    p_drop_position: float = 0.15       # ... except position (see module docstring)
-
-
-def sample_token_mask(n_agents: int, rng: np.random.Generator,
-                      cfg: TokenMaskConfig = TokenMaskConfig()) -> tuple[float, np.ndarray]:
-    """Draw p_mask (0 w.p. 0.4, 1 w.p. ``p_map_only``, else Beta(2, 1)) and drop each agent token
-    with probability p_mask.
-
-    Returns ``(p_mask, keep)`` with keep (n_agents,) bool; encode the global token with
-    ``global_token(p_mask)``.
-    """
-    u = rng.random()
-    if u < cfg.p_keep_all_tokens:
-        p_mask = 0.0
-    elif u < cfg.p_keep_all_tokens + cfg.p_map_only:
-        p_mask = 1.0
-    else:
-        p_mask = float(rng.beta(cfg.beta_a, cfg.beta_b))
-    keep = rng.random(n_agents) >= p_mask
-    return p_mask, keep
-
-
-def sample_feature_dropout(n_tokens: int, rng: np.random.Generator,
-                           cfg: TokenMaskConfig = TokenMaskConfig()) -> dict[str, np.ndarray]:
-    """Per-token feature keep flags, name -> (n_tokens,) bool, dropping whole feature groups."""
-    full = rng.random(n_tokens) < cfg.p_all_features
-    keep: dict[str, np.ndarray] = {}
-    for group, names in FEATURE_GROUPS.items():
-        p = cfg.p_drop_position if group == "position" else cfg.p_drop_group
-        k = full | (rng.random(n_tokens) >= p)
-        for name in names:
-            keep[name] = k
-    return keep
-
-
-def partial_tokens(features: Mapping[str, np.ndarray], present: Mapping[str, np.ndarray],
-                   rng: np.random.Generator, cfg: TokenMaskConfig = TokenMaskConfig()
-                   ) -> tuple[np.ndarray, np.ndarray, float]:
-    """One training example's conditioning: token masking, then feature dropout, then encoding.
-
-    Returns ``(agent_tokens (K, 170), global_token (10,), p_mask)`` for the K kept agents.
-    """
-    n = len(next(iter(features.values()))) if features else 0
-    p_mask, keep = sample_token_mask(n, rng, cfg)
-    fk = sample_feature_dropout(int(keep.sum()), rng, cfg)
-    feats = {k: np.asarray(v)[keep] for k, v in features.items()}
-    pres = {k: np.asarray(present.get(k, np.ones(n, bool)))[keep] & fk[k] for k in features}
-    return encode_agent_tokens(feats, pres), global_token(p_mask), p_mask
 
 
 # --------------------------------------------------------------------------------------------

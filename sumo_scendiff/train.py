@@ -34,8 +34,8 @@ from .model import checkpoint as ckpt  # noqa: E402
 from .model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from .model.blocks import widen_input, widen_output
 from .model.diffusion import DiffusionConfig, ScenarioDiffusion
-from .model.unet import widen_conv_in
-from .tokens import TokenMaskConfig
+from .model.unet import grow_latent, widen_conv_in
+from .token_masking import TokenMaskConfig
 from .train_loop import Loop, conditioning, distributed_setup, estimate_latent_scale
 
 PROG = "python -m sumo_scendiff.train"
@@ -172,6 +172,14 @@ def train_autoencoder(o) -> None:
         state = widen_input(state, "D_down.conv_in.weight", model.D_down.conv_in.weight)
         for key in ("D_up.conv_out.weight", "D_up.conv_out.bias"):  # a heading head the source lacks
             state = widen_output(state, key, model.state_dict()[key])
+        old_c_z = init["model_config"]["C_z"]
+        if old_c_z != model.cfg.C_z and o.freeze_encoder:
+            o.parser.exit(2, f"{PROG}: error: --freeze-encoder keeps the latent space: C_z {model.cfg.C_z} "
+                             f"differs from {o.init_from}'s {old_c_z}\n")
+        try:  # a larger latent (C_z): the new channels start unused by the decoder
+            state = model.grow_latent(state, old_c_z)
+        except ValueError as e:
+            o.parser.exit(2, f"{PROG}: error: {o.init_from}: {e}\n")
         ckpt.load_state(model, state, o.init_from)
         extra.update(warm_start_record(init, o.init_from))
         if o.freeze_encoder:  # the encoder whose latents a diffusion model may have been trained on
@@ -205,8 +213,13 @@ def train_diffusion(o) -> None:
     last = os.path.join(o.out, "last.pt")
     saved = ckpt.load(last, "diffusion-train") if os.path.exists(last) else None
     # a run continues with its own config (--model-config on top), a warm start with the defaults'
-    model = ScenarioDiffusion(model_config(o, DiffusionConfig, base=(saved or {}).get("model_config"),
-                                           use_map=not o.no_map))
+    # the UNet denoises the autoencoder's latent: its c_z follows the autoencoder's C_z
+    base = (saved or {}).get("model_config") or asdict(DiffusionConfig())
+    base = _merge(base, {"unet": {"c_z": ae.cfg.C_z}})
+    model = ScenarioDiffusion(model_config(o, DiffusionConfig, base=base, use_map=not o.no_map))
+    if model.cfg.unet.c_z != ae.cfg.C_z:
+        o.parser.exit(2, f"{PROG}: error: --model-config: unet.c_z {model.cfg.unet.c_z} differs from "
+                         f"{o.autoencoder}'s latent channels C_z {ae.cfg.C_z}\n")
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     scale = {"value": None}
     mask_cfg = TokenMaskConfig(p_keep_all_tokens=cfg.p_keep_all_tokens, p_map_only=cfg.p_map_only)
@@ -225,7 +238,13 @@ def train_diffusion(o) -> None:
              "autoencoder_sha256": ckpt.sha256(o.autoencoder)}
     if o.init_from and saved is None:
         init = load_training(o.init_from, "diffusion-train")
-        state = widen_conv_in(init.get("ema", init["state"]), model.denoiser.net, prefix="denoiser.net.")
+        state = init.get("ema", init["state"])
+        try:  # an autoencoder with a larger latent: the new channels start at zero weights
+            state = grow_latent(state, model.denoiser.net, init["model_config"]["unet"]["c_z"],
+                                prefix="denoiser.net.")
+        except ValueError as e:
+            o.parser.exit(2, f"{PROG}: error: {o.init_from}: {e}\n")
+        state = widen_conv_in(state, model.denoiser.net, prefix="denoiser.net.")
         state = widen_input(state, "E_m.conv_in.weight", model.E_m.conv_in.weight)  # map channels added
         ckpt.load_state(model, state, o.init_from)
         extra.update(warm_start_record(init, o.init_from))

@@ -23,7 +23,8 @@ from torch.utils.data import DataLoader, DistributedSampler, RandomSampler
 from .data.dataset import SceneDataset, collate_scenes
 from .data.shards import DataError, read_manifest
 from .model import checkpoint as ckpt
-from .tokens import TokenMaskConfig, features_from_scene, pad_tokens, partial_tokens
+from .token_masking import TokenMaskConfig, partial_tokens
+from .tokens import features_from_scene, pad_tokens
 
 VAL_STEP = 1_000_000_000  # "step" given to step_loss in validation: its token masks never repeat training's
 

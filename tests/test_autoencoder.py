@@ -3,6 +3,7 @@ import math
 
 import cv2
 import numpy as np
+import pytest
 import torch
 
 from sumo_scendiff.geometry import box_corners, metres_to_pixels
@@ -140,3 +141,25 @@ def test_overfit_one_scene():
         assert (det["boxes"][best, 3:] - gt[j, 3:]).abs().max() < 1.0
         traj_err = (det["traj"][best, :, :2] - batch["traj"][0, j, :, :2]).norm(dim=-1).max()
         assert traj_err < 3.0, traj_err
+
+
+@torch.no_grad()
+def test_grow_latent_decodes_what_the_smaller_latent_did():
+    """An autoencoder grown from C_z 4 to 6: the old mu / logvar channels and the decoding are
+    unchanged, the new mu channels are not all zero (else neither side of them would ever get a
+    gradient), the decoder reads them with zero weights; shrinking is refused."""
+    from dataclasses import replace
+
+    torch.manual_seed(0)
+    cfg = AutoencoderConfig(enc_channels=(8, 8, 16, 16), dec_channels=(16, 16, 16), C_map=8)
+    old = ScenarioAutoencoder(cfg).eval()
+    new = ScenarioAutoencoder(replace(cfg, C_z=6)).eval()
+    new.load_state_dict(new.grow_latent(old.state_dict(), 4))
+    x, m = torch.rand(2, cfg.C_x, 128, 128), torch.rand(2, cfg.C_m, 128, 128)
+    (mu0, lv0), (mu1, lv1) = old.encode(x), new.encode(x)
+    torch.testing.assert_close(mu1[:, :4], mu0)
+    torch.testing.assert_close(lv1[:, :4], lv0)
+    assert mu1[:, 4:].abs().mean() > 1e-3
+    torch.testing.assert_close(new.decode(mu1, m), old.decode(mu0, m), atol=1e-4, rtol=1e-5)  # (m, x 10)
+    with pytest.raises(ValueError, match="cannot shrink"):
+        old.grow_latent(new.state_dict(), 6)

@@ -295,6 +295,45 @@ def test_decoder_fine_tune_adds_map_skips_map_channels_and_a_heading_head(tmp_pa
     assert len(gen.generate(Network.load(cross_net), [Window(0.0, 0.0, 0.0)], seed=0)) == 1
 
 
+def test_grown_latent_warm_starts_both_stages(tmp_path, cross_net):
+    """--model-config '{"C_z": 6}' with --init-from a C_z 4 autoencoder grows its latent (at
+    learning rate 0 the old channels decode as before); a diffusion run on it takes c_z 6 from the
+    autoencoder by itself and warm-starts from the 4-channel diffusion model; the pair exports and
+    generates. Growing with --freeze-encoder, or shrinking, is one line and exit 2."""
+    import torch
+
+    from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
+    from sumo_scendiff.model import checkpoint as ckpt
+    common, src = autoencoder_and_diffusion(tmp_path, cross_net)
+    train("autoencoder", *common, "-o", tmp_path / "ae6", "--steps", 1, "--init-from", src, "--lr", 0.0,
+          "--weight-decay", 0.0, "--model-config", json.dumps({"C_z": 6}))
+    a, b = (ckpt.load(str(p), "autoencoder-train") for p in (src, tmp_path / "ae6" / "last.pt"))
+    assert b["model_config"]["C_z"] == 6
+    w_a, w_b = a["state"]["E.conv_out.weight"], b["state"]["E.conv_out.weight"]
+    assert torch.equal(w_b[:4], w_a[:4]) and torch.equal(w_b[6:10], w_a[4:])
+    d_a, d_b = a["state"]["D_up.conv_in.weight"], b["state"]["D_up.conv_in.weight"]
+    assert torch.equal(d_b[:, :4], d_a[:, :4]) and not d_b[:, 4:6].any() and torch.equal(d_b[:, 6:], d_a[:, 4:])
+    res = train("diffusion", *common, "--autoencoder", tmp_path / "ae6" / "last.pt", "--init-from",
+                tmp_path / "d" / "last.pt", "-o", tmp_path / "d6", "--steps", 1, "--model-config", json.dumps(TINY_DIFF))
+    assert "warm start from step 1" in res.stdout
+    d6 = ckpt.load(str(tmp_path / "d6" / "last.pt"), "diffusion-train")
+    assert d6["model_config"]["unet"]["c_z"] == 6
+    out = tmp_path / "model.pt"
+    train("export", "--autoencoder", tmp_path / "ae6" / "last.pt", "--diffusion", tmp_path / "d6" / "last.pt", "-o", out)
+    gen = ScenarioGenerator.load(str(out), GenerationConfig(steps=2))
+    assert len(gen.generate(Network.load(cross_net), [Window(0.0, 0.0, 0.0)], seed=0)) == 1
+    for args, message in (
+            (["--init-from", src, "--freeze-encoder", "--model-config", json.dumps({"C_z": 6})],
+             "--freeze-encoder keeps the latent space"),
+            (["--init-from", tmp_path / "ae6" / "last.pt", "--model-config", json.dumps({"C_z": 4})],
+             "cannot shrink the latent from 6 to 4 channels")):
+        bad = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "autoencoder", *map(str, common),
+                              "-o", str(tmp_path / "bad"), "--steps", "1", *map(str, args)],
+                             capture_output=True, text=True)
+        assert bad.returncode == 2 and message in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
+        assert not (tmp_path / "bad" / "last.pt").exists()
+
+
 def test_fine_tune_the_exported_model(tmp_path, cross_net):
     """An exported model (the shipped weights) is a warm start: its autoencoder serves as --autoencoder,
     its weight average as --init-from, its latent scale carries over, and the fine-tuned run exports

@@ -3,11 +3,12 @@ import numpy as np
 import pytest
 import torch
 
+from sumo_scendiff.token_masking import (TokenMaskConfig, partial_tokens, sample_feature_dropout,
+                                         sample_token_mask)
 from sumo_scendiff.tokens import (AGENT_TOKEN_DIM, FEATURE_SLICES, FEATURES, GLOBAL_TOKEN_DIM,
-                                  PRESENCE_SLICE, TokenError, TokenMaskConfig,
-                                  agent_tokens_from_dicts, encode_agent_tokens, features_from_scene,
-                                  global_token, pad_tokens, partial_tokens, sample_feature_dropout,
-                                  sample_token_mask, tokens_from_scene, validate_token_features)
+                                  PRESENCE_SLICE, TokenError, agent_tokens_from_dicts,
+                                  encode_agent_tokens, features_from_scene, global_token, pad_tokens,
+                                  tokens_from_scene, validate_token_features)
 
 
 def _bin_of(tokens, name):

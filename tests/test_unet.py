@@ -164,6 +164,32 @@ def test_widen_conv_in_warm_start_computes_the_old_function():
     torch.testing.assert_close(new(*args), old(*args), atol=1e-5, rtol=1e-5)
 
 
+@torch.no_grad()
+def test_grow_latent_keeps_the_old_channels_and_starts_the_new_at_c_skip():
+    """A UNet grown from 4 to 6 latent channels (an autoencoder whose latent grew) computes the old
+    F on the old channels, F = 0 on the new ones (the denoiser starts at c_skip z there), and reads
+    the new input channels with zero weights; shrinking is refused."""
+    from dataclasses import replace
+
+    import pytest
+
+    from sumo_scendiff.model.unet import grow_latent
+    torch.manual_seed(0)
+    old = UNet(CFG).eval()
+    for name, p in old.named_parameters():
+        if "conv_out" in name or ".attn.proj" in name:
+            p.normal_(0, 0.2)
+    new = UNet(replace(CFG, c_z=6)).eval()
+    new.load_state_dict(grow_latent(old.state_dict(), new, 4))
+    z, cn, m, tok, pad, glob = _inputs()
+    z6 = torch.cat([z, torch.randn(2, 2, 16, 16)], dim=1)
+    out = new(z6, cn, m, tok, pad, glob)
+    torch.testing.assert_close(out[:, :4], old(z, cn, m, tok, pad, glob), atol=1e-5, rtol=1e-5)
+    assert not out[:, 4:].any()
+    with pytest.raises(ValueError, match="cannot shrink"):
+        grow_latent(new.state_dict(), old, 6)
+
+
 def test_no_map_ablation_ignores_the_map_and_survives_its_config_round_trip():
     from sumo_scendiff.model import checkpoint as ckpt
     from sumo_scendiff.model.diffusion import DiffusionConfig, ScenarioDiffusion

@@ -23,7 +23,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..raster import MAP_CHANNELS
-from .blocks import Downsample, ResnetBlock, Upsample, group_norm
+from .blocks import Downsample, ResnetBlock, Upsample, group_norm, grow_segments
 from .detection import C_Y, DetectionLossConfig, detection_loss
 from .heading import bin_width
 
@@ -178,6 +178,25 @@ class ScenarioAutoencoder(nn.Module):
         sample = self.training if sample is None else sample
         z = self.sample(mu, logvar) if sample else mu
         return self.decode(z, m), mu, logvar
+
+    def grow_latent(self, state: dict, old_c_z: int) -> dict:
+        """A state dict of this autoencoder's layout with ``old_c_z`` latent channels, fitted to this
+        one's larger C_z: the encoder's new mu / logvar outputs keep this model's fresh (random)
+        initialisation, the decoder reads them with zero weights. The grown model decodes what the
+        old one did, and training can teach the new channels what the old ones could not carry
+        (both new sides zero would get no gradient)."""
+        c, own = self.cfg.C_z, self.state_dict()
+        if old_c_z == c:
+            return state
+        if old_c_z > c:
+            raise ValueError(f"cannot shrink the latent from {old_c_z} to {c} channels")
+        state = dict(state)
+        for key in ("E.conv_out.weight", "E.conv_out.bias"):
+            state[key] = grow_segments(state[key], own[key], 0, (old_c_z, old_c_z), (c, c))
+        key = "D_up.conv_in.weight"
+        state[key] = grow_segments(state[key], torch.zeros_like(own[key]), 1,
+                                   (old_c_z, self.cfg.C_map), (c, self.cfg.C_map))
+        return state
 
     @staticmethod
     def kl(mu: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:

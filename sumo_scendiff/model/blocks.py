@@ -99,3 +99,18 @@ def widen_output(state: dict, key: str, param: torch.Tensor) -> dict:
     w = torch.zeros_like(param)
     w[: old.shape[0]] = old
     return {**state, key: w}
+
+
+def grow_segments(old: torch.Tensor, like: torch.Tensor, dim: int, old_sizes: tuple[int, ...],
+                  new_sizes: tuple[int, ...]) -> torch.Tensor:
+    """``like`` (a tensor of the grown layout: its values fill what is new) with ``old``'s values put
+    back: along ``dim``, ``old`` is made of consecutive segments of ``old_sizes`` and ``like`` of
+    ``new_sizes`` (each at least as long); segment ``i`` of ``old`` goes to the start of segment ``i``.
+    E.g. an encoder's ``conv_out`` of ``[mu; logvar]`` grown from 4 + 4 to 8 + 8 latent channels."""
+    if len(old_sizes) != len(new_sizes) or any(n < o for o, n in zip(old_sizes, new_sizes)):
+        raise ValueError(f"cannot grow segments {old_sizes} to {new_sizes}")
+    out = like.detach().clone()
+    for src, dst, n in zip(torch.tensor((0,) + old_sizes).cumsum(0).tolist(),
+                           torch.tensor((0,) + new_sizes).cumsum(0).tolist(), old_sizes):
+        out.narrow(dim, dst, n).copy_(old.narrow(dim, src, n))
+    return out

@@ -42,7 +42,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ..tokens import AGENT_TOKEN_DIM, GLOBAL_TOKEN_DIM, token_cells
-from .blocks import Downsample, ResnetBlock, Upsample, group_norm, widen_input
+from .blocks import Downsample, ResnetBlock, Upsample, group_norm, grow_segments, widen_input
 
 
 @dataclass
@@ -270,6 +270,26 @@ def widen_conv_in(state: dict, net: "UNet", prefix: str = "") -> dict:
     for k, v in own.items():
         if k.startswith("splat.") and prefix + k not in state:
             state[prefix + k] = v
+    return state
+
+
+def grow_latent(state: dict, net: "UNet", old_c_z: int, prefix: str = "") -> dict:
+    """A state dict of a UNet on ``old_c_z`` latent channels, fitted to ``net``'s larger c_z (an
+    autoencoder whose latent was grown, ``ScenarioAutoencoder.grow_latent``): ``conv_in`` reads the
+    new channels with zero weights and ``conv_out`` predicts them with zero weights (F = 0: the
+    denoiser starts at c_skip z there), so the grown net denoises the old channels as before."""
+    c, own = net.cfg.c_z, net.state_dict()
+    if old_c_z == c:
+        return state
+    if old_c_z > c:
+        raise ValueError(f"cannot shrink the latent from {old_c_z} to {c} channels")
+    state, key = dict(state), prefix + "conv_in.weight"
+    rest = own["conv_in.weight"].shape[1] - c
+    state[key] = grow_segments(state[key], torch.zeros_like(own["conv_in.weight"]), 1,
+                               (old_c_z, state[key].shape[1] - old_c_z), (c, rest))
+    for name in ("conv_out.weight", "conv_out.bias"):
+        state[prefix + name] = grow_segments(state[prefix + name], torch.zeros_like(own[name]), 0,
+                                             (old_c_z,), (c,))
     return state
 
 
