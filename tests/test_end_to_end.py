@@ -310,7 +310,8 @@ def test_grown_latent_warm_starts_both_stages(tmp_path, cross_net):
     a, b = (ckpt.load(str(p), "autoencoder-train") for p in (src, tmp_path / "ae6" / "last.pt"))
     assert b["model_config"]["C_z"] == 6
     w_a, w_b = a["state"]["E.conv_out.weight"], b["state"]["E.conv_out.weight"]
-    assert torch.equal(w_b[:4], w_a[:4]) and torch.equal(w_b[6:10], w_a[4:])
+    assert torch.equal(w_b[:4], w_a[:4]) and torch.equal(w_b[6:10], w_a[4:])      # mu, logvar
+    assert torch.equal(w_b[4:6], w_a[:2]) and torch.equal(w_b[10:], w_a[4:6])     # the copies
     d_a, d_b = a["state"]["D_up.conv_in.weight"], b["state"]["D_up.conv_in.weight"]
     assert torch.equal(d_b[:, :4], d_a[:, :4]) and not d_b[:, 4:6].any() and torch.equal(d_b[:, 6:], d_a[:, 4:])
     res = train("diffusion", *common, "--autoencoder", tmp_path / "ae6" / "last.pt", "--init-from",

@@ -181,18 +181,21 @@ class ScenarioAutoencoder(nn.Module):
 
     def grow_latent(self, state: dict, old_c_z: int) -> dict:
         """A state dict of this autoencoder's layout with ``old_c_z`` latent channels, fitted to this
-        one's larger C_z: the encoder's new mu / logvar outputs keep this model's fresh (random)
-        initialisation, the decoder reads them with zero weights. The grown model decodes what the
-        old one did, and training can teach the new channels what the old ones could not carry
-        (both new sides zero would get no gradient)."""
+        one's larger C_z: each new mu / logvar output of the encoder starts as a copy of an old one
+        (new channel ``k`` copies ``k mod old_c_z``), which the decoder reads with zero weights. The
+        grown model decodes what the old one did, and from the first step the new channels carry
+        information the decoder can learn to use (the same signal under independent noise), so
+        training can make them specialise in what the old ones could not carry. New channels fed
+        fresh random weights instead stay at the prior (sigma 1): posterior collapse, measured."""
         c, own = self.cfg.C_z, self.state_dict()
         if old_c_z == c:
             return state
         if old_c_z > c:
             raise ValueError(f"cannot shrink the latent from {old_c_z} to {c} channels")
-        state = dict(state)
+        state, src = dict(state), torch.arange(c) % old_c_z
         for key in ("E.conv_out.weight", "E.conv_out.bias"):
-            state[key] = grow_segments(state[key], own[key], 0, (old_c_z, old_c_z), (c, c))
+            mu, logvar = state[key].split(old_c_z)
+            state[key] = torch.cat([mu[src], logvar[src]])
         key = "D_up.conv_in.weight"
         state[key] = grow_segments(state[key], torch.zeros_like(own[key]), 1,
                                    (old_c_z, self.cfg.C_map), (c, self.cfg.C_map))
