@@ -75,6 +75,9 @@ def get_options(args=None):
     p.add_argument("--no-pin-tokens", dest="pin_tokens", action="store_false",
                    help="agent tokens are conditions only, as in the paper (default: a token with "
                         "pose, size and speed is pinned in the latent; README \"Token control\")")
+    p.add_argument("--pin-calibration", action="store_true",
+                   help="draw pinned tokens at the speed and length the decoder turns into the "
+                        "token's (pinning.calibrated_pins; experimental)")
     p.add_argument("--no-lane-headings", dest="lane_headings", action="store_false",
                    help="junction boxes keep the heading head's argmax (generate's lane_headings)")
     p.add_argument("--no-lane-snap", dest="lane_snap", action="store_false",
@@ -257,7 +260,7 @@ def load_models(o) -> dict:
     from .model.edm import SAMPLERS
     cfg = replace(GenerationConfig(), scene_guidance=o.scene_guidance,
                   scene_guidance_sigma=o.scene_guidance_sigma, pin_tokens=o.pin_tokens,
-                  lane_headings=o.lane_headings, lane_snap=o.lane_snap,
+                  pin_calibration=o.pin_calibration, lane_headings=o.lane_headings, lane_snap=o.lane_snap,
                   **{k: v for k, v in (("steps", o.steps), ("guidance", o.guidance),
                                        ("sampler", o.sampler and SAMPLERS[o.sampler])) if v is not None})
     path = o.checkpoint or DEFAULT_CHECKPOINT

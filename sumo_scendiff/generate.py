@@ -58,6 +58,8 @@ class GenerationConfig:
     pin_tokens: bool = True      # a token giving pose, size and speed is imposed in the latent
                                  # (pinning.py) and its agent takes the token's heading; False:
                                  # every token is a condition only (the paper)
+    pin_calibration: bool = False  # ... drawn at the speed and length the decoder turns into the
+                                   # token's (pinning.calibrated_pins; experimental, README "Token control")
     lane_headings: bool = True   # a box on a junction takes the heading of the network's lane through
                                  # it that the heading head finds most probable (lane_heading.py)
     lane_snap: bool = True       # poses within 3 m of an agreeing car lane move onto its centre line
@@ -176,7 +178,8 @@ class ScenarioGenerator:
                                   noise=noise, guidance=cfg.guidance,
                                   scene_guidance=self.scene_guidance_for(cfg),
                                   scene_guidance_sigma=self.scene_guidance_sigma_for(cfg),
-                                  known=pinned_latent(self.ae, pins, self.latent_scale, self.raster)
+                                  known=pinned_latent(self.ae, pins, self.latent_scale, self.raster,
+                                                      maps=m if cfg.pin_calibration else None)
                                   if cfg.pin_tokens and pins is not None else None)
         y = self.ae.decode(z / self.latent_scale, m)
         yaw = junction_yaw(y, windows, net, m[:, MAP_CHANNELS.index("junction")], self.raster.size) \

@@ -172,3 +172,30 @@ def test_a_pinned_agent_on_a_junction_takes_the_tokens_lane(cross_net):
     assert abs(scene.boxes[0, 0] - xy[0]) < 1e-2                   # on the northbound lane's centre line
     unpinned = snap_to_lanes(boxes, traj, window, net)[0]
     assert abs(unpinned[0, 2] - np.pi / 2) > 0.5                   # as decoded: the eastbound lane
+
+
+def test_calibrated_pins_draw_what_the_decoder_turns_into_the_token():
+    """The decoder shrinks a pinned agent toward the typical (a 9 m truck drawn at 2 m/s decodes
+    nearly standing); calibrated_pins draws it so that the decoding is nearer what the token asks,
+    in speed and length, and leaves position, heading and width as asked."""
+    import torch
+
+    from sumo_scendiff.pinning import _decode_pins, _encode, _footprint, calibrated_pins
+    from sumo_scendiff.raster import render_map
+    net = Network.load("networks/city.net.xml")
+    gen = ScenarioGenerator.load()
+    window, toks = car_and_truck_tokens(net)
+    m = torch.from_numpy(render_map(net, window[0])[None])
+    asked = [[dict(toks[1])]]                                    # the truck: 9 m, 2 m/s
+    with torch.no_grad():
+        drawn = calibrated_pins(gen.ae, m, asked)
+
+        def decoded(pins):
+            mu, empty = _encode(gen.ae, pins, gen.raster)
+            z = torch.lerp(empty.expand_as(mu), mu, _footprint(mu, empty, 1.0))
+            return _decode_pins(gen.ae, z, m, pins, 100.0)[0, 0]
+        before, after = decoded(asked), decoded(drawn)
+    want = np.array([2.0, 2.0, 9.0])
+    assert np.abs(after - want).sum() < np.abs(before - want).sum() - 1.0
+    assert abs(after[0] - 2.0) < 1.0 and before[0] < 1.0        # measured 0.45 m/s as asked
+    assert all(drawn[0][0][f] == toks[1][f] for f in ("x", "y", "heading", "width"))
