@@ -67,8 +67,7 @@ def token_trajectories(tokens: Sequence[Mapping]) -> tuple[np.ndarray, np.ndarra
     for i, tok in enumerate(tokens):
         f = {k: float(v) for k, v in tok.items() if v is not None}
         x, y, h, v0 = f["x"], f["y"], f["heading"], f["speed"]
-        v2 = f.get("final_speed", v0)
-        v2 = v0 if not np.isfinite(v2) else v2
+        v2 = _final_speed(tok)
         alpha = f.get("heading_to_final", 0.0)
         alpha = 0.0 if not np.isfinite(alpha) else alpha
         s = _distance(v0, (v2 - v0) / 2.0, t)                       # arc length at each time stamp
@@ -91,6 +90,8 @@ def token_trajectories(tokens: Sequence[Mapping]) -> tuple[np.ndarray, np.ndarra
 SPEED_OFFSETS = (-1.0, 0.0, 1.0, 2.0, 3.0, 4.0)
 LENGTH_OFFSETS = (-1.0, 0.0, 1.0, 2.0, 3.0)
 CALIBRATION_RADIUS = 2.0   # m: the decoded agent within this of a pin is the pin's
+_CALIBRATED = ("speed", "final_speed", "length")           # in this order
+_LOWEST = {"speed": 0.0, "final_speed": 0.0, "length": 1.0}  # drawn values stay at or above these
 
 
 def _pins(tokens) -> list[list[dict]]:
@@ -115,6 +116,7 @@ def _decode_pins(autoencoder, mu: torch.Tensor, maps: torch.Tensor, pins: list[l
                  size: float) -> np.ndarray:
     """(len(pins), max pins, 3) speed, final speed (SUMO's 1-s steps) and length of the most
     probable decoded box within :data:`CALIBRATION_RADIUS` of each pin; NaN where none is."""
+    from .generate import speeds_from_traj   # (generate imports this module)
     from .model.detection import decode_boxes
     dec = decode_boxes(autoencoder.decode(mu, maps), size)
     prob, boxes, traj = dec.prob.numpy(), dec.boxes.numpy(), dec.traj.numpy()
@@ -125,8 +127,8 @@ def _decode_pins(autoencoder, mu: torch.Tensor, maps: torch.Tensor, pins: list[l
             near = np.flatnonzero((d <= CALIBRATION_RADIUS) & (prob[b] >= 0.5))
             if len(near):
                 k = near[np.argmax(prob[b, near])]
-                step = np.linalg.norm(np.diff(traj[b, k, :, :2], axis=0), axis=-1)  # v(-1) .. v(+2)
-                out[b, j] = step[T0 - 1], step[-1], boxes[b, k, 3]
+                v = speeds_from_traj(traj[b, k][None], np.ones((1, len(TIMES)), bool))[0]
+                out[b, j] = v[T0], v[-1], boxes[b, k, 3]
     return out
 
 
@@ -142,12 +144,13 @@ def calibrated_pins(autoencoder, maps: torch.Tensor, pins: list[list[dict]],
     The autoencoder shrinks what it draws toward the typical, and not linearly: a 9 m truck drawn
     at 2 m/s decodes at 0.45 m/s, drawn at 3 m/s at 2.4; a car drawn at 10 m/s at 7.9; a truck
     drawn faster also decodes shorter. So every pin is drawn at each of :data:`SPEED_OFFSETS` added
-    to its speed (all pins of a window at once, one copy of the window per offset), each copy is encoded and decoded on the window's map ``maps`` (B, C, H, W) from its
-    footprint cells alone (the rest of the latent as in an empty window), and each
-    pin keeps the offset whose decoding is nearest what it asks (speed, final speed and length:
-    they share latent cells, so drawing one differently moves the others); then the same with
-    offsets to its final speed, then with :data:`LENGTH_OFFSETS` to its length. The decoder still draws the agent; the latent is chosen
-    so that it draws what the token asks."""
+    to its speed (all pins of a window at once, one copy of the window per offset), each copy is
+    encoded and decoded on the window's map ``maps`` (B, C, H, W) from its footprint cells alone
+    (the rest of the latent as in an empty window), and each pin keeps the offset whose decoding is
+    nearest what it asks (speed, final speed and length together: they share latent cells, so
+    drawing one differently moves the others); then the same with offsets to its final speed, then
+    with :data:`LENGTH_OFFSETS` to its length. The decoder still draws the agent; the latent is
+    chosen so that it draws what the token asks."""
     want = np.array([[[float(t["speed"]), _final_speed(t), float(t["length"])] for t in w]
                      + [[np.nan] * 3] * (max(map(len, pins)) - len(w)) for w in pins])
     drawn = [[dict(t, final_speed=_final_speed(t)) for t in w] for w in pins]
@@ -163,10 +166,6 @@ def calibrated_pins(autoencoder, maps: torch.Tensor, pins: list[list[dict]],
         best = np.where(np.isnan(err).all(axis=0), offsets.index(0.0), best)  # not found: as asked
         drawn = [[copies[best[b, j] * len(pins) + b][j] for j in range(len(w))] for b, w in enumerate(drawn)]
     return drawn
-
-
-_CALIBRATED = ("speed", "final_speed", "length")
-_LOWEST = {"speed": 0.0, "final_speed": 0.0, "length": 1.0}
 
 
 def _shifted(token: dict, feature: str, offset: float) -> dict:
