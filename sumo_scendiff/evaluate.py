@@ -169,7 +169,11 @@ def evaluate_net(net: Network, o, pool: SceneStore, models: dict) -> dict:
     first = None
     shown = [i for i, g in enumerate(gts) if len(g)][:3]
     tiles = {"Ground truth": [gts[i] for i in shown]}
-    for name, fn in methods_for(net, pool, models, o.seed):
+    from tqdm import tqdm
+    methods = methods_for(net, pool, models, o.seed)
+    bar = tqdm(methods, desc=f"evaluating {net.name}", unit="method")
+    for name, fn in bar:
+        bar.set_postfix_str(name)
         t = time.perf_counter()
         gen = fn(gts)
         tiles[name] = [gen[i] for i in shown]
@@ -178,7 +182,7 @@ def evaluate_net(net: Network, o, pool: SceneStore, models: dict) -> dict:
         first = first or res
         result["methods"][name] = _row(res)
         if o.verbose:
-            print(f"{net.name}: {name} done", file=sys.stderr)
+            print(f"{net.name}: {name} in {result['seconds'][name]:.1f} s", file=sys.stderr)
     gt = first["gt_only"]
     result["methods"] = {"Ground truth": {"traj_on_drivable": gt["traj_on_drivable"],
                                           "lane_heading_difference": gt["lane_heading_diff"],
@@ -289,9 +293,7 @@ def main(o) -> int:
             for net in nets:
                 _, gts = ground_truth(net, o)
                 gts = gts[: o.token_scenes]
-                tokens[net.name] = {"mask": token_eval.mask_table(gen, net, gts, o.seed),
-                                    "threshold": token_eval.threshold_table(gen, net, gts, o.seed),
-                                    "speed": token_eval.speed_table(gen, net, gts, o.seed)}
+                tokens[net.name] = token_eval.token_tables(gen, net, gts, o.seed, progress=True)
     except (NetworkError, DemandError, CheckpointError) as e:
         o.parser.exit(2, f"{PROG}: error: {e}\n")
     print(summary(results))

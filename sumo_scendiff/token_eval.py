@@ -6,7 +6,8 @@ generated agents are matched one-to-one to the *kept* tokens (Hungarian, 2.2 m a
 
 * :func:`mask_table`: match rate and additional generated agents per scene for each p_mask (table 2);
 * :func:`threshold_table`: precision / recall / F1 at several box thresholds with p_mask = 0 (E.2);
-* :func:`speed_table`: match rate and current / final speed MAE for three token feature sets (table 3).
+* :func:`speed_table`: match rate and current / final speed MAE for three token feature sets (table 3);
+* :func:`token_tables`: the three of them, with a progress bar over their generation runs.
 """
 from __future__ import annotations
 
@@ -38,18 +39,21 @@ def _kept(scenes: Sequence[Scene], p_mask: float, seed: int) -> list[np.ndarray]
     return [rng.random(len(s)) >= p_mask for s in scenes]
 
 
-def _run(generator, net, gts, keeps, features, p_mask, seed, config=None):
+def _run(generator, net, gts, keeps, features, p_mask, seed, config=None, bar=None):
+    """One generation run over every window (a step of ``bar``, a tqdm, when given)."""
     tokens = [token_dicts(g, k, features) for g, k in zip(gts, keeps)]
     gen = generator.generate(net, [g.window for g in gts], tokens=tokens, p_mask=p_mask, seed=seed,
                              config=config)
+    if bar is not None:
+        bar.update(1)
     return gen, [g.select(k) for g, k in zip(gts, keeps)]
 
 
 def mask_table(generator, net, gts: Sequence[Scene], seed: int = 0,
-               features: Sequence[str] = POSE_EXTENTS + ("speed",)) -> list[dict]:
+               features: Sequence[str] = POSE_EXTENTS + ("speed",), bar=None) -> list[dict]:
     rows = []
     for p in P_MASKS:
-        gen, toks = _run(generator, net, gts, _kept(gts, p, seed), features, p, seed)
+        gen, toks = _run(generator, net, gts, _kept(gts, p, seed), features, p, seed, bar=bar)
         m = token_metrics(gen, toks)
         rows.append({"p_mask": p, "match_rate": m["match_rate"],
                      "additional_per_scene": m["additional_per_scene"]})
@@ -57,27 +61,38 @@ def mask_table(generator, net, gts: Sequence[Scene], seed: int = 0,
 
 
 def threshold_table(generator, net, gts: Sequence[Scene], seed: int = 0,
-                    features: Sequence[str] = POSE_EXTENTS + ("speed",)) -> list[dict]:
+                    features: Sequence[str] = POSE_EXTENTS + ("speed",), bar=None) -> list[dict]:
     from dataclasses import replace
     rows = []
     keeps = [np.ones(len(g), bool) for g in gts]
     for t in THRESHOLDS:
         cfg = replace(generator.config, threshold=t)
-        gen, toks = _run(generator, net, gts, keeps, features, 0.0, seed, cfg)
+        gen, toks = _run(generator, net, gts, keeps, features, 0.0, seed, cfg, bar)
         m = token_metrics(gen, toks)
         rows.append({"threshold": t, "precision": m["precision"], "recall": m["recall"], "f1": m["f1"]})
     return rows
 
 
-def speed_table(generator, net, gts: Sequence[Scene], seed: int = 0) -> list[dict]:
+def speed_table(generator, net, gts: Sequence[Scene], seed: int = 0, bar=None) -> list[dict]:
     rows = []
     keeps = [np.ones(len(g), bool) for g in gts]
     for name, features in FEATURE_SETS:
-        gen, toks = _run(generator, net, gts, keeps, features, 0.0, seed)
+        gen, toks = _run(generator, net, gts, keeps, features, 0.0, seed, bar=bar)
         m = token_metrics(gen, toks)
         rows.append({"features": name, "match_rate": m["match_rate"], "speed_mae": m["speed_mae"],
                      "final_speed_mae": m["final_speed_mae"]})
     return rows
+
+
+def token_tables(generator, net, gts: Sequence[Scene], seed: int = 0, progress: bool = False) -> dict:
+    """``{"mask", "threshold", "speed"}`` tables of one network; ``progress``: a tqdm bar over the
+    generation runs (one per p_mask, threshold and feature set, each over every window)."""
+    from tqdm import tqdm
+    runs = len(P_MASKS) + len(THRESHOLDS) + len(FEATURE_SETS)
+    with tqdm(total=runs, desc=f"token tables, {net.name}", unit="run", disable=not progress) as bar:
+        return {"mask": mask_table(generator, net, gts, seed, bar=bar),
+                "threshold": threshold_table(generator, net, gts, seed, bar=bar),
+                "speed": speed_table(generator, net, gts, seed, bar=bar)}
 
 
 def markdown_tables(results: dict) -> str:
@@ -99,4 +114,4 @@ def markdown_tables(results: dict) -> str:
     return "\n".join(out)
 
 
-__all__ = ["mask_table", "threshold_table", "speed_table", "markdown_tables"]
+__all__ = ["mask_table", "threshold_table", "speed_table", "token_tables", "markdown_tables"]

@@ -45,3 +45,23 @@ def test_evaluate_sampler_names_are_the_models_and_bad_settings_exit_2(tmp_path)
         res = subprocess.run(CLI + ["--no-model", "--cache", str(tmp_path / "c")] + bad,
                              capture_output=True, text=True)
         assert res.returncode == 2 and bad[0] in res.stderr and "Traceback" not in res.stderr
+
+
+def test_evaluate_tokens_prints_the_three_token_tables_with_progress(tmp_path, cross_net):
+    pool = tmp_path / "pool"
+    assert subprocess.run([sys.executable, "-m", "sumo_scendiff.data", "-n", cross_net, "-o", str(pool),
+                           "--scenes", "12", "-s", "9"], capture_output=True).returncode == 0
+    out = tmp_path / "r.json"
+    res = subprocess.run(CLI + ["-n", cross_net, "--scenes", "12", "--tokens", "--token-scenes", "4",
+                                "--train-data", str(pool), "--cache", str(tmp_path / "cache"),
+                                "--json", str(out)], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert "token tables, " in res.stderr and "14/14" in res.stderr   # the bar over the 14 runs
+    assert "evaluating " in res.stderr
+    assert "token mask probability (table 2)" in res.stdout
+    tables = next(iter(json.loads(out.read_text())["tokens"].values()))
+    assert [r["p_mask"] for r in tables["mask"]] == [0.0, 0.1, 0.3, 0.5, 0.7, 0.9]
+    assert [r["threshold"] for r in tables["threshold"]] == [0.5, 0.6, 0.7, 0.8, 0.9]
+    assert [r["features"] for r in tables["speed"]] == ["pose + extents", "+ speed", "+ speed + final speed"]
+    # the shipped model places the pinned tokens of the recorded crossing
+    assert tables["mask"][0]["match_rate"] > 0.8
