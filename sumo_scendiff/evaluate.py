@@ -5,11 +5,14 @@
     python -m sumo_scendiff.evaluate --json results.json     # everything, for machines
 
 For every network, ground-truth scenes are recorded from SUMO (with the network's own demand when a
-matching ``*.rou.xml`` lies beside it, otherwise random trips), each window turned by a random angle,
-and every method generates a scene for the same windows: Random Log Selection (agents of a random
-*training* scene, map ignored), Lane-uniform with its own count rule and told the true count, and the
-shipped Scenario Diffusion model (with ``--checkpoint``/the default weights when present). The table
-gives the paper's metrics per network (see :mod:`sumo_scendiff.metrics`).
+matching ``*.rou.xml`` lies beside it, otherwise random trips), each window turned by a random angle
+and recorded again whole at the same instant (:mod:`sumo_scendiff.data.rerecord`), and every method
+generates a scene for the same windows: Random Log Selection (agents of a random *training* scene,
+map ignored), Lane-uniform with its own count rule and told the true count, and the shipped Scenario
+Diffusion model (with ``--checkpoint``/the default weights when present). A reference row, "SUMO
+2 min later", scores the same windows :data:`LATER` s later in the same traffic: an independent draw
+of what SUMO puts there, so what a perfect generator would score. The table gives the paper's
+metrics per network (see :mod:`sumo_scendiff.metrics`).
 """
 from __future__ import annotations
 
@@ -29,7 +32,7 @@ from .data.demand import DemandError, check_routes
 from .data.shards import SceneStore
 from .metrics import evaluate_scenes
 from .network import Network, NetworkError
-from .scene import crop_to_window, rotate_scene
+from .geometry import Window, wrap_angle
 
 SAMPLER_NAMES = ("dpmpp-2m", "euler", "heun")  # model.edm.SAMPLERS' keys (torch is imported lazily)
 
@@ -41,6 +44,8 @@ REAL_CITIES = ("resco_cologne1/cologne1.net.xml", "resco_cologne3/cologne3.net.x
                "resco_ingolstadt7/ingolstadt7.net.xml", "resco_ingolstadt21/ingolstadt21.net.xml",
                "berlin_doerpfeldstr/net.net.xml.gz", "wildau/net.net.xml.gz",
                "ingolstadt_cutmap/Forschungskreuzung_cutmap.net.xml.gz")
+LATER = 120.0   # s: the reference row's delay (longer than a signal cycle: other vehicles, same traffic)
+REFERENCE = "SUMO 2 min later"
 COLUMNS = (("mmd2_position", "MMD² pos"), ("mmd2_heading", "MMD² head"),
            ("mmd2_velocity", "MMD² vel"), ("mmd2_joint", "MMD² joint"),
            ("traj_on_drivable", "traj on drivable"), ("lane_heading_difference", "lane head. diff"),
@@ -151,26 +156,32 @@ def methods_for(net: Network, pool: SceneStore, models: dict, seed: int):
     return out
 
 
-def ground_truth(net: Network, o) -> tuple[str | None, list]:
-    """The network's demand file and its recorded scenes, each window turned by a random angle."""
+def ground_truth(net: Network, o) -> tuple[str | None, list, list]:
+    """The network's demand file, its recorded scenes with each window turned by a random angle
+    (recorded again whole, at the same instant), and the same windows :data:`LATER` s later."""
+    from .data.rerecord import rerecorded
     routes = find_demand(net)
-    store = SceneStore(record_cached([net.path], [routes], o.scenes, o.seed, o.cache, f"gt-{net.name}"))
+    data = record_cached([net.path], [routes], o.scenes, o.seed, o.cache, f"gt-{net.name}")
+    store = SceneStore(data)
     rng = np.random.default_rng([o.seed, 7])
-    gts = [crop_to_window(rotate_scene(store.scene(i), float(rng.uniform(-np.pi, np.pi))))
-           for i in range(len(store))]
-    return routes, gts
+    windows = []
+    for i in range(len(store)):
+        w = store.scene(i).window
+        windows.append(Window(w.cx, w.cy, float(wrap_angle(w.yaw + rng.uniform(-np.pi, np.pi))), w.size))
+    again = rerecorded(data, windows, (0.0, LATER), progress=True)
+    return routes, again[0.0], again[LATER]
 
 
 def evaluate_net(net: Network, o, pool: SceneStore, models: dict) -> dict:
     import time
-    routes, gts = ground_truth(net, o)
+    routes, gts, later = ground_truth(net, o)
     result = {"net": net.name, "path": net.path, "demand": routes and os.path.basename(routes),
               "scenes": len(gts), "methods": {}, "seconds": {}}
     first = None
     shown = [i for i, g in enumerate(gts) if len(g)][:3]
     tiles = {"Ground truth": [gts[i] for i in shown]}
     from tqdm import tqdm
-    methods = methods_for(net, pool, models, o.seed)
+    methods = [(REFERENCE, lambda gts: later)] + methods_for(net, pool, models, o.seed)
     bar = tqdm(methods, desc=f"evaluating {net.name}", unit="method")
     for name, fn in bar:
         bar.set_postfix_str(name)
@@ -233,17 +244,20 @@ def summary(results: list[dict]) -> str:
     groups = {"held-out generated": [r for r, m in zip(results, mine) if m],
               "real cities": [r for r, m in zip(results, mine) if not m]}
     keys = [k for k, _ in COLUMNS]
-    head = "| networks | method | " + " | ".join(c[1] for c in COLUMNS) + " | joint / Random Log |"
+    mmds = [k for k in keys if k.startswith("mmd2_")]
+    head = ("| networks | method | " + " | ".join(c[1] for c in COLUMNS)
+            + " | MMD² / Random Log (pos / head / vel / joint) |")
     lines = [head, "|" + "---|" * (len(COLUMNS) + 3)]
     for group, rs in groups.items():
         if not rs:
             continue
         methods = list(rs[0]["methods"])
+        ref = {key: np.nanmean([r["methods"]["Random Log"][key] for r in rs]) for key in mmds}
         for k, name in enumerate(methods):
             mean = {key: float(np.nanmean([r["methods"][name].get(key, np.nan) for r in rs]))
                     if any(key in r["methods"][name] for r in rs) else None for key in keys}
-            ref = np.nanmean([r["methods"]["Random Log"]["mmd2_joint"] for r in rs])
-            ratio = _fmt(mean["mmd2_joint"] / ref) if mean.get("mmd2_joint") is not None else "–"
+            ratio = (" / ".join(f"{mean[key] / ref[key]:.2f}" for key in mmds)
+                     if mean.get("mmd2_joint") is not None else "–")
             label = f"{group} ({len(rs)})" if k == 0 else ""
             lines.append(f"| {label} | {name} | " + " | ".join(_fmt(mean[key]) for key in keys)
                          + f" | {ratio} |")
@@ -291,7 +305,7 @@ def main(o) -> int:
             from . import token_eval
             gen = models["Scenario Diffusion"]
             for net in nets:
-                _, gts = ground_truth(net, o)
+                _, gts, _ = ground_truth(net, o)
                 gts = gts[: o.token_scenes]
                 tokens[net.name] = token_eval.token_tables(gen, net, gts, o.seed, progress=True)
     except (NetworkError, DemandError, CheckpointError) as e:

@@ -155,3 +155,29 @@ def test_density_range_bounds_every_episode(cross_net, tmp_path):
     res = run("-n", cross_net, "-o", tmp_path / "out", "--scenes", 5, "--density", 400, 100)
     assert res.returncode == 2 and "--density 400 100" in res.stderr and "Traceback" not in res.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_episodes_run_again_reproduce_their_scenes_whole_turned_windows_and_later(recorded):
+    from sumo_scendiff.data.rerecord import rerecorded
+    from sumo_scendiff.geometry import Window
+    from sumo_scendiff.scene import crop_to_window, rotate_scene
+    store = SceneStore(recorded)
+    scenes = [store.scene(i) for i in range(len(store))]
+    again = rerecorded(recorded, [s.window for s in scenes], (0.0, 30.0))
+    for s, a in zip(scenes, again[0.0]):          # the same windows at the same instants: the same scenes
+        assert a.time == s.time and np.array_equal(a.boxes, s.boxes) and np.array_equal(a.traj, s.traj)
+    later = again[30.0]
+    assert [a.time for a in later] == [s.time + 30.0 for s in scenes]
+    assert sum(not np.array_equal(a.boxes, s.boxes) for a, s in zip(later, scenes)) > len(scenes) // 2
+    # a turned window recorded whole holds the cropped scene's agents, and the corners' too
+    turned = [Window(s.window.cx, s.window.cy, s.window.yaw + 0.7, s.window.size) for s in scenes]
+    whole = rerecorded(recorded, turned, (0.0,))[0.0]
+    cropped = [crop_to_window(rotate_scene(s, 0.7)) for s in scenes]
+    for c, w in zip(cropped, whole):
+        for b in c.boxes:
+            assert np.abs(w.boxes[:, :3] - b[:3]).max(axis=1).min() < 1e-3
+    assert sum(map(len, whole)) > sum(map(len, cropped))
+    # cached beside the data directory, keyed by the windows
+    assert len([f for f in os.listdir(os.path.dirname(recorded)) if "-again" in f]) == 3
+    assert all(np.array_equal(a.boxes, b.boxes)
+               for a, b in zip(rerecorded(recorded, turned, (0.0,))[0.0], whole))

@@ -22,9 +22,13 @@ def test_evaluate_prints_the_table_and_json(tmp_path, cross_net):
     assert lines[0].startswith("| networks | method | MMD² pos")  # the summary first
     start = next(i for i, ln in enumerate(lines) if ln.startswith("| network | method | MMD² pos"))
     names = [ln.split("|")[2].strip() for ln in lines[start + 2:]]
-    assert names == ["Ground truth", "Random Log", "Lane-uniform", "Lane-uniform (true count)"]
+    assert names == ["Ground truth", "SUMO 2 min later", "Random Log", "Lane-uniform",
+                     "Lane-uniform (true count)"]
     rows = json.loads(out.read_text())["distribution"][0]["methods"]
     assert rows["Ground truth"]["traj_on_drivable"] > 0.95
+    # the same windows later in SUMO: on the road and nearer the ground truth than Random Log
+    assert rows["SUMO 2 min later"]["traj_on_drivable"] > 0.95
+    assert rows["SUMO 2 min later"]["mmd2_joint"] < rows["Random Log"]["mmd2_joint"]
     assert rows["Random Log"]["traj_on_drivable"] < rows["Ground truth"]["traj_on_drivable"]
     assert rows["Lane-uniform (true count)"]["agents_emd"] < 0.5
 

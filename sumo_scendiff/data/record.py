@@ -8,6 +8,7 @@ at time T - 2 is cut when the simulation reaches T.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
 from collections import deque
@@ -116,45 +117,78 @@ def _sumo_cmd(net: Network, routes: str, vtypes: str | None, spec: EpisodeSpec) 
     return cmd
 
 
-def record_episode(net: Network, spec: EpisodeSpec, progress=None) -> list[Scene]:
-    """Run one SUMO episode and return up to ``spec.scenes`` scenes (fewer if the demand runs dry)."""
+@contextlib.contextmanager
+def _simulation(net: Network, spec: EpisodeSpec, extra_seconds: float = 0.0):
+    """libsumo running ``spec``'s episode (its random trips written to a temporary directory
+    lasting ``extra_seconds`` beyond the episode), closed on exit."""
     import libsumo as traci
 
-    rng = np.random.default_rng(spec.seed)
-    scenes: list[Scene] = []
     with tempfile.TemporaryDirectory(prefix="scendiff-") as tmp:
         vtypes = None
         routes = spec.routes
         if routes is None:
             vtypes = write_vtypes(os.path.join(tmp, "vtypes.add.xml"))
+            # a longer end draws the same trips first, then more (randomTrips draws them in order)
+            end = spec.warmup + spec.duration + 10 + extra_seconds
             routes = random_trips(net.path, os.path.join(tmp, "trips.rou.xml"),
-                                  RandomDemand(spec.density, spec.warmup + spec.duration + 10, spec.seed))
+                                  RandomDemand(spec.density, end, spec.seed))
         traci.start(_sumo_cmd(net, routes, vtypes, spec))
         try:
-            tracker = _Tracker(traci)
-            t_end = spec.begin + spec.warmup + spec.duration
-            next_sample = spec.begin + spec.warmup
-            while len(scenes) < spec.scenes:
-                traci.simulationStep()
-                now = traci.simulation.getTime()
-                tracker.step()
-                if now >= t_end or traci.simulation.getMinExpectedNumber() == 0:
-                    break
-                t0 = now - 2.0  # the middle of the ring buffer
-                if len(tracker.steps) < len(TIMES) or t0 < next_sample:
-                    continue
-                next_sample = t0 + spec.sample_every
-                for w, kind in _sample_windows(net, tracker.steps[T0], spec, rng):
-                    scene = tracker.scene(w, net.name, t0)
-                    scene.meta["kind"] = kind
-                    scenes.append(scene)
-                    if progress is not None:
-                        progress.update(1)
-                    if len(scenes) >= spec.scenes:
-                        break
+            yield traci
         finally:
             traci.close()
+
+
+def record_episode(net: Network, spec: EpisodeSpec, progress=None) -> list[Scene]:
+    """Run one SUMO episode and return up to ``spec.scenes`` scenes (fewer if the demand runs dry)."""
+    rng = np.random.default_rng(spec.seed)
+    scenes: list[Scene] = []
+    with _simulation(net, spec) as traci:
+        tracker = _Tracker(traci)
+        t_end = spec.begin + spec.warmup + spec.duration
+        next_sample = spec.begin + spec.warmup
+        while len(scenes) < spec.scenes:
+            traci.simulationStep()
+            now = traci.simulation.getTime()
+            tracker.step()
+            if now >= t_end or traci.simulation.getMinExpectedNumber() == 0:
+                break
+            t0 = now - 2.0  # the middle of the ring buffer
+            if len(tracker.steps) < len(TIMES) or t0 < next_sample:
+                continue
+            next_sample = t0 + spec.sample_every
+            for w, kind in _sample_windows(net, tracker.steps[T0], spec, rng):
+                scene = tracker.scene(w, net.name, t0)
+                scene.meta["kind"] = kind
+                scenes.append(scene)
+                if progress is not None:
+                    progress.update(1)
+                if len(scenes) >= spec.scenes:
+                    break
     return scenes
+
+
+def record_at(net: Network, spec: EpisodeSpec, requests: list[tuple[float, Window]]) -> list[Scene]:
+    """The episode of ``spec`` run again, each ``(time, window)`` of ``requests`` recorded at that
+    simulation time (whole seconds): e.g. the windows of recorded scenes some time later, in the
+    same traffic. A time the episode never reaches (its demand ran dry) gives an empty scene."""
+    want = sorted(range(len(requests)), key=lambda i: requests[i][0])
+    out: list[Scene | None] = [None] * len(requests)
+    end = max((t for t, _ in requests), default=0.0)
+    with _simulation(net, spec, extra_seconds=max(0.0, end - spec.begin - spec.warmup - spec.duration)) as traci:
+        tracker = _Tracker(traci)
+        k = 0
+        while k < len(want):
+            traci.simulationStep()
+            tracker.step()
+            t0 = traci.simulation.getTime() - 2.0
+            if traci.simulation.getMinExpectedNumber() == 0:
+                break
+            while k < len(want) and len(tracker.steps) == len(TIMES) and requests[want[k]][0] <= t0 + 1e-6:
+                t, w = requests[want[k]]
+                out[want[k]] = tracker.scene(w, net.name, t0)
+                k += 1
+    return [s if s is not None else Scene.empty(w, net=net.name, time=t) for s, (t, w) in zip(out, requests)]
 
 
 def _sample_windows(net: Network, state: dict, spec: EpisodeSpec, rng: np.random.Generator):
