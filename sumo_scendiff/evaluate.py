@@ -30,9 +30,9 @@ import numpy as np
 from .baselines import LaneUniform, RandomLogSelection
 from .data.demand import DemandError, check_routes
 from .data.shards import SceneStore
+from .geometry import Window, wrap_angle
 from .metrics import evaluate_scenes
 from .network import Network, NetworkError
-from .geometry import Window, wrap_angle
 
 SAMPLER_NAMES = ("dpmpp-2m", "euler", "heun")  # model.edm.SAMPLERS' keys (torch is imported lazily)
 
