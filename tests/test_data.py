@@ -181,3 +181,39 @@ def test_episodes_run_again_reproduce_their_scenes_whole_turned_windows_and_late
     assert len([f for f in os.listdir(os.path.dirname(recorded)) if "-again" in f]) == 3
     assert all(np.array_equal(a.boxes, b.boxes)
                for a, b in zip(rerecorded(recorded, turned, (0.0,))[0.0], whole))
+
+
+def test_recorded_circles_make_turned_training_windows_whole(recorded, cross_net, tmp_path):
+    """A recording holds each window's circumscribed circle: its square is the ``--square``
+    recording exactly, and the window turned by any angle and cropped (what training sees) is the
+    turned window as SUMO holds it (the episode recorded again there), corners included."""
+    import json
+
+    from sumo_scendiff.data.dataset import SceneDataset
+    from sumo_scendiff.data.rerecord import rerecorded
+    from sumo_scendiff.geometry import Window
+    from sumo_scendiff.scene import crop_to_window, rotate_scene
+    square = tmp_path / "square"
+    assert run("-n", cross_net, "-o", square, "--scenes", 60, "-s", 3, "--scenes-per-episode", 30,
+               "--square").returncode == 0
+    assert json.loads((square / "manifest.json").read_text())["disc"] is False
+    assert json.loads(open(os.path.join(recorded, "manifest.json")).read())["disc"] is True
+    discs, squares = SceneStore(recorded), SceneStore(str(square))
+    for i in range(len(squares)):
+        a, b = discs.scene(i), squares.scene(i)
+        assert a.window == b.window and np.array_equal(a.boxes, b.boxes) and np.array_equal(a.traj, b.traj)
+        assert np.array_equal(squares.scene(i, disc=True).boxes, b.boxes)  # a square recording has no more
+    circles = [discs.scene(i, disc=True) for i in range(len(discs))]
+    assert sum(map(len, circles)) > sum(len(discs.scene(i)) for i in range(len(discs)))
+    angle = 0.7
+    turned = [Window(s.window.cx, s.window.cy, s.window.yaw + angle, s.window.size) for s in circles]
+    truth = rerecorded(recorded, turned, (0.0,))[0.0]
+    cut = [crop_to_window(rotate_scene(s, angle)) for s in circles]
+    assert sum(map(len, truth)) > sum(len(crop_to_window(rotate_scene(squares.scene(i), angle)))
+                                      for i in range(len(squares)))
+    for c, t in zip(cut, truth):
+        assert len(c) == len(t)
+        assert np.allclose(np.sort(c.boxes[:, 0]), np.sort(t.boxes[:, 0]), atol=1e-3)
+    ds = SceneDataset(recorded, rotate=True, seed=0)                # the dataset serves the circle
+    assert sum(len(ds[i]["boxes"]) for i in range(len(ds))) > sum(
+        len(x["boxes"]) for x in (SceneDataset(str(square), rotate=True, seed=0)[i] for i in range(len(ds))))

@@ -6,7 +6,9 @@
 Each network is simulated in several *episodes* (one SUMO run each, libsumo in-process); without
 ``--routes`` each episode gets random trips of a random insertion density (log-uniform over
 ``--density LO HI``, default 15-400 veh/h/km of lane) and a mixed fleet, so that scenes range from
-empty to congested. Output: ``DIR/manifest.json`` and
+empty to congested. Each scene holds every vehicle within the circle through its window's corners,
+so that training can turn the window by any angle and still see all of it (``--square``: only the
+window's square, as recordings before this option did). Output: ``DIR/manifest.json`` and
 ``DIR/shard-*.npz``. Work happens in ``DIR.partial`` and is renamed to ``DIR`` when complete; an
 interrupted run continues with ``--resume``. The same seed gives the same scenes.
 """
@@ -45,6 +47,9 @@ def get_options(args=None):
     p.add_argument("--density", type=float, nargs=2, default=DENSITY, metavar=("LO", "HI"),
                    help="random trips: insertion density range, vehicles per hour per km of lane, drawn "
                         "log-uniformly per episode (default %(default)s)")
+    p.add_argument("--square", action="store_true",
+                   help="record only the window's square, not its circumscribed circle (turned "
+                        "training windows then miss their corners; the format of older recordings)")
     p.add_argument("--workers", type=int, default=1, help="parallel SUMO processes")
     p.add_argument("--resume", action="store_true", help="continue an interrupted run in DIR.partial")
     p.add_argument("-v", "--verbose", action="store_true")
@@ -61,7 +66,8 @@ def get_options(args=None):
 
 def plan_episodes(nets: list[Network], routes: list[str | None], begins: list[float],
                   scenes: int, seed: int, per_episode: int,
-                  density: tuple[float, float] = DENSITY) -> list[tuple[int, str, EpisodeSpec]]:
+                  density: tuple[float, float] = DENSITY, disc: bool = True
+                  ) -> list[tuple[int, str, EpisodeSpec]]:
     """Deterministic episode plan: (net index, shard file name, spec) for every episode."""
     counts = [scenes // len(nets) + (i < scenes % len(nets)) for i in range(len(nets))]
     plan = []
@@ -75,7 +81,7 @@ def plan_episodes(nets: list[Network], routes: list[str | None], begins: list[fl
             spec = EpisodeSpec(seed=ep_seed, scenes=todo, routes=rou, begin=begin,
                                density=float(np.exp(rng.uniform(*np.log(density)))),
                                warmup=float(rng.uniform(200.0, 900.0)),
-                               sample_every=float(rng.choice([2.0, 3.0, 5.0])))
+                               sample_every=float(rng.choice([2.0, 3.0, 5.0])), disc=disc)
             if todo > 0:
                 plan.append((k, f"shard-{k:03d}-{e:04d}.npz", spec))
     return plan
@@ -102,11 +108,13 @@ def main(o) -> int:
         o.parser.exit(2, f"{PROG}: error: two networks share the name {names}: rename one\n")
 
     plan = plan_episodes(nets, [None if r is None else os.path.abspath(r) for r in routes], begins,
-                         o.scenes, o.seed, o.scenes_per_episode, tuple(o.density))
+                         o.scenes, o.seed, o.scenes_per_episode, tuple(o.density), not o.square)
     config = {"nets": [os.path.abspath(p) for p in o.nets], "routes": routes, "scenes": o.scenes,
               "seed": o.seed, "scenes_per_episode": o.scenes_per_episode}
     if tuple(o.density) != DENSITY:  # (plans of runs started before the option stay resumable)
         config["density"] = list(o.density)
+    if not o.square:
+        config["disc"] = True
     try:
         os.makedirs(partial, exist_ok=True)
     except OSError as e:
@@ -155,7 +163,8 @@ def main(o) -> int:
     episodes = [{"file": name, **asdict(replace(spec, routes=spec.routes and os.path.relpath(spec.routes, out)))}
                 for _, name, spec in plan]
     manifest = write_manifest(partial, [net_entry(n.path, out, n.name) for n in nets],
-                              [entries[name] for _, name, _ in plan], seed=o.seed, episodes=episodes)
+                              [entries[name] for _, name, _ in plan], seed=o.seed, disc=not o.square,
+                              episodes=episodes)
     os.remove(plan_file)
     if os.path.isdir(out):
         os.rmdir(out)  # exists but empty (checked above)

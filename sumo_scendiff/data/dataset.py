@@ -18,7 +18,9 @@ class SceneDataset(Dataset):
     """torch-style Dataset: item = dict of map raster, agent raster and the padded-free sparse arrays.
 
     ``root`` is a data directory or a list of them, read as one. ``rotate=True`` turns each window
-    by a uniform random angle (the agents with it) — the augmentation of the recorded data; the angle
+    by a uniform random angle (the agents with it) — the augmentation of the recorded data; a
+    recording of circles (``"disc"`` in its manifest) fills the turned square whole, one of squares
+    leaves its corners empty. The angle
     comes from ``seed`` and the item index and epoch, so a given (seed, epoch, index) always yields
     the same sample.
     """
@@ -44,7 +46,7 @@ class SceneDataset(Dataset):
         self.epoch = epoch
 
     def __getitem__(self, idx: int) -> dict:
-        scene = self.store.scene(idx)
+        scene = self.store.scene(idx, disc=self.rotate)
         if self.rotate:
             rng = np.random.default_rng((self.seed, self.epoch, idx))
             scene = crop_to_window(rotate_scene(scene, float(rng.uniform(-np.pi, np.pi))))

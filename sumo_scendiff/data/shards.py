@@ -4,6 +4,8 @@ A data directory holds ``manifest.json`` and ``shard-XXXXX.npz`` files. Each sha
 agents of its scenes (``offsets`` delimits them) and stores windows, times and network indices.
 Rasters are not stored: :class:`~sumo_scendiff.data.dataset.SceneDataset` renders the map from the network and the agents from
 the boxes, for a window rotated by a random angle (rotation augmentation), so nothing is interpolated.
+A manifest with ``"disc": true`` holds each window's circumscribed circle (``EpisodeSpec.disc``):
+:meth:`SceneStore.scene` gives the window's square, ``scene(i, disc=True)`` the circle to turn.
 """
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import Window
-from ..scene import Scene
+from ..scene import Scene, crop_to_window
 
 MANIFEST = "manifest.json"
 FORMAT_VERSION = 1
@@ -129,6 +131,7 @@ class SceneStore:
         roots = [root] if isinstance(root, str) else list(root)
         wanted = None if nets is None else set(nets)
         self.shards, self.sources = [], []   # per shard: (its data directory, its manifest's nets)
+        self.discs: list[bool] = []          # per shard: scenes hold the window's circumscribed circle
         for r in roots:
             manifest = read_manifest(r)
             entries = manifest["nets"]
@@ -136,6 +139,7 @@ class SceneStore:
                 if wanted is None or entries[s["net"]]["name"] in wanted:
                     self.shards.append(Shard.load(os.path.join(r, s["file"])))
                     self.sources.append((r, entries))
+                    self.discs.append(bool(manifest.get("disc", False)))
         self.index = [(k, i) for k, sh in enumerate(self.shards) for i in range(len(sh))]
 
     def __len__(self):
@@ -152,6 +156,10 @@ class SceneStore:
     def net_path(self, scene_idx: int) -> str:
         return resolve_net_path(*self._entry(scene_idx))
 
-    def scene(self, idx: int) -> Scene:
+    def scene(self, idx: int, disc: bool = False) -> Scene:
+        """Scene ``idx``: the agents in its window's square; with ``disc``, in the circle through the
+        square's corners where the recording holds it (else the square), so that the window turned
+        about its centre and cropped (:func:`~sumo_scendiff.scene.crop_to_window`) is whole."""
         k, i = self.index[idx]
-        return self.shards[k].scene(i, self.net_name(idx))
+        scene = self.shards[k].scene(i, self.net_name(idx))
+        return scene if disc or not self.discs[k] else crop_to_window(scene)
