@@ -1,6 +1,6 @@
 """Calibrate the global token's classifier-free guidance on held-out scenes of the training networks.
 
-    python benchmarks/scene_guidance.py [--checkpoint PATH] [--data data/val_dense] [--scenes 128]
+    python benchmarks/scene_guidance.py [--checkpoint PATH] [--data data/val_dense] [--turned] [--scenes 128]
                                         [--weights 1 1.5 2 2.5 3] [--sigma SIGMA] [-o FILE]
 
 Map-only generation (no agent token, p_mask = 1) of the windows of held-out scenes recorded on the
@@ -41,6 +41,9 @@ def get_options(args=None):
     p.add_argument("--checkpoint", default=None, help="default: the shipped one")
     p.add_argument("--data", default=os.path.join(ROOT, "data", "val_dense"))
     p.add_argument("--scenes", type=int, default=128)
+    p.add_argument("--turned", action="store_true",
+                   help="windows turned by a random angle, as training and the evaluation see them "
+                        "(whole with a recording of circles: --data data/val_dense_disc)")
     p.add_argument("--weights", type=float, nargs="+", default=[1.0, 1.5, 2.0, 2.5, 3.0])
     p.add_argument("--sigma", type=float, default=None,
                    help="guide only above this noise level (default: the checkpoint's)")
@@ -57,7 +60,7 @@ def main(o) -> None:
     sigma_lo = gen.scene_guidance_sigma if o.sigma is None else o.sigma
     steps = o.steps or gen.config.steps
     sampler = SAMPLERS[o.sampler] if o.sampler else gen.config.sampler
-    ds = SceneDataset(o.data, rotate=False)
+    ds = SceneDataset(o.data, rotate=o.turned, seed=o.seed)
     idx = np.random.default_rng(o.seed).choice(len(ds), min(o.scenes, len(ds)), replace=False)
     b = collate_scenes([ds[int(i)] for i in idx])
     n, m = len(idx), b["map"]
