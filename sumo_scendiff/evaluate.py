@@ -83,6 +83,9 @@ def get_options(args=None):
     p.add_argument("--no-pin-calibration", dest="pin_calibration", action="store_false",
                    help="draw pinned tokens at the speeds they ask, not at those the decoder turns "
                         "into the token's (pinning.calibrated_pins)")
+    p.add_argument("--no-pin-speeds", dest="pin_speeds", action="store_false",
+                   help="a pinned token's agent keeps its decoded speeds, the model's own (the paper's "
+                        "Table 3; default: it moves at the token's, pinning.pace_to_pins)")
     p.add_argument("--no-lane-headings", dest="lane_headings", action="store_false",
                    help="junction boxes keep the heading head's argmax (generate's lane_headings)")
     p.add_argument("--no-lane-snap", dest="lane_snap", action="store_false",
@@ -278,7 +281,8 @@ def load_models(o) -> dict:
     from .model.edm import SAMPLERS
     cfg = replace(GenerationConfig(), scene_guidance=o.scene_guidance,
                   scene_guidance_sigma=o.scene_guidance_sigma, pin_tokens=o.pin_tokens,
-                  pin_calibration=o.pin_calibration, lane_headings=o.lane_headings, lane_snap=o.lane_snap,
+                  pin_calibration=o.pin_calibration,
+                  pin_speeds=o.pin_speeds, lane_headings=o.lane_headings, lane_snap=o.lane_snap,
                   **{k: v for k, v in (("steps", o.steps), ("guidance", o.guidance),
                                        ("sampler", o.sampler and SAMPLERS[o.sampler])) if v is not None})
     path = o.checkpoint or DEFAULT_CHECKPOINT

@@ -8,7 +8,8 @@ Pipeline per batch: map raster m -> initial noise (one generator per window, so 
 not depend on what else is in the batch) -> pinned tokens' latent cells (pinning.py) -> ODE from
 sigma_max to 0 (DPM-Solver++(2M) by default) -> D(z, m) ->
 boxes above ``threshold`` -> overlapping boxes removed (most probable kept) -> pinned tokens' agents
-turned to the tokens' headings (pinning.turn_to_pins) -> poses snapped onto
+turned to the tokens' headings and paced to their speeds (pinning.turn_to_pins, pace_to_pins) ->
+poses snapped onto
 lane centre lines (lane_snap.py; agents on no lane removed unless a token asked for them, overlaps
 removed again) -> scene-frame
 :class:`~sumo_scendiff.scene.Scene` with speeds from the trajectory.
@@ -31,7 +32,7 @@ from .model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from .model.detection import decode_boxes
 from .model.diffusion import DiffusionConfig, ScenarioDiffusion
 from .model.edm import sample_dpmpp_2m
-from .pinning import pinned_latent, pinned_poses, turn_to_pins
+from .pinning import pace_to_pins, pinned_latent, pinned_poses, turn_to_pins
 from .raster import MAP_CHANNELS, RasterConfig, render_map
 from .scene import Scene, vclass_from_size
 from .tokens import AGENT_TOKEN_DIM, agent_tokens_from_dicts, global_token, pad_tokens, token_positions
@@ -60,6 +61,9 @@ class GenerationConfig:
                                  # every token is a condition only (the paper)
     pin_calibration: bool = True   # ... drawn at the speeds the decoder turns into the token's
                                    # (pinning.calibrated_pins; README "The model", pinned tokens)
+    pin_speeds: bool = True      # ... and its agent moves along its decoded path at the token's
+                                 # speed and final speed (pinning.pace_to_pins); False: the
+                                 # decoder's speeds (what the paper's Table 3 measures)
     lane_headings: bool = True   # a box on a junction takes the heading of the network's lane through
                                  # it that the heading head finds most probable (lane_heading.py)
     lane_snap: bool = True       # poses within 3 m of an agreeing car lane move onto its centre line
@@ -194,6 +198,8 @@ class ScenarioGenerator:
         turned = np.zeros(len(keep), bool)
         if cfg.pin_tokens and pins is not None and len(pins):
             boxes, traj, turned = turn_to_pins(boxes, traj, pins, ASKED_RADIUS)
+            if cfg.pin_speeds:
+                traj, _ = pace_to_pins(boxes, traj, pins, ASKED_RADIUS)
         off_lane = 0
         if cfg.lane_snap and net is not None:
             boxes, traj, snapped = snap_to_lanes(boxes, traj, window, net, given=turned)

@@ -5,7 +5,7 @@ lane through it that the decoder's heading head finds most probable.
     dec = decode_boxes(y, size, yaw=yaw)
 
 Inside a junction the lanes cross, and the heading head's posterior there is broad (median 0.15 on
-the right 22.5-degree bin, spread over 3-4 bins: README "How the shipped checkpoint was found", item
+the right 22.5-degree bin, spread over 3-4 bins: docs/history.md, "How the shipped checkpoint was found", item
 13); its argmax often lies between two lanes, and a box heading along no lane is matched to no
 agent. The network knows which headings are possible at that point: the car lanes within
 ``radius`` m of the decoded centre. Each is scored by the head's posterior at its heading

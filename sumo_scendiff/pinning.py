@@ -18,7 +18,9 @@ autoencoder's 0.977 on held-out scenes, benchmarks/reconstruction.py). Tokens mi
 any of those features stay conditions only. A generated agent that would share a latent cell
 (6.25 m) with a pinned one is not drawn there: the cell holds the pinned agent alone. After
 decoding, the agent found within 2 m of a pinned token takes the token's heading
-(:func:`turn_to_pins`): inside a junction the decoder's heading is its least certain output.
+(:func:`turn_to_pins`): inside a junction the decoder's heading is its least certain output; and it
+moves along its decoded path at the token's speed and final speed (:func:`pace_to_pins`): the
+decoder shrinks speeds toward the typical and never draws a stop.
 """
 from __future__ import annotations
 
@@ -194,30 +196,39 @@ def pinned_latent(autoencoder, tokens: Sequence[Sequence[Mapping] | None], laten
 
 
 def pinned_poses(tokens: Sequence[Mapping] | None) -> np.ndarray:
-    """(P, 3) scene-frame ``x, y, heading`` of the pinnable token dicts of one window."""
+    """(P, 5) scene-frame ``x, y, heading, speed, final_speed`` of the pinnable token dicts of one
+    window; ``final_speed`` NaN where the token does not give it."""
     pins = [t for t in (tokens or ()) if isinstance(t, Mapping) and is_pinnable(t)]
-    return np.array([[float(t["x"]), float(t["y"]), float(t["heading"])] for t in pins],
-                    np.float64).reshape(-1, 3)
+
+    def final(t: Mapping) -> float:
+        v = t.get("final_speed")
+        return np.nan if v is None or not np.isfinite(float(v)) else float(v)
+    return np.array([[float(t["x"]), float(t["y"]), float(t["heading"]), float(t["speed"]), final(t)]
+                     for t in pins], np.float64).reshape(-1, 5)
+
+
+def match_pins(boxes: np.ndarray, pins: np.ndarray, radius: float) -> list[tuple[int, int]]:
+    """(agent, pin) pairs: decoded boxes (N, 5) matched one-to-one to pins (P, >= 2) by centre
+    distance within ``radius`` m (scipy's Hungarian)."""
+    from scipy.optimize import linear_sum_assignment
+    if len(boxes) == 0 or len(pins) == 0:
+        return []
+    d = np.linalg.norm(np.asarray(boxes)[:, None, :2] - np.asarray(pins)[None, :, :2], axis=-1)
+    rows, cols = linear_sum_assignment(np.where(d <= radius, d, 1e6))
+    return [(int(a), int(p)) for a, p in zip(rows, cols) if d[a, p] <= radius]
 
 
 def turn_to_pins(boxes: np.ndarray, traj: np.ndarray, pins: np.ndarray, radius: float
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each pinned token's agent takes the token's heading: the decoded agents (boxes (N, 5), traj
-    (N, T, 3), scene frame) are matched one-to-one to the pins ``(P, 3)`` within ``radius`` m
-    (scipy's Hungarian on centre distance), and a matched agent's box and trajectory turn rigidly
-    about its current pose by the difference. Inside a junction the decoder's heading is the least
-    certain part of a pinned agent (README "Token control"), and the token states it exactly.
+    (N, T, 3), scene frame) are matched to the pins ``(P, >= 3)``: x, y, heading) by
+    :func:`match_pins`, and a matched agent's box and trajectory turn rigidly about its current pose
+    by the difference. Inside a junction the decoder's heading is the least certain part of a pinned
+    agent (README "Token control"), and the token states it exactly.
     Returns new arrays and which agents turned (N,)."""
-    from scipy.optimize import linear_sum_assignment
     boxes, traj = np.array(boxes, np.float64), np.array(traj, np.float64)
     turned = np.zeros(len(boxes), bool)
-    if len(boxes) == 0 or len(pins) == 0:
-        return boxes, traj, turned
-    d = np.linalg.norm(boxes[:, None, :2] - pins[None, :, :2], axis=-1)
-    rows, cols = linear_sum_assignment(np.where(d <= radius, d, 1e6))
-    for a, p in zip(rows, cols):
-        if d[a, p] > radius:
-            continue
+    for a, p in match_pins(boxes, pins, radius):
         delta = float(wrap_angle(pins[p, 2] - boxes[a, 2]))
         c, s = np.cos(delta), np.sin(delta)
         rel = traj[a, :, :2] - traj[a, T0, :2]
@@ -226,3 +237,48 @@ def turn_to_pins(boxes: np.ndarray, traj: np.ndarray, pins: np.ndarray, radius: 
         boxes[a, 2] = traj[a, T0, 2]
         turned[a] = True
     return boxes, traj, turned
+
+
+def retime(path: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """(T, 3) poses at signed arc lengths ``s`` (T,) from the current pose along ``path`` (T, 3), the
+    poses at 1-s steps: positions interpolated along the polyline, headings along its arc length;
+    beyond either end the path goes on straight along that end's heading (backwards behind it)."""
+    xy, yaw = path[:, :2], np.unwrap(path[:, 2])
+    seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(seg)])
+    arc = arc - arc[T0]
+    keep = np.concatenate([[True], seg > 1e-6])                   # repeated poses add no length
+    arc, xy, yaw = arc[keep], xy[keep], yaw[keep]
+    out = np.empty((len(s), 3))
+    out[:, 2] = np.interp(s, arc, yaw)
+    out[:, 0], out[:, 1] = np.interp(s, arc, xy[:, 0]), np.interp(s, arc, xy[:, 1])
+    for end, beyond in ((0, s < arc[0]), (-1, s > arc[-1])):
+        extra = (s[beyond] - arc[end])[:, None]
+        out[beyond, :2] = xy[end] + extra * np.array([np.cos(yaw[end]), np.sin(yaw[end])])
+    out[:, 2] = wrap_angle(out[:, 2])
+    return out
+
+
+def pace_to_pins(boxes: np.ndarray, traj: np.ndarray, pins: np.ndarray, radius: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Each pinned token's agent moves at the token's speed and final speed along its decoded path.
+
+    ``pins`` (P, 5): x, y, heading, speed, final speed (NaN: not given, the agent keeps its decoded
+    change of speed over 0...+2 s). The decoder shrinks speeds toward the typical (1.0-1.6 m/s off
+    for moving vehicles, README "The model", pinned tokens; it never draws a stop), while the token
+    states them: a matched agent's poses are moved along its own path (:func:`retime`) to where
+    SUMO's 1-s update at constant acceleration from ``speed`` to ``final_speed`` puts them
+    (:func:`token_trajectories`' convention); its path, turn and current pose stay the decoder's.
+    Returns new ``traj`` and which agents were paced (N,)."""
+    from .generate import speeds_from_traj   # (generate imports this module)
+    traj = np.array(traj, np.float64)
+    paced = np.zeros(len(traj), bool)
+    t = np.asarray(TIMES)
+    for a, p in match_pins(boxes, pins, radius):
+        v0, v2 = float(pins[p, 3]), float(pins[p, 4])
+        if not np.isfinite(v2):
+            v = speeds_from_traj(traj[a][None], np.ones((1, len(t)), bool))[0]
+            v2 = max(v0 + float(v[-1] - v[T0]), 0.0)
+        traj[a] = retime(traj[a], _distance(v0, (v2 - v0) / 2.0, t))
+        paced[a] = True
+    return traj, paced

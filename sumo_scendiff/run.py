@@ -49,6 +49,9 @@ def get_options(args=None):
     p.add_argument("--no-pin-tokens", dest="pin_tokens", action="store_false",
                    help="tokens are conditions only (default: a token giving pose, size and speed -- "
                         "every vehicle already in the window -- is pinned where it is)")
+    p.add_argument("--no-pin-speeds", dest="pin_speeds", action="store_false",
+                   help="a pinned token's vehicle keeps the speeds the model draws (default: it moves at "
+                        "the token's speed and final speed along the path the model draws)")
     p.add_argument("--no-lane-headings", dest="lane_headings", action="store_false",
                    help="vehicles on a junction keep the decoder's own heading (default: the heading of the "
                         "network's lane through them that the decoder finds most probable)")
@@ -148,7 +151,8 @@ def run(o) -> dict:
     _check_output(o)
     gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(
         steps=o.steps, threshold=o.threshold, guidance=o.guidance, scene_guidance=o.scene_guidance,
-        pin_tokens=o.pin_tokens, lane_headings=o.lane_headings, lane_snap=o.lane_snap))
+        pin_tokens=o.pin_tokens, pin_speeds=o.pin_speeds, lane_headings=o.lane_headings,
+        lane_snap=o.lane_snap))
     routes = tuple(r for r in (o.routes or "").split(",") if r)
     edges = {ln.edge for ln in net.lanes}
     try:  # matches the network; the simulation starts at the first departure
@@ -185,7 +189,7 @@ def run(o) -> dict:
             name = f"scene_{k:03d}"
             info = {"scene": name, "location": places[k][1], "window_index": k,
                     "model": {"sha256": gen.sha256, "sampler": gen.config.sampler.__name__, "steps": o.steps,
-                              "threshold": o.threshold, "pin_tokens": o.pin_tokens,
+                              "threshold": o.threshold, "pin_tokens": o.pin_tokens, "pin_speeds": o.pin_speeds,
                               "lane_headings": o.lane_headings, "lane_snap": o.lane_snap,
                               "guidance": o.guidance, "scene_guidance": gen.scene_guidance_for(gen.config),
                               "scene_guidance_sigma": gen.scene_guidance_sigma_for(gen.config)},

@@ -11,7 +11,9 @@ from sumo_scendiff.generate import ScenarioGenerator
 from sumo_scendiff.geometry import T0, Window
 from sumo_scendiff.model.edm import SAMPLERS, inpainted, karras_sigmas
 from sumo_scendiff.network import Network
-from sumo_scendiff.pinning import is_pinnable, pinned_latent, token_trajectories, turn_to_pins
+from sumo_scendiff.generate import GenerationConfig, speeds_from_traj
+from sumo_scendiff.pinning import (is_pinnable, pace_to_pins, pinned_latent, pinned_poses, retime,
+                                   token_trajectories, turn_to_pins)
 
 CAR = {"x": 3.0, "y": -2.0, "heading": 0.5, "length": 4.5, "width": 1.8}
 
@@ -115,9 +117,18 @@ def test_shipped_model_places_a_pinned_token_exactly():
         assert d < 2.2 and abs(np.angle(np.exp(1j * (s.boxes[k, 2] - t["heading"])))) < 0.2
         assert abs(s.boxes[k, 3] - t["length"]) < 1.5
     k, _ = nearest(s, toks[0])
-    # the car asks 6 -> 1 m/s, a deceleration the decoder never draws (final speed 4.8-6.1 m/s):
-    # calibration draws it at the speeds nearest both, 4.4-4.6 m/s now (5.4-5.6 drawn as asked)
-    assert abs(s.speed[k, T0] - toks[0]["speed"]) < 2.0
+    # the car asks 6 -> 1 m/s, a deceleration the decoder never draws: it moves along its decoded
+    # path at the token's speeds (pace_to_pins; lane snap may shorten a step by centimetres)
+    assert s.speed[k, T0] == pytest.approx(6.0, abs=0.1) and s.speed[k, -1] == pytest.approx(1.0, abs=0.1)
+    k, _ = nearest(s, toks[1])
+    assert s.speed[k, T0] == pytest.approx(2.0, abs=0.1)
+    drawn = gen.generate(net, window, tokens=[toks], p_mask=0.5, seed=3,
+                         config=replace(gen.config, pin_speeds=False))[0]
+    assert np.array_equal(drawn.boxes, s.boxes)                    # pacing moves no box
+    k, _ = nearest(drawn, toks[0])
+    # as the decoder draws it: calibration draws it at the speeds nearest both, 4.4-4.6 m/s
+    # (5.4-5.6 drawn as asked), its final speed 4.8-6.1 m/s
+    assert abs(drawn.speed[k, T0] - toks[0]["speed"]) < 2.0 and drawn.speed[k, -1] > 3.0
     free = gen.generate(net, window, tokens=[toks], p_mask=0.5, seed=3,
                         config=replace(gen.config, pin_tokens=False))
     assert not np.array_equal(free[0].boxes, s.boxes)
@@ -129,11 +140,12 @@ def test_shipped_model_keeps_a_slow_truck_moving():
     net = Network.load("networks/city.net.xml")
     gen = ScenarioGenerator.load()
     window, toks = car_and_truck_tokens(net)
-    s = gen.generate(net, window, tokens=[toks], p_mask=0.5, seed=3)[0]
+    drawn = replace(gen.config, pin_speeds=False)                  # the decoder's own speeds
+    s = gen.generate(net, window, tokens=[toks], p_mask=0.5, seed=3, config=drawn)[0]
     k, _ = nearest(s, toks[1])
     assert abs(s.speed[k, T0] - toks[1]["speed"]) < 1.0
     raw = gen.generate(net, window, tokens=[toks], p_mask=0.5, seed=3,
-                       config=replace(gen.config, pin_calibration=False))[0]
+                       config=replace(drawn, pin_calibration=False))[0]
     k, _ = nearest(raw, toks[1])
     assert raw.speed[k, T0] < 1.0
 
@@ -156,10 +168,57 @@ def test_turn_to_pins_turns_the_matched_agent_rigidly_about_its_pose():
     assert two[0][0, 2] == pytest.approx(-1.0)                          # one agent, the nearer pin
 
 
+def test_pace_to_pins_moves_the_agent_along_its_path_at_the_tokens_speeds():
+    t = np.arange(-2, 3, dtype=np.float64)
+    boxes = np.array([[0.0, 0.0, 0.0, 4.5, 1.8], [30.0, 0.0, 0.0, 4.5, 1.8]])
+    traj = np.zeros((2, 5, 3))
+    traj[0, :, 0] = 8.0 * t                                        # decoded at 8 m/s along +x
+    traj[1, :, 0] = 30.0
+    ones = np.ones((1, 5), bool)
+    pins = np.array([[0.5, 0.0, 0.0, 10.0, 4.0],                   # 10 -> 4 m/s
+                     [60.0, 0.0, 0.0, 5.0, np.nan]])               # no agent within 2 m
+    tr, paced = pace_to_pins(boxes, traj, pins, 2.0)
+    assert paced.tolist() == [True, False] and np.array_equal(tr[1], traj[1])
+    v = speeds_from_traj(tr[:1], ones)[0]
+    # SUMO's 1-s update at -3 m/s^2: v(-1) 13, v(0) 10, v(+1) 7, v(+2) 4 (t = -2 extrapolated: 16)
+    assert np.allclose(v, [16.0, 13.0, 10.0, 7.0, 4.0])
+    assert np.allclose(tr[0, :, 1], 0.0) and np.allclose(tr[0, :, 2], 0.0)   # on its path
+    assert np.array_equal(tr[0, T0], traj[0, T0])                           # the current pose stays
+    # no final speed given: the decoded change of speed is kept (8 -> 8 decoded: 5 -> 5)
+    tr, _ = pace_to_pins(boxes[:1], traj[:1], np.array([[0.0, 0.0, 0.0, 5.0, np.nan]]), 2.0)
+    assert np.allclose(speeds_from_traj(tr, ones)[0], 5.0)
+    # a standing token: every pose at the current one
+    tr, _ = pace_to_pins(boxes[:1], traj[:1], np.array([[0.0, 0.0, 0.0, 0.0, 0.0]]), 2.0)
+    assert np.allclose(tr[0], traj[0, T0])
+
+
+def test_retime_follows_a_turn_and_goes_on_straight_beyond_it():
+    # a quarter circle of radius 10 m from (0, 0) heading +x to (10, 10) heading +y, 1-s poses
+    a = np.linspace(-np.pi / 4, np.pi / 2, 5)
+    path = np.c_[10 * np.sin(a), 10 - 10 * np.cos(a), a]
+    arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(path[:, :2], axis=0), axis=1))]
+    arc -= arc[T0]
+    out = retime(path, arc)                                        # the same arc lengths: the same poses
+    assert np.allclose(out, path)
+    out = retime(path, np.array([arc[0] - 30.0, arc[1] / 2, 0.0, arc[-1] + 5.0, arc[-1] + 10.0]))
+    assert np.allclose(out[T0], path[T0])
+    assert np.allclose(out[1, :2], (path[1, :2] + path[T0, :2]) / 2)   # halfway along the chord
+    assert np.allclose(out[3:, :2], path[-1, :2] + np.outer([5.0, 10.0], [0.0, 1.0]))  # on along +y
+    back = path[0, :2] - 30.0 * np.array([np.cos(a[0]), np.sin(a[0])])
+    assert np.allclose(out[0, :2], back) and out[0, 2] == pytest.approx(a[0])
+
+
+def test_pinned_poses_carry_the_tokens_speeds():
+    toks = [{**CAR, "speed": 8.0, "final_speed": 3.0}, {**CAR, "speed": 2.0}, {"x": 1.0, "y": 2.0}]
+    p = pinned_poses(toks)
+    assert p.shape == (2, 5) and p[0, 3:].tolist() == [8.0, 3.0]
+    assert p[1, 3] == 2.0 and np.isnan(p[1, 4])
+    assert pinned_poses(None).shape == (0, 5)
+
+
 def test_a_pinned_agent_on_a_junction_takes_the_tokens_lane(cross_net):
     """Inside a junction the decoder's heading is its least certain output; a pinned token states
     it, and the agent ends on the lane that heading follows, not on a nearer crossing one."""
-    from sumo_scendiff.generate import GenerationConfig
     from sumo_scendiff.lane_snap import snap_to_lanes
     net = Network.load(cross_net)
     window = Window(0.0, 0.0, 0.0)
@@ -173,7 +232,7 @@ def test_a_pinned_agent_on_a_junction_takes_the_tokens_lane(cross_net):
     traj = np.repeat(boxes[:, None, :3], 5, 1)
     gen = ScenarioGenerator.load()
     scene = gen._scene(window, np.array([0.9], np.float32), boxes, traj, GenerationConfig(), net,
-                       pins=np.array([[token["x"], token["y"], token["heading"]]]))
+                       pins=pinned_poses([token]))
     assert len(scene) == 1 and scene.boxes[0, 2] == pytest.approx(np.pi / 2, abs=0.02)
     assert abs(scene.boxes[0, 0] - xy[0]) < 1e-2                   # on the northbound lane's centre line
     unpinned = snap_to_lanes(boxes, traj, window, net)[0]

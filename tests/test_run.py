@@ -53,7 +53,7 @@ def test_run_center_tokens_and_rollout(cross_net, tmp_path, capsys):
     assert doc["window"] == {"cx": 0.0, "cy": 0.0, "yaw": 0.0, "size": 100.0}
     assert doc["p_mask"] == 0.6 and doc["tokens"][0]["x"] == 20.0 and doc["tokens"][0]["source"] == "user"
     assert doc["model"]["pin_tokens"] and not doc["tokens"][0]["pinned"]   # no size: a condition only
-    assert doc["model"]["lane_headings"] and doc["model"]["lane_snap"]           # the defaults
+    assert doc["model"]["lane_headings"] and doc["model"]["lane_snap"] and doc["model"]["pin_speeds"]
     assert len(doc["model"]["sha256"]) == 64 and doc["model"]["sampler"] == "sample_dpmpp_2m"
     for a in doc["agents"]:
         assert abs(a["x"]) <= 50 and abs(a["y"]) <= 50 and len(a["poses"]) == 5

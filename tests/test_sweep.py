@@ -67,12 +67,12 @@ def test_unset_sampler_settings_are_the_generators_defaults(cross_net, tmp_path)
     (s,) = load_spec(str(path)).scenarios()
     g = GenerationConfig()
     assert (s.steps, s.guidance, s.threshold, s.scene_guidance) == (g.steps, g.guidance, g.threshold, None)
-    assert s.pin_tokens is g.pin_tokens is True
+    assert s.pin_tokens is g.pin_tokens is True and s.pin_speeds is g.pin_speeds is True
     assert s.lane_headings is g.lane_headings is True and s.lane_snap is g.lane_snap is True
-    path.write_text(path.read_text() + "pin_tokens = false\nlane_snap = false\n")
+    path.write_text(path.read_text() + "pin_tokens = false\npin_speeds = false\nlane_snap = false\n")
     (s,) = load_spec(str(path)).scenarios()
     assert s.pin_tokens is False and s.params()["pin_tokens"] is False
-    assert s.lane_snap is False and s.lane_headings is True
+    assert s.lane_snap is False and s.lane_headings is True and s.pin_speeds is False
 
 
 def test_batches_depend_on_the_plan_alone(spec_file):

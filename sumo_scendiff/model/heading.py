@@ -7,7 +7,7 @@ the decoded heading is  yaw = k* w + r_k*  with  k* = argmax_k logit_k.
 
 Why: a cos/sin regression trained with L1 returns, where the latent leaves open which of several
 lanes a car is on (the lanes crossing in a junction), a heading *between* the candidates that
-matches none of them (README "How the numbers were found", round 13). A classification over bins
+matches none of them (docs/history.md, "How the shipped checkpoint was found", item 12). A classification over bins
 keeps the modes apart and the argmax commits to one; the residual refines within the chosen bin.
 
 Loss (per matched box): cross-entropy on the ground-truth bin, and L1 on the residual of the

@@ -14,7 +14,7 @@ from .spec import Scenario
 from .worker import failure_path
 
 COLUMNS = ("id", "status", "network", "location", "kind", "token_set", "p_mask", "p_mask_used", "seed",
-           "steps", "threshold", "guidance", "scene_guidance", "pin_tokens", "lane_headings",
+           "steps", "threshold", "guidance", "scene_guidance", "pin_tokens", "pin_speeds", "lane_headings",
            "lane_snap", "rollout", "step_length", "replay", "user_tokens",
            "user_tokens_matched",
            "generated", "placed", "refused", "misplaced", "existing_vehicles", "dropped_on_existing",

@@ -19,8 +19,8 @@ from typing import Any
 
 KEYS = {"name": str, "networks": list, "locations": list, "token_sets": list, "p_mask": list,
         "seeds": (list, int), "steps": int, "threshold": float, "guidance": float, "scene_guidance": float,
-        "pin_tokens": bool, "lane_headings": bool, "lane_snap": bool, "rollout": float, "step_length": float, "replay": float,
-        "scenarios": list}
+        "pin_tokens": bool, "pin_speeds": bool, "lane_headings": bool, "lane_snap": bool, "rollout": float,
+        "step_length": float, "replay": float, "scenarios": list}
 NET_KEYS = {"net": str, "routes": str, "begin": float}
 LOC_KEYS = {"auto": int, "center": list, "yaw": float}
 SET_KEYS = {"name": str, "frame": str, "p_mask": float, "agents": list, "vary": dict}
@@ -55,6 +55,7 @@ class Scenario:
     step_length: float
     replay: float = 0.0          # seconds the agents follow their generated future first
     pin_tokens: bool = True      # tokens with pose, size and speed held in the latent (pinning.py)
+    pin_speeds: bool = True      # ... their agents moving at the tokens' speeds (pinning.pace_to_pins)
     lane_headings: bool = True   # junction boxes take the most probable lane's heading (lane_heading.py)
     lane_snap: bool = True       # poses onto lane centre lines, off-lane agents removed (lane_snap.py)
 
@@ -214,6 +215,7 @@ def parse_spec(data: dict, source: str, here: str = ".") -> Spec:
                 "scene_guidance": None if data.get("scene_guidance") is None else float(data["scene_guidance"]),
                 "rollout": float(data.get("rollout", 60.0)), "step_length": float(data.get("step_length", 0.5)),
                 "replay": float(data.get("replay", 0.0)), "pin_tokens": data.get("pin_tokens", True),
+                "pin_speeds": data.get("pin_speeds", True),
                 "lane_headings": data.get("lane_headings", True), "lane_snap": data.get("lane_snap", True)}
     if settings["steps"] < 1 or not 0 < settings["threshold"] <= 1 or settings["rollout"] < 0 \
             or settings["step_length"] <= 0 or not 0 <= settings["replay"] <= 2 or not settings["guidance"] >= 0 \

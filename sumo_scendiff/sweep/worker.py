@@ -123,7 +123,7 @@ class Worker:
         if ready:
             cfg = GenerationConfig(steps=first.steps, threshold=first.threshold, guidance=first.guidance,
                                    scene_guidance=first.scene_guidance, pin_tokens=first.pin_tokens,
-                                   lane_headings=first.lane_headings, lane_snap=first.lane_snap)
+                                   pin_speeds=first.pin_speeds, lane_headings=first.lane_headings, lane_snap=first.lane_snap)
             scenes = self.generator.generate(session.net, [r[1] for r in ready], tokens=[r[3] for r in ready],
                                              p_mask=[r[6] for r in ready], config=cfg,
                                              noise_seeds=[noise_seed(r[0]) for r in ready])
@@ -134,6 +134,7 @@ class Worker:
                                                                     "p_mask_used": p_mask},
                         "model": {"sha256": self.generator.sha256, "sampler": cfg.sampler.__name__,
                                   "steps": s.steps, "threshold": s.threshold, "pin_tokens": cfg.pin_tokens,
+                                  "pin_speeds": cfg.pin_speeds,
                                   "lane_headings": cfg.lane_headings, "lane_snap": cfg.lane_snap,
                                   "guidance": s.guidance, "scene_guidance": self.generator.scene_guidance_for(cfg),
                                   "scene_guidance_sigma": self.generator.scene_guidance_sigma_for(cfg)},
