@@ -2,15 +2,20 @@
 
     python benchmarks/reconstruction.py [--checkpoint PATH] [--data data/val] [--scenes 96] [-o FILE]
     python benchmarks/reconstruction.py --autoencoder runs/ae/last.pt    # a training run's autoencoder alone
+    python benchmarks/reconstruction.py --data data/val_dense_disc --turned   # turned whole windows
 
-For each held-out scene (generated networks' validation split, no rotation), three decodings go
+For each held-out scene (generated networks' validation split, no rotation; ``--turned``: each
+window turned by a random angle as training sees it, whole when the data is a recording of circles),
+three decodings go
 through the same box filter as ``ScenarioGenerator`` (threshold, window, overlap removal) and are
 matched one-to-one to the ground-truth agents with the token-match rule (centre within 2.2 m,
 heading within 0.2 rad):
 
 * ``autoencoder``: D(mu(E(x)), m) -- the ceiling any diffusion sample can reach;
-  the last column is the recall of the agents centred on a junction (the map's junction channel):
-  on the real cities they are 13 % of the agents and the ones most often lost;
+  the column "recall on junctions" is the recall of the agents centred on a junction (the map's
+  junction channel): on the real cities they are 13 % of the agents and the ones most often lost;
+  "recall beyond 50 m" that of the agents in the window's corners (only a turned window of a
+  recording of circles has them whole);
 * ``diffusion, no tokens``: p_mask = 1, map only -- precision/recall here say how often a free sample
   happens to reproduce *this* scene, i.e. they are low by nature; the count column is the check;
 * ``diffusion, every token``: p_mask = 0, every agent given as a full token -- the token match rate;
@@ -48,6 +53,7 @@ from sumo_scendiff.tokens import (AGENT_TOKEN_DIM, feature_dicts, features_from_
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 WINDOW = Window(0.0, 0.0)  # boxes are already in the scene frame; only the window's extent matters
+CORNER = 50.0              # m from the centre: beyond it, a window's corners
 
 
 def get_options(args=None):
@@ -55,6 +61,8 @@ def get_options(args=None):
     add_model_options(p, "measure its reconstruction only")
     p.add_argument("--data", default=os.path.join(ROOT, "data", "val"))
     p.add_argument("--scenes", type=int, default=96)
+    p.add_argument("--turned", action="store_true",
+                   help="turn each window by a random angle (SceneDataset(rotate=True)), as training does")
     p.add_argument("--threshold", type=float, default=0.8)
     p.add_argument("--steps", type=int, default=None, help="sampler steps (default: generate's)")
     p.add_argument("--guidance", type=float, default=3.0, help="the guided every-token row's weight")
@@ -73,6 +81,7 @@ def score(dec, gts: list[np.ndarray], threshold: float, speeds: list[np.ndarray]
     prob, boxes, traj = dec.prob.numpy(), dec.boxes.numpy(), dec.traj.numpy()
     tp = fp = fn = 0
     hit_j = []  # ground-truth agents centred on a junction: matched or not
+    hit_c = []  # ... centred beyond 50 m from the window's centre (its corners)
     counts, dist, dyaw, cur, fin, still = [], [], [], [], [], []
     for i, gt in enumerate(gts):
         keep = select_boxes(WINDOW, prob[i], boxes[i], threshold)
@@ -80,6 +89,7 @@ def score(dec, gts: list[np.ndarray], threshold: float, speeds: list[np.ndarray]
         gi, ti = match_agents(gen, gt)
         tp, fp, fn = tp + len(gi), fp + len(gen) - len(gi), fn + len(gt) - len(ti)
         hit_j += list(np.isin(np.flatnonzero(junction[i]), ti))
+        hit_c += list(np.isin(np.flatnonzero(np.hypot(gt[:, 0], gt[:, 1]) > CORNER), ti))
         v = speeds_from_traj(traj[i][keep][gi], np.ones((len(gi), len(TIMES)), bool))
         cur += list(np.abs(v[:, T0] - speeds[i][ti, T0]))
         seen = traj_masks[i][ti, -1]
@@ -97,7 +107,8 @@ def score(dec, gts: list[np.ndarray], threshold: float, speeds: list[np.ndarray]
             "speed": float(np.mean(cur)) if cur else float("nan"),
             "final": float(np.mean(fin)) if fin else float("nan"),
             "still": float(np.mean(still)) if still else float("nan"),
-            "recall_junction": float(np.mean(hit_j)) if hit_j else float("nan")}
+            "recall_junction": float(np.mean(hit_j)) if hit_j else float("nan"),
+            "recall_corner": float(np.mean(hit_c)) if hit_c else float("nan")}
 
 
 def from_noised_data(gen, z0: torch.Tensor, m: torch.Tensor, gts: list, o, truth: tuple) -> dict:
@@ -115,9 +126,9 @@ def from_noised_data(gen, z0: torch.Tensor, m: torch.Tensor, gts: list, o, truth
     return rows
 
 
-def lane_yaw(y: torch.Tensor, m: torch.Tensor, data: str, idx: np.ndarray) -> torch.Tensor | None:
+def lane_yaw(y: torch.Tensor, m: torch.Tensor, data: str, idx: np.ndarray, windows: list) -> torch.Tensor | None:
     """``lane_heading.junction_yaw`` for decoder outputs ``y`` of the scenes ``idx`` of ``data``
-    (each scene's own window and network); None without a heading head."""
+    (each scene's network, the ``windows`` it was rendered in); None without a heading head."""
     from sumo_scendiff.data.shards import SceneStore
     from sumo_scendiff.lane_heading import junction_yaw
     from sumo_scendiff.network import Network
@@ -126,7 +137,7 @@ def lane_yaw(y: torch.Tensor, m: torch.Tensor, data: str, idx: np.ndarray) -> to
     yaw = None
     for path in sorted(set(paths)):
         sel = [k for k, p in enumerate(paths) if p == path]
-        part = junction_yaw(y[sel], [store.scene(int(idx[k])).window for k in sel], Network.load(path),
+        part = junction_yaw(y[sel], [windows[k] for k in sel], Network.load(path),
                             m[sel, MAP_CHANNELS.index("junction")], RasterConfig().size)
         if part is None:
             return None
@@ -138,7 +149,7 @@ def lane_yaw(y: torch.Tensor, m: torch.Tensor, data: str, idx: np.ndarray) -> to
 def main(o) -> None:
     torch.set_num_threads(2)
     gen, ae, name, sha = load_models(o.checkpoint, o.autoencoder)
-    ds = SceneDataset(o.data, rotate=False)
+    ds = SceneDataset(o.data, rotate=o.turned, seed=o.seed)
     idx = np.random.default_rng(o.seed).choice(len(ds), min(o.scenes, len(ds)), replace=False)
     b = collate_scenes([ds[int(i)] for i in idx])
     n = len(idx)
@@ -156,7 +167,7 @@ def main(o) -> None:
         mu, logvar = ae.encode(b["agents"])
         y = ae.decode(mu, m)
         rows["autoencoder D(mu, m)"] = score(decode_boxes(y), gts, o.threshold, *truth)
-        yaw = lane_yaw(y, m, o.data, idx)
+        yaw = lane_yaw(y, m, o.data, idx, b["window"])
         if yaw is not None:   # a heading head: junction boxes take the network's most probable lane
             rows["autoencoder D(mu, m), lane headings (generator default)"] = score(
                 decode_boxes(y, yaw=yaw), gts, o.threshold, *truth)
@@ -192,16 +203,18 @@ def main(o) -> None:
     lines = [f"checkpoint `{name}` (sha256 {sha[:12]}…), "
              f"{n} scenes of `{os.path.relpath(o.data, ROOT)}` ({sum(map(len, gts)) / n:.2f} agents per "
              f"scene, {np.mean(np.concatenate(truth[0])[:, T0] < 1.0):.0%} of them standing, < 1 m/s, "
-             f"{np.mean(np.concatenate(truth[2])):.0%} centred on a junction), "
+             f"{np.mean(np.concatenate(truth[2])):.0%} centred on a junction, "
+             f"{np.mean(np.hypot(*np.concatenate(gts)[:, :2].T) > CORNER):.0%} beyond {CORNER:g} m), "
+             f"{'turned' if o.turned else 'axis-aligned'} windows, "
              f"threshold {o.threshold}, {steps} steps of {sampler.__name__} (from the data at sigma: "
              f"Euler on a 40-step schedule)", "",
              "| decoding | agents/scene | precision | recall | F1 | median centre error m | median heading error rad "
-             "| speed MAE m/s | final speed MAE m/s | standing share | recall on junctions |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| speed MAE m/s | final speed MAE m/s | standing share | recall on junctions | recall beyond 50 m |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for label, r in rows.items():
         lines.append(f"| {label} | {r['count']:.2f} | {r['precision']:.3f} | {r['recall']:.3f} | "
                      f"{r['f1']:.3f} | {r['dist']:.2f} | {r['dyaw']:.3f} | {r['speed']:.2f} | {r['final']:.2f} | "
-                     f"{r['still']:.2f} | {r['recall_junction']:.3f} |")
+                     f"{r['still']:.2f} | {r['recall_junction']:.3f} | {r['recall_corner']:.3f} |")
     lines += ["", f"latent at agent cells: |mu| {mabs[occ].mean():.2f}, posterior std {sd[occ].mean():.2f}; "
                   f"elsewhere |mu| {mabs[~occ].mean():.2f}, std {sd[~occ].mean():.2f}"]
     if not o.autoencoder:  # a sampler that loses agents leaves latents with too little energy

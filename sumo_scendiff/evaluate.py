@@ -126,7 +126,8 @@ def record_cached(nets: list[str], routes: list[str | None], scenes: int, seed: 
                   tag: str) -> str:
     """Record (once) scenes with the data CLI into the cache; returns the data directory."""
     from .data.__main__ import get_options as data_options, main as data_main
-    key = json.dumps([[os.path.abspath(n) for n in nets], routes, scenes, seed])
+    from .data.record import RECORDER_VERSION
+    key = json.dumps([[os.path.abspath(n) for n in nets], routes, scenes, seed, RECORDER_VERSION])
     out = os.path.join(cache, f"{tag}-{hashlib.sha1(key.encode()).hexdigest()[:12]}")
     if not os.path.exists(os.path.join(out, "manifest.json")):
         args = [a for n in nets for a in ("-n", n)] + [a for r in routes if r for a in ("-r", r)]
@@ -315,6 +316,10 @@ def main(o) -> int:
     except (NetworkError, DemandError, CheckpointError) as e:
         o.parser.exit(2, f"{PROG}: error: {e}\n")
     print(summary(results))
+    print()
+    # Random Log's agents come from this pool, and the MMD² ratios depend on it (README, "Evaluation")
+    roots = sorted({os.path.relpath(r) for r, _ in pool.sources})
+    print(f"Random Log pool: {', '.join(roots)} ({len(pool)} scenes)")
     print()
     print(markdown(results))
     if tokens:

@@ -217,3 +217,42 @@ def test_recorded_circles_make_turned_training_windows_whole(recorded, cross_net
     ds = SceneDataset(recorded, rotate=True, seed=0)                # the dataset serves the circle
     assert sum(len(ds[i]["boxes"]) for i in range(len(ds))) > sum(
         len(x["boxes"]) for x in (SceneDataset(str(square), rotate=True, seed=0)[i] for i in range(len(ds))))
+
+
+def test_vehicles_off_the_road_are_not_recorded():
+    """A teleporting vehicle is off the road: SUMO reports INVALID_DOUBLE_VALUE for its position
+    and speed. The tracker must leave it out (its step's mask stays False), not record it at
+    (-2^30, -2^30), where an ego window could be centred on it."""
+    import libsumo
+
+    from sumo_scendiff.data.record import INVALID, _Tracker
+    from sumo_scendiff.geometry import Window
+    assert INVALID == libsumo.INVALID_DOUBLE_VALUE
+    c = libsumo.constants
+    states = [{"a": {c.VAR_POSITION: (10.0, 0.0), c.VAR_ANGLE: 90.0, c.VAR_SPEED: 5.0},
+               "b": {c.VAR_POSITION: (20.0, 0.0), c.VAR_ANGLE: 90.0, c.VAR_SPEED: 5.0}}
+              for _ in range(5)]
+    states[3]["b"] = {c.VAR_POSITION: (INVALID, INVALID), c.VAR_ANGLE: INVALID, c.VAR_SPEED: INVALID}
+
+    class Sim:  # the few calls the tracker makes, answering as libsumo does
+        constants = c
+        k = 0
+
+        class simulation:
+            getDepartedIDList = getArrivedIDList = staticmethod(lambda: [])
+
+        class vehicle:
+            getTypeID = staticmethod(lambda vid: "car")
+            getVehicleClass = staticmethod(lambda vid: "passenger")
+            getLength = staticmethod(lambda vid: 5.0)
+            getWidth = staticmethod(lambda vid: 1.8)
+
+    sim = Sim()
+    sim.vehicle.getAllSubscriptionResults = lambda: states[sim.k]
+    tracker = _Tracker(sim)
+    for sim.k in range(5):
+        tracker.step()
+    assert "b" not in tracker.steps[3] and "b" in tracker.steps[2]
+    scene = tracker.scene(Window(15.0, 0.0, 0.0), "x", 0.0)
+    assert len(scene) == 2 and scene.traj_mask.sum(1).tolist() == [5, 4]
+    assert np.abs(scene.traj[scene.traj_mask]).max() < 100 and scene.speed.max() == 5.0

@@ -58,7 +58,7 @@ class SceneDataset(Dataset):
             "map": render_map(net, scene.window, self.raster),
             "agents": render_agents(scene.boxes, scene.traj, scene.traj_mask, self.raster),
             "boxes": scene.boxes, "traj": scene.traj, "traj_mask": scene.traj_mask,
-            "speed": scene.speed, "vclass": scene.vclass, "index": idx,
+            "speed": scene.speed, "vclass": scene.vclass, "index": idx, "window": scene.window,
         }
 
 
@@ -68,7 +68,8 @@ def collate_scenes(items: list[dict]) -> dict:
     b = len(items)
     out = {"map": torch.from_numpy(np.stack([it["map"] for it in items])),
            "agents": torch.from_numpy(np.stack([it["agents"] for it in items])),
-           "index": torch.tensor([it["index"] for it in items])}
+           "index": torch.tensor([it["index"] for it in items]),
+           "window": [it.get("window") for it in items]}
     shapes = {"boxes": (5,), "traj": (5, 3), "traj_mask": (5,), "speed": (5,), "vclass": ()}
     dtypes = {"traj_mask": np.bool_, "vclass": np.int64}
     for key, shape in shapes.items():
