@@ -62,8 +62,9 @@ class GenerationConfig:
     pin_calibration: bool = True   # ... drawn at the speeds the decoder turns into the token's
                                    # (pinning.calibrated_pins; README "The model", pinned tokens)
     pin_speeds: bool = True      # ... and its agent moves along its decoded path at the token's
-                                 # speed and final speed (pinning.pace_to_pins); False: the
-                                 # decoder's speeds (what the paper's Table 3 measures)
+                                 # speed and final speed, and turns by its heading_to_final
+                                 # (pinning.pace_to_pins); False: the decoder's speeds and path
+                                 # (what the paper's Table 3 measures)
     lane_headings: bool = True   # a box on a junction takes the heading of the network's lane through
                                  # it that the heading head finds most probable (lane_heading.py)
     lane_snap: bool = True       # poses within 3 m of an agreeing car lane move onto its centre line

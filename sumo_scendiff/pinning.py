@@ -72,20 +72,23 @@ def token_trajectories(tokens: Sequence[Mapping]) -> tuple[np.ndarray, np.ndarra
         v2 = _final_speed(tok)
         alpha = f.get("heading_to_final", 0.0)
         alpha = 0.0 if not np.isfinite(alpha) else alpha
-        s = _distance(v0, (v2 - v0) / 2.0, t)                       # arc length at each time stamp
-        kappa = 2.0 * alpha / s[-1] if s[-1] > 1e-6 else 0.0        # curvature of the future arc
-        k = np.where(t > 0, kappa, 0.0)
-        theta = k * s                                                # heading change along the path
-        safe = np.abs(k) > 1e-9
-        fwd = np.where(safe, np.sin(theta) / np.where(safe, k, 1.0), s)
-        left = np.where(safe, (1.0 - np.cos(theta)) / np.where(safe, k, 1.0), 0.0)
-        c, sn = np.cos(h), np.sin(h)
-        traj[i, :, 0] = x + c * fwd - sn * left
-        traj[i, :, 1] = y + sn * fwd + c * left
-        traj[i, :, 2] = wrap_angle(h + theta)
+        traj[i] = _arc(x, y, h, _distance(v0, (v2 - v0) / 2.0, t), alpha, t)
         boxes[i] = (x, y, h, f["length"], f["width"])
     assert np.allclose(traj[:, T0, :2], boxes[:, :2])
     return boxes, traj, np.ones((n, len(TIMES)), bool)
+
+
+def _arc(x: float, y: float, h: float, s: np.ndarray, alpha: float, t: np.ndarray) -> np.ndarray:
+    """(T, 3) poses at arc lengths ``s`` from the pose (x, y, h): straight for t <= 0, for t > 0 a
+    circular arc whose chord to the last pose leaves at ``alpha`` to ``h`` (so it ends at h + 2 alpha)."""
+    kappa = 2.0 * alpha / s[-1] if s[-1] > 1e-6 else 0.0            # curvature of the future arc
+    k = np.where(t > 0, kappa, 0.0)
+    theta = k * s                                                    # heading change along the path
+    safe = np.abs(k) > 1e-9
+    fwd = np.where(safe, np.sin(theta) / np.where(safe, k, 1.0), s)
+    left = np.where(safe, (1.0 - np.cos(theta)) / np.where(safe, k, 1.0), 0.0)
+    c, sn = np.cos(h), np.sin(h)
+    return np.stack([x + c * fwd - sn * left, y + sn * fwd + c * left, wrap_angle(h + theta)], axis=1)
 
 
 # Pin calibration: offsets (m/s) tried for the drawn speed, then for the drawn final speed, of pins
@@ -196,15 +199,16 @@ def pinned_latent(autoencoder, tokens: Sequence[Sequence[Mapping] | None], laten
 
 
 def pinned_poses(tokens: Sequence[Mapping] | None) -> np.ndarray:
-    """(P, 5) scene-frame ``x, y, heading, speed, final_speed`` of the pinnable token dicts of one
-    window; ``final_speed`` NaN where the token does not give it."""
+    """(P, 6) scene-frame ``x, y, heading, speed, final_speed, heading_to_final`` of the pinnable
+    token dicts of one window; the last two NaN where the token does not give them."""
     pins = [t for t in (tokens or ()) if isinstance(t, Mapping) and is_pinnable(t)]
 
-    def final(t: Mapping) -> float:
-        v = t.get("final_speed")
+    def given(t: Mapping, f: str) -> float:
+        v = t.get(f)
         return np.nan if v is None or not np.isfinite(float(v)) else float(v)
-    return np.array([[float(t["x"]), float(t["y"]), float(t["heading"]), float(t["speed"]), final(t)]
-                     for t in pins], np.float64).reshape(-1, 5)
+    return np.array([[float(t["x"]), float(t["y"]), float(t["heading"]), float(t["speed"]),
+                      given(t, "final_speed"), given(t, "heading_to_final")] for t in pins],
+                    np.float64).reshape(-1, 6)
 
 
 def match_pins(boxes: np.ndarray, pins: np.ndarray, radius: float) -> list[tuple[int, int]]:
@@ -261,14 +265,17 @@ def retime(path: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 def pace_to_pins(boxes: np.ndarray, traj: np.ndarray, pins: np.ndarray, radius: float
                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Each pinned token's agent moves at the token's speed and final speed along its decoded path.
+    """Each pinned token's agent moves at the token's speed and final speed along its decoded path,
+    and turns as the token says where it says.
 
-    ``pins`` (P, 5): x, y, heading, speed, final speed (NaN: not given, the agent keeps its decoded
-    change of speed over 0...+2 s). The decoder shrinks speeds toward the typical (1.0-1.6 m/s off
-    for moving vehicles, README "The model", pinned tokens; it never draws a stop), while the token
-    states them: a matched agent's poses are moved along its own path (:func:`retime`) to where
-    SUMO's 1-s update at constant acceleration from ``speed`` to ``final_speed`` puts them
-    (:func:`token_trajectories`' convention); its path, turn and current pose stay the decoder's.
+    ``pins`` (P, 6): x, y, heading, speed, final speed, heading to final (:func:`pinned_poses`; NaN:
+    not given). The decoder shrinks speeds toward the typical (1.0-1.6 m/s off for moving vehicles,
+    README "The model", pinned speeds; it never draws a stop) and draws the future from the map, not
+    from a token's turn, while the token states them: a matched agent's poses are moved along its
+    own path (:func:`retime`) to where SUMO's 1-s update at constant acceleration from ``speed`` to
+    ``final_speed`` puts them (:func:`token_trajectories`' convention; no final speed: the decoded
+    change of speed kept); with ``heading_to_final`` its future (t > 0) is the token's arc from its
+    current pose instead. The current pose stays the decoder's (and the pinned heading's).
     Returns new ``traj`` and which agents were paced (N,)."""
     from .generate import speeds_from_traj   # (generate imports this module)
     traj = np.array(traj, np.float64)
@@ -279,6 +286,11 @@ def pace_to_pins(boxes: np.ndarray, traj: np.ndarray, pins: np.ndarray, radius: 
         if not np.isfinite(v2):
             v = speeds_from_traj(traj[a][None], np.ones((1, len(t)), bool))[0]
             v2 = max(v0 + float(v[-1] - v[T0]), 0.0)
-        traj[a] = retime(traj[a], _distance(v0, (v2 - v0) / 2.0, t))
+        s = _distance(v0, (v2 - v0) / 2.0, t)
+        traj[a] = retime(traj[a], s)
+        alpha = float(pins[p, 5]) if pins.shape[1] > 5 else np.nan
+        if np.isfinite(alpha):
+            x, y, h = traj[a, T0]
+            traj[a, t > 0] = _arc(x, y, h, s, alpha, t)[t > 0]
         paced[a] = True
     return traj, paced

@@ -209,11 +209,29 @@ def test_retime_follows_a_turn_and_goes_on_straight_beyond_it():
 
 
 def test_pinned_poses_carry_the_tokens_speeds():
-    toks = [{**CAR, "speed": 8.0, "final_speed": 3.0}, {**CAR, "speed": 2.0}, {"x": 1.0, "y": 2.0}]
+    toks = [{**CAR, "speed": 8.0, "final_speed": 3.0, "heading_to_final": 0.2}, {**CAR, "speed": 2.0},
+            {"x": 1.0, "y": 2.0}]
     p = pinned_poses(toks)
-    assert p.shape == (2, 5) and p[0, 3:].tolist() == [8.0, 3.0]
-    assert p[1, 3] == 2.0 and np.isnan(p[1, 4])
-    assert pinned_poses(None).shape == (0, 5)
+    assert p.shape == (2, 6) and p[0, 3:].tolist() == [8.0, 3.0, 0.2]
+    assert p[1, 3] == 2.0 and np.isnan(p[1, 4:]).all()
+    assert pinned_poses(None).shape == (0, 6)
+
+
+def test_pace_to_pins_turns_the_future_as_the_token_asks():
+    """The decoder draws the future from the map and ignores a token's turn; a pinned token that
+    gives ``heading_to_final`` gets its arc from the agent's current pose (the past stays the
+    decoded path's, re-timed), as the pin was drawn (token_trajectories)."""
+    t = np.arange(-2, 3, dtype=np.float64)
+    boxes = np.array([[0.0, 0.0, 0.0, 4.5, 1.8]])
+    traj = np.zeros((1, 5, 3))
+    traj[0, :, 0] = 8.0 * t                                        # decoded straight on at 8 m/s
+    tok = {"x": 0.0, "y": 0.0, "heading": 0.0, "length": 4.5, "width": 1.8, "speed": 10.0,
+           "final_speed": 10.0, "heading_to_final": 0.3}
+    tr, paced = pace_to_pins(boxes, traj, pinned_poses([tok]), 2.0)
+    want = token_trajectories([tok])[1][0]
+    assert paced.all() and np.allclose(tr[0, T0:], want[T0:])       # the token's left turn
+    assert tr[0, -1, 2] == pytest.approx(0.6) and tr[0, -1, 1] > 3.0
+    assert np.allclose(tr[0, :T0, 1], 0.0) and np.allclose(tr[0, :T0, 0], [-20.0, -10.0])
 
 
 def test_a_pinned_agent_on_a_junction_takes_the_tokens_lane(cross_net):
