@@ -216,6 +216,9 @@ class ScenarioGenerator:
             ok = ok[window.contains(boxes[ok, :2])]
             ok = ok[np.argsort(-p[ok], kind="stable")]
             keep, boxes, traj = keep[ok], boxes[ok], traj[ok]
+            if cfg.pin_tokens and cfg.pin_speeds and pins is not None and len(pins):
+                # snapping moved the poses onto the lanes, and so the steps: the token's speeds again
+                traj, _ = pace_to_pins(boxes, traj, pins, ASKED_RADIUS, turn=False)
         # millimetres / milliradians: the float noise of batch composition and thread count
         # (~1e-6) must not make the same seed seed SUMO differently
         b, t = np.round(boxes, DECIMALS).astype(np.float32), np.round(traj, DECIMALS).astype(np.float32)

@@ -263,8 +263,8 @@ def retime(path: np.ndarray, s: np.ndarray) -> np.ndarray:
     return out
 
 
-def pace_to_pins(boxes: np.ndarray, traj: np.ndarray, pins: np.ndarray, radius: float
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def pace_to_pins(boxes: np.ndarray, traj: np.ndarray, pins: np.ndarray, radius: float,
+                 turn: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Each pinned token's agent moves at the token's speed and final speed along its decoded path,
     and turns as the token says where it says.
 
@@ -275,7 +275,8 @@ def pace_to_pins(boxes: np.ndarray, traj: np.ndarray, pins: np.ndarray, radius: 
     own path (:func:`retime`) to where SUMO's 1-s update at constant acceleration from ``speed`` to
     ``final_speed`` puts them (:func:`token_trajectories`' convention; no final speed: the decoded
     change of speed kept); with ``heading_to_final`` its future (t > 0) is the token's arc from its
-    current pose instead. The current pose stays the decoder's (and the pinned heading's).
+    current pose instead (``turn``; False: the path as it is, e.g. again after lane snap moved its
+    poses onto the lanes). The current pose stays the decoder's (and the pinned heading's).
     Returns new ``traj`` and which agents were paced (N,)."""
     from .generate import speeds_from_traj   # (generate imports this module)
     traj = np.array(traj, np.float64)
@@ -289,7 +290,7 @@ def pace_to_pins(boxes: np.ndarray, traj: np.ndarray, pins: np.ndarray, radius: 
         s = _distance(v0, (v2 - v0) / 2.0, t)
         traj[a] = retime(traj[a], s)
         alpha = float(pins[p, 5]) if pins.shape[1] > 5 else np.nan
-        if np.isfinite(alpha):
+        if turn and np.isfinite(alpha):
             x, y, h = traj[a, T0]
             traj[a, t > 0] = _arc(x, y, h, s, alpha, t)[t > 0]
         paced[a] = True

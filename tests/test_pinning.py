@@ -134,6 +134,23 @@ def test_shipped_model_places_a_pinned_token_exactly():
     assert not np.array_equal(free[0].boxes, s.boxes)
 
 
+def test_a_pinned_turn_the_road_does_not_make_keeps_the_tokens_speeds():
+    """Asked to turn where no lane turns, the agent is straightened by lane snap onto its lane, and
+    re-timed along the snapped path: its speeds stay the token's (before the second pacing they read
+    6.66 and 4.92 m/s at +1 / +2 s for 6 asked)."""
+    net = Network.load("networks/city.net.xml")
+    gen = ScenarioGenerator.load()
+    window, toks = car_and_truck_tokens(net)
+    car = dict(toks[0], final_speed=6.0, heading_to_final=0.4)
+    s = gen.generate(net, window, tokens=[[car, toks[1]]], p_mask=0.5, seed=3)[0]
+    k, _ = nearest(s, car)
+    assert np.allclose(s.speed[k], 6.0, atol=0.1)
+    free = gen.generate(net, window, tokens=[[car, toks[1]]], p_mask=0.5, seed=3,
+                        config=replace(gen.config, lane_snap=False))[0]
+    k, _ = nearest(free, car)
+    assert free.traj[k, -1, 2] - free.traj[k, T0, 2] == pytest.approx(0.8, abs=0.01)  # the token's turn
+
+
 def test_shipped_model_keeps_a_slow_truck_moving():
     """Slow long vehicles decode nearly standing when drawn as asked (the 2 m/s truck at 0.40 m/s
     here); pin calibration draws it faster so that it decodes at 1.21 m/s (seeds 4, 5: 1.23, 2.18)."""
