@@ -19,8 +19,9 @@ any of those features stay conditions only. A generated agent that would share a
 (6.25 m) with a pinned one is not drawn there: the cell holds the pinned agent alone. After
 decoding, the agent found within 2 m of a pinned token takes the token's heading
 (:func:`turn_to_pins`): inside a junction the decoder's heading is its least certain output; and it
-moves along its decoded path at the token's speed and final speed (:func:`pace_to_pins`): the
-decoder shrinks speeds toward the typical and never draws a stop.
+moves along its decoded path at the token's speed and final speed, turning by its
+``heading_to_final`` where given (:func:`pace_to_pins`): the decoder shrinks speeds toward the
+typical, never draws a stop and does not follow a token's turn.
 """
 from __future__ import annotations
 
