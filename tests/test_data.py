@@ -256,3 +256,61 @@ def test_vehicles_off_the_road_are_not_recorded():
     scene = tracker.scene(Window(15.0, 0.0, 0.0), "x", 0.0)
     assert len(scene) == 2 and scene.traj_mask.sum(1).tolist() == [5, 4]
     assert np.abs(scene.traj[scene.traj_mask]).max() < 100 and scene.speed.max() == 5.0
+
+
+def _children(pid: int) -> list[int]:
+    kids = []
+    for d in os.listdir("/proc"):
+        try:
+            with open(f"/proc/{d}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if int(fields[1]) == pid:
+            kids.append(int(d))
+    return kids
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_a_terminated_recording_stops_its_workers_and_resumes_to_the_same_scenes(cross_net, tmp_path):
+    import signal
+    import time
+    args = ["-n", cross_net, "--scenes", 120, "-s", 5, "--scenes-per-episode", 10]
+    out = tmp_path / "d"
+    partial = tmp_path / "d.partial"
+    p = subprocess.Popen(CLI + [str(a) for a in args + ["-o", out, "--workers", 2]],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not (partial.is_dir() and any(n.endswith(".npz") and ".tmp" not in n for n in os.listdir(partial))):
+        assert p.poll() is None and time.time() < deadline, "the recording ended before its first episode"
+        time.sleep(0.02)
+    workers = _children(p.pid)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 130
+    assert "Traceback" not in err and "--resume" in err.strip().splitlines()[-1]
+    deadline = time.time() + 10
+    while any(_alive(w) for w in workers) and time.time() < deadline:
+        time.sleep(0.05)
+    assert len(workers) >= 2 and not any(_alive(w) for w in workers), "workers outlived the recording"
+    assert not out.exists(), "an interrupted recording must not look complete"
+    kept = [n for n in os.listdir(partial) if n.startswith("shard-") and ".tmp" not in n]
+    assert 1 <= len(kept) < 12
+
+    res = run(*args, "-o", out, "--workers", 2, "--resume")
+    assert res.returncode == 0, res.stderr
+    assert not partial.exists() and not any(".tmp" in n for n in os.listdir(out))
+    res = run(*args, "-o", tmp_path / "whole")
+    assert res.returncode == 0, res.stderr
+    resumed, whole = SceneStore(str(out)), SceneStore(str(tmp_path / "whole"))
+    assert len(resumed) == len(whole) == 120
+    for i in range(len(whole)):
+        a, b = resumed.scene(i), whole.scene(i)
+        assert a.time == b.time and np.array_equal(a.boxes, b.boxes) and np.array_equal(a.traj, b.traj)

@@ -10,7 +10,7 @@ empty to congested. Each scene holds every vehicle within the circle through its
 so that training can turn the window by any angle and still see all of it (``--square``: only the
 window's square, as recordings before this option did). Output: ``DIR/manifest.json`` and
 ``DIR/shard-*.npz``. Work happens in ``DIR.partial`` and is renamed to ``DIR`` when complete; an
-interrupted run continues with ``--resume``. The same seed gives the same scenes.
+interrupted run (Ctrl-C, SIGTERM: exit 130, finished episodes kept) continues with ``--resume``. The same seed gives the same scenes.
 """
 from __future__ import annotations
 
@@ -18,15 +18,17 @@ import argparse
 import json
 import os
 import shutil
+import signal
 import sys
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import closing
 from dataclasses import asdict, replace
 
 import numpy as np
 
 from ..network import Network, NetworkError
+from ..procs import die_with_parent
 from .demand import DemandError, check_routes
-from .record import EpisodeSpec, record_shard
+from .record import EpisodeSpec, record_shard_task
 from .shards import DataError, Shard, net_entry, write_manifest
 
 PROG = "python -m sumo_scendiff.data"
@@ -87,6 +89,26 @@ def plan_episodes(nets: list[Network], routes: list[str | None], begins: list[fl
     return plan
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt  # SIGTERM ends a recording as Ctrl-C does: finished episodes are kept
+
+
+def _record_all(tasks: list[tuple], workers: int):
+    """Record the episodes ``tasks`` (``record_shard``'s arguments), yielding each one's manifest
+    entry as it finishes; with several workers, in spawn processes that die with this one."""
+    if workers <= 1:
+        yield from map(record_shard_task, tasks)
+        return
+    import multiprocessing as mp
+    pool = mp.get_context("spawn").Pool(workers, initializer=die_with_parent, initargs=(os.getpid(),))
+    try:
+        yield from pool.imap_unordered(record_shard_task, tasks)
+        pool.close()
+    finally:
+        pool.terminate()  # after an error or an interrupt: episodes in progress are dropped
+        pool.join()
+
+
 def main(o) -> int:
     from tqdm import tqdm
     out = os.path.abspath(o.out)
@@ -138,26 +160,27 @@ def main(o) -> int:
             entries[name] = {"file": name, "scenes": len(sh), "agents": int(sh.offsets[-1]), "net": k}
         else:
             todo.append((k, name, spec))
+    for name in os.listdir(partial):  # an episode cut off while writing (the write is atomic)
+        if name.endswith(".tmp.npz"):
+            os.remove(os.path.join(partial, name))
     bar = tqdm(total=sum(s.scenes for _, _, s in plan), unit="scene", desc="recording",
                initial=sum(e["scenes"] for e in entries.values()), disable=None)
+    signal.signal(signal.SIGTERM, _interrupt)
     try:
-        if o.workers <= 1:
-            for k, name, spec in todo:
-                entries[name] = record_shard(nets[k].path, spec, k, os.path.join(partial, name))
-                bar.update(spec.scenes)
-        else:
-            import multiprocessing as mp
-            with ProcessPoolExecutor(o.workers, mp_context=mp.get_context("spawn")) as ex:
-                futs = {ex.submit(record_shard, nets[k].path, spec, k, os.path.join(partial, name)):
-                        (name, spec) for k, name, spec in todo}
-                for fut in as_completed(futs):
-                    name, spec = futs[fut]
-                    entries[name] = fut.result()
-                    bar.update(spec.scenes)
+        tasks = [(nets[k].path, spec, k, os.path.join(partial, name)) for k, name, spec in todo]
+        with closing(_record_all(tasks, o.workers)) as finished:
+            for entry in finished:
+                entries[entry["file"]] = entry
+                bar.update(entry["scenes"])
     except (DemandError, DataError) as e:
         bar.close()
         o.parser.exit(2, f"{PROG}: error: {e} (finished episodes are kept in {partial}; "
                          f"--resume continues)\n")
+    except KeyboardInterrupt:
+        bar.close()
+        print(f"{PROG}: interrupted: {len(entries)} of {len(plan)} episodes are kept in {partial}; "
+              f"run the same command with --resume to continue", file=sys.stderr)
+        return 130
     bar.close()
 
     episodes = [{"file": name, **asdict(replace(spec, routes=spec.routes and os.path.relpath(spec.routes, out)))}

@@ -226,3 +226,8 @@ def record_shard(net_path: str, spec: EpisodeSpec, net_index: int, shard_path: s
     """Record one episode into one shard file (a worker process's unit of work)."""
     scenes = record_episode(Network.load(net_path), spec)
     return write_shard(shard_path, scenes, net_index)
+
+
+def record_shard_task(task: tuple) -> dict:
+    """``record_shard(*task)``: the form a process pool's ``imap_unordered`` calls."""
+    return record_shard(*task)

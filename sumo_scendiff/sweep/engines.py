@@ -11,6 +11,7 @@ import math
 import os
 from itertools import groupby
 
+from ..procs import die_with_parent
 from .spec import Scenario, Spec
 
 TASK_SIZE = 8   # scenarios per task: the model call batches them; small enough to balance workers
@@ -48,23 +49,12 @@ def _threads(workers: int) -> int:
     return max(1, (os.cpu_count() or 1) // max(workers, 1))
 
 
-def _die_with_parent(parent: int) -> None:
-    try:
-        import ctypes
-        import signal
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-    if os.getppid() != parent:   # the parent died before the line above took effect
-        os._exit(1)
-
-
 _WORKER = None
 
 
 def _init(spec: Spec, out: str, checkpoint: str | None, threads: int, parent: int) -> None:
     global _WORKER
-    _die_with_parent(parent)
+    die_with_parent(parent)
     from .worker import Worker
     _WORKER = Worker(spec, out, checkpoint, threads=threads)
 
