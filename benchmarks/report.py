@@ -21,13 +21,18 @@ def add_model_options(p, autoencoder_help: str) -> None:
 
 def load_models(checkpoint: str | None, autoencoder: str | None):
     """``(generator, autoencoder, name, sha256)``: the scenario-diffusion checkpoint (default: the
-    shipped one), or with ``autoencoder`` that training run's autoencoder alone (generator None).
+    shipped one), or with ``autoencoder`` that training run's (or exported model's) autoencoder alone
+    (generator None).
     The autoencoder is in eval mode."""
     from sumo_scendiff.generate import ScenarioGenerator
     from sumo_scendiff.model import checkpoint as ckpt
     from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
     if autoencoder:
-        ck = ckpt.load(autoencoder, "autoencoder-train")
+        from sumo_scendiff.train import load_training  # a run's last.pt, or an exported model's half
+        try:
+            ck = load_training(autoencoder, "autoencoder-train")
+        except ckpt.CheckpointError as e:
+            raise SystemExit(f"{e}")
         ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ck["model_config"]))
         ckpt.load_state(ae, ck["state"], autoencoder)
         gen, name, sha = None, f"{autoencoder} (step {ck['step']})", ckpt.sha256(autoencoder)
