@@ -98,6 +98,8 @@ def get_options(args=None):
     o = p.parse_args(args)
     if not all(w is None or w >= 0 for w in (o.guidance, o.scene_guidance, o.scene_guidance_sigma)):
         p.error("--guidance, --scene-guidance and --scene-guidance-sigma must be >= 0")
+    if o.tokens and o.no_model:
+        p.error("--tokens measures the model: it cannot go with --no-model")
     o.parser = p
     return o
 
