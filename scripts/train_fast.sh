@@ -4,19 +4,26 @@
 # history (scripts/train_recipe.sh, ~12 h 50 min). Resumable: run it again after an interruption.
 #
 #     scripts/train_fast.sh [OUT_DIR]        # default runs/fast; the model is OUT_DIR/scendiff.pt
+#     AE_STEPS=3500 DECODER_STEPS=600 scripts/train_fast.sh runs/fast2   # other step budgets
 #
+# The learning rate drops to a tenth at 85 % of each stage's steps, rounded down to a hundred. FAST_DATA (default data/fast) is
+# where the recordings go; a run with other step budgets reuses them.
 # Times measured on the 2-core CPU are in README "Training" (with the model's numbers beside the
 # shipped one's); each stage's start and end are appended to OUT_DIR/times.log.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-runs/fast}
 DATA=${FAST_DATA:-data/fast}
+AE_STEPS=${AE_STEPS:-2000}
+DECODER_STEPS=${DECODER_STEPS:-400}
+DIFFUSION_STEPS=${DIFFUSION_STEPS:-2600}
+drop_at() { echo $(( $1 * 17 / 20 / 100 * 100 )); }  # 85 %, down to a hundred
 mkdir -p "$OUT"
 NETS=$(python -c "import json; print(' '.join('-n networks/' + n for n in json.load(open('networks/splits.json'))['train']))")
 resume_flag() { [ -d "$1.partial" ] && echo --resume || true; }
 stamp() { echo "$(date -u +%FT%TZ) $*" >> "$OUT/times.log"; }
 
-# 1. Recordings (~12 min): dense random trips (40-800 veh/h/km of lane, 8 vehicles per window),
+# 1. Recordings (~6 min): dense random trips (40-800 veh/h/km of lane, 8 vehicles per window),
 #    each window's circumscribed circle, so turned training windows are whole.
 stamp record
 [ -f $DATA/train/manifest.json ] || python -m sumo_scendiff.data $NETS -o $DATA/train --scenes 36000 -s 2 \
@@ -30,11 +37,12 @@ stamp record
 stamp autoencoder
 AE_CONFIG='{"C_m": 19, "map_skips": true, "heading_bins": 16, "kl_weight": 0.01, "loss": {"category_weights":
     [1.0, 1.0, 4.0], "box_weight": 4.0, "vertex_weight": 2.0, "heading_bin_weight": 2.0}}'
-python -m sumo_scendiff.train autoencoder --data $DATA/train --val $DATA/val -o "$OUT/ae" --steps 2000 \
-    --lr 5e-4 --lr-drop-at 1700 --model-config "$AE_CONFIG"
+python -m sumo_scendiff.train autoencoder --data $DATA/train --val $DATA/val -o "$OUT/ae" --steps $AE_STEPS \
+    --lr 5e-4 --lr-drop-at $(drop_at $AE_STEPS) --model-config "$AE_CONFIG"
 stamp decoder
 python -m sumo_scendiff.train autoencoder --data $DATA/train --val $DATA/val -o "$OUT/ae_mu" \
-    --init-from "$OUT/ae/last.pt" --freeze-encoder --steps 400 --lr 1e-4 --lr-drop-at 300 \
+    --init-from "$OUT/ae/last.pt" --freeze-encoder --steps $DECODER_STEPS --lr 1e-4 \
+    --lr-drop-at $(drop_at $DECODER_STEPS) \
     --model-config '{"latent_noise": 0}'
 
 # 3. The diffusion model in that latent space, 2 600 steps at batch 32, noise levels shifted up
@@ -42,7 +50,8 @@ python -m sumo_scendiff.train autoencoder --data $DATA/train --val $DATA/val -o 
 #    the examples without tokens and 20 % with every agent a token.
 stamp diffusion
 python -m sumo_scendiff.train diffusion --autoencoder "$OUT/ae/last.pt" --data $DATA/train --val $DATA/val \
-    -o "$OUT/diffusion" --batch-size 32 --val-batches 4 --steps 2600 --lr 6e-4 --lr-drop-at 2200 \
+    -o "$OUT/diffusion" --batch-size 32 --val-batches 4 --steps $DIFFUSION_STEPS --lr 6e-4 \
+    --lr-drop-at $(drop_at $DIFFUSION_STEPS) \
     --model-config '{"P_mean": 0.3, "P_std": 1.4}' --p-keep-all-tokens 0.2 --p-map-only 0.3
 
 # 4. Export, calibrate the global token's guidance on turned validation windows, export again.

@@ -36,6 +36,10 @@ if prog.endswith("scene_guidance.py"):
 '''
 
 
+def _flag(call: list[str], name: str) -> str:
+    return call[call.index(name) + 1]
+
+
 def test_the_two_hour_recipe_parses_with_todays_clis(tmp_path):
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
@@ -55,7 +59,11 @@ def test_the_two_hour_recipe_parses_with_todays_clis(tmp_path):
         "benchmarks/scene_guidance.py", "sumo_scendiff.train"]
     stages = [c[1] for c in calls if c[0] == "sumo_scendiff.train"]
     assert stages == ["autoencoder", "autoencoder", "diffusion", "export", "export"]
-    assert calls[-1][calls[-1].index("--scene-guidance") + 1] == "1.4"   # the calibrated weight
+    trains = [c for c in calls if c[1] in ("autoencoder", "diffusion")]
+    # the run measured in README "Training": its steps and learning-rate drops
+    assert [(_flag(c, "--steps"), _flag(c, "--lr-drop-at")) for c in trains] == [
+        ("2000", "1700"), ("400", "300"), ("2600", "2200")]
+    assert _flag(calls[-1], "--scene-guidance") == "1.4"   # the calibrated weight
     nets = [c for c in calls[0] if c.endswith(".net.xml")]
     with open(os.path.join(REPO, "networks", "splits.json")) as f:
         train = json.load(f)["train"]
