@@ -287,13 +287,18 @@ def test_a_terminated_recording_stops_its_workers_and_resumes_to_the_same_scenes
     partial = tmp_path / "d.partial"
     p = subprocess.Popen(CLI + [str(a) for a in args + ["-o", out, "--workers", 2]],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + 120
-    while not (partial.is_dir() and any(n.endswith(".npz") and ".tmp" not in n for n in os.listdir(partial))):
-        assert p.poll() is None and time.time() < deadline, "the recording ended before its first episode"
-        time.sleep(0.02)
-    workers = _children(p.pid)
-    p.send_signal(signal.SIGTERM)
-    _, err = p.communicate(timeout=60)
+    try:
+        deadline = time.time() + 120
+        while not (partial.is_dir() and any(n.endswith(".npz") and ".tmp" not in n for n in os.listdir(partial))):
+            assert p.poll() is None and time.time() < deadline, "the recording ended before its first episode"
+            time.sleep(0.02)
+        workers = _children(p.pid)
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:  # a failed test leaves no recording behind
+            p.kill()
+            p.wait()
     assert p.returncode == 130
     assert "Traceback" not in err and "--resume" in err.strip().splitlines()[-1]
     deadline = time.time() + 10
