@@ -32,7 +32,7 @@ def load_models(checkpoint: str | None, autoencoder: str | None):
         try:
             ck = load_training(autoencoder, "autoencoder-train")
         except ckpt.CheckpointError as e:
-            raise SystemExit(f"{e}")
+            raise SystemExit(str(e))
         ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ck["model_config"]))
         ckpt.load_state(ae, ck["state"], autoencoder)
         gen, name, sha = None, f"{autoencoder} (step {ck['step']})", ckpt.sha256(autoencoder)

@@ -10,7 +10,8 @@ empty to congested. Each scene holds every vehicle within the circle through its
 so that training can turn the window by any angle and still see all of it (``--square``: only the
 window's square, as recordings before this option did). Output: ``DIR/manifest.json`` and
 ``DIR/shard-*.npz``. Work happens in ``DIR.partial`` and is renamed to ``DIR`` when complete; an
-interrupted run (Ctrl-C, SIGTERM: exit 130, finished episodes kept) continues with ``--resume``. The same seed gives the same scenes.
+interrupted run (Ctrl-C, SIGTERM: exit 130, finished episodes kept) continues with ``--resume``.
+The same seed gives the same scenes.
 """
 from __future__ import annotations
 
@@ -165,7 +166,7 @@ def main(o) -> int:
             os.remove(os.path.join(partial, name))
     bar = tqdm(total=sum(s.scenes for _, _, s in plan), unit="scene", desc="recording",
                initial=sum(e["scenes"] for e in entries.values()), disable=None)
-    signal.signal(signal.SIGTERM, _interrupt)
+    on_sigterm = signal.signal(signal.SIGTERM, _interrupt)  # put back below (evaluate calls main)
     try:
         tasks = [(nets[k].path, spec, k, os.path.join(partial, name)) for k, name, spec in todo]
         with closing(_record_all(tasks, o.workers)) as finished:
@@ -178,9 +179,10 @@ def main(o) -> int:
                          f"--resume continues)\n")
     except KeyboardInterrupt:
         bar.close()
-        print(f"{PROG}: interrupted: {len(entries)} of {len(plan)} episodes are kept in {partial}; "
-              f"run the same command with --resume to continue", file=sys.stderr)
-        return 130
+        o.parser.exit(130, f"{PROG}: interrupted: {len(entries)} of {len(plan)} episodes are kept in "
+                           f"{partial}; --resume continues\n")
+    finally:
+        signal.signal(signal.SIGTERM, on_sigterm)
     bar.close()
 
     episodes = [{"file": name, **asdict(replace(spec, routes=spec.routes and os.path.relpath(spec.routes, out)))}
