@@ -2,7 +2,9 @@
 
 The script runs with a ``python`` on PATH that checks each ``python -m sumo_scendiff.…`` and
 ``benchmarks/….py`` command line with that program's own ``get_options`` (an unknown or renamed
-flag fails as it would two hours into a real run) and records it instead of running it.
+flag fails as it would two hours into a real run) and records it instead of running it. A stage
+launched through ``python -m torch.distributed.run … -m sumo_scendiff.train`` has the launcher's own
+arguments checked by the launcher's parser and is recorded with its process count.
 """
 from __future__ import annotations
 
@@ -17,6 +19,13 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHIM = r'''
 import importlib, json, os, runpy, sys
 args = sys.argv[1:]
+procs = 1
+if args[:2] == ["-m", "torch.distributed.run"]:
+    from torch.distributed.run import get_args_parser
+    cut = args.index("-m", 2)
+    launcher = get_args_parser().parse_args(args[2:cut] + ["-m", args[cut + 1]])
+    procs = int(launcher.nproc_per_node)
+    args = args[cut:]
 if args[0] == "-c":
     sys.argv = ["-c"] + args[2:]
     exec(args[1])
@@ -30,7 +39,7 @@ else:
     get_options = runpy.run_path(prog)["get_options"]
 get_options(rest)  # argparse exits 2 with the reason on a bad flag
 with open(os.environ["SHIM_LOG"], "a") as f:
-    f.write(json.dumps([prog] + rest) + "\n")
+    f.write(json.dumps([prog] + rest + ["--procs", str(procs)]) + "\n")
 if prog.endswith("scene_guidance.py"):
     print("agents per window equal to the ground truth's at w = 1.42 (interpolated)")
 '''
@@ -62,7 +71,10 @@ def test_the_two_hour_recipe_parses_with_todays_clis(tmp_path):
     trains = [c for c in calls if c[1] in ("autoencoder", "diffusion")]
     # the run measured in README "Training": its steps and learning-rate drops
     assert [(_flag(c, "--steps"), _flag(c, "--lr-drop-at")) for c in trains] == [
-        ("2000", "1700"), ("400", "300"), ("2600", "2200")]
+        ("5500", "4600"), ("2500", "2100"), ("3600", "3000")]
+    # two DDP processes, each on half of the global batches of 16 / 16 / 32
+    assert [(_flag(c, "--procs"), _flag(c, "--batch-size")) for c in trains] == [
+        ("2", "8"), ("2", "8"), ("2", "16")]
     assert _flag(calls[-1], "--scene-guidance") == "1.4"   # the calibrated weight
     nets = [c for c in calls[0] if c.endswith(".net.xml")]
     with open(os.path.join(REPO, "networks", "splits.json")) as f:
