@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# The two-hour recipe: the shipped architecture trained from scratch in one pass, on the project's own
-# networks only (all 15 of networks/splits.json "train"), with none of the shipped model's warm-start
-# history (scripts/train_recipe.sh, ~12 h 50 min). Resumable: run it again after an interruption.
+# The shipped model's recipe (round 15, 1 h 31 min on the 2-core CPU): the architecture trained from
+# scratch in one pass, on the project's own networks only (all 15 of networks/splits.json "train"),
+# with none of round 14's warm-start history (scripts/train_recipe.sh, ~12 h 50 min). Resumable: run
+# it again after an interruption.
 #
 #     scripts/train_fast.sh [OUT_DIR]        # default runs/fast; the model is OUT_DIR/scendiff.pt
 #     AE_STEPS=3500 DECODER_STEPS=600 scripts/train_fast.sh runs/fast2   # other step budgets
@@ -10,8 +11,8 @@
 # The learning rate drops to a tenth at 85 % of each stage's steps, rounded down to a hundred. FAST_DATA (default data/fast) is
 # where the recordings go; a run with other step budgets reuses them.
 # Each training stage runs as PROCS (default 2) DistributedDataParallel processes of one thread each
-# (torch.distributed.run, gloo), each on its share of the batch: on the 2-core CPU that is 2.0x the
-# steps per second of one process with two threads (README "Training"), for the same global batch.
+# (torch.distributed.run, gloo), each on its share of the batch: on the 2-core CPU that is 1.2-1.6x the
+# steps per second of one process with two threads (benchmarks/train_speed.py), for the same global batch.
 # Times measured on the 2-core CPU are in README "Training" (with the model's numbers beside the
 # shipped one's); each stage's start and end are appended to OUT_DIR/times.log.
 set -euo pipefail

@@ -13,7 +13,7 @@ Each stage writes ``OUT/last.pt`` every ``--ckpt-every`` steps (and when ``--max
 on Ctrl-C) and continues from it when started again with the same ``-o``: a stopped run loses at most
 the steps since its last checkpoint. Uses CUDA when present; runs unchanged under
 ``torchrun --nproc_per_node N python -m sumo_scendiff.train ...`` (DistributedDataParallel; gloo on CPU).
-The full recipe is ``scripts/train_recipe.sh``.
+The shipped model's recipe is ``scripts/train_fast.sh`` (every stage as two one-thread DDP processes).
 """
 from __future__ import annotations
 

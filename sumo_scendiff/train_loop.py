@@ -167,6 +167,7 @@ class Loop:
         ckpt.save(self.path, f"{self.kind}-train", state=self.model.state_dict(),
                   optimizer=self.opt.state_dict(), scheduler=self.sched.state_dict(), step=self.step,
                   best_val=self.best_val, train_config=asdict(self.cfg),
+                  world_size=world(),  # processes: the global batch is batch_size x world_size
                   data_manifest=self.data_manifest,
                   **self.extra)
 

@@ -160,7 +160,7 @@ def test_init_from_warm_starts_a_wider_unet(tmp_path, cross_net):
     torch.testing.assert_close(out[1], out[0], atol=1e-5, rtol=1e-5)
 
 
-def test_fixed_lr_drop_and_weight_average_reach_the_export(tmp_path, cross_net):
+def test_fixed_lr_drop_and_weight_average_reach_the_export(tmp_path, cross_net, monkeypatch):
     """--lr-drop-at divides the learning rate by ten at that step (and again after a resume); the
     diffusion run keeps an EMA of its weights, which the export ships."""
     import torch
@@ -195,12 +195,18 @@ def test_fixed_lr_drop_and_weight_average_reach_the_export(tmp_path, cross_net):
     assert gen.scene_guidance == pytest.approx(1.7) and gen.scene_guidance_sigma == pytest.approx(1.0)
     net = Network.load(cross_net)
     win = [Window(0.0, 0.0, 0.0)]
-    a, b, c, d, e = (ScenarioGenerator.load(str(out), GenerationConfig(
-        steps=3, threshold=0.0, scene_guidance=w, scene_guidance_sigma=s)).generate(net, win, seed=1)[0]
-        for w, s in ((None, None), (1.7, 1.0), (1.0, None), (1.7, 0.0), (1.7, 100.0)))
-    assert np.array_equal(a.boxes, b.boxes) and not np.array_equal(a.boxes, c.boxes)
-    assert not np.array_equal(a.boxes, d.boxes)     # guiding the low-noise steps too changes the scene
-    assert np.array_equal(e.boxes, c.boxes)         # guiding no step at all is no guidance
+    # the sampled latents, unrounded: this barely trained model's guidance moves the boxes by less
+    # than the millimetres scenes are rounded to (on some CPUs not at all)
+    from sumo_scendiff.model.diffusion import ScenarioDiffusion
+    latents, sample = [], ScenarioDiffusion.sample
+    monkeypatch.setattr(ScenarioDiffusion, "sample", lambda *a, **k: latents.append(sample(*a, **k)) or latents[-1])
+    for w, s in ((None, None), (1.7, 1.0), (1.0, None), (1.7, 0.0), (1.7, 100.0)):
+        ScenarioGenerator.load(str(out), GenerationConfig(steps=3, threshold=0.0, scene_guidance=w,
+                                                          scene_guidance_sigma=s)).generate(net, win, seed=1)
+    a, b, c, d, e = latents
+    assert torch.equal(a, b) and not torch.equal(a, c)
+    assert not torch.equal(a, d)     # guiding the low-noise steps too changes the scene
+    assert torch.equal(e, c)         # guiding no step at all is no guidance
 
 
 def autoencoder_and_diffusion(tmp_path, cross_net, **model) -> tuple[list, object]:
