@@ -20,11 +20,11 @@ import time
 import numpy as np
 import torch
 
-from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
-from sumo_scendiff.geometry import Window
+from sumo_scendiff.core.geometry import Window
+from sumo_scendiff.generation.generator import GenerationConfig, ScenarioGenerator
+from sumo_scendiff.map.network import Network
+from sumo_scendiff.map.raster import render_map
 from sumo_scendiff.model.edm import sample_dpmpp_2m, sample_euler, sample_heun
-from sumo_scendiff.network import Network
-from sumo_scendiff.raster import render_map
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 

@@ -18,13 +18,13 @@ import os
 from dataclasses import replace
 
 import numpy as np
-
 from report import emit
+
+from sumo_scendiff.core.geometry import T0, wrap_angle
 from sumo_scendiff.data.shards import SceneStore
-from sumo_scendiff.generate import ScenarioGenerator
-from sumo_scendiff.geometry import T0, wrap_angle
-from sumo_scendiff.network import Network
-from sumo_scendiff.tokens import feature_dicts, features_from_scene
+from sumo_scendiff.generation.generator import ScenarioGenerator
+from sumo_scendiff.map.network import Network
+from sumo_scendiff.tokens.encoding import feature_dicts, features_from_scene
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 TURNING = 0.2   # rad over 0...+2 s

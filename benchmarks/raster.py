@@ -14,9 +14,9 @@ import time
 
 import numpy as np
 
-from sumo_scendiff.geometry import Window
-from sumo_scendiff.network import Network
-from sumo_scendiff.raster import RasterConfig, render_map
+from sumo_scendiff.core.geometry import Window
+from sumo_scendiff.map.network import Network
+from sumo_scendiff.map.raster import RasterConfig, render_map
 
 SHARED = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "nets")
 NETS = {  # smallest and largest real nets (by extent and by lanes)

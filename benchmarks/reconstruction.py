@@ -38,18 +38,29 @@ import os
 
 import numpy as np
 import torch
-
 from report import add_model_options, emit, load_models
+
+from sumo_scendiff.core.geometry import T0, TIMES, Window, wrap_angle
 from sumo_scendiff.data.dataset import SceneDataset, collate_scenes
-from sumo_scendiff.generate import GenerationConfig, select_boxes, speeds_from_traj
-from sumo_scendiff.geometry import T0, TIMES, Window, wrap_angle
-from sumo_scendiff.metrics import match_agents, precision_recall_f1
+from sumo_scendiff.evaluate.metrics import match_agents, precision_recall_f1
+from sumo_scendiff.generation.generator import (
+    GenerationConfig,
+    select_boxes,
+    speeds_from_traj,
+)
+from sumo_scendiff.generation.pinning import pinned_latent
+from sumo_scendiff.map.raster import MAP_CHANNELS, RasterConfig
 from sumo_scendiff.model.detection import decode_boxes, on_junction
 from sumo_scendiff.model.edm import karras_sigmas, sample_euler
-from sumo_scendiff.pinning import pinned_latent
-from sumo_scendiff.raster import MAP_CHANNELS, RasterConfig
-from sumo_scendiff.tokens import (AGENT_TOKEN_DIM, feature_dicts, features_from_scene, global_token,
-                                  pad_tokens, token_cells, tokens_from_scene)
+from sumo_scendiff.tokens.encoding import (
+    AGENT_TOKEN_DIM,
+    feature_dicts,
+    features_from_scene,
+    global_token,
+    pad_tokens,
+    token_cells,
+    tokens_from_scene,
+)
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 WINDOW = Window(0.0, 0.0)  # boxes are already in the scene frame; only the window's extent matters
@@ -130,8 +141,8 @@ def lane_yaw(y: torch.Tensor, m: torch.Tensor, data: str, idx: np.ndarray, windo
     """``lane_heading.junction_yaw`` for decoder outputs ``y`` of the scenes ``idx`` of ``data``
     (each scene's network, the ``windows`` it was rendered in); None without a heading head."""
     from sumo_scendiff.data.shards import SceneStore
-    from sumo_scendiff.lane_heading import junction_yaw
-    from sumo_scendiff.network import Network
+    from sumo_scendiff.generation.lane_heading import junction_yaw
+    from sumo_scendiff.map.network import Network
     store = SceneStore(data)
     paths = [store.net_path(int(i)) for i in idx]
     yaw = None

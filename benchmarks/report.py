@@ -24,11 +24,13 @@ def load_models(checkpoint: str | None, autoencoder: str | None):
     shipped one), or with ``autoencoder`` that training run's (or exported model's) autoencoder alone
     (generator None).
     The autoencoder is in eval mode."""
-    from sumo_scendiff.generate import ScenarioGenerator
+    from sumo_scendiff.generation.generator import ScenarioGenerator
     from sumo_scendiff.model import checkpoint as ckpt
     from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
     if autoencoder:
-        from sumo_scendiff.train import load_training  # a run's last.pt, or an exported model's half
+        from sumo_scendiff.train import (
+            load_training,  # a run's last.pt, or an exported model's half
+        )
         try:
             ck = load_training(autoencoder, "autoencoder-train")
         except ckpt.CheckpointError as e:

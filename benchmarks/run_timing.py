@@ -127,8 +127,8 @@ def main(o) -> int:
 
     o.load_before = os.getloadavg()[0]
 
-    from sumo_scendiff.evaluate import find_demand
-    from sumo_scendiff.network import Network
+    from sumo_scendiff.data.demand import find_demand
+    from sumo_scendiff.map.network import Network
     routes = o.routes or find_demand(Network.load(o.net))
     if routes is None:
         sys.exit(f"{o.net}: no route file beside the net; give -r")

@@ -23,14 +23,18 @@ import os
 
 import numpy as np
 import torch
-
 from report import emit
+
+from sumo_scendiff.core.geometry import T0, TIMES, Window
 from sumo_scendiff.data.dataset import SceneDataset, collate_scenes
-from sumo_scendiff.generate import ScenarioGenerator, select_boxes, speeds_from_traj
-from sumo_scendiff.geometry import T0, TIMES, Window
+from sumo_scendiff.generation.generator import (
+    ScenarioGenerator,
+    select_boxes,
+    speeds_from_traj,
+)
 from sumo_scendiff.model.detection import decode_boxes
 from sumo_scendiff.model.edm import SAMPLERS
-from sumo_scendiff.tokens import AGENT_TOKEN_DIM, global_token, pad_tokens
+from sumo_scendiff.tokens.encoding import AGENT_TOKEN_DIM, global_token, pad_tokens
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 WINDOW = Window(0.0, 0.0)  # boxes are in the scene frame; only the window's extent matters

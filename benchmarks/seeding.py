@@ -101,8 +101,13 @@ def _reason(msg: str) -> str:
 # ---- one network ---------------------------------------------------------------------------------
 def demand(net, o, tmp: str):
     """(route file, begin, extra SUMO args, label): the net's own demand, else random trips."""
-    from sumo_scendiff.data.demand import RandomDemand, check_routes, random_trips, write_vtypes
-    from sumo_scendiff.evaluate import find_demand
+    from sumo_scendiff.data.demand import (
+        RandomDemand,
+        check_routes,
+        random_trips,
+        write_vtypes,
+    )
+    from sumo_scendiff.data.demand import find_demand
     routes = find_demand(net)
     if routes:
         first = check_routes(routes, {ln.edge for ln in net.lanes})  # first departure (data CLI -> record)
@@ -151,9 +156,9 @@ def bench_net(path: str, gen, o, explicit: bool) -> dict | None:
 
     from tqdm import tqdm
 
-    from sumo_scendiff.evaluate import find_demand
-    from sumo_scendiff.locations import auto_windows
-    from sumo_scendiff.network import Network
+    from sumo_scendiff.data.demand import find_demand
+    from sumo_scendiff.map.locations import auto_windows
+    from sumo_scendiff.map.network import Network
 
     t_start = time.perf_counter()
     net = Network.load(path)
@@ -210,11 +215,11 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
     ``work`` the directory for the saved state."""
     import numpy as np
 
-    from sumo_scendiff.baselines import LaneUniform
-    from sumo_scendiff.cosim import CoSimulation, Existing
-    from sumo_scendiff.network import Network
-    from sumo_scendiff.rollout import rollout
-    from sumo_scendiff.sumo_sim import SimConfig, close, start
+    from sumo_scendiff.evaluate.baselines import LaneUniform
+    from sumo_scendiff.map.network import Network
+    from sumo_scendiff.sim.cosim import CoSimulation, Existing
+    from sumo_scendiff.sim.rollout import rollout
+    from sumo_scendiff.sim.sumo import SimConfig, close, start
 
     net = Network.load(path)
     lane = LaneUniform(net, seed=o.seed)
@@ -310,7 +315,7 @@ def _merge(results: list[dict], method: str) -> dict:
 
 
 def tables(results: list[dict], o, command: str) -> str:
-    from sumo_scendiff.rollout import RolloutStats
+    from sumo_scendiff.sim.rollout import RolloutStats
     groups = [(r["net"], r["methods"]) for r in results]
     if len(results) > 1:
         groups.append((f"**all ({len(results)} nets)**", {m: _merge(results, m) for m in METHODS}))
@@ -376,7 +381,7 @@ def tables(results: list[dict], o, command: str) -> str:
 def main(o) -> int:
     import torch
 
-    from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
+    from sumo_scendiff.generation.generator import GenerationConfig, ScenarioGenerator
     torch.manual_seed(o.seed)
     command = "python benchmarks/seeding.py " + " ".join(sys.argv[1:]) if sys.argv[0].endswith(
         "seeding.py") else "benchmarks/seeding.py (in-process)"

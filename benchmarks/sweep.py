@@ -100,7 +100,11 @@ def get_options(args=None):
 def main(o) -> int:
     import tempfile
 
-    from sweep_checks import kill, memory, speedup   # the measurements; processes: sweep_procs, specs: sweep_data
+    from sweep_checks import (  # the measurements; processes: sweep_procs, specs: sweep_data
+        kill,
+        memory,
+        speedup,
+    )
     command = ("python benchmarks/sweep.py " + " ".join(sys.argv[1:])).strip() \
         if sys.argv[0].endswith("sweep.py") else f"benchmarks/sweep.py {o.what} (in-process)"
     if o.workdir:

@@ -8,10 +8,28 @@ import os
 import random
 import shutil
 
-from sweep_data import (compare, granularity_bound, long_spec, partial_left, plan_ids, read_index,
-                        status_counts, truck_spec)
-from sweep_procs import (BACKEND, SCN, Sweep, Timeline, children, cmdline, count_done, kill_main, rss,
-                         run_sweep)
+from sweep_data import (
+    compare,
+    granularity_bound,
+    long_spec,
+    partial_left,
+    plan_ids,
+    read_index,
+    status_counts,
+    truck_spec,
+)
+from sweep_procs import (
+    BACKEND,
+    SCN,
+    Sweep,
+    Timeline,
+    children,
+    cmdline,
+    count_done,
+    kill_main,
+    rss,
+    run_sweep,
+)
 
 MIB = 1024.0 * 1024.0
 

@@ -26,16 +26,25 @@ import os
 
 import numpy as np
 import torch
-
 from report import add_model_options, emit, load_models
+
+from sumo_scendiff.core.geometry import T0, TIMES, Window, wrap_angle
 from sumo_scendiff.data.dataset import SceneDataset, collate_scenes
-from sumo_scendiff.generate import GenerationConfig, select_boxes, speeds_from_traj
-from sumo_scendiff.geometry import T0, TIMES, Window, wrap_angle
+from sumo_scendiff.generation.generator import (
+    GenerationConfig,
+    select_boxes,
+    speeds_from_traj,
+)
+from sumo_scendiff.generation.pinning import pinned_latent
+from sumo_scendiff.map.raster import render_agents
 from sumo_scendiff.model.detection import decode_boxes
-from sumo_scendiff.raster import render_agents
-from sumo_scendiff.pinning import pinned_latent
-from sumo_scendiff.tokens import (encode_agent_tokens, feature_dicts, features_from_scene, global_token,
-                                  pad_tokens)
+from sumo_scendiff.tokens.encoding import (
+    encode_agent_tokens,
+    feature_dicts,
+    features_from_scene,
+    global_token,
+    pad_tokens,
+)
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 WINDOW = Window(0.0, 0.0)  # boxes are already in the scene frame

@@ -6,7 +6,7 @@
     python -m sumo_scendiff.run -n city.net.xml --rollout 0 -o out/       # seed and export only
 
 Without ``--center`` or ``--ego`` the windows are busy, varied places of the network (junctions,
-roundabouts, merges; :mod:`~sumo_scendiff.locations`). With ``-r`` SUMO first runs that demand
+roundabouts, merges; :mod:`~sumo_scendiff.map.locations`). With ``-r`` SUMO first runs that demand
 (until the ego appears, or ``--begin`` seconds) and the vehicles already in a window become agent
 tokens: the model fills in around them. Each scene is written to ``OUT/scene_NNN/`` (see the
 README, "Scenario files"): scene.json, scenario.rou.xml, scenario.sumocfg, state.xml.gz,
@@ -122,7 +122,7 @@ def _warm_up(sim, o, progress: bool) -> None:
 
 
 def _windows(o, net, sim, cosim):
-    from .locations import auto_windows, parse_center, window_at
+    from .map.locations import auto_windows, parse_center, window_at
     if o.ego:
         w = cosim.ego_window(o.ego)
         return [(w, "ego")] * o.scenes
@@ -136,12 +136,12 @@ def run(o) -> dict:
     import numpy as np
 
     from .data.demand import DemandError, check_routes
-    from .generate import GenerationConfig, ScenarioGenerator
-    from .network import Network
-    from .raster import render_map
-    from .session import Session
-    from .sumo_sim import SimConfig
-    from .tokenfile import load_tokens
+    from .generation.generator import GenerationConfig, ScenarioGenerator
+    from .map.network import Network
+    from .map.raster import render_map
+    from .sim.session import Session
+    from .sim.sumo import SimConfig
+    from .tokens.file import load_tokens
 
     progress = sys.stderr.isatty() or o.verbose
     timing = {}
@@ -225,11 +225,11 @@ def print_summary(summary: dict) -> None:
 
 
 def main(o) -> int:
-    from .locations import LocationError
+    from .map.locations import LocationError
+    from .map.network import NetworkError
     from .model.checkpoint import CheckpointError
-    from .network import NetworkError
-    from .sumo_sim import SimError
-    from .tokenfile import TokenFileError
+    from .sim.sumo import SimError
+    from .tokens.file import TokenFileError
     try:
         summary = run(o)
     except (RunError, NetworkError, CheckpointError, SimError, TokenFileError, LocationError,

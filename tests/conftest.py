@@ -48,7 +48,7 @@ def grid(tmp_path_factory):
     """netgenerate's 3x3 grid with 100 m blocks (0..200 m), loaded as a Network."""
     import sumo
 
-    from sumo_scendiff.network import Network
+    from sumo_scendiff.map.network import Network
     out = str(tmp_path_factory.mktemp("grid") / "grid.net.xml")
     subprocess.run([os.path.join(sumo.SUMO_HOME, "bin", "netgenerate"), "--grid", "--grid.number", "3",
                     "--grid.length", "100", "-o", out], check=True, capture_output=True)
@@ -62,8 +62,8 @@ def _cross_scene(net):
 
     import numpy as np
 
-    from sumo_scendiff.geometry import Window
-    from sumo_scendiff.scene import Scene
+    from sumo_scendiff.core.geometry import Window
+    from sumo_scendiff.core.scene import Scene
 
     east = next(ln for ln in net.lanes if ln.edge == "wc")
     north = next(ln for ln in net.lanes if ln.edge == "sc")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from sumo_scendiff.geometry import box_corners, metres_to_pixels
+from sumo_scendiff.core.geometry import box_corners, metres_to_pixels
 from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from sumo_scendiff.model.blocks import Downsample, ResnetBlock, Upsample
 from sumo_scendiff.model.detection import C_Y, decode_boxes, threshold_boxes

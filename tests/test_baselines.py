@@ -1,15 +1,20 @@
 """Tests of the baselines (sumo_scendiff/baselines.py): Random Log Selection and lane-uniform insertion."""
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 import shapely
 
-from sumo_scendiff.baselines import (DENSITY_PER_KM_LANE, TYPE_LENGTH, TYPE_VCLASS, LanePath, LaneUniform,
-                                     RandomLogSelection)
-from sumo_scendiff.geometry import T0, TIMES, Window, box_corners, wrap_angle
-from sumo_scendiff.scene import Scene
+from sumo_scendiff.core.geometry import T0, TIMES, Window, box_corners, wrap_angle
+from sumo_scendiff.core.scene import Scene
+from sumo_scendiff.evaluate.baselines import (
+    DENSITY_PER_KM_LANE,
+    TYPE_LENGTH,
+    TYPE_VCLASS,
+    LanePath,
+    LaneUniform,
+    RandomLogSelection,
+)
 
 CENTRE = Window(100.0, 100.0, 0.3, 100.0)
 

@@ -6,11 +6,25 @@ import math
 import numpy as np
 import pytest
 
-from sumo_scendiff.geometry import (Window, metres_to_pixels, pixels_to_metres, pose_to_sumo,
-                                    sumo_angle_to_yaw, sumo_to_pose, wrap_angle, yaw_to_sumo_angle)
-from sumo_scendiff.network import Network
-from sumo_scendiff.raster import (LANE_DIR_BINS, MAP_CHANNELS, RasterConfig, direction_bins, render_agents,
-                                  render_map)
+from sumo_scendiff.core.geometry import (
+    Window,
+    metres_to_pixels,
+    pixels_to_metres,
+    pose_to_sumo,
+    sumo_angle_to_yaw,
+    sumo_to_pose,
+    wrap_angle,
+    yaw_to_sumo_angle,
+)
+from sumo_scendiff.map.network import Network
+from sumo_scendiff.map.raster import (
+    LANE_DIR_BINS,
+    MAP_CHANNELS,
+    RasterConfig,
+    direction_bins,
+    render_agents,
+    render_map,
+)
 
 
 def test_sumo_angle_to_yaw_cardinal_directions():
@@ -155,7 +169,7 @@ def test_agent_raster_fills_the_box_with_heading_and_deltas():
     assert x[6, row, col] == 1.0  # alpha_-1
     assert x[7, row, col] == pytest.approx(v[0] / 30 + 0.5) and x[8, row, col] == pytest.approx(v[1] / 30 + 0.5)
     # every pixel whose centre lies inside the box is filled; none more than a pixel outside it
-    from sumo_scendiff.geometry import pixel_centres
+    from sumo_scendiff.core.geometry import pixel_centres
     xy = pixel_centres(cfg.size, cfg.shape) - boxes[0, :2]
     along = xy[..., 0] * math.cos(yaw) + xy[..., 1] * math.sin(yaw)
     across = -xy[..., 0] * math.sin(yaw) + xy[..., 1] * math.cos(yaw)

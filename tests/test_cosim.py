@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 import shapely
 
-from sumo_scendiff.cosim import CoSimulation, token_assignment
-from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
-from sumo_scendiff.geometry import Window, box_corners
-from sumo_scendiff.network import Network
-from sumo_scendiff.scene import Scene
-from sumo_scendiff.sumo_sim import SimConfig, start
+from sumo_scendiff.core.geometry import Window, box_corners
+from sumo_scendiff.core.scene import Scene
+from sumo_scendiff.generation.generator import GenerationConfig, ScenarioGenerator
+from sumo_scendiff.map.network import Network
+from sumo_scendiff.sim.cosim import CoSimulation, token_assignment
+from sumo_scendiff.sim.sumo import SimConfig, start
 
 
 def _demand(tmp_path) -> str:
@@ -66,7 +66,7 @@ def test_token_assignment_matches_by_position_and_heading():
 
 
 def test_place_drops_agents_on_existing_vehicles_and_their_tokens(cross_net, cross_scene):
-    from sumo_scendiff.cosim import Existing
+    from sumo_scendiff.sim.cosim import Existing
     net = Network.load(cross_net)
     scene = cross_scene(net)
     # a host vehicle exactly where agent 0 stands, another one 1 m beside agent 2 (touching it)
@@ -86,8 +86,8 @@ def test_place_drops_agents_on_existing_vehicles_and_their_tokens(cross_net, cro
 def test_replay_future_holds_agents_on_their_generated_future(cross_net):
     """An agent braking from 8 m/s to a stop in 2 s (the paper's "stopping" token): after the replay
     it stands at its generated +2 s pose, not where SUMO's car-following would have taken it."""
-    from sumo_scendiff.geometry import Window
-    from sumo_scendiff.scene import Scene
+    from sumo_scendiff.core.geometry import Window
+    from sumo_scendiff.core.scene import Scene
     net = Network.load(cross_net)
     east = next(ln for ln in net.lanes if ln.edge == "wc")
     y = float(east.shape[0][1])

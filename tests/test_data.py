@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sumo_scendiff.data.shards import SceneStore
-from sumo_scendiff.raster import MAP_CHANNELS
+from sumo_scendiff.map.raster import MAP_CHANNELS
 
 CLI = [sys.executable, "-m", "sumo_scendiff.data"]
 
@@ -39,7 +39,7 @@ def test_recording_is_deterministic_for_a_seed(recorded, cross_net, tmp_path):
 
 
 def test_recorded_scenes_are_consistent(recorded, cross_net):
-    from sumo_scendiff.network import Network
+    from sumo_scendiff.map.network import Network
     store = SceneStore(recorded)
     net = Network.load(cross_net)
     counts = [len(store.scene(i)) for i in range(len(store))]
@@ -59,7 +59,7 @@ def test_recorded_scenes_are_consistent(recorded, cross_net):
 def test_recorded_speeds_are_the_backward_differences_of_the_poses(recorded):
     """The recorder steps SUMO by 1 s and SUMO moves a vehicle by its new speed, so the speed a
     generated scene reports (speeds_from_traj, backward differences) is the recorded one."""
-    from sumo_scendiff.generate import speeds_from_traj
+    from sumo_scendiff.generation.generator import speeds_from_traj
     store = SceneStore(recorded)
     errs = []
     for i in range(len(store)):
@@ -135,8 +135,8 @@ def test_bad_input_one_line_exit_2_no_output(tmp_path, cross_net, diagonal_net, 
 
 
 def test_rotated_items_keep_only_agents_inside_the_window(recorded):
+    from sumo_scendiff.core.geometry import Window
     from sumo_scendiff.data.dataset import SceneDataset
-    from sumo_scendiff.geometry import Window
     ds = SceneDataset(recorded, rotate=True, seed=1)
     for i in range(len(ds)):
         b = ds[i]["boxes"]
@@ -144,8 +144,8 @@ def test_rotated_items_keep_only_agents_inside_the_window(recorded):
 
 
 def test_density_range_bounds_every_episode(cross_net, tmp_path):
-    from sumo_scendiff.data.__main__ import plan_episodes
-    from sumo_scendiff.network import Network
+    from sumo_scendiff.data.record import plan_episodes
+    from sumo_scendiff.map.network import Network
     net = Network.load(cross_net)
     default = plan_episodes([net], [None], [0.0], 3000, 0, 300)
     dense = plan_episodes([net], [None], [0.0], 3000, 0, 300, density=(300.0, 800.0))
@@ -158,9 +158,9 @@ def test_density_range_bounds_every_episode(cross_net, tmp_path):
 
 
 def test_episodes_run_again_reproduce_their_scenes_whole_turned_windows_and_later(recorded):
+    from sumo_scendiff.core.geometry import Window
+    from sumo_scendiff.core.scene import crop_to_window, rotate_scene
     from sumo_scendiff.data.rerecord import rerecorded
-    from sumo_scendiff.geometry import Window
-    from sumo_scendiff.scene import crop_to_window, rotate_scene
     store = SceneStore(recorded)
     scenes = [store.scene(i) for i in range(len(store))]
     again = rerecorded(recorded, [s.window for s in scenes], (0.0, 30.0))
@@ -189,10 +189,10 @@ def test_recorded_circles_make_turned_training_windows_whole(recorded, cross_net
     turned window as SUMO holds it (the episode recorded again there), corners included."""
     import json
 
+    from sumo_scendiff.core.geometry import Window
+    from sumo_scendiff.core.scene import crop_to_window, rotate_scene
     from sumo_scendiff.data.dataset import SceneDataset
     from sumo_scendiff.data.rerecord import rerecorded
-    from sumo_scendiff.geometry import Window
-    from sumo_scendiff.scene import crop_to_window, rotate_scene
     square = tmp_path / "square"
     assert run("-n", cross_net, "-o", square, "--scenes", 60, "-s", 3, "--scenes-per-episode", 30,
                "--square").returncode == 0
@@ -225,8 +225,8 @@ def test_vehicles_off_the_road_are_not_recorded():
     (-2^30, -2^30), where an ego window could be centred on it."""
     import libsumo
 
+    from sumo_scendiff.core.geometry import Window
     from sumo_scendiff.data.record import INVALID, _Tracker
-    from sumo_scendiff.geometry import Window
     assert INVALID == libsumo.INVALID_DOUBLE_VALUE
     c = libsumo.constants
     states = [{"a": {c.VAR_POSITION: (10.0, 0.0), c.VAR_ANGLE: 90.0, c.VAR_SPEED: 5.0},

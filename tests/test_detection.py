@@ -5,12 +5,26 @@ import numpy as np
 import pytest
 import torch
 
-from sumo_scendiff.geometry import box_corners as np_box_corners
-from sumo_scendiff.geometry import pixel_centres
-from sumo_scendiff.model.detection import (C_Y, STATIONARY, STRAIGHT, TURNING, DetectionLossConfig,
-                                           accumulate_deltas, box_corners, box_targets, cell_centres,
-                                           decode_boxes, detection_loss, match_boxes, negative_weights,
-                                           threshold_boxes, trajectory_category, trajectory_targets)
+from sumo_scendiff.core.geometry import box_corners as np_box_corners
+from sumo_scendiff.core.geometry import pixel_centres
+from sumo_scendiff.model.detection import (
+    C_Y,
+    STATIONARY,
+    STRAIGHT,
+    TURNING,
+    DetectionLossConfig,
+    accumulate_deltas,
+    box_corners,
+    box_targets,
+    cell_centres,
+    decode_boxes,
+    detection_loss,
+    match_boxes,
+    negative_weights,
+    threshold_boxes,
+    trajectory_category,
+    trajectory_targets,
+)
 
 CFG = DetectionLossConfig()
 CENTRES = pixel_centres(100.0, (64, 64))  # (64, 64, 2)
@@ -197,7 +211,12 @@ def test_junction_weight_scales_the_positive_terms_of_boxes_on_a_junction():
 def test_heading_bins_round_trip_across_the_wrap_and_bin_edges():
     """heading_targets -> an ideal head decodes every heading back, on bin edges and at +-pi too;
     the residuals trained are those of the ground-truth bin and its two neighbours."""
-    from sumo_scendiff.model.heading import bin_width, decode_heading, heading_loss, heading_targets
+    from sumo_scendiff.model.heading import (
+        bin_width,
+        decode_heading,
+        heading_loss,
+        heading_targets,
+    )
     k = 16
     w = bin_width(k)
     yaw = torch.tensor([0.0, 0.1, 0.5 * w - 1e-4, 0.5 * w + 1e-4, -3.1, math.pi, -math.pi + 1e-3, 1.0])

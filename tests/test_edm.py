@@ -4,9 +4,23 @@ import math
 import pytest
 import torch
 
-from sumo_scendiff.model.edm import (SIGMA_DATA, EDMLoss, EDMPrecond, c_in, c_noise, c_out, c_skip,
-                                     guided, initial_noise, karras_sigmas, loss_weight,
-                                     num_evaluations, sample_dpmpp_2m, sample_euler, sample_heun)
+from sumo_scendiff.model.edm import (
+    SIGMA_DATA,
+    EDMLoss,
+    EDMPrecond,
+    c_in,
+    c_noise,
+    c_out,
+    c_skip,
+    guided,
+    initial_noise,
+    karras_sigmas,
+    loss_weight,
+    num_evaluations,
+    sample_dpmpp_2m,
+    sample_euler,
+    sample_heun,
+)
 
 SIGMAS = torch.tensor([1e-3, 0.02, 0.1, 0.5, 1.0, 5.0, 20.0, 80.0], dtype=torch.float64)
 

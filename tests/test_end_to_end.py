@@ -13,10 +13,10 @@ import sys
 import numpy as np
 import pytest
 
+from sumo_scendiff.core.geometry import Window
+from sumo_scendiff.core.scene import Scene
 from sumo_scendiff.data.shards import net_entry, write_manifest, write_shard
-from sumo_scendiff.geometry import Window
-from sumo_scendiff.network import Network
-from sumo_scendiff.scene import Scene
+from sumo_scendiff.map.network import Network
 
 TINY_AE = {"enc_channels": [8, 8, 16, 16], "dec_channels": [16, 16, 16], "C_map": 8}
 TINY_DIFF = {"map_channels": [4, 8, 8, 8],
@@ -59,8 +59,8 @@ def test_train_then_sample_finds_the_trained_agent(tmp_path, cross_net):
     train("export", "--autoencoder", tmp_path / "ae" / "last.pt", "--diffusion", tmp_path / "diff" / "last.pt",
           "-o", out)
 
-    from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
-    from sumo_scendiff.metrics import match_agents
+    from sumo_scendiff.evaluate.metrics import match_agents
+    from sumo_scendiff.generation.generator import GenerationConfig, ScenarioGenerator
     gen = ScenarioGenerator.load(str(out), GenerationConfig(steps=10, threshold=0.5))
     net = Network.load(cross_net)
     token = [{"x": -12.0, "y": float(scene.boxes[0, 1]), "heading": 0.0, "length": 4.6, "width": 1.8}]
@@ -187,7 +187,7 @@ def test_fixed_lr_drop_and_weight_average_reach_the_export(tmp_path, cross_net, 
     assert shipped["trained"]["diffusion_ema"]
     assert all(torch.equal(shipped["diffusion"][k], ck["ema"][k]) for k in ck["ema"])
     # the calibrated scene guidance travels with the weights; a GenerationConfig value overrides it
-    from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
+    from sumo_scendiff.generation.generator import GenerationConfig, ScenarioGenerator
     assert ScenarioGenerator.load(str(out)).scene_guidance == 1.0
     train("export", "--autoencoder", tmp_path / "ae" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
           "-o", out, "--force", "--scene-guidance", 1.7, "--scene-guidance-sigma", 1.0)
@@ -268,10 +268,10 @@ def test_decoder_fine_tune_adds_map_skips_map_channels_and_a_heading_head(tmp_pa
     on the source exports and samples with it."""
     import torch
 
-    from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
+    from sumo_scendiff.generation.generator import GenerationConfig, ScenarioGenerator
+    from sumo_scendiff.map.raster import MAP_CHANNELS
     from sumo_scendiff.model import checkpoint as ckpt
     from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
-    from sumo_scendiff.raster import MAP_CHANNELS
     common, src = autoencoder_and_diffusion(tmp_path, cross_net, C_m=11)
     train("autoencoder", *common, "-o", tmp_path / "dec", "--steps", 2, "--init-from", src, "--freeze-encoder",
           "--lr", 0.0, "--model-config", json.dumps({"map_skips": True, "C_m": len(MAP_CHANNELS), "heading_bins": 8}))
@@ -308,7 +308,7 @@ def test_grown_latent_warm_starts_both_stages(tmp_path, cross_net):
     generates. Growing with --freeze-encoder, or shrinking, is one line and exit 2."""
     import torch
 
-    from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator
+    from sumo_scendiff.generation.generator import GenerationConfig, ScenarioGenerator
     from sumo_scendiff.model import checkpoint as ckpt
     common, src = autoencoder_and_diffusion(tmp_path, cross_net)
     train("autoencoder", *common, "-o", tmp_path / "ae6", "--steps", 1, "--init-from", src, "--lr", 0.0,

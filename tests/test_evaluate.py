@@ -42,7 +42,7 @@ def test_evaluate_bad_network(tmp_path):
 
 
 def test_evaluate_sampler_names_are_the_models_and_bad_settings_exit_2(tmp_path):
-    from sumo_scendiff.evaluate import SAMPLER_NAMES
+    from sumo_scendiff.evaluate.__main__ import SAMPLER_NAMES
     from sumo_scendiff.model.edm import SAMPLERS
     assert sorted(SAMPLER_NAMES) == sorted(SAMPLERS)
     for bad in (["--sampler", "rk4"], ["--scene-guidance-sigma", "-1"], ["--tokens"]):

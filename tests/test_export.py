@@ -9,12 +9,12 @@ import subprocess
 import numpy as np
 import pytest
 
-from sumo_scendiff.cosim import CoSimulation
-from sumo_scendiff.data.demand import sumo_binary
-from sumo_scendiff.export import FILES, ScenarioWriter, pose_error
-from sumo_scendiff.network import Network
-from sumo_scendiff.rollout import rollout
-from sumo_scendiff.sumo_sim import SimConfig, start
+from sumo_scendiff.core.tools import sumo_binary
+from sumo_scendiff.map.network import Network
+from sumo_scendiff.sim.cosim import CoSimulation
+from sumo_scendiff.sim.export import FILES, ScenarioWriter, pose_error
+from sumo_scendiff.sim.rollout import rollout
+from sumo_scendiff.sim.sumo import SimConfig, start
 
 
 @pytest.fixture(scope="module", params=["libsumo", "traci"])

@@ -6,11 +6,11 @@ import math
 import numpy as np
 import torch
 
-from sumo_scendiff.geometry import Window
-from sumo_scendiff.lane_heading import junction_yaw
+from sumo_scendiff.core.geometry import Window
+from sumo_scendiff.generation.lane_heading import junction_yaw
+from sumo_scendiff.map.network import Network
+from sumo_scendiff.map.raster import MAP_CHANNELS, render_map
 from sumo_scendiff.model.detection import C_Y, box_targets, cell_centres, decode_boxes
-from sumo_scendiff.network import Network
-from sumo_scendiff.raster import MAP_CHANNELS, render_map
 
 K = 16
 

@@ -6,11 +6,15 @@ import math
 import numpy as np
 import shapely
 
-from sumo_scendiff.generate import GenerationConfig, ScenarioGenerator, speeds_from_traj
-from sumo_scendiff.geometry import Window
-from sumo_scendiff.lane_snap import snap_to_lanes, walk_lanes
-from sumo_scendiff.network import Network
-from sumo_scendiff.tokens import agent_tokens_from_dicts
+from sumo_scendiff.core.geometry import Window
+from sumo_scendiff.generation.generator import (
+    GenerationConfig,
+    ScenarioGenerator,
+    speeds_from_traj,
+)
+from sumo_scendiff.generation.lane_snap import snap_to_lanes, walk_lanes
+from sumo_scendiff.map.network import Network
+from sumo_scendiff.tokens.encoding import agent_tokens_from_dicts
 
 
 def test_match_poses_is_lookup_for_many_poses(cross_net):

@@ -10,10 +10,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sumo_scendiff.geometry import Window
-from sumo_scendiff.locations import (KINDS, TLS_BONUS, Location, LocationError, auto_windows,
-                                     candidates, parse_center, window_at)
-from sumo_scendiff.network import Network
+from sumo_scendiff.core.geometry import Window
+from sumo_scendiff.map.locations import (
+    KINDS,
+    TLS_BONUS,
+    Location,
+    LocationError,
+    auto_windows,
+    candidates,
+    parse_center,
+    window_at,
+)
+from sumo_scendiff.map.network import Network
 
 from .conftest import netconvert
 

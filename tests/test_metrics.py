@@ -6,15 +6,24 @@ import math
 import numpy as np
 import pytest
 
-from sumo_scendiff.baselines import LaneUniform
-from sumo_scendiff.geometry import TIMES, Window, wrap_angle
-from sumo_scendiff.metrics import (MMD_SIGMAS, agent_features, agents_per_scene_emd, evaluate_scenes,
-                                   gaussian_kernel, lane_heading_difference, match_agents,
-                                   mean_scene_mmd2, mmd2, precision_recall_f1, token_metrics,
-                                   traj_on_drivable)
-from sumo_scendiff.network import Network
-from sumo_scendiff.scene import Scene, rotate_scene
-
+from sumo_scendiff.core.geometry import TIMES, Window, wrap_angle
+from sumo_scendiff.core.scene import Scene, rotate_scene
+from sumo_scendiff.evaluate.baselines import LaneUniform
+from sumo_scendiff.evaluate.metrics import (
+    MMD_SIGMAS,
+    agent_features,
+    agents_per_scene_emd,
+    evaluate_scenes,
+    gaussian_kernel,
+    lane_heading_difference,
+    match_agents,
+    mean_scene_mmd2,
+    mmd2,
+    precision_recall_f1,
+    token_metrics,
+    traj_on_drivable,
+)
+from sumo_scendiff.map.network import Network
 
 CENTRE = Window(100.0, 100.0, 0.3, 100.0)  # the middle of the 3x3 grid (0..200 m), rotated
 

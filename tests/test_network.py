@@ -8,8 +8,8 @@ import shutil
 import numpy as np
 import pytest
 
-from sumo_scendiff.geometry import Window
-from sumo_scendiff.network import Network, NetworkError
+from sumo_scendiff.core.geometry import Window
+from sumo_scendiff.map.network import Network, NetworkError
 
 from .conftest import netconvert
 

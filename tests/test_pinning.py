@@ -7,13 +7,23 @@ import numpy as np
 import pytest
 import torch
 
-from sumo_scendiff.generate import ScenarioGenerator
-from sumo_scendiff.geometry import T0, Window
+from sumo_scendiff.core.geometry import T0, Window
+from sumo_scendiff.generation.generator import (
+    GenerationConfig,
+    ScenarioGenerator,
+    speeds_from_traj,
+)
+from sumo_scendiff.generation.pinning import (
+    is_pinnable,
+    pace_to_pins,
+    pinned_latent,
+    pinned_poses,
+    retime,
+    token_trajectories,
+    turn_to_pins,
+)
+from sumo_scendiff.map.network import Network
 from sumo_scendiff.model.edm import SAMPLERS, inpainted, karras_sigmas
-from sumo_scendiff.network import Network
-from sumo_scendiff.generate import GenerationConfig, speeds_from_traj
-from sumo_scendiff.pinning import (is_pinnable, pace_to_pins, pinned_latent, pinned_poses, retime,
-                                   token_trajectories, turn_to_pins)
 
 CAR = {"x": 3.0, "y": -2.0, "heading": 0.5, "length": 4.5, "width": 1.8}
 
@@ -45,7 +55,7 @@ def test_stopping_turning_and_starting_trajectories():
 def test_generated_speeds_read_back_the_token_speeds(tok):
     """speeds_from_traj (what a generated scene reports) inverts the synthesis: speed at t = 0,
     final_speed at +2 s, a constant acceleration in between."""
-    from sumo_scendiff.generate import speeds_from_traj
+    from sumo_scendiff.generation.generator import speeds_from_traj
     _, traj, mask = token_trajectories([{**CAR, **tok}])
     v = speeds_from_traj(traj, mask)[0]
     v2 = tok.get("final_speed", tok["speed"])
@@ -255,7 +265,7 @@ def test_pace_to_pins_turns_the_future_as_the_token_asks():
 def test_a_pinned_agent_on_a_junction_takes_the_tokens_lane(cross_net):
     """Inside a junction the decoder's heading is its least certain output; a pinned token states
     it, and the agent ends on the lane that heading follows, not on a nearer crossing one."""
-    from sumo_scendiff.lane_snap import snap_to_lanes
+    from sumo_scendiff.generation.lane_snap import snap_to_lanes
     net = Network.load(cross_net)
     window = Window(0.0, 0.0, 0.0)
     lane = next(i for i, ln in enumerate(net.lanes) if ln.internal and ln.car
@@ -281,8 +291,13 @@ def test_calibrated_pins_draw_what_the_decoder_turns_into_the_token():
     nearer what the token asks, in speed and length, and leaves position, heading and width as asked."""
     import torch
 
-    from sumo_scendiff.pinning import _decode_pins, _encode, _footprint, calibrated_pins
-    from sumo_scendiff.raster import render_map
+    from sumo_scendiff.generation.pinning import (
+        _decode_pins,
+        _encode,
+        _footprint,
+        calibrated_pins,
+    )
+    from sumo_scendiff.map.raster import render_map
     net = Network.load("networks/city.net.xml")
     gen = ScenarioGenerator.load()
     window, toks = car_and_truck_tokens(net)

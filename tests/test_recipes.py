@@ -32,7 +32,8 @@ if args[0] == "-c":
     sys.exit(0)
 if args[0] == "-m":
     prog, rest = args[1], args[2:]
-    get_options = importlib.import_module(prog + ("" if prog.endswith(".train") else ".__main__")).get_options
+    mod = importlib.import_module(prog)
+    get_options = (importlib.import_module(prog + ".__main__") if hasattr(mod, "__path__") else mod).get_options
 else:
     prog, rest = args[0], args[1:]
     sys.path.insert(0, os.path.dirname(os.path.abspath(prog)))

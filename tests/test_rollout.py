@@ -1,7 +1,7 @@
 """Hand-off statistics: SUMO's collision events counted and broken down (real libsumo)."""
 from __future__ import annotations
 
-from sumo_scendiff.rollout import rollout
+from sumo_scendiff.sim.rollout import rollout
 
 
 def test_a_host_vehicle_running_into_a_standing_agent_is_counted_as_such(cross_net):

@@ -129,7 +129,7 @@ def test_negative_guidance_is_a_usage_error(cross_net, tmp_path, capsys):
 
 
 def test_cli_defaults_are_the_generators():
-    from sumo_scendiff.generate import GenerationConfig
+    from sumo_scendiff.generation.generator import GenerationConfig
     o = run_cli.get_options(["-n", "x.net.xml"])
     assert (o.steps, o.guidance, o.threshold) == (GenerationConfig().steps, GenerationConfig().guidance,
                                                   GenerationConfig().threshold)

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import pytest
 
-from sumo_scendiff.network import Network
-from sumo_scendiff.seeding import Seeder
+from sumo_scendiff.map.network import Network
+from sumo_scendiff.sim.seeding import Seeder
 
 
 def test_seeded_vehicles_stand_where_generated(cross_net, cross_scene):
@@ -33,7 +33,7 @@ def test_seeded_vehicles_stand_where_generated(cross_net, cross_scene):
 
 
 def test_krauss_safe_speed():
-    from sumo_scendiff.seeding import krauss_safe_speed
+    from sumo_scendiff.sim.seeding import krauss_safe_speed
     assert krauss_safe_speed(0.0, 0.0, 4.5, 1.0) == pytest.approx(0.0)
     v = krauss_safe_speed(20.0, 5.0, 4.5, 1.0)    # v tau + v^2 / 2b == g + v_l^2 / 2b
     assert v * 1.0 + v * v / 9.0 == pytest.approx(20.0 + 25.0 / 9.0)

@@ -61,7 +61,7 @@ def test_spec_expands_the_cross_product(spec_file):
 
 
 def test_unset_sampler_settings_are_the_generators_defaults(cross_net, tmp_path):
-    from sumo_scendiff.generate import GenerationConfig
+    from sumo_scendiff.generation.generator import GenerationConfig
     path = tmp_path / "bare.toml"
     path.write_text(f'networks = ["{cross_net}"]\nlocations = [{{center = [0.0, 0.0]}}]\n')
     (s,) = load_spec(str(path)).scenarios()

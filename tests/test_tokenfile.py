@@ -1,4 +1,4 @@
-"""Token files (sumo_scendiff.tokenfile): TOML/JSON parity, frames, defaults, one-line errors."""
+"""Token files (sumo_scendiff.tokens.file): TOML/JSON parity, frames, defaults, one-line errors."""
 import json
 import math
 from pathlib import Path
@@ -6,9 +6,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sumo_scendiff.geometry import Window
-from sumo_scendiff.tokenfile import TokenFileError, TokenSpec, load_tokens, parse_tokens
-from sumo_scendiff.tokens import FEATURE_SLICES, PRESENCE_SLICE, agent_tokens_from_dicts
+from sumo_scendiff.core.geometry import Window
+from sumo_scendiff.tokens.encoding import (
+    FEATURE_SLICES,
+    PRESENCE_SLICE,
+    agent_tokens_from_dicts,
+)
+from sumo_scendiff.tokens.file import (
+    TokenFileError,
+    TokenSpec,
+    load_tokens,
+    parse_tokens,
+)
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "tokens"
 

@@ -3,12 +3,27 @@ import numpy as np
 import pytest
 import torch
 
-from sumo_scendiff.token_masking import (TokenMaskConfig, partial_tokens, sample_feature_dropout,
-                                         sample_token_mask)
-from sumo_scendiff.tokens import (AGENT_TOKEN_DIM, FEATURE_SLICES, FEATURES, GLOBAL_TOKEN_DIM,
-                                  PRESENCE_SLICE, TokenError, agent_tokens_from_dicts,
-                                  encode_agent_tokens, features_from_scene, global_token, pad_tokens,
-                                  tokens_from_scene, validate_token_features)
+from sumo_scendiff.tokens.encoding import (
+    AGENT_TOKEN_DIM,
+    FEATURE_SLICES,
+    FEATURES,
+    GLOBAL_TOKEN_DIM,
+    PRESENCE_SLICE,
+    TokenError,
+    agent_tokens_from_dicts,
+    encode_agent_tokens,
+    features_from_scene,
+    global_token,
+    pad_tokens,
+    tokens_from_scene,
+    validate_token_features,
+)
+from sumo_scendiff.tokens.masking import (
+    TokenMaskConfig,
+    partial_tokens,
+    sample_feature_dropout,
+    sample_token_mask,
+)
 
 
 def _bin_of(tokens, name):
@@ -202,13 +217,13 @@ def test_pad_tokens():
     ([{"heading": -90}], "radians"),
 ])
 def test_user_token_shapes_and_units(agents, message):
-    from sumo_scendiff.tokens import TokenError, agent_tokens_from_dicts
+    from sumo_scendiff.tokens.encoding import TokenError, agent_tokens_from_dicts
     with pytest.raises(TokenError, match=message):
         agent_tokens_from_dicts(agents)
 
 
 @pytest.mark.parametrize("bad", [True, "a lot", None, 1.5, -0.1])
 def test_global_token_rejects_non_numbers(bad):
-    from sumo_scendiff.tokens import TokenError, global_token
+    from sumo_scendiff.tokens.encoding import TokenError, global_token
     with pytest.raises(TokenError, match="p_mask"):
         global_token(bad)

@@ -5,7 +5,7 @@ import pytest
 import torch
 from torch import nn
 
-from sumo_scendiff.train_loop import EMA
+from sumo_scendiff.train.loop import EMA
 
 
 def test_half_life_and_its_ramp_up():

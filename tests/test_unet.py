@@ -4,7 +4,12 @@ import torch
 
 from sumo_scendiff.model.edm import EDMLoss, EDMPrecond
 from sumo_scendiff.model.unet import UNet, UNetConfig, count_parameters
-from sumo_scendiff.tokens import AGENT_TOKEN_DIM, GLOBAL_TOKEN_DIM, global_token, pad_tokens
+from sumo_scendiff.tokens.encoding import (
+    AGENT_TOKEN_DIM,
+    GLOBAL_TOKEN_DIM,
+    global_token,
+    pad_tokens,
+)
 
 CFG = UNetConfig(channels=(16, 32, 64), d_model=32, c_map=8)  # small for fast tests
 
@@ -118,8 +123,8 @@ def test_edm_training_step_reduces_loss():
 def test_token_cells_follow_the_raster_convention():
     import numpy as np
 
-    from sumo_scendiff.geometry import metres_to_pixels
-    from sumo_scendiff.tokens import encode_agent_tokens, token_cells
+    from sumo_scendiff.core.geometry import metres_to_pixels
+    from sumo_scendiff.tokens.encoding import encode_agent_tokens, token_cells
     xy = np.array([[-49.0, 49.0], [0.1, -0.1], [30.0, 12.0], [-12.6, -37.4], [49.9, -49.9]])
     tok, pad = pad_tokens([encode_agent_tokens({"x": xy[:, 0], "y": xy[:, 1]})])
     cell, placed = token_cells(tok, pad, 16)
@@ -137,7 +142,7 @@ def test_splat_writes_each_token_at_its_cell_only():
     import numpy as np
 
     from sumo_scendiff.model.unet import TokenSplat
-    from sumo_scendiff.tokens import encode_agent_tokens
+    from sumo_scendiff.tokens.encoding import encode_agent_tokens
     torch.manual_seed(0)
     splat = TokenSplat(AGENT_TOKEN_DIM, 4)
     tok, pad = pad_tokens([encode_agent_tokens({"x": np.array([30.0, np.nan]),

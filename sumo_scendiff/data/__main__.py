@@ -24,16 +24,13 @@ import sys
 from contextlib import closing
 from dataclasses import asdict, replace
 
-import numpy as np
-
-from ..network import Network, NetworkError
-from ..procs import die_with_parent
+from ..core.procs import die_with_parent
+from ..map.network import Network, NetworkError
 from .demand import DemandError, check_routes
-from .record import EpisodeSpec, record_shard_task
+from .record import DENSITY, plan_episodes, record_shard_task
 from .shards import DataError, Shard, net_entry, write_manifest
 
 PROG = "python -m sumo_scendiff.data"
-DENSITY = (15.0, 400.0)  # veh/h/km of lane: from nearly empty streets to congestion
 
 
 def get_options(args=None):
@@ -65,29 +62,6 @@ def get_options(args=None):
         p.error(f"give --routes once per --net ({len(o.nets)} nets, {len(o.routes)} route files)")
     o.parser = p
     return o
-
-
-def plan_episodes(nets: list[Network], routes: list[str | None], begins: list[float],
-                  scenes: int, seed: int, per_episode: int,
-                  density: tuple[float, float] = DENSITY, disc: bool = True
-                  ) -> list[tuple[int, str, EpisodeSpec]]:
-    """Deterministic episode plan: (net index, shard file name, spec) for every episode."""
-    counts = [scenes // len(nets) + (i < scenes % len(nets)) for i in range(len(nets))]
-    plan = []
-    for k, (net, rou, begin, n) in enumerate(zip(nets, routes, begins, counts)):
-        n_ep = max(1, -(-n // per_episode))
-        for e in range(n_ep):
-            ss = np.random.SeedSequence([seed, k, e])
-            rng = np.random.default_rng(ss)
-            ep_seed = int(ss.generate_state(1)[0] % (2 ** 31))
-            todo = n // n_ep + (e < n % n_ep)
-            spec = EpisodeSpec(seed=ep_seed, scenes=todo, routes=rou, begin=begin,
-                               density=float(np.exp(rng.uniform(*np.log(density)))),
-                               warmup=float(rng.uniform(200.0, 900.0)),
-                               sample_every=float(rng.choice([2.0, 3.0, 5.0])), disc=disc)
-            if todo > 0:
-                plan.append((k, f"shard-{k:03d}-{e:04d}.npz", spec))
-    return plan
 
 
 def _interrupt(signum, frame):

@@ -9,8 +9,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from ..raster import RasterConfig, render_agents, render_map
-from ..scene import crop_to_window, rotate_scene
+from ..core.scene import crop_to_window, rotate_scene
+from ..map.raster import RasterConfig, render_agents, render_map
 from .shards import SceneStore
 
 
@@ -37,7 +37,7 @@ class SceneDataset(Dataset):
         return len(self.store)
 
     def network(self, path: str):
-        from ..network import Network
+        from ..map.network import Network
         if path not in self._nets:
             self._nets[path] = Network.load(path)
         return self._nets[path]

@@ -6,11 +6,14 @@ density drawn per episode, so that recorded scenes range from nearly empty to co
 """
 from __future__ import annotations
 
+import glob
 import os
 import re
 import subprocess
 import sys
 from dataclasses import dataclass
+
+from ..core.tools import sumo_tool
 
 # (id, vClass, guiShape, length, width, minGap, accel, decel, maxSpeed, probability)
 VEHICLE_MIX = (
@@ -36,15 +39,6 @@ class RandomDemand:
     fringe_factor: float = 5.0
 
 
-def sumo_home() -> str:
-    import sumo  # the eclipse-sumo wheel
-    return sumo.SUMO_HOME
-
-
-def sumo_binary(name: str = "sumo") -> str:
-    return os.path.join(sumo_home(), "bin", name)
-
-
 def write_vtypes(path: str) -> str:
     """Write the vehicle-type distribution ``mix`` as an additional file."""
     lines = ['<additional>', '    <vTypeDistribution id="mix">']
@@ -60,7 +54,7 @@ def write_vtypes(path: str) -> str:
 
 def random_trips(net_path: str, out_path: str, spec: RandomDemand) -> str:
     """Write trips of type ``mix`` for ``net_path`` with randomTrips.py; returns ``out_path``."""
-    tool = os.path.join(sumo_home(), "tools", "randomTrips.py")
+    tool = sumo_tool("randomTrips.py")
     cmd = [sys.executable, tool, "-n", net_path, "-o", out_path, "-b", "0", "-e", f"{spec.end:g}",
            "--insertion-density", f"{spec.insertion_density:.3f}", "--seed", str(spec.seed),
            "--fringe-factor", f"{spec.fringe_factor:g}", "--edge-permission", "passenger",
@@ -107,3 +101,16 @@ def check_routes(routes_path: str, edge_ids: set[str], sample: int = 2000) -> fl
                           f"edges referenced are unknown, e.g. '{unknown[0]}')")
     departs = [float(m.group(1)) for m in _DEPART.finditer(data, 0, min(len(data), 2_000_000))]
     return min(departs) if departs else 0.0
+
+
+def find_demand(net) -> str | None:
+    """The largest ``*.rou.xml`` beside the network that matches it, or None (random trips)."""
+    edges = {ln.edge for ln in net.lanes}
+    found = []
+    for path in glob.glob(os.path.join(os.path.dirname(os.path.abspath(net.path)), "*.rou.xml")):
+        try:
+            check_routes(path, edges)
+        except DemandError:
+            continue
+        found.append((os.path.getsize(path), path))
+    return max(found)[1] if found else None

@@ -19,10 +19,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import T0, TIMES, Window, sumo_to_pose
-from ..network import Network
-from ..scene import Scene
-from .demand import RandomDemand, random_trips, sumo_binary, write_vtypes
+from ..core.geometry import T0, TIMES, Window, sumo_to_pose
+from ..core.scene import Scene
+from ..core.tools import sumo_binary
+from ..map.network import Network
+from .demand import RandomDemand, random_trips, write_vtypes
 from .shards import write_shard
 
 _VCLASS = {"passenger": 0, "private": 0, "taxi": 0, "evehicle": 0, "emergency": 0, "delivery": 1,
@@ -35,6 +36,8 @@ INVALID = -1073741824.0
 # bumped when what a recording holds changes (2: vehicles off the road left out); part of the key of
 # the evaluation's cached ground truth, so that a cache recorded before is recorded again
 RECORDER_VERSION = 2
+
+DENSITY = (15.0, 400.0)  # veh/h/km of lane: from nearly empty streets to congestion
 
 
 @dataclass(frozen=True)
@@ -231,3 +234,26 @@ def record_shard(net_path: str, spec: EpisodeSpec, net_index: int, shard_path: s
 def record_shard_task(task: tuple) -> dict:
     """``record_shard(*task)``: the form a process pool's ``imap_unordered`` calls."""
     return record_shard(*task)
+
+
+def plan_episodes(nets: list[Network], routes: list[str | None], begins: list[float],
+                  scenes: int, seed: int, per_episode: int,
+                  density: tuple[float, float] = DENSITY, disc: bool = True
+                  ) -> list[tuple[int, str, EpisodeSpec]]:
+    """Deterministic episode plan: (net index, shard file name, spec) for every episode."""
+    counts = [scenes // len(nets) + (i < scenes % len(nets)) for i in range(len(nets))]
+    plan = []
+    for k, (net, rou, begin, n) in enumerate(zip(nets, routes, begins, counts)):
+        n_ep = max(1, -(-n // per_episode))
+        for e in range(n_ep):
+            ss = np.random.SeedSequence([seed, k, e])
+            rng = np.random.default_rng(ss)
+            ep_seed = int(ss.generate_state(1)[0] % (2 ** 31))
+            todo = n // n_ep + (e < n % n_ep)
+            spec = EpisodeSpec(seed=ep_seed, scenes=todo, routes=rou, begin=begin,
+                               density=float(np.exp(rng.uniform(*np.log(density)))),
+                               warmup=float(rng.uniform(200.0, 900.0)),
+                               sample_every=float(rng.choice([2.0, 3.0, 5.0])), disc=disc)
+            if todo > 0:
+                plan.append((k, f"shard-{k:03d}-{e:04d}.npz", spec))
+    return plan

@@ -27,9 +27,9 @@ from typing import Sequence
 
 import numpy as np
 
-from ..geometry import Window
-from ..network import Network
-from ..scene import Scene
+from ..core.geometry import Window
+from ..core.scene import Scene
+from ..map.network import Network
 from .record import EpisodeSpec, record_at
 from .shards import SceneStore, Shard, read_manifest, resolve_net_path, write_shard
 

@@ -9,15 +9,15 @@ A manifest with ``"disc": true`` holds each window's circumscribed circle (``Epi
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import Window
-from ..scene import Scene, crop_to_window
+from ..core.files import file_sha256
+from ..core.geometry import Window
+from ..core.scene import Scene, crop_to_window
 
 MANIFEST = "manifest.json"
 FORMAT_VERSION = 1
@@ -25,14 +25,6 @@ FORMAT_VERSION = 1
 
 class DataError(ValueError):
     """A data directory that cannot be read; the message names the file."""
-
-
-def file_sha256(path: str) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def write_shard(path: str, scenes: list[Scene], net_index: int) -> dict:
@@ -159,7 +151,7 @@ class SceneStore:
     def scene(self, idx: int, disc: bool = False) -> Scene:
         """Scene ``idx``: the agents in its window's square; with ``disc``, in the circle through the
         square's corners where the recording holds it (else the square), so that the window turned
-        about its centre and cropped (:func:`~sumo_scendiff.scene.crop_to_window`) is whole."""
+        about its centre and cropped (:func:`~sumo_scendiff.core.scene.crop_to_window`) is whole."""
         k, i = self.index[idx]
         scene = self.shards[k].scene(i, self.net_name(idx))
         return scene if disc or not self.discs[k] else crop_to_window(scene)

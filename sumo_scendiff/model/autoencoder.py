@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..raster import MAP_CHANNELS
+from ..map.raster import MAP_CHANNELS
 from .blocks import Downsample, ResnetBlock, Upsample, group_norm, grow_segments
 from .detection import C_Y, DetectionLossConfig, detection_loss
 from .heading import bin_width

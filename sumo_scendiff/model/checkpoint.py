@@ -14,7 +14,7 @@ import typing
 
 import torch
 
-from ..data.shards import file_sha256 as sha256
+from ..core.files import file_sha256 as sha256
 
 FORMAT = "sumo-scendiff"
 VERSION = 1

@@ -28,7 +28,7 @@ import torch
 import torch.nn.functional as F
 from scipy.optimize import linear_sum_assignment
 
-from ..geometry import T0, metres_to_pixels, pixel_centres
+from ..core.geometry import T0, metres_to_pixels, pixel_centres
 from .heading import decode_heading, heading_loss
 
 C_Y = 1 + 6 + 6 * 2  # channels of y for T = 2 (paper: 1 + 6 + 6T)

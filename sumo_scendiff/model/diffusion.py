@@ -16,11 +16,20 @@ from typing import Callable, Optional
 import torch
 from torch import Tensor, nn
 
-from ..raster import MAP_CHANNELS
-from ..tokens import global_token as encode_global_token
+from ..map.raster import MAP_CHANNELS
+from ..tokens.encoding import global_token as encode_global_token
 from .autoencoder import ConvEncoder
-from .edm import (P_MEAN, P_STD, EDMLoss, EDMPrecond, guided, initial_noise, inpainted, karras_sigmas,
-                  sample_dpmpp_2m)
+from .edm import (
+    P_MEAN,
+    P_STD,
+    EDMLoss,
+    EDMPrecond,
+    guided,
+    initial_noise,
+    inpainted,
+    karras_sigmas,
+    sample_dpmpp_2m,
+)
 from .unet import UNet, UNetConfig
 
 

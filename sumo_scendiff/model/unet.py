@@ -41,8 +41,15 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..tokens import AGENT_TOKEN_DIM, GLOBAL_TOKEN_DIM, token_cells
-from .blocks import Downsample, ResnetBlock, Upsample, group_norm, grow_segments, widen_input
+from ..tokens.encoding import AGENT_TOKEN_DIM, GLOBAL_TOKEN_DIM, token_cells
+from .blocks import (
+    Downsample,
+    ResnetBlock,
+    Upsample,
+    group_norm,
+    grow_segments,
+    widen_input,
+)
 
 
 @dataclass

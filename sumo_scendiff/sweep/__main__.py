@@ -89,7 +89,7 @@ def prepare_out(o, spec, scenarios) -> list:
 def main(o) -> int:
     from tqdm import tqdm
 
-    from ..tokenfile import TokenFileError
+    from ..tokens.file import TokenFileError
     from .engines import EngineError, run_local, run_ray, tasks
     from .index import contact_sheet, stats_plot, write_index
     from .spec import SpecError, load_spec

@@ -11,7 +11,7 @@ import math
 import os
 from itertools import groupby
 
-from ..procs import die_with_parent
+from ..core.procs import die_with_parent
 from .spec import Scenario, Spec
 
 TASK_SIZE = 8   # scenarios per task: the model call batches them; small enough to balance workers

@@ -59,7 +59,7 @@ def contact_sheet(out: str, rows: list[dict], tile: int = 240, limit: int = 200)
     """One tile per scenario (its scene.png), labelled with the swept parameters."""
     import cv2
 
-    from ..picture import contact_sheet as sheet
+    from ..map.picture import contact_sheet as sheet
     tiles = []
     for r in [r for r in rows if r["status"] == "ok"][:limit]:
         img = cv2.imread(os.path.join(out, r["id"], "scene.png"))

@@ -163,7 +163,7 @@ def _location_ok(loc) -> bool:
 
 
 def _token_sets(source: str, raw: list) -> dict[str, Any]:
-    from ..tokenfile import TokenFileError, parse_tokens
+    from ..tokens.file import TokenFileError, parse_tokens
     out: dict[str, Any] = {}
     for i, item in enumerate(raw):
         e = _check_keys(source, f"token_sets[{i}]", item, SET_KEYS)
@@ -243,7 +243,7 @@ def parse_spec(data: dict, source: str, here: str = ".") -> Spec:
 
 
 def load_spec(path: str) -> Spec:
-    from ..tokenfile import TokenFileError, _decode
+    from ..tokens.file import TokenFileError, _decode
     if not os.path.isfile(path):
         raise SpecError(f"{path}: no such file")
     with open(path, encoding="utf-8", errors="replace") as f:

@@ -36,7 +36,7 @@ class Worker:
     def __init__(self, spec: Spec, out: str, checkpoint: str | None = None, threads: int | None = None):
         import torch
 
-        from ..generate import ScenarioGenerator
+        from ..generation.generator import ScenarioGenerator
         if threads:
             torch.set_num_threads(threads)
         self.spec, self.out = spec, out
@@ -47,15 +47,15 @@ class Worker:
 
     # ---- cached per network -------------------------------------------------------------------
     def network(self, entry: NetworkEntry):
-        from ..network import Network
+        from ..map.network import Network
         if entry.name not in self._nets:
             self._nets[entry.name] = Network.load(entry.net)
         return self._nets[entry.name]
 
     def session(self, entry: NetworkEntry, step_length: float):
         from ..data.demand import check_routes
-        from ..session import Session
-        from ..sumo_sim import SimConfig
+        from ..sim.session import Session
+        from ..sim.sumo import SimConfig
         key = (entry.name, step_length)
         if key not in self._sessions:
             for old in self._sessions.values():   # one simulation per process: close the last one
@@ -72,7 +72,7 @@ class Worker:
         return self._sessions[key]
 
     def window(self, entry: NetworkEntry, location: str):
-        from ..locations import auto_windows, window_at
+        from ..map.locations import auto_windows, window_at
         net = self.network(entry)
         if location.startswith("auto:"):
             if entry.name not in self._auto:   # the same n in every worker: the same windows
@@ -91,11 +91,11 @@ class Worker:
         model call then sees the same batch as in an uninterrupted sweep, and float results depend
         on the batch (the classifier-free guidance amplifies that noise)."""
         from ..data.demand import DemandError
-        from ..generate import GenerationConfig
-        from ..locations import LocationError
-        from ..network import NetworkError
-        from ..sumo_sim import SimError
-        from ..tokenfile import TokenFileError
+        from ..generation.generator import GenerationConfig
+        from ..map.locations import LocationError
+        from ..map.network import NetworkError
+        from ..sim.sumo import SimError
+        from ..tokens.file import TokenFileError
         bad = (NetworkError, LocationError, TokenFileError, SimError, DemandError, OSError)
         first = scenarios[0]
         entry = self.spec.networks[first.network]

@@ -1,0 +1,329 @@
+"""Evaluate scene generators against SUMO's own traffic on networks the model never trained on.
+
+    python -m sumo_scendiff.evaluate                         # held-out generated nets + real cities
+    python -m sumo_scendiff.evaluate -n ../shared/nets/resco_cologne8/cologne8.net.xml --scenes 300
+    python -m sumo_scendiff.evaluate --json results.json     # everything, for machines
+
+For every network, ground-truth scenes are recorded from SUMO (with the network's own demand when a
+matching ``*.rou.xml`` lies beside it, otherwise random trips), each window turned by a random angle
+and recorded again whole at the same instant (:mod:`sumo_scendiff.data.rerecord`), and every method
+generates a scene for the same windows: Random Log Selection (agents of a random *training* scene,
+map ignored), Lane-uniform with its own count rule and told the true count, and the shipped Scenario
+Diffusion model (with ``--checkpoint``/the default weights when present). A reference row, "SUMO
+2 min later", scores the same windows :data:`LATER` s later in the same traffic: an independent draw
+of what SUMO puts there, so what a perfect generator would score. The table gives the paper's
+metrics per network (see :mod:`sumo_scendiff.evaluate.metrics`).
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import hashlib
+import json
+import os
+import sys
+from dataclasses import replace
+
+import numpy as np
+
+from ..core.geometry import Window, wrap_angle
+from ..data.demand import DemandError, find_demand
+from ..data.shards import SceneStore
+from ..map.network import Network, NetworkError
+from .baselines import LaneUniform, RandomLogSelection
+from .metrics import evaluate_scenes
+
+SAMPLER_NAMES = ("dpmpp-2m", "euler", "heun")  # model.edm.SAMPLERS' keys (torch is imported lazily)
+
+PROG = "python -m sumo_scendiff.evaluate"
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+SHARED_NETS = os.path.join(ROOT, "..", "shared", "nets")
+REAL_CITIES = ("resco_cologne1/cologne1.net.xml", "resco_cologne3/cologne3.net.xml",
+               "resco_cologne8/cologne8.net.xml", "resco_ingolstadt1/ingolstadt1.net.xml",
+               "resco_ingolstadt7/ingolstadt7.net.xml", "resco_ingolstadt21/ingolstadt21.net.xml",
+               "berlin_doerpfeldstr/net.net.xml.gz", "wildau/net.net.xml.gz",
+               "ingolstadt_cutmap/Forschungskreuzung_cutmap.net.xml.gz")
+LATER = 120.0   # s: the reference row's delay (longer than a signal cycle: other vehicles, same traffic)
+REFERENCE = "SUMO 2 min later"
+COLUMNS = (("mmd2_position", "MMD² pos"), ("mmd2_heading", "MMD² head"),
+           ("mmd2_velocity", "MMD² vel"), ("mmd2_joint", "MMD² joint"),
+           ("traj_on_drivable", "traj on drivable"), ("lane_heading_difference", "lane head. diff"),
+           ("agents_emd", "agents/scene EMD"), ("agents_per_scene", "agents/scene"))
+
+
+def get_options(args=None):
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("-n", "--net-file", "--net", dest="nets", action="append", default=None,
+                   metavar="NET", help="network to evaluate on (repeat); default: held-out + real cities")
+    p.add_argument("--scenes", type=int, default=200, help="ground-truth scenes per network")
+    p.add_argument("--train-data", default=os.path.join(ROOT, "data", "train"),
+                   help="training scenes for Random Log (recorded from networks/ if missing)")
+    p.add_argument("--cache", default=os.path.join(ROOT, ".cache", "eval"),
+                   help="where recorded ground truth is kept between runs")
+    p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
+    p.add_argument("--no-model", action="store_true", help="baselines only")
+    p.add_argument("--no-map-checkpoint", default=None, help="the no-map ablation model (a row)")
+    p.add_argument("--tokens", action="store_true", help="also the token tables (2, 3, E.2)")
+    p.add_argument("--token-scenes", type=int, default=100, help="scenes per net for --tokens")
+    p.add_argument("--steps", type=int, default=None, help="sampler steps for the model")
+    p.add_argument("--sampler", choices=SAMPLER_NAMES, default=None,
+                   help="ODE solver for the model (default: generate's)")
+    p.add_argument("--guidance", type=float, default=None,
+                   help="classifier-free guidance weight of the agent tokens (default: generate's)")
+    p.add_argument("--scene-guidance", type=float, default=None,
+                   help="classifier-free guidance weight of the global token (default: generate's)")
+    p.add_argument("--scene-guidance-sigma", type=float, default=None, metavar="SIGMA",
+                   help="apply the global token's guidance only above this noise level "
+                        "(default: generate's)")
+    p.add_argument("--no-pin-tokens", dest="pin_tokens", action="store_false",
+                   help="agent tokens are conditions only, as in the paper (default: a token with "
+                        "pose, size and speed is pinned in the latent; README \"Token control\")")
+    p.add_argument("--no-pin-calibration", dest="pin_calibration", action="store_false",
+                   help="draw pinned tokens at the speeds they ask, not at those the decoder turns "
+                        "into the token's (pinning.calibrated_pins)")
+    p.add_argument("--no-pin-speeds", dest="pin_speeds", action="store_false",
+                   help="a pinned token's agent keeps its decoded speeds, the model's own (the paper's "
+                        "Table 3; default: it moves at the token's, pinning.pace_to_pins)")
+    p.add_argument("--no-lane-headings", dest="lane_headings", action="store_false",
+                   help="junction boxes keep the heading head's argmax (generate's lane_headings)")
+    p.add_argument("--no-lane-snap", dest="lane_snap", action="store_false",
+                   help="poses stay as decoded, off the lane centre lines (generate's lane_snap)")
+    p.add_argument("--json", default=None, metavar="PATH", help="also write all results as JSON")
+    p.add_argument("--pictures", default=None, metavar="DIR",
+                   help="write DIR/<net>.png: three windows, ground truth beside every method")
+    p.add_argument("-s", "--seed", type=int, default=0)
+    p.add_argument("-v", "--verbose", action="store_true")
+    o = p.parse_args(args)
+    if not all(w is None or w >= 0 for w in (o.guidance, o.scene_guidance, o.scene_guidance_sigma)):
+        p.error("--guidance, --scene-guidance and --scene-guidance-sigma must be >= 0")
+    if o.tokens and o.no_model:
+        p.error("--tokens measures the model: it cannot go with --no-model")
+    o.parser = p
+    return o
+
+
+def default_nets() -> list[str]:
+    with open(os.path.join(ROOT, "networks", "splits.json")) as f:
+        nets = [os.path.join(ROOT, "networks", n) for n in json.load(f)["heldout"]]
+    return nets + [os.path.join(SHARED_NETS, r) for r in REAL_CITIES
+                   if os.path.exists(os.path.join(SHARED_NETS, r))]
+
+
+def record_cached(nets: list[str], routes: list[str | None], scenes: int, seed: int, cache: str,
+                  tag: str) -> str:
+    """Record (once) scenes with the data CLI into the cache; returns the data directory."""
+    from ..data.__main__ import get_options as data_options
+    from ..data.__main__ import main as data_main
+    from ..data.record import RECORDER_VERSION
+    key = json.dumps([[os.path.abspath(n) for n in nets], routes, scenes, seed, RECORDER_VERSION])
+    out = os.path.join(cache, f"{tag}-{hashlib.sha1(key.encode()).hexdigest()[:12]}")
+    if not os.path.exists(os.path.join(out, "manifest.json")):
+        args = [a for n in nets for a in ("-n", n)] + [a for r in routes if r for a in ("-r", r)]
+        args += ["-o", out, "--scenes", str(scenes), "-s", str(seed), "--scenes-per-episode", "100"]
+        if os.path.exists(out + ".partial"):
+            args.append("--resume")
+        with contextlib.redirect_stdout(sys.stderr):  # keep stdout for the table
+            data_main(data_options(args))
+    return out
+
+
+def training_pool(o) -> SceneStore:
+    if os.path.exists(os.path.join(o.train_data, "manifest.json")):
+        return SceneStore(o.train_data)
+    with open(os.path.join(ROOT, "networks", "splits.json")) as f:
+        train = [os.path.join(ROOT, "networks", n) for n in json.load(f)["train"]]
+    return SceneStore(record_cached(train, [None] * len(train), 1200, 12345, o.cache, "train-pool"))
+
+
+def methods_for(net: Network, pool: SceneStore, models: dict, seed: int):
+    """(name, fn(ground-truth scenes) -> generated scenes) for every method compared on this net."""
+    rlog = RandomLogSelection(pool, seed=seed)
+    lane = LaneUniform(net, seed=seed)
+    out = [("Random Log", lambda gts: [rlog.generate(g.window, index=i) for i, g in enumerate(gts)]),
+           ("Lane-uniform", lambda gts: [lane.generate(g.window, index=i) for i, g in enumerate(gts)]),
+           ("Lane-uniform (true count)",
+            lambda gts: [lane.generate(g.window, n=len(g), index=i) for i, g in enumerate(gts)])]
+    for name, gen in models.items():  # map-only generation: no agent tokens, p_mask = 1
+        out.append((name, lambda gts, gen=gen: gen.generate(net, [g.window for g in gts], seed=seed)))
+    return out
+
+
+def ground_truth(net: Network, o) -> tuple[str | None, list, list]:
+    """The network's demand file, its recorded scenes with each window turned by a random angle
+    (recorded again whole, at the same instant), and the same windows :data:`LATER` s later."""
+    from ..data.rerecord import rerecorded
+    routes = find_demand(net)
+    data = record_cached([net.path], [routes], o.scenes, o.seed, o.cache, f"gt-{net.name}")
+    store = SceneStore(data)
+    rng = np.random.default_rng([o.seed, 7])
+    windows = []
+    for i in range(len(store)):
+        w = store.scene(i).window
+        windows.append(Window(w.cx, w.cy, float(wrap_angle(w.yaw + rng.uniform(-np.pi, np.pi))), w.size))
+    again = rerecorded(data, windows, (0.0, LATER), progress=True)
+    return routes, again[0.0], again[LATER]
+
+
+def evaluate_net(net: Network, o, pool: SceneStore, models: dict) -> dict:
+    import time
+    routes, gts, later = ground_truth(net, o)
+    result = {"net": net.name, "path": net.path, "demand": routes and os.path.basename(routes),
+              "scenes": len(gts), "methods": {}, "seconds": {}}
+    first = None
+    shown = [i for i, g in enumerate(gts) if len(g)][:3]
+    tiles = {"Ground truth": [gts[i] for i in shown]}
+    from tqdm import tqdm
+    methods = [(REFERENCE, lambda gts: later)] + methods_for(net, pool, models, o.seed)
+    bar = tqdm(methods, desc=f"evaluating {net.name}", unit="method")
+    for name, fn in bar:
+        bar.set_postfix_str(name)
+        t = time.perf_counter()
+        gen = fn(gts)
+        tiles[name] = [gen[i] for i in shown]
+        result["seconds"][name] = time.perf_counter() - t
+        res = evaluate_scenes(gen, gts, net)
+        first = first or res
+        result["methods"][name] = _row(res)
+        if o.verbose:
+            print(f"{net.name}: {name} in {result['seconds'][name]:.1f} s", file=sys.stderr)
+    gt = first["gt_only"]
+    result["methods"] = {"Ground truth": {"traj_on_drivable": gt["traj_on_drivable"],
+                                          "lane_heading_difference": gt["lane_heading_diff"],
+                                          "agents_per_scene": first["agents_per_scene_gt"]},
+                         **result["methods"]}
+    if o.pictures:
+        save_pictures(net, tiles, os.path.join(o.pictures, f"{net.name}.png"))
+    return result
+
+
+def save_pictures(net: Network, tiles: dict, path: str) -> None:
+    """One row per shown window, one column per method (ground truth first)."""
+    import cv2
+
+    from ..map.picture import contact_sheet, draw_scene
+    rows = [[draw_scene(net, scenes[r], 320, title=name) for name, scenes in tiles.items()]
+            for r in range(len(next(iter(tiles.values()))))]
+    if rows:
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        cv2.imwrite(path, contact_sheet(rows))
+
+
+def _row(res: dict) -> dict:
+    return {"mmd2_position": res["mmd2_position"], "mmd2_heading": res["mmd2_heading"],
+            "mmd2_velocity": res["mmd2_velocity"], "mmd2_joint": res["mmd2_joint"],
+            "traj_on_drivable": res["traj_on_drivable"],
+            "lane_heading_difference": res["lane_heading_diff"],
+            "agents_emd": res["agents_per_scene_emd"], "agents_per_scene": res["agents_per_scene_gen"],
+            "mmd_scenes": res["mmd_scenes"]}
+
+
+def markdown(results: list[dict]) -> str:
+    head = "| network | method | " + " | ".join(c[1] for c in COLUMNS) + " |"
+    lines = [head, "|" + "---|" * (len(COLUMNS) + 2)]
+    for r in results:
+        label = f"{r['net']} ({r['scenes']} scenes{', own demand' if r['demand'] else ', random trips'})"
+        for k, (name, row) in enumerate(r["methods"].items()):
+            cells = [_fmt(row.get(key)) for key, _ in COLUMNS]
+            lines.append(f"| {label if k == 0 else ''} | {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def summary(results: list[dict]) -> str:
+    """Means over the held-out generated networks and over the real cities, with the MMD²s as a
+    ratio to Random Log's (the paper's targets are stated that way)."""
+    ours = os.path.join(ROOT, "networks") + os.sep
+    mine = [os.path.abspath(r["path"]).startswith(ours) for r in results]
+    groups = {"held-out generated": [r for r, m in zip(results, mine) if m],
+              "real cities": [r for r, m in zip(results, mine) if not m]}
+    keys = [k for k, _ in COLUMNS]
+    mmds = [k for k in keys if k.startswith("mmd2_")]
+    head = ("| networks | method | " + " | ".join(c[1] for c in COLUMNS)
+            + " | MMD² / Random Log (pos / head / vel / joint) |")
+    lines = [head, "|" + "---|" * (len(COLUMNS) + 3)]
+    for group, rs in groups.items():
+        if not rs:
+            continue
+        methods = list(rs[0]["methods"])
+        ref = {key: np.nanmean([r["methods"]["Random Log"][key] for r in rs]) for key in mmds}
+        for k, name in enumerate(methods):
+            mean = {key: float(np.nanmean([r["methods"][name].get(key, np.nan) for r in rs]))
+                    if any(key in r["methods"][name] for r in rs) else None for key in keys}
+            ratio = (" / ".join(f"{mean[key] / ref[key]:.2f}" for key in mmds)
+                     if mean.get("mmd2_joint") is not None else "–")
+            label = f"{group} ({len(rs)})" if k == 0 else ""
+            lines.append(f"| {label} | {name} | " + " | ".join(_fmt(mean[key]) for key in keys)
+                         + f" | {ratio} |")
+    return "\n".join(lines)
+
+
+def _fmt(v) -> str:
+    if v is None or (isinstance(v, float) and np.isnan(v)):
+        return "–"
+    return f"{v:.3f}" if abs(v) < 100 else f"{v:.0f}"
+
+
+def load_models(o) -> dict:
+    """name -> ScenarioGenerator for the model rows (none with --no-model)."""
+    if o.no_model:
+        return {}
+    from ..generation.generator import (
+        DEFAULT_CHECKPOINT,
+        GenerationConfig,
+        ScenarioGenerator,
+    )
+    from ..model.edm import SAMPLERS
+    cfg = replace(GenerationConfig(), scene_guidance=o.scene_guidance,
+                  scene_guidance_sigma=o.scene_guidance_sigma, pin_tokens=o.pin_tokens,
+                  pin_calibration=o.pin_calibration,
+                  pin_speeds=o.pin_speeds, lane_headings=o.lane_headings, lane_snap=o.lane_snap,
+                  **{k: v for k, v in (("steps", o.steps), ("guidance", o.guidance),
+                                       ("sampler", o.sampler and SAMPLERS[o.sampler])) if v is not None})
+    path = o.checkpoint or DEFAULT_CHECKPOINT
+    if o.checkpoint is None and not os.path.exists(path):
+        print(f"{PROG}: no shipped checkpoint at {path}: baselines only", file=sys.stderr)
+        return {}
+    models = {"Scenario Diffusion": ScenarioGenerator.load(path, cfg)}
+    if o.no_map_checkpoint:
+        # the ablation sees no map at all: no lane headings or snapping from the network either
+        models["Scenario Diffusion (no map)"] = ScenarioGenerator.load(
+            o.no_map_checkpoint, replace(cfg, lane_headings=False, lane_snap=False))
+    return models
+
+
+def main(o) -> int:
+    from ..model.checkpoint import CheckpointError
+    try:
+        nets = [Network.load(p) for p in (o.nets or default_nets())]  # bad input first, before work
+        models = load_models(o)
+        pool = training_pool(o)
+        results = [evaluate_net(net, o, pool, models) for net in nets]
+        tokens = {}
+        if o.tokens and models:
+            from . import tokens as token_eval
+            gen = models["Scenario Diffusion"]
+            for net in nets:
+                _, gts, _ = ground_truth(net, o)
+                gts = gts[: o.token_scenes]
+                tokens[net.name] = token_eval.token_tables(gen, net, gts, o.seed, progress=True)
+    except (NetworkError, DemandError, CheckpointError) as e:
+        o.parser.exit(2, f"{PROG}: error: {e}\n")
+    print(summary(results))
+    print()
+    # Random Log's agents come from this pool, and the MMD² ratios depend on it (README, "Evaluation")
+    roots = sorted({os.path.relpath(r) for r, _ in pool.sources})
+    print(f"Random Log pool: {', '.join(roots)} ({len(pool)} scenes)")
+    print()
+    print(markdown(results))
+    if tokens:
+        from .tokens import markdown_tables
+        print()
+        print(markdown_tables(tokens))
+    if o.json:
+        with open(o.json, "w") as f:
+            json.dump({"distribution": results, "tokens": tokens}, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(get_options()))

@@ -1,0 +1,221 @@
+"""Co-simulation API: seed generated traffic into a simulation someone else is running.
+
+    import libsumo as sim                                # or traci (e.g. a CARLA-SUMO bridge)
+    sim.start(["sumo", "-n", "city.net.xml", "-r", "demand.rou.xml", "--lateral-resolution", "0.8"])
+    cosim = CoSimulation(sim, Network.load("city.net.xml"), ScenarioGenerator.load())
+    ...                                                  # the caller steps as it likes
+    seeding = cosim.seed_around("ego", p_mask=0.7)       # fill the 100 m around the ego
+    sim.simulationStep()
+    cosim.verify(seeding)                                # who stands where it was generated, settled
+    while running:
+        sim.simulationStep()
+        cosim.reseed_ahead("ego", every=60.0)            # new traffic ahead as the ego drives
+
+Vehicles already in the window are kept: they become agent tokens (pose, size, speed), so the
+model fills in *around* them (the paper's scene infill); generated agents that the model put on
+top of them (matched to their tokens, or overlapping their boxes) are not seeded. The caller's
+simulation is never stopped by a refused vehicle: it is reported in ``seeding.report.refused``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+
+from ..core.geometry import (
+    T0,
+    TIMES,
+    Window,
+    box_corners,
+    pose_to_sumo,
+    sumo_to_pose,
+    wrap_angle,
+)
+from ..core.matching import match_agents
+from ..core.scene import Scene
+from ..map.network import Network
+from .seeding import Seeder, SeedReport
+
+EXISTING_MARGIN = 10.0   # m beyond the window where existing vehicles still block generated ones
+OVERLAP_BUFFER = 0.3     # m of clearance kept around existing vehicles
+
+
+@dataclass
+class Existing:
+    """Vehicles of the host simulation around a window (scene frame)."""
+    ids: list[str]
+    boxes: np.ndarray            # (N, 5) x, y, yaw, length, width
+    speed: np.ndarray            # (N,)
+    inside: np.ndarray           # (N,) bool: centre inside the window (those become tokens)
+
+    def tokens(self) -> list[dict]:
+        return [{"x": float(b[0]), "y": float(b[1]), "heading": float(b[2]), "length": float(b[3]),
+                 "width": float(b[4]), "speed": float(v)}
+                for b, v, k in zip(self.boxes, self.speed, self.inside) if k]
+
+    def token_ids(self) -> list[str]:
+        return [i for i, k in zip(self.ids, self.inside) if k]
+
+
+@dataclass
+class Seeding:
+    """One seeded window: the generated scene, which token produced each agent, the SUMO ids."""
+    scene: Scene                          # the agents that were seeded (scene frame)
+    report: SeedReport                    # agent index -> vehicle id / refusal / misplacement
+    tokens: list[dict]                    # every token given to the model (user's, then existing)
+    token_source: list[str]               # "user" or the existing vehicle's id, per token
+    token_of: list[int | None]            # per seeded agent: index into tokens, or None
+    dropped: int = 0                      # generated agents not seeded: on top of existing vehicles
+    seed: int = 0
+    p_mask: float = 1.0
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def agent_ids(self) -> list[str]:
+        return list(self.report.ids.values())
+
+
+def token_assignment(scene: Scene, tokens: list[dict]) -> list[int | None]:
+    """Per generated agent, the token it realises (Hungarian matching on position and heading,
+    :func:`~sumo_scendiff.evaluate.metrics.match_agents`); tokens without a position match nothing."""
+    out: list[int | None] = [None] * len(scene)
+    pos = [k for k, t in enumerate(tokens) if t.get("x") is not None and t.get("y") is not None]
+    if not pos or not len(scene):
+        return out
+    tb = np.array([[tokens[k]["x"], tokens[k]["y"],
+                    np.nan if tokens[k].get("heading") is None else tokens[k]["heading"]] for k in pos])
+    gi, ti = match_agents(scene.boxes[:, :3], tb)
+    for g, t in zip(gi, ti):
+        out[int(g)] = pos[int(t)]
+    return out
+
+
+class CoSimulation:
+    def __init__(self, sim, net: Network, generator, seed: int = 0, prefix: str = "sd"):
+        self.sim, self.net, self.generator = sim, net, generator
+        self.seeder = Seeder(sim, net, prefix=prefix, seed=seed)
+        self.seed = seed
+        self.count = 0
+        self._last_seed_xy: dict[str, np.ndarray] = {}
+
+    # ---- the host's vehicles ------------------------------------------------------------------
+    def existing(self, window: Window) -> Existing:
+        sim, ids, boxes, speed = self.sim, [], [], []
+        reach = window.size * np.sqrt(0.5) + EXISTING_MARGIN
+        for vid in sim.vehicle.getIDList():
+            x, y = sim.vehicle.getPosition(vid)
+            if np.hypot(x - window.cx, y - window.cy) > reach:
+                continue
+            length = float(sim.vehicle.getLength(vid))
+            cx, cy, yaw = sumo_to_pose(x, y, sim.vehicle.getAngle(vid), length)
+            ids.append(vid)
+            boxes.append([cx, cy, yaw, length, float(sim.vehicle.getWidth(vid))])
+            speed.append(float(sim.vehicle.getSpeed(vid)))
+        b = np.asarray(boxes, np.float64).reshape(-1, 5)
+        local = b.copy()
+        if len(b):
+            local[:, :2] = window.world_to_scene(b[:, :2])
+            local[:, 2] = window.yaw_to_scene(b[:, 2])
+        inside = window.contains(local[:, :2]) if len(b) else np.zeros(0, bool)
+        keep = window.contains(local[:, :2], margin=-EXISTING_MARGIN) if len(b) else inside
+        return Existing([i for i, k in zip(ids, keep) if k], local[keep],
+                        np.asarray(speed, np.float64).reshape(-1)[keep], inside[keep])
+
+    # ---- seeding ------------------------------------------------------------------------------
+    def place(self, scene: Scene, tokens: list[dict], token_source: list[str], existing: Existing,
+              seed: int = 0, p_mask: float = 1.0) -> Seeding:
+        """Seed a generated ``scene`` whose tokens were ``tokens`` (user's, then existing vehicles')."""
+        token_of = token_assignment(scene, tokens)
+        keep = np.array([t is None or token_source[t] == "user" for t in token_of], bool)
+        if len(existing.ids) and len(scene):
+            occupied = shapely.union_all(shapely.polygons(box_corners(*existing.boxes.T))).buffer(OVERLAP_BUFFER)
+            mine = shapely.polygons(box_corners(*scene.boxes[:, :5].T.astype(np.float64)))
+            keep &= ~shapely.intersects(mine, occupied)
+        idx = np.flatnonzero(keep)
+        sub = scene.select(idx)
+        self.seeder.prefix = f"{self.seeder.prefix.split('.')[0]}.{self.count}."
+        self.seeder.count = 0
+        self.count += 1
+        report = self.seeder.seed(sub, others=(existing.boxes, existing.speed))
+        return Seeding(sub, report, tokens, token_source, [token_of[i] for i in idx],
+                       dropped=int(len(scene) - len(idx)), seed=seed, p_mask=p_mask)
+
+    def seed_window(self, window: Window, tokens: list[dict] = (), p_mask: float | None = None,
+                    seed: int | None = None) -> Seeding:
+        """Generate around the vehicles already in ``window`` and seed the new agents.
+
+        ``tokens``: the caller's agent tokens (window frame, see :mod:`~sumo_scendiff.tokens.encoding`);
+        ``p_mask``: the global scene token (default 1.0 in an empty window, else 0.5).
+        """
+        ex = self.existing(window)
+        all_tokens = list(tokens) + ex.tokens()
+        source = ["user"] * len(tokens) + ex.token_ids()
+        p = p_mask if p_mask is not None else (1.0 if not all_tokens else 0.5)
+        s = self.seed + self.count if seed is None else seed
+        scene = self.generator.generate(self.net, [window], tokens=[all_tokens], p_mask=p, seed=s)[0]
+        return self.place(scene, all_tokens, source, ex, seed=s, p_mask=p)
+
+    def ego_window(self, ego: str, ahead: float = 0.0, size: float = 100.0) -> Window:
+        """The window centred ``ahead`` metres in front of vehicle ``ego``, turned with it."""
+        x, y = self.sim.vehicle.getPosition(ego)
+        cx, cy, yaw = sumo_to_pose(x, y, self.sim.vehicle.getAngle(ego), self.sim.vehicle.getLength(ego))
+        return Window(cx + ahead * np.cos(yaw), cy + ahead * np.sin(yaw), float(yaw), size)
+
+    def seed_around(self, ego: str, tokens: list[dict] = (), ahead: float = 0.0, **kw) -> Seeding:
+        seeding = self.seed_window(self.ego_window(ego, ahead), tokens, **kw)
+        self._last_seed_xy[ego] = np.asarray(self.sim.vehicle.getPosition(ego))
+        return seeding
+
+    def reseed_ahead(self, ego: str, every: float = 60.0, ahead: float = 60.0, **kw) -> Seeding | None:
+        """Once the ego has driven ``every`` metres since its last seeding, seed the window
+        ``ahead`` metres in front of it; otherwise None. Call it each step."""
+        xy = np.asarray(self.sim.vehicle.getPosition(ego))
+        last = self._last_seed_xy.get(ego)
+        if last is not None and np.hypot(*(xy - last)) < every:
+            return None
+        return self.seed_around(ego, ahead=ahead, **kw)
+
+    def follow(self, seeding: Seeding, tau: float) -> int:
+        """Hold every seeded agent on its generated future: place it at its interpolated pose and
+        speed for ``tau`` seconds after seeding (0 < tau <= 2); the caller then steps. Returns how
+        many agents were moved (agents without an observed future are left to SUMO)."""
+        sc, w, sim = seeding.scene, seeding.scene.window, self.sim
+        k = min(int(np.floor(tau)), len(TIMES) - T0 - 2)          # segment [T0 + k, T0 + k + 1]
+        a = tau - k
+        present, moved = set(sim.vehicle.getIDList()), 0
+        for i, vid in seeding.report.ids.items():
+            j = T0 + k
+            if vid not in present or not sc.traj_mask[i, j:j + 2].all():
+                continue
+            p = (1 - a) * sc.traj[i, j, :2] + a * sc.traj[i, j + 1, :2]
+            yaw = sc.traj[i, j, 2] + a * wrap_angle(sc.traj[i, j + 1, 2] - sc.traj[i, j, 2])
+            xy = w.scene_to_world(p)
+            fx, fy, angle = pose_to_sumo(xy[0], xy[1], float(w.yaw_to_world(yaw)), sc.boxes[i, 3])
+            speed = (1 - a) * sc.speed[i, j] + a * sc.speed[i, j + 1]
+            try:
+                sim.vehicle.moveToXY(vid, "", -1, float(fx), float(fy), float(angle),
+                                     keepRoute=self.seeder.keep_route)
+                sim.vehicle.setPreviousSpeed(vid, float(speed))
+                moved += 1
+            except Exception:  # a vehicle SUMO removed meanwhile: leave it
+                continue
+        return moved
+
+    def replay_future(self, seeding: Seeding, seconds: float = 2.0) -> None:
+        """Step the simulation for ``seconds`` (<= 2) with every agent on its generated future,
+        then hand it to SUMO (for hosts that let the co-simulation step)."""
+        dt = float(self.sim.simulation.getDeltaT())
+        for k in range(1, int(round(min(seconds, 2.0) / dt)) + 1):
+            self.follow(seeding, k * dt)
+            self.sim.simulationStep()
+
+    def verify(self, seeding: Seeding) -> Seeding:
+        """After the host's next step: agents not within 0.5 m / 0.1 rad of their generated pose;
+        then none faster than it can stop behind its leader (:meth:`Seeder.settle`)."""
+        self.seeder.verify(seeding.report)
+        self.seeder.settle(seeding.report)
+        return seeding
+
+
+__all__ = ["CoSimulation", "Seeding", "Existing", "token_assignment"]

@@ -1,0 +1,186 @@
+"""Export of one seeded scene: the files of ``<out>/<scene>/`` (documented in the README).
+
+    folder = ScenarioWriter(out_dir, "scene_000")        # writes into scene_000.partial/
+    folder.after_seeding(sim, seeding, net, sim_cfg, info)   # scene.json, routes, sumocfg, state, png
+    folder.finish(stats)                                 # rollout.json, then rename to scene_000/
+
+A scene folder only appears under its final name once every file is written; an interrupted run
+leaves ``*.partial`` folders, which are never mistaken for results.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from xml.sax.saxutils import quoteattr
+
+import cv2
+import numpy as np
+
+from ..core.geometry import sumo_to_pose, wrap_angle
+from ..map.picture import draw_scene
+from ..tokens.features import is_pinnable
+
+FORMAT, VERSION = "sumo-scendiff-scenario", 1
+FILES = ("scene.json", "scenario.rou.xml", "scenario.sumocfg", "state.xml.gz", "rollout.json", "scene.png")
+
+
+def _agents(seeding, sim) -> list[dict]:
+    """Per seeded agent: the generated pose in world coordinates and what became of it."""
+    scene, rep = seeding.scene, seeding.report
+    score = scene.meta.get("score", [None] * len(scene))
+    out = []
+    for i, a in enumerate(scene.world_agents()):
+        vid = rep.ids.get(i)
+        status = "refused" if i in rep.refused else "misplaced" if i in rep.misplaced else "placed"
+        tok = seeding.token_of[i]
+        a.update({"vehicle": vid, "status": status, "score": None if score[i] is None else float(score[i]),
+                  "token": tok, "token_source": None if tok is None else seeding.token_source[tok]})
+        if i in rep.refused:
+            a["reason"] = rep.refused[i]
+        if i in rep.misplaced:
+            a["position_error"] = rep.misplaced[i]
+        out.append(a)
+    return out
+
+
+def scene_document(seeding, net, sim, info: dict) -> dict:
+    w = seeding.scene.window
+    pin = bool(info.get("model", {}).get("pin_tokens", False))  # held in the latent (pinning.py)
+    return {"format": FORMAT, "version": VERSION, **info,
+            "network": {"path": os.path.abspath(net.path), "name": net.name},
+            "window": {"cx": w.cx, "cy": w.cy, "yaw": w.yaw, "size": w.size},
+            "time": float(sim.simulation.getTime()), "seed": seeding.seed, "p_mask": seeding.p_mask,
+            "tokens": [{**t, "source": s, "pinned": pin and is_pinnable(t)}
+                       for t, s in zip(seeding.tokens, seeding.token_source)],
+            "dropped_on_existing": seeding.dropped,
+            "counts": {"generated": len(seeding.scene), "placed": seeding.report.placed,
+                       "refused": len(seeding.report.refused),
+                       "misplaced": len(seeding.report.misplaced)},
+            "agents": _agents(seeding, sim)}
+
+
+def _vehicle_xml(sim, vid: str, net) -> tuple[str, str, str, bool]:
+    """(vType, route, vehicle) XML for a present vehicle departing where it stands now, and
+    whether that is exact (a vehicle cannot depart inside a junction: those start at the end of
+    the lane leading into it)."""
+    tid = sim.vehicle.getTypeID(vid)
+    vt = sim.vehicletype
+    vtype = (f'    <vType id={quoteattr(tid)} vClass="{vt.getVehicleClass(tid)}" length="{vt.getLength(tid):.3f}" '
+             f'width="{vt.getWidth(tid):.3f}" minGap="{vt.getMinGap(tid):.3f}"/>')
+    edges = list(sim.vehicle.getRoute(vid))[sim.vehicle.getRouteIndex(vid):]
+    lane = sim.vehicle.getLaneID(vid)
+    exact = not lane.startswith(":")
+    if exact:
+        pos, lane_index = sim.vehicle.getLanePosition(vid), sim.vehicle.getLaneIndex(vid)
+        lat = sim.vehicle.getLateralLanePosition(vid)
+    else:
+        first = net.sumo_net.getEdge(edges[0])
+        pos, lane_index, lat = first.getLength() - 0.1, "best", 0.0
+    route = f'    <route id={quoteattr(vid + "_replay")} edges="{" ".join(edges)}"/>'
+    veh = (f'    <vehicle id={quoteattr(vid)} type={quoteattr(tid)} route={quoteattr(vid + "_replay")} '
+           f'depart="0" departLane="{lane_index}" departPos="{pos:.3f}" departPosLat="{lat:.3f}" '
+           f'departSpeed="{sim.vehicle.getSpeed(vid):.3f}" insertionChecks="none"/>')
+    return vtype, route, veh, exact
+
+
+def write_routes(path: str, sim, vehicle_ids, net) -> dict[str, bool]:
+    """scenario.rou.xml: every given vehicle departing at t = 0 where it stands (on-lane ones at
+    their exact lane position and lateral offset). Returns vehicle id -> exact."""
+    types, routes, vehicles, exact = {}, [], [], {}
+    present = set(sim.vehicle.getIDList())
+    for vid in vehicle_ids:
+        if vid not in present:
+            continue
+        vtype, route, veh, exact[vid] = _vehicle_xml(sim, vid, net)
+        types[sim.vehicle.getTypeID(vid)] = vtype
+        routes.append(route)
+        vehicles.append(veh)
+    with open(path, "w") as f:
+        f.write("<routes>\n" + "\n".join(list(types.values()) + routes + vehicles) + "\n</routes>\n")
+    return exact
+
+
+def write_sumocfg(path: str, options: dict[str, str], state: str | None) -> None:
+    """scenario.sumocfg with paths relative to its folder; loads the saved state when given."""
+    here = os.path.dirname(os.path.abspath(path))
+    lines = ["<configuration>"]
+    for name, value in options.items():
+        if name in ("net-file", "n", "route-files", "r"):
+            value = ",".join(os.path.relpath(v, here) for v in value.split(","))
+            name = {"n": "net-file", "r": "route-files"}.get(name, name)
+        lines.append(f"    <{name} value={quoteattr(value)}/>")
+    if state:
+        lines.append(f"    <load-state value={quoteattr(state)}/>")
+    lines.append("</configuration>\n")
+    with open(path, "w") as f:
+        f.write("\n".join(lines))
+
+
+def write_picture(path: str, seeding, net) -> None:
+    scene = seeding.scene
+    xy = [(t["x"], t["y"]) for t in seeding.tokens if t.get("x") is not None]
+    c = seeding.report
+    title = (f"{net.name}  seed {seeding.seed}  p_mask {seeding.p_mask:.2f}  agents {len(scene)} "
+             f"(placed {c.placed}, refused {len(c.refused)})")
+    img = draw_scene(net, scene, pixels=600, token_xy=np.array(xy).reshape(-1, 2), title=title)
+    cv2.imwrite(path, img)
+
+
+class ScenarioWriter:
+    def __init__(self, out_dir: str, name: str, force: bool = False):
+        self.final = os.path.join(out_dir, name)
+        self.tmp = self.final + ".partial"
+        if os.path.exists(self.final) and not force:
+            raise FileExistsError(f"{self.final}: exists (choose another --output-dir or add --force)")
+        shutil.rmtree(self.tmp, ignore_errors=True)
+        os.makedirs(self.tmp)
+        self.force = force
+
+    def path(self, name: str) -> str:
+        return os.path.join(self.tmp, name)
+
+    def after_seeding(self, sim, seeding, net, options: dict[str, str], info: dict,
+                      extra_vehicles=()) -> dict:
+        """Everything that describes the seeded start (call right after the verification step)."""
+        sim.simulation.saveState(self.path("state.xml.gz"))
+        exact = write_routes(self.path("scenario.rou.xml"), sim, list(seeding.agent_ids) + list(extra_vehicles), net)
+        write_sumocfg(self.path("scenario.sumocfg"), options, "state.xml.gz")
+        doc = scene_document(seeding, net, sim, info)
+        for a in doc["agents"]:
+            a["replay_exact"] = exact.get(a["vehicle"]) if a["vehicle"] else None
+        self._json("scene.json", doc)
+        write_picture(self.path("scene.png"), seeding, net)
+        return doc
+
+    def finish(self, stats: dict) -> str:
+        self._json("rollout.json", stats)
+        if os.path.exists(self.final) and self.force:
+            shutil.rmtree(self.final)
+        os.replace(self.tmp, self.final)
+        return self.final
+
+    def abandon(self) -> None:
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def _json(self, name: str, doc: dict) -> None:
+        with open(self.path(name), "w") as f:
+            json.dump(doc, f, indent=1, default=_plain)
+
+
+def _plain(v):
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    raise TypeError(type(v).__name__)
+
+
+def pose_error(sim, vid: str, agent: dict) -> tuple[float, float]:
+    """(metres, radians) between vehicle ``vid`` now and an exported agent's generated pose."""
+    x, y = sim.vehicle.getPosition(vid)
+    cx, cy, yaw = sumo_to_pose(x, y, sim.vehicle.getAngle(vid), agent["length"])
+    return float(np.hypot(cx - agent["x"], cy - agent["y"])), abs(float(wrap_angle(yaw - agent["heading"])))
+
+
+__all__ = ["ScenarioWriter", "FILES", "pose_error", "write_routes", "write_sumocfg"]

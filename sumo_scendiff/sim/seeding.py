@@ -1,0 +1,282 @@
+"""Seeder: generated agents -> real SUMO vehicles at their generated poses (libsumo or traci).
+
+    import libsumo as sim                      # or traci, connected to sumo / sumo-gui
+    seeder = Seeder(sim, net)
+    report = seeder.seed(scene)                # vehicle.add + vehicle.moveToXY(keepRoute=1) per agent
+    sim.simulationStep()
+    report = seeder.verify(report)             # who stands where it was generated (0.5 m, 0.1 rad)
+    report = seeder.settle(report)             # minGaps that fit, none faster than it can stop
+
+For each agent:
+the lane it stands on (heading agreement; an internal junction lane gives the route its incoming
+and outgoing edges, never starts a route), a route through the lanes of its +1/+2 s poses and on
+along the network (no u-turns) to a fringe or 30 edges, a vehicle type with its box and a minGap that
+fits the gap to the vehicle ahead in the scene, a departure speed that is its generated speed capped
+at the Krauss safe speed behind that vehicle, then ``vehicle.add`` and ``vehicle.moveToXY``. SUMO
+refusing a vehicle never crashes the host simulation: the agent is reported as refused. After the
+seeding step, :meth:`Seeder.settle` checks both again against the leader SUMO itself sees.
+
+Generated agents are rarely on a lane's centre line. With SUMO's sublane model
+(``--lateral-resolution``, which :mod:`~sumo_scendiff.sim.sumo` turns on) ``moveToXY`` with
+``keepRoute=1`` keeps their lateral offset; without it SUMO snaps them to the centre line (measured
+on city.net.xml: 73 of 96 generated agents then off by 0.5-4 m), so the Seeder uses ``keepRoute=2``
+(exact pose, mapped to the nearest lane of its route) in such host simulations.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..core.geometry import T0, pose_to_sumo, wrap_angle
+from ..core.scene import VEHICLE_CLASSES, Scene
+from ..map.network import Network
+
+POS_TOLERANCE, YAW_TOLERANCE = 0.5, 0.1   # m, rad: "present where it was generated"
+MAX_ROUTE_EDGES = 30
+DEFAULT_MIN_GAP = 2.5
+MIN_GAP_MARGIN = 0.2   # m: a seeded vehicle's minGap stays this much below its bumper gap
+
+
+@dataclass
+class SeedReport:
+    ids: dict[int, str] = field(default_factory=dict)        # agent index -> vehicle id
+    refused: dict[int, str] = field(default_factory=dict)    # agent index -> reason
+    misplaced: dict[int, float] = field(default_factory=dict)  # agent index -> position error (m)
+    targets: dict[int, tuple] = field(default_factory=dict)  # agent index -> (x_front, y_front, angle)
+    slowed: dict[int, tuple] = field(default_factory=dict)   # agent index -> (generated, departure speed)
+    gap_fitted: dict[int, tuple] = field(default_factory=dict)  # agent index -> (minGap, minGap fitted)
+
+    @property
+    def placed(self) -> int:
+        return len(self.ids) - len(self.misplaced)
+
+
+def krauss_safe_speed(gap: float, v_leader: float, decel: float, tau: float) -> float:
+    """The fastest speed that can still stop behind a leader braking at the same ``decel``: Krauss's
+    safe speed (Krauss 1998, eq. 2.12 in its ballistic form), ``v tau + v^2 / 2b <= g + v_l^2 / 2b``,
+    the bound SUMO's default car-following model keeps to (``MSCFModel_Krauss::vsafe``)."""
+    b = decel
+    return float(-b * tau + np.sqrt((b * tau) ** 2 + v_leader ** 2 + 2.0 * b * max(gap, 0.0)))
+
+
+def sublane(sim) -> bool:
+    """Whether the host simulation runs SUMO's sublane model (``--lateral-resolution`` > 0)."""
+    try:
+        return float(sim.simulation.getOption("lateral-resolution")) > 0
+    except Exception:  # SUMO < 1.19 has no getOption
+        return False
+
+
+class Seeder:
+    def __init__(self, sim, net: Network, prefix: str = "sd", seed: int = 0):
+        self.sim, self.net, self.prefix = sim, net, prefix
+        self.rng = np.random.default_rng(seed)
+        self.count = 0
+        self._via = self._internal_links()
+        self.keep_route = 1 if sublane(sim) else 2
+
+    # ---- network helpers --------------------------------------------------------------------
+    def _internal_links(self) -> dict[str, tuple[str, str]]:
+        """Internal lane id -> (incoming edge, outgoing edge) of the connection it belongs to."""
+        out: dict[str, tuple[str, str]] = {}
+        snet = self.net.sumo_net
+        for edge in snet.getEdges(withInternal=False):
+            for conns in edge.getOutgoing().values():
+                for c in conns:
+                    lane_id = c.getViaLaneID()
+                    seen = 0
+                    while lane_id and seen < 8:  # follow chains of internal lanes
+                        out[lane_id] = (c.getFrom().getID(), c.getTo().getID())
+                        nxt = [x.getViaLaneID() or x.getToLane().getID()
+                               for x in snet.getLane(lane_id).getOutgoing()] if snet.hasEdge(
+                            lane_id.rsplit("_", 1)[0]) else []
+                        lane_id = next((n for n in nxt if n.startswith(":")), "")
+                        seen += 1
+        return out
+
+    def _edges_at(self, x: float, y: float, yaw: float) -> tuple | None:
+        """(route edges for this pose, lane index on the first edge, lane) or None."""
+        hit = self.net.lookup(x, y, yaw)
+        if hit is None:
+            return None
+        lane = hit[0]
+        if lane.internal:
+            link = self._via.get(lane.id)
+            return None if link is None else (list(link), 0, lane)
+        return [lane.edge], lane.index, lane
+
+    def _extend(self, edges: list[str]) -> list[str]:
+        """Continue along the network from the last edge: random successor, no u-turns."""
+        snet = self.net.sumo_net
+        while len(edges) < MAX_ROUTE_EDGES:
+            last = snet.getEdge(edges[-1])
+            back = last.getFromNode().getID()
+            succ = [e for e, conns in sorted(last.getOutgoing().items(), key=lambda kv: kv[0].getID())
+                    if e.allows("passenger") and e.getToNode().getID() != back
+                    and any(c.allows("passenger") for c in conns)]
+            if not succ:
+                break
+            edges.append(succ[int(self.rng.integers(len(succ)))].getID())
+        return edges
+
+    def route_for(self, scene: Scene, i: int, world: np.ndarray, yaws: np.ndarray):
+        """Edges for agent ``i``: its lane now, the lanes of its observed future poses, then onwards."""
+        start = self._edges_at(world[T0, 0], world[T0, 1], yaws[T0])
+        if start is None:
+            return None
+        edges, lane_index, lane = start
+        snet = self.net.sumo_net
+        for k in range(T0 + 1, len(yaws)):
+            if not scene.traj_mask[i, k]:
+                continue
+            nxt = self._edges_at(world[k, 0], world[k, 1], yaws[k])
+            for e in (nxt[0] if nxt else []):
+                if e != edges[-1] and snet.getEdge(e) in snet.getEdge(edges[-1]).getOutgoing():
+                    edges.append(e)
+        return self._extend(edges), lane_index, lane
+
+    # ---- vehicle types ------------------------------------------------------------------------
+    def vtype(self, vid: str, length: float, width: float, vclass: int, min_gap: float) -> str:
+        t = self.sim.vehicletype
+        tid = f"{vid}_type"
+        t.copy("DEFAULT_VEHTYPE", tid)
+        t.setVehicleClass(tid, VEHICLE_CLASSES[int(vclass)])
+        t.setLength(tid, float(length))
+        t.setWidth(tid, float(width))
+        t.setMinGap(tid, float(min_gap))
+        return tid
+
+    @staticmethod
+    def leaders(boxes: np.ndarray, others: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Per box, the nearest box ahead in its lane (|lateral| < 1.5 m, heading within 0.5 rad) among
+        ``boxes`` and then ``others`` (index into their concatenation, -1: none) and the bumper gap to it."""
+        n = len(boxes)
+        b = np.concatenate([boxes[:, :5], np.zeros((0, 5)) if others is None else others[:, :5]]).astype(np.float64)
+        lead, gap = np.full(n, -1), np.full(n, np.inf)
+        for i in range(n):
+            d = b[:, :2] - b[i, :2]
+            c, s = np.cos(b[i, 2]), np.sin(b[i, 2])
+            ahead, side = d @ [c, s], d @ [-s, c]
+            same = (ahead > 0) & (np.abs(side) < 1.5) & (np.abs(wrap_angle(b[:, 2] - b[i, 2])) < 0.5)
+            same[i] = False
+            if same.any():
+                j = np.flatnonzero(same)[np.argmin(ahead[same])]
+                lead[i], gap[i] = j, ahead[j] - 0.5 * (b[i, 3] + b[j, 3])
+        return lead, gap
+
+    @staticmethod
+    def min_gaps(bumper_gap: np.ndarray) -> np.ndarray:
+        """A minGap per agent that fits the bumper gap to the agent ahead in its lane."""
+        return np.clip(np.nan_to_num(bumper_gap - MIN_GAP_MARGIN, posinf=DEFAULT_MIN_GAP), 0.3, DEFAULT_MIN_GAP)
+
+    # ---- seeding --------------------------------------------------------------------------------
+    def seed(self, scene: Scene, others: tuple[np.ndarray, np.ndarray] | None = None) -> SeedReport:
+        """Add every agent of ``scene``; call ``simulationStep`` and then :meth:`verify`.
+
+        ``others``: (boxes (M, 5), speeds (M,)) in the scene frame of the host's vehicles around the
+        window, which can be the vehicle ahead of an agent. An agent departs at its generated speed,
+        or at the Krauss safe speed for the gap to the vehicle ahead when that is lower (a generated
+        queue can have a moving car a metre behind a standing one; SUMO would brake it at once beyond
+        its ``decel``): those are in ``report.slowed``.
+        """
+        sim, report = self.sim, SeedReport()
+        w = scene.window
+        other_boxes, other_speed = others if others is not None else (np.zeros((0, 5)), np.zeros(0))
+        lead, bumper_gap = self.leaders(scene.boxes, other_boxes)
+        gaps = self.min_gaps(bumper_gap)
+        lead_speed = np.concatenate([scene.speed[:, T0], other_speed]).astype(np.float64)
+        for i in range(len(scene)):
+            world = w.scene_to_world(scene.traj[i, :, :2])
+            yaws = np.asarray(w.yaw_to_world(scene.traj[i, :, 2]))
+            fx, fy, angle = pose_to_sumo(world[T0, 0], world[T0, 1], yaws[T0], scene.boxes[i, 3])
+            route = self.route_for(scene, i, world, yaws)
+            if route is None:
+                report.refused[i] = "no car lane at its pose"
+                continue
+            edges, lane_index, lane = route
+            vid = f"{self.prefix}{self.count}"
+            self.count += 1
+            try:
+                sim.route.add(f"{vid}_route", edges)
+                tid = self.vtype(vid, scene.boxes[i, 3], scene.boxes[i, 4], scene.vclass[i], gaps[i])
+                speed, slowed = max(float(scene.speed[i, T0]), 0.0), None
+                if lead[i] >= 0:
+                    safe = krauss_safe_speed(bumper_gap[i] - gaps[i], max(float(lead_speed[lead[i]]), 0.0),
+                                             sim.vehicletype.getDecel(tid), sim.vehicletype.getTau(tid))
+                    if safe < speed:
+                        slowed, speed = (speed, safe), safe
+                sim.vehicle.add(vid, f"{vid}_route", typeID=tid, depart="now",
+                                departLane=str(lane_index) if not lane.internal else "best",
+                                departPos="base", departSpeed=f"{speed:.3f}")
+                sim.vehicle.moveToXY(vid, "" if lane.internal else lane.edge, lane.index,
+                                     float(fx), float(fy), float(angle), keepRoute=self.keep_route)
+            except Exception as e:  # libsumo.TraCIException / traci.TraCIException
+                report.refused[i] = str(e).splitlines()[0] if str(e) else type(e).__name__
+                continue
+            report.ids[i] = vid
+            report.targets[i] = (float(fx), float(fy), float(angle))
+            if slowed is not None:
+                report.slowed[i] = slowed
+        return report
+
+    def verify(self, report: SeedReport) -> SeedReport:
+        """After a simulation step: which seeded agents are not where they were generated."""
+        present = set(self.sim.vehicle.getIDList())
+        for i, vid in report.ids.items():
+            fx, fy, angle = report.targets[i]
+            if vid not in present:
+                report.misplaced[i] = float("inf")
+                continue
+            x, y = self.sim.vehicle.getPosition(vid)
+            err = float(np.hypot(x - fx, y - fy))
+            dyaw = abs(float(wrap_angle(np.radians(angle - self.sim.vehicle.getAngle(vid)))))
+            if err > POS_TOLERANCE or dyaw > YAW_TOLERANCE:
+                report.misplaced[i] = err
+        return report
+
+    def fit_min_gap(self, i: int, vid: str, gap: float, report: SeedReport) -> None:
+        """SUMO sees a leader ``gap`` < 0 m beyond this vehicle's minGap (``getLeader``'s distance
+        counts from front bumper + minGap): SUMO registers a collision whenever a gap is below the
+        follower's minGap (``--collision.mingap-factor``, default: the whole minGap), so a vehicle
+        seeded that close would collide standing still. Its minGap shrinks to fit the bumper gap."""
+        tid = self.sim.vehicle.getTypeID(vid)
+        old = float(self.sim.vehicletype.getMinGap(tid))
+        new = max(old + gap - MIN_GAP_MARGIN, 0.0)
+        self.sim.vehicletype.setMinGap(tid, new)
+        report.gap_fitted[i] = (report.gap_fitted.get(i, (old,))[0], new)
+
+    def settle(self, report: SeedReport, reach: float = 100.0) -> SeedReport:
+        """After the seeding step, against the leaders as SUMO sees them (any vehicle within ``reach``
+        m along its route, across junctions and sublanes, which the scene's own leaders at :meth:`seed`
+        time miss; or a red light): a seeded vehicle closer to its leader than its minGap gets a minGap
+        that fits (:meth:`fit_min_gap`); one faster than the Krauss safe speed behind it is slowed to
+        that speed (``setPreviousSpeed``: the speed it ends the seeding step with). Repeats until no
+        vehicle changes, since slowing a leader can make its follower too fast."""
+        sim, present = self.sim, set(self.sim.vehicle.getIDList())
+        vids = [(i, v) for i, v in report.ids.items() if v in present]
+        for _ in range(len(vids)):
+            changed = False
+            for i, vid in vids:
+                lead = sim.vehicle.getLeader(vid, reach)
+                if lead and lead[0] and float(lead[1]) < 0.0:
+                    self.fit_min_gap(i, vid, float(lead[1]), report)
+                    lead = sim.vehicle.getLeader(vid, reach)
+                stops = [(float(lead[1]), float(sim.vehicle.getSpeed(lead[0])))] if lead and lead[0] else []
+                stops += [(float(d), 0.0) for _, _, d, state in sim.vehicle.getNextTLS(vid)[:1]
+                          if state in "rR" and d < reach]        # a red light: a standing leader
+                if not stops:
+                    continue
+                speed = float(sim.vehicle.getSpeed(vid))
+                decel, tau = float(sim.vehicle.getDecel(vid)), float(sim.vehicle.getTau(vid))
+                safe = min(krauss_safe_speed(g, v, decel, tau) for g, v in stops)
+                if speed > safe + 1e-3:
+                    sim.vehicle.setPreviousSpeed(vid, safe)
+                    report.slowed[i] = (report.slowed.get(i, (speed,))[0], safe)
+                    changed = True
+            if not changed:
+                break
+        return report
+
+
+__all__ = ["Seeder", "SeedReport", "krauss_safe_speed"]

@@ -1,0 +1,120 @@
+"""One network, many scenes: the per-scene pipeline shared by ``run`` and ``sweep``.
+
+    session = Session(SimConfig(net=path), net, generator)      # warm-up demand once if -r given
+    session.prepare(warm_up)                                    # base state (after the warm-up)
+    existing = session.existing(window)                         # vehicles there -> tokens
+    row = session.realise(scene, tokens, sources, existing, out_dir, "scene_000", info, rollout=60)
+
+Every scene runs in a freshly started SUMO (that loads the base state when there is demand), so a
+scene's rollout never depends on which scenes came before it (SUMO's random streams are not part of
+a saved state: reusing one simulation made the same scene drive differently after different
+predecessors, measured). Without demand the rollout is exactly reproducible for a seed. With demand,
+libsumo 1.28's ``loadState`` makes the following steps depend on where SUMO's objects lie in memory
+(measured by ``benchmarks/seeding.py``, which runs SUMO without address randomisation to compare
+methods), so those rollouts can differ slightly between runs; the generated scenes do not.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from dataclasses import replace
+
+from .cosim import CoSimulation, Existing
+from .export import ScenarioWriter
+from .rollout import rollout
+from .sumo import SimConfig, close, start
+
+
+class Session:
+    def __init__(self, cfg: SimConfig, net, generator, quiet: bool = True):
+        self.cfg, self.net, self.generator, self.quiet = cfg, net, generator, quiet
+        self.base: str | None = None
+        self.sim = None
+        self._at_base = False
+        self.timing = {"seed": 0.0, "export": 0.0, "rollout": 0.0}
+
+    # ---- the base simulation --------------------------------------------------------------------
+    def prepare(self, warm_up=None) -> "Session":
+        """Start SUMO, run ``warm_up(sim)`` (the demand up to the seeding time) if given, and keep
+        the state as the base of every scene. The simulation stays open for :meth:`existing`."""
+        self.sim = start(self.cfg, quiet=self.quiet)
+        self._at_base = True
+        if warm_up is not None:
+            warm_up(self.sim)
+            fd, self.base = tempfile.mkstemp(suffix=".xml.gz", prefix="scendiff-base-")
+            os.close(fd)
+            self.sim.simulation.saveState(self.base)
+        return self
+
+    def at_base(self):
+        """The simulation at the base state (restarted if a scene has run since)."""
+        if not self._at_base:
+            if self.sim is not None:
+                close(self.sim)
+            self.sim = start(self.cfg, quiet=self.quiet)
+            if self.base:
+                self.sim.simulation.loadState(self.base)
+            self._at_base = True
+        return self.sim
+
+    def cosim(self, seed: int = 0) -> CoSimulation:
+        return CoSimulation(self.at_base(), self.net, self.generator, seed=seed)
+
+    def existing(self, window) -> Existing:
+        return self.cosim().existing(window)
+
+    def close(self) -> None:
+        if self.sim is not None:
+            close(self.sim)
+            self.sim = None
+        if self.base:
+            os.remove(self.base)
+            self.base = None
+
+    # ---- one scene ----------------------------------------------------------------------------
+    def realise(self, scene, tokens: list[dict], sources: list[str], existing: Existing, out_dir: str,
+                name: str, info: dict, rollout_s: float, seed: int = 0, p_mask: float = 1.0,
+                force: bool = False, progress: bool = False, replay: float = 0.0) -> dict:
+        """Seed ``scene`` into a fresh simulation at the base state, export it to
+        ``out_dir/name``, hold the agents on their generated future for ``replay`` seconds (<= 2)
+        and roll it out; returns the row of statistics (also in rollout.json)."""
+        if self.sim is not None:
+            close(self.sim)
+            self.sim = None
+        self._at_base = False
+        writer = ScenarioWriter(out_dir, name, force=force)
+        try:
+            t = time.perf_counter()
+            sim = self.sim = start(replace(self.cfg, seed=seed), quiet=self.quiet)
+            if self.base:
+                sim.simulation.loadState(self.base)
+            cosim = CoSimulation(sim, self.net, self.generator, seed=seed, prefix="sd")
+            seeding = cosim.place(scene, tokens, sources, existing, seed=seed, p_mask=p_mask)
+            sim.simulationStep()
+            cosim.verify(seeding)
+            self.timing["seed"] += time.perf_counter() - t
+            t = time.perf_counter()
+            writer.after_seeding(sim, seeding, self.net, self.cfg.options(), info)
+            self.timing["export"] += time.perf_counter() - t
+            t = time.perf_counter()
+            if replay > 0:
+                cosim.replay_future(seeding, replay)
+            stats = rollout(sim, seeding.agent_ids, rollout_s, progress=progress)
+            self.timing["rollout"] += time.perf_counter() - t
+            t = time.perf_counter()
+            rep = seeding.report
+            user = [k for k, (src, tok) in enumerate(zip(sources, tokens))
+                    if src == "user" and tok.get("x") is not None]
+            row = {"user_tokens": len(user),
+                   "user_tokens_matched": len(set(user) & set(t for t in seeding.token_of if t is not None)),
+                   "generated": len(seeding.scene), "placed": rep.placed, "refused": len(rep.refused),
+                   "misplaced": len(rep.misplaced), "slowed": len(rep.slowed), "gap_fitted": len(rep.gap_fitted),
+                   "existing_vehicles": len(existing.token_ids()),
+                   "dropped_on_existing": seeding.dropped, "replayed_s": replay, **stats.as_dict()}
+            writer.finish(row)
+            self.timing["export"] += time.perf_counter() - t
+            return row
+        except BaseException:
+            writer.abandon()
+            raise
