@@ -24,7 +24,6 @@ from sumo_scendiff.core.geometry import Window
 from sumo_scendiff.generation.generator import GenerationConfig, ScenarioGenerator
 from sumo_scendiff.map.network import Network
 from sumo_scendiff.map.raster import render_map
-from sumo_scendiff.model.edm import sample_dpmpp_2m, sample_euler, sample_heun
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 
@@ -53,12 +52,12 @@ def main(o) -> None:
 
     # (label, GenerationConfig overrides, with two position tokens per window)
     settings = [("defaults", {}, False),
-                ("Euler, 20 steps, scene guidance at every step", dict(sampler=sample_euler, steps=20,
+                ("Euler, 20 steps, scene guidance at every step", dict(sampler="euler", steps=20,
                                                                    scene_guidance_sigma=0.0), False),
-                ("Euler, 20 steps, scene guidance at sigma > 1", dict(sampler=sample_euler, steps=20,
+                ("Euler, 20 steps, scene guidance at sigma > 1", dict(sampler="euler", steps=20,
                                                                   scene_guidance_sigma=1.0), False),
-                ("DPM-Solver++(2M), 10 steps", dict(sampler=sample_dpmpp_2m, steps=10), False),
-                ("Heun, 10 steps", dict(sampler=sample_heun, steps=10), False),
+                ("DPM-Solver++(2M), 10 steps", dict(sampler="dpmpp-2m", steps=10), False),
+                ("Heun, 10 steps", dict(sampler="heun", steps=10), False),
                 ("defaults, lane headings off", dict(lane_headings=False), False),
                 ("defaults, lane snap off", dict(lane_snap=False), False),
                 ("defaults, lane headings and lane snap off", dict(lane_headings=False, lane_snap=False), False),

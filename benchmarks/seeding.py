@@ -83,6 +83,9 @@ def get_options(args=None):
                    help="... applied only above this noise level (default: the checkpoint's)")
     p.add_argument("--no-lane-snap", dest="lane_snap", action="store_false",
                    help="seed the decoded poses, not snapped onto lane centre lines (generate's lane_snap)")
+    p.add_argument("--scenes", default=None, metavar="FILE",
+                   help="generated scenes cache (pickle): read if it has this net's windows, else generate "
+                        "and write; lets a change to the seeder be measured on the very same scenes")
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("-o", "--output", default=None, metavar="FILE", help="also write the tables here")
     return p.parse_args(args)
@@ -147,6 +150,25 @@ def no_aslr():
             libc.personality(old)
 
 
+def cached_scenes(path: str | None, name: str, windows: list, o, scenes: list | None = None) -> list | None:
+    """Read (``scenes`` None) or add a net's scenes in the cache ``path``, keyed by the net, every
+    window's pose and the generation options (another checkpoint or seed must not reuse them)."""
+    import pickle
+    if not path:
+        return None
+    key = (name, o.checkpoint, o.seed, o.scene_guidance, o.scene_guidance_sigma, o.lane_snap, tuple((round(w.cx, 3), round(w.cy, 3), round(w.yaw, 4), w.size) for w in windows))
+    cache = {}
+    if os.path.exists(path):
+        with open(path, "rb") as f:
+            cache = pickle.load(f)
+    if scenes is None:
+        return cache.get(key)
+    cache[key] = scenes
+    with open(path, "wb") as f:
+        pickle.dump(cache, f)
+    return scenes
+
+
 def bench_net(path: str, gen, o, explicit: bool) -> dict | None:
     """Windows and the model's scenes here; everything SUMO does in a fresh child process."""
     import pickle
@@ -168,7 +190,10 @@ def bench_net(path: str, gen, o, explicit: bool) -> dict | None:
     locs = auto_windows(net, o.windows, seed=o.seed)
     windows = [loc.window for loc in locs]
     t = time.perf_counter()
-    scenes = gen.generate(net, windows, seed=o.seed)          # map-only: no tokens, p_mask = 1
+    scenes = cached_scenes(o.scenes, net.name, windows, o)
+    if scenes is None:
+        scenes = gen().generate(net, windows, seed=o.seed)    # map-only: no tokens, p_mask = 1
+        cached_scenes(o.scenes, net.name, windows, o, scenes)
     t_gen = time.perf_counter() - t
     # SUMO's steps after a loadState depend on where its objects lie in memory (see the module
     # docstring): a fresh interpreter without torch or BLAS threads, with a fixed hash seed, without
@@ -238,7 +263,7 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
     finally:
         close(sim)
     res = {m: {"stats": [], "generated": 0, "dropped": 0, "refused": Counter(), "absent": 0,
-               "off_pose": 0, "placed": 0, "slowed": 0, "fitted": 0} for m in METHODS}
+               "off_pose": 0, "placed": 0, "slowed": 0, "fitted": 0, "junction": 0} for m in METHODS}
     t = time.perf_counter()
     for k, w in enumerate(windows):
         for name, scene in zip(METHODS, (None, scenes[k], lu_scenes[k])):
@@ -270,6 +295,7 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
                 r["placed"] += rep.placed
                 r["slowed"] += len(rep.slowed)
                 r["fitted"] += len(rep.gap_fitted)
+                r["junction"] += len(getattr(rep, "conflicts", ()))
                 r["stats"].append(rollout(sim, seeding.agent_ids, o.rollout))
             finally:
                 close(sim)
@@ -304,13 +330,13 @@ def _ratio(a: float, b: float) -> str:
 
 def _merge(results: list[dict], method: str) -> dict:
     out = {"stats": [], "generated": 0, "dropped": 0, "refused": Counter(), "absent": 0, "off_pose": 0,
-           "placed": 0, "slowed": 0, "fitted": 0}
+           "placed": 0, "slowed": 0, "fitted": 0, "junction": 0}
     for r in results:
         m = r["methods"][method]
         out["stats"] += m["stats"]
         out["refused"].update(m["refused"])
-        for k in ("generated", "dropped", "absent", "off_pose", "placed", "slowed", "fitted"):
-            out[k] += m[k]
+        for k in ("generated", "dropped", "absent", "off_pose", "placed", "slowed", "fitted", "junction"):
+            out[k] += m.get(k, 0)
     return out
 
 
@@ -333,16 +359,20 @@ def tables(results: list[dict], o, command: str) -> str:
                      f"{s['warmup']:.1f} / {s['generate']:.1f} / {s['windows']:.1f} / {s['total']:.1f} |")
 
     lines += ["", "### Placement: generated agents within 0.5 m / 0.1 rad of their pose after the first step",
-              "", "| network | method | generated | dropped (on existing) | refused | absent after step "
-              "| off pose | placed | placement (placed / generated) | slowed to a safe speed "
-              "| minGap fitted to SUMO's leader |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+              "", "| network | method | generated | dropped (on existing) | dropped (junction foe) | refused "
+              "| absent after step | off pose | placed | placement (placed / generated) "
+              "| placement of those seeded (placed / generated − dropped) | slowed to a safe speed "
+              "| minGap fitted to SUMO's leader |", "|---|" + "---|" * 12]
     for label, methods in groups:
         for k, name in enumerate(METHODS[1:]):
             m = methods[name]
             rate = 100.0 * m["placed"] / m["generated"] if m["generated"] else float("nan")
+            meant = m["generated"] - m["dropped"] - m.get("junction", 0)
+            rate2 = 100.0 * m["placed"] / meant if meant else float("nan")
             lines.append(f"| {label if k == 0 else ''} | {name} | {m['generated']} | {m['dropped']} | "
-                         f"{sum(m['refused'].values())} | {m['absent']} | {m['off_pose']} | {m['placed']} | "
-                         f"{_f(rate, '{:.1f} %')} | {m['slowed']} | {m['fitted']} |")
+                         f"{m.get('junction', 0)} | {sum(m['refused'].values())} | {m['absent']} | "
+                         f"{m['off_pose']} | {m['placed']} | {_f(rate, '{:.1f} %')} | {_f(rate2, '{:.1f} %')} | "
+                         f"{m['slowed']} | {m['fitted']} |")
     for name in METHODS[1:]:
         refused = Counter()
         for r in results:
@@ -368,13 +398,15 @@ def tables(results: list[dict], o, command: str) -> str:
     kinds = (("collisions_junction", "on a junction"), ("collisions_host", "with a host vehicle"),
              ("collisions_host_behind", "a host vehicle ran into the agent"),
              ("collisions_early", f"in the first {RolloutStats().brake_window:g} s"))
-    lines += ["", "Collision events (all nets; an event can be in several columns):", "",
-              "| method | collisions | " + " | ".join(c for _, c in kinds) + " |",
-              "|---|" + "---|" * (1 + len(kinds))]
-    for name in METHODS:
-        stats = [s for r in results for s in r["methods"][name]["stats"]]
-        lines.append(f"| {name} | {sum(s.collisions for s in stats)} | "
-                     + " | ".join(str(sum(getattr(s, key) for s in stats)) for key, _ in kinds) + " |")
+    lines += ["", "Collision events (an event can be in several columns) and teleports, per net and in all:", "",
+              "| network | method | collisions | " + " | ".join(c for _, c in kinds) + " | teleports |",
+              "|---|---|" + "---|" * (2 + len(kinds))]
+    for label, methods in groups:
+        for k, name in enumerate(METHODS):
+            stats = methods[name]["stats"]
+            lines.append(f"| {label if k == 0 else ''} | {name} | {sum(s.collisions for s in stats)} | "
+                         + " | ".join(str(sum(getattr(s, key) for s in stats)) for key, _ in kinds)
+                         + f" | {sum(s.teleports for s in stats)} |")
     return "\n".join(lines)
 
 
@@ -386,9 +418,14 @@ def main(o) -> int:
     command = "python benchmarks/seeding.py " + " ".join(sys.argv[1:]) if sys.argv[0].endswith(
         "seeding.py") else "benchmarks/seeding.py (in-process)"
     t = time.perf_counter()
-    gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(scene_guidance=o.scene_guidance,
-                                                                   scene_guidance_sigma=o.scene_guidance_sigma,
-                                                                   lane_snap=o.lane_snap))
+    loaded = []
+
+    def gen():          # loaded only when a net's scenes are not in the --scenes cache
+        if not loaded:
+            loaded.append(ScenarioGenerator.load(o.checkpoint, GenerationConfig(
+                scene_guidance=o.scene_guidance, scene_guidance_sigma=o.scene_guidance_sigma,
+                lane_snap=o.lane_snap)))
+        return loaded[0]
     results = []
     for path in (o.nets or default_nets()):
         r = bench_net(path, gen, o, explicit=o.nets is not None)

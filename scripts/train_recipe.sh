@@ -17,23 +17,20 @@ SIGMA='{"P_mean": 0.0, "P_std": 1.4, "C_m": 11}'  # training noise levels shifte
 
 resume_flag() { [ -d "$1.partial" ] && echo --resume || true; }
 SHIPPED=sumo_scendiff/weights/scendiff.pt
-# export_calibrated AE DIFFUSION [CALIBRATION OPTIONS]: export to $SHIPPED, calibrate the global
-# token's guidance weight on validation windows (benchmarks/scene_guidance.py with the options given,
-# guided above sigma 1), export again with it
+# export_calibrated AE DIFFUSION [CALIBRATION OPTIONS]: export to $SHIPPED, then calibrate the global
+# token's guidance weight (applied above sigma 1) on validation windows into it (train calibrate with
+# the options given; default: the dense validation recording)
 export_calibrated() {
     python -m sumo_scendiff.train export --autoencoder "$1" --diffusion "$2" -o $SHIPPED --fp16 --force \
         --scene-guidance-sigma 1
-    W=$(python benchmarks/scene_guidance.py --checkpoint $SHIPPED "${@:3}" | grep -o "at w = [0-9.]*" | grep -o "[0-9.]*$" \
-        | xargs printf "%.1f")
-    python -m sumo_scendiff.train export --autoencoder "$1" --diffusion "$2" -o $SHIPPED --fp16 --force \
-        --scene-guidance "$W" --scene-guidance-sigma 1
+    python -m sumo_scendiff.train calibrate --model $SHIPPED --data data/val_dense "${@:3}"
 }
 [ -f data/train/manifest.json ] || python -m sumo_scendiff.data $TRAIN_NETS -o data/train --scenes 36000 -s 0 --workers 2 --square $(resume_flag data/train)
 [ -f data/val/manifest.json ] || python -m sumo_scendiff.data $TRAIN_NETS -o data/val --scenes 1200 -s 1 --square $(resume_flag data/val)
 
 # 1. The autoencoder, 7 700 steps (~110 min at ~0.85 s/step, batch 16). KL weight 0.1 (the paper's)
 #    to step 4 978, then 0.01 in a copy: at 0.1 the latent is too noisy at agent cells to place boxes
-#    (posterior std 0.58 against |mu| 0.94, reconstruction F1 0.66; benchmarks/reconstruction.py).
+#    (posterior std 0.58 against |mu| 0.94, reconstruction F1 0.66; experiments/reconstruction.py).
 #    The learning rate drops to a tenth at step 7 500, which took reconstruction F1 to 0.85.
 python -m sumo_scendiff.train autoencoder --data data/train --val data/val -o runs/ae --steps 4978 \
     --lr-drop-at 7500 --model-config '{"C_m": 11}'
@@ -42,7 +39,7 @@ python -m sumo_scendiff.train autoencoder --data data/train --val data/val -o ru
     --lr-drop-at 7500 --model-config '{"kl_weight": 0.01}'
 
 # 2. The diffusion model with the token splat, 4 200 steps (~90 min at ~1.3 s/step, batch 32), EMA
-#    weights exported. It loses agents between sigma 2 and 20 (benchmarks/reconstruction.py "from the
+#    weights exported. It loses agents between sigma 2 and 20 (experiments/reconstruction.py "from the
 #    data at sigma"), and log sigma ~ N(-0.5, 1) puts 12 % of its steps above sigma 2: from step 1 300 the noise
 #    levels are N(0, 1.4^2). Map-only generation then still made half the agents; the last 600 steps
 #    give 30 % of the examples no token at all (p_mask = 1) and 20 % every token (the paper: 0 % / 40 %).
@@ -81,7 +78,7 @@ python -m sumo_scendiff.train diffusion --autoencoder runs/ae_kl01/last.pt --dat
 # 7. A second autoencoder, from scratch on the denser recording, 7 700 steps (~2 h 10 min at ~1 s/step):
 #    KL weight 0.01 from the start, trajectory weights 1 / 1 / 4, 4x box, 2x vertex weight. The first
 #    one's encoder carried no speed: a probe re-rendered at 0.2x / 1.5x its speed decoded to the same
-#    speed (benchmarks/token_response.py --autoencoder: response 0.00), so no diffusion model trained in
+#    speed (experiments/token_response.py --autoencoder: response 0.00), so no diffusion model trained in
 #    its latent space could follow a speed token. This one's: 0.82.
 python -m sumo_scendiff.train autoencoder --data data/train_dense --val data/val_dense -o runs/ae_v2 \
     --steps 7700 --lr-drop-at 7000 --model-config '{"C_m": 11, "kl_weight": 0.01, "loss": {"category_weights":
@@ -107,15 +104,15 @@ python -m sumo_scendiff.train diffusion --autoencoder runs/ae_v2/last.pt --data 
     --p-keep-all-tokens 0.2 --p-map-only 0.3
 
 # 10. Export, calibrate the global token's guidance (applied above sigma = 1) on the dense validation
-#    windows (the weight where map-only generation draws as many vehicles as the ground truth), export
-#    again with it (~3 min).
+#    windows (the weight where map-only generation draws as many vehicles as the ground truth), stored
+#    in the exported file (~3 min).
 export_calibrated runs/ae_v2_skips/last.pt runs/diffusion_v2/last.pt
 
 # 11. The decoder alone once more (encoder frozen: the same latent space, so the diffusion model and its
 #     latent scale stay valid), 800 steps (~25 min) from the round-9 export on the dense recording plus
 #     a recording of the three networks added to the training split (curvy_town, organic_turnlanes,
 #     grid_turnlanes_tls: 12 000 + 300 scenes at 40-800 veh/h/km, ~25 min). Then export it with the
-#     round-9 diffusion model, recalibrate the global token's guidance and export again (~5 min).
+#     round-9 diffusion model, recalibrate the global token's guidance into it (~5 min).
 [ -f data/train_organic/manifest.json ] || python -m sumo_scendiff.data $ADDED_NETS -o data/train_organic --scenes 12000 \
     -s 4 --workers 2 --density 40 800 --square $(resume_flag data/train_organic)
 [ -f data/val_organic/manifest.json ] || python -m sumo_scendiff.data $ADDED_NETS -o data/val_organic --scenes 300 -s 5 \
@@ -131,7 +128,7 @@ export_calibrated runs/ae_r11a/last.pt $R9
 # 12. The decoder alone with the lane-direction histogram (map channels lane_dir000..lane_dir315,
 #     C_m 19; their weights in D_down start at zero): 1 000 steps (~21 min) from step 11's export on the
 #     same data, lr 1.5e-4, then 1.5e-5 from 800. The diffusion model keeps reading the first 11
-#     channels. Export, recalibrate the global token's guidance, export again (~5 min).
+#     channels. Export, recalibrate the global token's guidance into it (~5 min).
 R11=runs/scendiff_r11.pt   # step 11's export: the diffusion model and encoder of round 12
 [ -f $R11 ] || cp $SHIPPED $R11
 python -m sumo_scendiff.train autoencoder --init-from $R11 --freeze-encoder $DECODER_DATA -o runs/ae_r12a \
@@ -142,7 +139,7 @@ export_calibrated runs/ae_r12a/last.pt $R11
 #     22.5-degree bin, 32 output channels that start at zero; model/heading.py), encoder frozen:
 #     1 000 steps from step 12's export (lr 1.5e-4, then 1.5e-5 from 800; ~22 min), then 1 500 more
 #     with the bin cross-entropy weighted 2 (lr 1.5e-4, then 1.5e-5 from 1 200; ~35 min). Export with
-#     the same diffusion model, recalibrate the global token's guidance, export again (~5 min).
+#     the same diffusion model, recalibrate the global token's guidance into it (~5 min).
 R12=runs/scendiff_r12.pt   # step 12's export: the diffusion model and encoder of round 13
 [ -f $R12 ] || cp $SHIPPED $R12
 python -m sumo_scendiff.train autoencoder --init-from $R12 --freeze-encoder $DECODER_DATA -o runs/ae_r13_head \
@@ -157,7 +154,7 @@ export_calibrated runs/ae_r13_head2/last.pt $R12
 #     vehicles that a turned window's corners hold. Steps 1-13 trained on turned windows whose
 #     corners were empty, and the model put 3-5 % of its agents beyond 50 m from the centre where
 #     SUMO has 8-13 %. 1 500 steps from step 13's export (its latent space and scale; lr 2e-4, then
-#     2e-5 from 1 200; ~55 min), export with step 13's autoencoder, recalibrate, export again.
+#     2e-5 from 1 200; ~55 min), export with step 13's autoencoder, recalibrate.
 #     The calibration now uses turned windows of the circle recording (as training and the
 #     evaluation see them): on the axis-aligned windows of steps 10-13 this model draws far fewer
 #     agents (2.9 against 4.0 per window at w = 1) and would get w = 1.8; on turned ones, 1.4.

@@ -10,54 +10,60 @@ roundabouts, merges; :mod:`~sumo_scendiff.map.locations`). With ``-r`` SUMO firs
 (until the ego appears, or ``--begin`` seconds) and the vehicles already in a window become agent
 tokens: the model fills in around them. Each scene is written to ``OUT/scene_NNN/`` (see the
 README, "Scenario files"): scene.json, scenario.rou.xml, scenario.sumocfg, state.xml.gz,
-rollout.json, scene.png; ``OUT/run.json`` sums the run up.
+rollout.json, scene.png; ``OUT/run.json`` sums the run up. One run at a time writes into an output
+directory (a second one stops with one line naming the first's pid). An interrupted run (Ctrl-C,
+SIGTERM: exit 130; or killed) continues with the same command and ``--resume``: complete scenes are
+kept and the missing ones are written exactly as an uninterrupted run would have written them.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
+import signal
 import sys
 import time
 
 PROG = "python -m sumo_scendiff.run"
+EGO_AHEAD_M = 25.0   # the ego window's centre ahead of the ego: it sees its own lane 75 m ahead
 
 
 def get_options(args=None):
+    from .generation.config import GenerationConfig, SettingError
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
-    p.add_argument("-n", "--net-file", "--net", dest="net", required=True, help="SUMO network (.net.xml)")
+    p.add_argument("-c", "--configuration-file", dest="config", metavar="FILE",
+                   help="a SUMO scenario as its authors ship it (.sumocfg: network, route files, "
+                        "additional files, begin); -n/-r/-a replace what it names")
+    p.add_argument("-n", "--net-file", "--net", dest="net", help="SUMO network (.net.xml[.gz])")
     p.add_argument("-r", "--route-files", "--routes", dest="routes", default=None,
-                   help="demand to run first (comma-separated route files); its vehicles become tokens")
+                   help="demand to run first (comma-separated route files, vTypes-only files allowed); "
+                        "its vehicles in a window are kept and the model fills in around them")
+    p.add_argument("-a", "--additional-files", dest="additional", default=None,
+                   help="comma-separated additional files (vTypes, TLS programs, detectors, stops)")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--center", metavar="X,Y", help="window centre in network coordinates")
-    where.add_argument("--ego", metavar="ID", help="seed around this vehicle of --route-files")
+    where.add_argument("--ego", metavar="ID", help="seed the window around and ahead of this vehicle of "
+                       "the demand, once it has driven --ego-after seconds")
+    p.add_argument("--ego-after", type=float, default=20.0, metavar="SECONDS",
+                   help="with --ego: seconds the ego drives after it departs before seeding (default 20)")
     p.add_argument("--begin", type=float, default=None,
                    help="with -r and no --ego: seconds of demand to run (from its first departure) "
                         "before seeding (default 600)")
     p.add_argument("--tokens", metavar="FILE", help="agent tokens and global token (TOML/JSON, docs/tokens.md)")
     p.add_argument("--p-mask", type=float, default=None, help="global scene token (overrides the token file)")
+    amount = p.add_mutually_exclusive_group()
+    amount.add_argument("--density", metavar="D|auto", default=None,
+                        help="vehicles per km of car lane in each window, vehicles already there included; "
+                             "'auto': the host simulation's own level around the window (-c/-r), or "
+                             "--edge-data's at the seeding time (default: the model's own prior)")
+    amount.add_argument("--vehicles", metavar="N", default=None,
+                        help="vehicles in each window, those already there included (converted with the "
+                             "window's car-lane length)")
+    p.add_argument("--edge-data", metavar="FILE", default=None,
+                   help="SUMO edgeData (meandata) file giving --density auto its level per edge and time")
     p.add_argument("--scenes", type=int, default=4, help="number of scenes (default 4)")
     p.add_argument("-s", "--seed", type=int, default=0)
-    p.add_argument("--steps", type=int, default=10, help="sampler steps (default 10, DPM-Solver++(2M))")
-    p.add_argument("--threshold", type=float, default=0.8, help="box probability threshold")
-    p.add_argument("--guidance", type=float, default=3.0,
-                   help="classifier-free guidance weight of the agent tokens (default 3; 1 = off)")
-    p.add_argument("--scene-guidance", type=float, default=None,
-                   help="classifier-free guidance weight of the global token for windows without agent "
-                        "tokens: more agents above 1 (default: the model's calibrated value; 1 = off)")
-    p.add_argument("--no-pin-tokens", dest="pin_tokens", action="store_false",
-                   help="tokens are conditions only (default: a token giving pose, size and speed -- "
-                        "every vehicle already in the window -- is pinned where it is)")
-    p.add_argument("--no-pin-speeds", dest="pin_speeds", action="store_false",
-                   help="a pinned token's vehicle keeps the speeds the model draws (default: it moves at "
-                        "the token's speed and final speed along the path the model draws)")
-    p.add_argument("--no-lane-headings", dest="lane_headings", action="store_false",
-                   help="vehicles on a junction keep the decoder's own heading (default: the heading of the "
-                        "network's lane through them that the decoder finds most probable)")
-    p.add_argument("--no-lane-snap", dest="lane_snap", action="store_false",
-                   help="vehicles keep their decoded pose (default: a pose within 3 m of an agreeing car "
-                        "lane moves onto its centre line and takes its heading, as SUMO's traffic drives)")
     p.add_argument("--rollout", type=float, default=60.0, help="seconds SUMO drives after seeding (0: none)")
     p.add_argument("--replay-future", type=float, default=0.0, metavar="SECONDS",
                    help="hold the agents on their generated 0..+2 s future before SUMO takes over (max 2)")
@@ -65,17 +71,39 @@ def get_options(args=None):
     p.add_argument("--gui", action="store_true", help="watch in sumo-gui (traci)")
     p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
     p.add_argument("-o", "--output-dir", dest="out", default="scendiff-out")
-    p.add_argument("--force", action="store_true", help="replace scene folders of an earlier run in -o")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument("--force", action="store_true", help="replace scene folders of an earlier run in -o")
+    again.add_argument("--resume", action="store_true",
+                       help="continue an interrupted run in -o (same command): its complete scenes are "
+                            "kept, the missing ones written as the whole run would have written them")
     p.add_argument("-v", "--verbose", action="store_true")
+    GenerationConfig.add_arguments(p)
     o = p.parse_args(args)
-    if o.ego and not o.routes:
-        p.error("--ego needs --route-files (the demand the ego drives in)")
+    if not (o.net or o.config):
+        p.error("one of -n/--net-file or -c/--configuration-file is required")
+    for flag, path in (("-n", o.net), ("-c", o.config)):
+        if path and path.endswith(".sumocfg") != (flag == "-c"):
+            p.error(f"{flag}: {path}: " + ("a SUMO configuration, not a network (give it with -c)"
+                                           if flag == "-n" else "not a .sumocfg (a network goes to -n)"))
+    if o.ego and not (o.routes or o.config):
+        p.error("--ego needs demand (-r/--route-files or -c) for the ego to drive in")
+    from .sim.density import DensityError, parse_density, parse_vehicles
+    try:
+        o.density, o.vehicles = parse_density(o.density), parse_vehicles(o.vehicles)
+    except DensityError as e:
+        p.error(str(e))
+    if o.edge_data and o.density != "auto":
+        p.error("--edge-data: needs --density auto (it sets the level --density auto reads)")
+    if not o.ego_after >= 0:
+        p.error(f"--ego-after must be >= 0 seconds, got {o.ego_after}")
     if o.scenes < 1:
         p.error("--scenes must be >= 1")
-    if o.rollout < 0 or o.step_length <= 0 or o.steps < 1 or not o.guidance >= 0 \
-            or not (o.scene_guidance is None or o.scene_guidance >= 0):
-        p.error("--rollout must be >= 0, --step-length > 0, --steps >= 1, "
-                "--guidance and --scene-guidance >= 0")
+    if o.rollout < 0 or o.step_length <= 0:
+        p.error("--rollout must be >= 0, --step-length > 0")
+    try:
+        GenerationConfig.from_options(o)
+    except SettingError as e:
+        p.error(str(e))
     if not 0.0 <= o.replay_future <= 2.0:
         p.error(f"--replay-future must be in [0, 2] seconds, got {o.replay_future}")
     if o.p_mask is not None and not 0.0 <= o.p_mask <= 1.0:
@@ -88,31 +116,85 @@ class RunError(Exception):
     """A problem with the user's input that stops the run (exit code 2, one line)."""
 
 
-def _check_output(o) -> None:
-    try:
-        os.makedirs(o.out, exist_ok=True)
-        probe = os.path.join(o.out, f".write-test-{os.getpid()}")
-        open(probe, "w").close()
-        os.remove(probe)
-    except OSError as e:
-        raise RunError(f"{o.out}: output directory not writable ({e.strerror or e})") from None
+def _check_output(o) -> set[str]:
+    """Called as the owner of -o (main claims it). Returns the scenes kept from an earlier run
+    (--resume: those complete, i.e. under their final name); removes what dead runs left half-written."""
+    from .core.outputs import clean_stale
     names = [f"scene_{k:03d}" for k in range(o.scenes)] + ["run.json"]
+    clean_stale(o.out, set(names))
     taken = [n for n in names if os.path.exists(os.path.join(o.out, n))]
-    if taken and not o.force:
-        raise RunError(f"{os.path.join(o.out, taken[0])}: exists (choose another --output-dir or add --force)")
+    if taken and not (o.force or o.resume):
+        raise RunError(f"{os.path.join(o.out, taken[0])}: exists (choose another --output-dir, "
+                       f"add --resume to continue that run or --force to replace it)")
+    return {n for n in taken if n != "run.json"} if o.resume else set()
+
+
+def _check_kept(o, kept: set[str], windows) -> None:
+    """--resume: the kept scenes must be this run's (same windows and seed), not another command's."""
+    for k, w in enumerate(windows):
+        name = f"scene_{k:03d}"
+        if name not in kept:
+            continue
+        with open(os.path.join(o.out, name, "scene.json")) as f:
+            doc = json.load(f)
+        if doc.get("seed") != o.seed or doc.get("window") != {"cx": w.cx, "cy": w.cy, "yaw": w.yaw, "size": w.size}:
+            raise RunError(f"{os.path.join(o.out, name)}: written by another command (other seed or window); "
+                           f"--resume needs the interrupted run's own options")
+
+
+def _files(arg: str | None) -> list[str]:
+    return [f for f in (arg or "").split(",") if f]
+
+
+def _counts(net, window, row: dict) -> dict:
+    """The window's traffic after seeding in traffic terms: vehicles kept from the host simulation,
+    generated ones seeded, and their density per km of car lane."""
+    km = net.car_lane_km(window)
+    total = row["existing_vehicles"] + row["placed"]
+    return {**row, "vehicles_in_window": total, "car_lane_km": round(km, 4),
+            "density_veh_per_km": round(total / km, 2) if km > 0 else None}
+
+
+def _edge_data(o, net):
+    from .map.edgedata import EdgeData, EdgeDataError
+    try:
+        return EdgeData.read(o.edge_data, net) if o.edge_data else None
+    except EdgeDataError as e:
+        raise RunError(f"--edge-data: {e}") from None
+
+
+def _targets(o, net, windows, session, edge_data, host: bool) -> list[float | None]:
+    """Each window's density target (veh per km of car lane) from --density/--vehicles, or None."""
+    from .map.edgedata import EdgeDataError
+    from .sim.density import window_target
+    when = session.sim.simulation.getTime() if host else (o.begin or 0.0)
+    try:
+        return [window_target(net, w, o.density, o.vehicles, sim=session.sim if host else None,
+                              edge_data=edge_data, time=when) for w in windows]
+    except EdgeDataError as e:
+        raise RunError(f"--edge-data: {e}") from None
 
 
 def _warm_up(sim, o, progress: bool) -> None:
     """Run the demand until the ego is on the road, or for --begin seconds."""
     from tqdm import tqdm
     if o.ego:
+        dt = sim.simulation.getDeltaT()
         bar = tqdm(desc=f"waiting for {o.ego}", unit=" s", disable=not progress, leave=False)
         while o.ego not in sim.vehicle.getIDList():
             if sim.simulation.getMinExpectedNumber() == 0:
-                raise RunError(f"{o.routes}: vehicle {o.ego!r} never appears (the demand ended at "
+                raise RunError(f"--ego: vehicle {o.ego!r} never appears (the demand ended at "
                                f"t = {sim.simulation.getTime():.0f} s)")
             sim.simulationStep()
-            bar.update(sim.simulation.getDeltaT())
+            bar.update(dt)
+        # at its departure the ego stands at the network's fringe with nothing around it: seed once
+        # it has driven into the network
+        for k in range(int(round(o.ego_after / dt))):
+            sim.simulationStep()
+            bar.update(dt)
+            if o.ego not in sim.vehicle.getIDList():
+                raise RunError(f"--ego-after: vehicle {o.ego!r} left the network {(k + 1) * dt:.0f} s after "
+                               f"it departed; give a smaller --ego-after")
         bar.close()
         return
     begin = 600.0 if o.begin is None else o.begin
@@ -124,7 +206,7 @@ def _warm_up(sim, o, progress: bool) -> None:
 def _windows(o, net, sim, cosim):
     from .map.locations import auto_windows, parse_center, window_at
     if o.ego:
-        w = cosim.ego_window(o.ego)
+        w = cosim.ego_window(o.ego, ahead_m=EGO_AHEAD_M)
         return [(w, "ego")] * o.scenes
     if o.center:
         x, y = parse_center(o.center)
@@ -133,12 +215,18 @@ def _windows(o, net, sim, cosim):
 
 
 def run(o) -> dict:
+    from .core.threads import share_cpu
+    share_cpu()   # before torch is imported: idle OpenMP threads sleep instead of spinning
     import numpy as np
 
-    from .data.demand import DemandError, check_routes
+    from .core.outputs import partial_path
+    from .data.demand import DemandError, check_demand
     from .generation.generator import GenerationConfig, ScenarioGenerator
+    from .generation.token_check import heading_warnings
+    from .generation.token_resolve import resolve_tokens
     from .map.network import Network
     from .map.raster import render_map
+    from .sim.scenario import ScenarioError, scenario_from_files
     from .sim.session import Session
     from .sim.sumo import SimConfig
     from .tokens.file import load_tokens
@@ -146,27 +234,35 @@ def run(o) -> dict:
     progress = sys.stderr.isatty() or o.verbose
     timing = {}
     t = time.perf_counter()
-    net = Network.load(o.net)
+    try:
+        scen = scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional))
+    except ScenarioError as e:
+        raise RunError(str(e)) from None
+    net = Network.load(scen.net)
+    edge_data = _edge_data(o, net)
     spec = load_tokens(o.tokens) if o.tokens else None
-    _check_output(o)
-    gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig(
-        steps=o.steps, threshold=o.threshold, guidance=o.guidance, scene_guidance=o.scene_guidance,
-        pin_tokens=o.pin_tokens, pin_speeds=o.pin_speeds, lane_headings=o.lane_headings,
-        lane_snap=o.lane_snap))
-    routes = tuple(r for r in (o.routes or "").split(",") if r)
+    kept = _check_output(o)
+    gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig.from_options(o))
+    routes = scen.routes
     edges = {ln.edge for ln in net.lanes}
-    try:  # matches the network; the simulation starts at the first departure
-        first = min(check_routes(r, edges) for r in routes) if routes else None
+    try:  # the route files as the set SUMO loads, against this network
+        first = check_demand(routes, edges, scen.additional) if routes else None
     except DemandError as e:
         raise RunError(str(e)) from None
-    cfg = SimConfig(net=o.net, routes=routes, step_length=o.step_length, gui=o.gui, seed=o.seed,
-                    begin=first)
+    # the configuration's begin, else the demand's first departure (before it the network is empty)
+    cfg = SimConfig(net=scen.net, routes=routes, additional=scen.additional, step_length=o.step_length,
+                    gui=o.gui, seed=o.seed, begin=scen.begin if scen.begin is not None else first)
     session = Session(cfg, net, gen, quiet=not o.verbose)
     try:
         session.prepare((lambda sim: _warm_up(sim, o, progress)) if routes else None)
         places = _windows(o, net, session.sim, session.cosim())
         windows = [w for w, _ in places]
+        _check_kept(o, kept, windows)
         existing = [session.existing(w) for w in windows]
+        targets = _targets(o, net, windows, session, edge_data, host=bool(routes))
+        if any(d is not None for d in targets) and not gen.has_density:
+            raise RunError(f"--density/--vehicles: {o.checkpoint or 'the shipped model'} has no density "
+                           f"condition (trained before it); leave them out or use a newer model")
         timing["load"] = time.perf_counter() - t
 
         t = time.perf_counter()
@@ -174,36 +270,45 @@ def run(o) -> dict:
         timing["raster"] = time.perf_counter() - t
 
         t = time.perf_counter()
-        user = [spec.for_window(w) if spec else [] for w in windows]
+        # road references (edge/lane/pos, ahead/lane_offset) resolved on the network once, here, so
+        # the summary's token matching and the warnings see the tokens generation sees
+        user = [resolve_tokens(net, w, spec.for_window(w)) if spec else [] for w in windows]
+        for k, (w, u) in enumerate(zip(windows, user)):
+            for line in heading_warnings(net, w, u):
+                print(f"{PROG}: warning: scene_{k:03d}: {o.tokens}: {line}", file=sys.stderr)
         tokens = [u + e.tokens() for u, e in zip(user, existing)]
         sources = [["user"] * len(u) + e.token_ids() for u, e in zip(user, existing)]
         p_mask = [o.p_mask if o.p_mask is not None else spec.p_mask if spec else 0.5 if tk else 1.0
                   for tk in tokens]
         scenes = gen.generate(net, windows, tokens=tokens, p_mask=p_mask, seed=o.seed, maps=maps,
-                              progress=progress)
+                              progress=progress,
+                              density=targets if any(d is not None for d in targets) else None)
         timing["generate"] = time.perf_counter() - t
 
         results = []
         from tqdm import tqdm
         for k in tqdm(range(len(scenes)), desc="seeding and rolling out", disable=not progress):
             name = f"scene_{k:03d}"
+            if name in kept:  # --resume: generated in the same batch as now, so the same scene
+                with open(os.path.join(o.out, name, "rollout.json")) as f:
+                    results.append({"scene": name, "location": places[k][1], "target_veh_per_km": targets[k],
+                                    **_counts(net, windows[k], json.load(f))})
+                continue
             info = {"scene": name, "location": places[k][1], "window_index": k,
-                    "model": {"sha256": gen.sha256, "sampler": gen.config.sampler.__name__, "steps": o.steps,
-                              "threshold": o.threshold, "pin_tokens": o.pin_tokens, "pin_speeds": o.pin_speeds,
-                              "lane_headings": o.lane_headings, "lane_snap": o.lane_snap,
-                              "guidance": o.guidance, "scene_guidance": gen.scene_guidance_for(gen.config),
-                              "scene_guidance_sigma": gen.scene_guidance_sigma_for(gen.config)},
+                    "target_veh_per_km": targets[k], "model": gen.config.record(gen),
                     "sumo_options": cfg.options()}
             row = session.realise(scenes[k], tokens[k], sources[k], existing[k], o.out, name, info,
                                   o.rollout, seed=o.seed, p_mask=p_mask[k], force=o.force,
                                   replay=o.replay_future)
-            results.append({"scene": name, "location": places[k][1], **row})
+            results.append({"scene": name, "location": places[k][1], "target_veh_per_km": targets[k],
+                            **_counts(net, windows[k], row)})
         timing.update(session.timing)
     finally:
         session.close()
-    summary = {"network": os.path.abspath(o.net), "model_sha256": gen.sha256, "seed": o.seed,
+    summary = {"network": scen.net, "configuration": scen.config, "output_dir": os.path.abspath(o.out),
+               "model_sha256": gen.sha256, "seed": o.seed,
                "scenes": results, "timing_s": {k: round(v, 3) for k, v in timing.items()}}
-    tmp = os.path.join(o.out, "run.json.partial")
+    tmp = partial_path(os.path.join(o.out, "run.json"))
     with open(tmp, "w") as f:
         json.dump(summary, f, indent=1)
     os.replace(tmp, os.path.join(o.out, "run.json"))
@@ -212,29 +317,48 @@ def run(o) -> dict:
 
 def print_summary(summary: dict) -> None:
     rows = summary["scenes"]
-    print(f"{'scene':10} {'where':11} {'agents':>6} {'placed':>6} {'refused':>7} {'misplaced':>9} "
-          f"{'collisions':>10} {'teleports':>9} {'e-brakes':>8} {'speed':>6}")
+    rolled = any(r.get("seconds", 0) > 0 for r in rows)
+    print(f"{'scene':10} {'where':11} {'kept':>5} {'generated':>9} {'placed':>6} {'refused':>7} {'veh/km':>6} "
+          f"{'misplaced':>9} {'collisions':>10} {'teleports':>9} {'e-brakes':>8} {'speed':>6}")
     for r in rows:
-        print(f"{r['scene']:10} {r['location']:11} {r['generated']:6d} {r['placed']:6d} {r['refused']:7d} "
-              f"{r['misplaced']:9d} {r['collisions']:10d} {r['teleports']:9d} {r['emergency_brakes']:8d} "
-              f"{r['mean_speed']:6.1f}")
+        density = "–" if r.get("density_veh_per_km") is None else f"{r['density_veh_per_km']:.0f}"
+        speed = f"{r['mean_speed']:6.1f}" if rolled else f"{'–':>6}"
+        print(f"{r['scene']:10} {r['location']:11} {r['existing_vehicles']:5d} {r['generated']:9d} "
+              f"{r['placed']:6d} {r['refused']:7d} {density:>6} {r['misplaced']:9d} {r['collisions']:10d} "
+              f"{r['teleports']:9d} {r['emergency_brakes']:8d} {speed}")
     gen = sum(r["generated"] for r in rows)
     placed = sum(r["placed"] for r in rows)
-    print(f"placed {placed} of {gen} generated agents ({100.0 * placed / max(gen, 1):.1f} %) at their pose; "
+    print(f"placed {placed} of {gen} generated agents ({100.0 * placed / max(gen, 1):.1f} %) at their pose "
+          f"beside {sum(r['existing_vehicles'] for r in rows)} vehicles kept from the simulation; "
           f"timing (s): " + ", ".join(f"{k} {v:.2f}" for k, v in summary["timing_s"].items()))
+    print(f"wrote {len(rows)} scenario folders and run.json to {summary['output_dir']} "
+          f"(open one with: sumo-gui -c {os.path.join(summary['output_dir'], rows[0]['scene'], 'scenario.sumocfg')})")
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt  # SIGTERM ends a run as Ctrl-C does: complete scenes are kept
 
 
 def main(o) -> int:
+    from .core.outputs import OutputError, claim
     from .map.locations import LocationError
     from .map.network import NetworkError
     from .model.checkpoint import CheckpointError
     from .sim.sumo import SimError
     from .tokens.file import TokenFileError
+    on_sigterm = signal.signal(signal.SIGTERM, _interrupt)
     try:
-        summary = run(o)
+        with claim(o.out):   # first of all: a second run into -o stops here, before any work
+            summary = run(o)
     except (RunError, NetworkError, CheckpointError, SimError, TokenFileError, LocationError,
-            FileExistsError) as e:
+            FileExistsError, OutputError) as e:
         o.parser.exit(2, f"{PROG}: error: {e}\n")
+    except KeyboardInterrupt:
+        done = sum(os.path.isdir(os.path.join(o.out, f"scene_{k:03d}")) for k in range(o.scenes))
+        o.parser.exit(130, f"{PROG}: interrupted: {done} of {o.scenes} scenes are complete in {o.out}; "
+                           f"rerun with --resume to write the others\n")
+    finally:
+        signal.signal(signal.SIGTERM, on_sigterm)
     print_summary(summary)
     return 0
 

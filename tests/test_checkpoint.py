@@ -96,3 +96,36 @@ def test_cli_export_negative_guidance_setting_exit_2(tmp_path, flag):
                          capture_output=True, text=True)
     assert res.returncode == 2 and "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1
     assert f"{flag} must be >= 0" in res.stderr and not (tmp_path / "out.pt").exists()
+
+
+def test_update_replaces_entries_atomically(tmp_path):
+    from sumo_scendiff.train.calibrate import write_scene_guidance
+    path = str(tmp_path / "m.pt")
+    state = tiny_ae().state_dict()
+    before = ckpt.save(path, "scenario-diffusion", autoencoder=state, scene_guidance=1.0,
+                       scene_guidance_sigma=1.0, trained={"autoencoder_steps": 3})
+    after = write_scene_guidance(path, 1.4)
+    ck = ckpt.load(path, "scenario-diffusion")
+    assert after != before and after == ckpt.sha256(path)
+    assert ck["scene_guidance"] == 1.4 and ck["scene_guidance_sigma"] == 1.0   # sigma kept unless given
+    assert ck["trained"] == {"autoencoder_steps": 3} and all(torch.equal(ck["autoencoder"][k], v)
+                                                             for k, v in state.items())
+    write_scene_guidance(path, 2.0, sigma=0.5)
+    ck = ckpt.load(path, "scenario-diffusion")
+    assert (ck["scene_guidance"], ck["scene_guidance_sigma"]) == (2.0, 0.5)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.pt"]   # no .partial left behind
+    ckpt.save(path, "autoencoder-train", state={})
+    with pytest.raises(ckpt.CheckpointError, match="expected scenario-diffusion"):
+        write_scene_guidance(path, 1.0)
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--model", "nope.pt", "--data", "d"], "nope.pt: no such checkpoint"),
+    (["--model", "m.pt", "--data", "d", "--scenes", "0"], "--scenes must be positive"),
+    (["--model", "m.pt", "--data", "d", "--weights", "1", "-1"], "--weights and --sigma must be >= 0"),
+])
+def test_cli_calibrate_bad_input_exit_2(tmp_path, args, words):
+    res = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "calibrate", *args],
+                         capture_output=True, text=True, cwd=tmp_path)
+    assert res.returncode == 2 and "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1
+    assert words in res.stderr

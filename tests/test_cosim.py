@@ -45,11 +45,11 @@ def test_seed_around_keeps_existing_vehicles_and_reseeds_ahead(cross_net, tmp_pa
         sim.simulationStep()
         cosim.verify(seeding)
         assert before <= set(sim.vehicle.getIDList()) | set(sim.simulation.getArrivedIDList())
-        assert cosim.reseed_ahead("e3", every=30.0) is None    # has not moved 30 m yet
+        assert cosim.reseed_ahead("e3", every_m=30.0) is None    # has not moved 30 m yet
         x0 = np.asarray(sim.vehicle.getPosition("e3"))
         while np.hypot(*(np.asarray(sim.vehicle.getPosition("e3")) - x0)) < 30.0:
             sim.simulationStep()
-        again = cosim.reseed_ahead("e3", every=30.0, ahead=60.0)
+        again = cosim.reseed_ahead("e3", every_m=30.0, ahead_m=60.0)
         assert again is not None
         ex_x = sim.vehicle.getPosition("e3")[0]
         assert again.scene.window.cx > ex_x + 50.0             # the window ahead of the ego

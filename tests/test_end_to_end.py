@@ -118,8 +118,9 @@ def test_sigterm_saves_and_resume_continues(tmp_path, cross_net):
 
 def test_init_from_warm_starts_a_wider_unet(tmp_path, cross_net):
     """--init-from: a diffusion run without the token splat that read 11 map channels continues as
-    one with the splat and every map channel, computing the same function at its first step (new
-    input channels of the UNet and of E_m start at zero) with the same latent scale."""
+    one with the splat, every map channel and the density condition, computing the same function at
+    its first step (new input channels of the UNet, of E_m and of the global token's embeddings
+    start at zero) with the same latent scale."""
     import torch
 
     from sumo_scendiff.model import checkpoint as ckpt
@@ -128,7 +129,7 @@ def test_init_from_warm_starts_a_wider_unet(tmp_path, cross_net):
     one_scene_dataset(data, cross_net)
     common = ["--data", data, "--batch-size", 1, "--no-rotate"]
     train("autoencoder", *common, "-o", tmp_path / "ae", "--steps", 2, "--model-config", json.dumps(TINY_AE))
-    narrow = {**TINY_DIFF, "C_m": 11, "unet": {**TINY_DIFF["unet"], "splat_ch": 0}}
+    narrow = {**TINY_DIFF, "C_m": 11, "unet": {**TINY_DIFF["unet"], "splat_ch": 0, "global_dim": 10}}
     ae = ["--autoencoder", tmp_path / "ae" / "last.pt"]
     train("diffusion", *common, *ae, "-o", tmp_path / "d0", "--steps", 3, "--model-config", json.dumps(narrow))
     one_scene_dataset(str(tmp_path / "busy"), cross_net, xs=(-40.0, -25.0, -12.0))  # another latent std
@@ -154,9 +155,13 @@ def test_init_from_warm_starts_a_wider_unet(tmp_path, cross_net):
     g = torch.Generator().manual_seed(0)
     z, m = torch.randn(2, 4, 16, 16, generator=g), torch.randn(2, nets[1].cfg.C_m, 128, 128, generator=g)
     tok = torch.rand(2, 3, 170, generator=g)
-    pad, glob = torch.zeros(2, 3, dtype=torch.bool), torch.zeros(2, 10)
+    from sumo_scendiff.tokens.encoding import global_token
+    pad = torch.zeros(2, 3, dtype=torch.bool)
+    globs = [torch.as_tensor(global_token([0.3, 0.8], dim=n.cfg.unet.global_dim)) for n in nets]
+    assert (nets[0].cfg.unet.global_dim, nets[1].cfg.unet.global_dim) == (10, 23)
+    assert not nets[1].denoiser.net.global_emb.weight[:, 10:].any()
     with torch.no_grad():
-        out = [n.denoiser(z, 1.0, **n.cond(m, tok, pad, glob)) for n in nets]
+        out = [n.denoiser(z, 1.0, **n.cond(m, tok, pad, g)) for n, g in zip(nets, globs)]
     torch.testing.assert_close(out[1], out[0], atol=1e-5, rtol=1e-5)
 
 
@@ -222,6 +227,35 @@ def autoencoder_and_diffusion(tmp_path, cross_net, **model) -> tuple[list, objec
     train("diffusion", *common, "--autoencoder", src, "-o", tmp_path / "d", "--steps", 1,
           "--model-config", json.dumps({**TINY_DIFF, **model}))
     return common, src
+
+
+def test_calibrate_writes_the_guidance_weight_into_the_model(tmp_path, cross_net):
+    """train calibrate: map-only generation at each weight, the weight where the agents per window
+    meet the ground truth's (to one decimal) rewritten into the exported file; bad data: exit 2, the
+    file untouched."""
+    from sumo_scendiff.model import checkpoint as ckpt
+    from sumo_scendiff.train.calibrate import calibrate
+    _, src = autoencoder_and_diffusion(tmp_path, cross_net)
+    model = str(tmp_path / "model.pt")
+    train("export", "--autoencoder", src, "--diffusion", tmp_path / "d" / "last.pt", "-o", model,
+          "--scene-guidance-sigma", 1)
+    exported = ckpt.sha256(model)
+    options = ["--data", tmp_path / "data", "--scenes", 2, "--weights", 1, 2, 3, "--steps", 2, "--turned"]
+    res = train("calibrate", "--model", model, *options)
+    ck = ckpt.load(model, "scenario-diffusion")
+    # the same calibration in-process (the sampling does not depend on the stored weight)
+    expected = calibrate(model, str(tmp_path / "data"), scenes=2, weights=(1, 2, 3), steps=2, turned=True)
+    assert ck["scene_guidance"] == expected.weight == round(ck["scene_guidance"], 1)
+    assert 1 <= ck["scene_guidance"] <= 3 and ck["scene_guidance_sigma"] == 1.0
+    assert f"scene guidance {expected.weight:g} above sigma 1" in res.stdout
+    assert ckpt.sha256(model) != exported and not os.path.exists(model + ".partial")
+    train("calibrate", "--model", model, *options, "--sigma", 0.5)
+    assert ckpt.load(model, "scenario-diffusion")["scene_guidance_sigma"] == 0.5
+    before = ckpt.sha256(model)
+    bad = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "calibrate", "--model", model,
+                          "--data", str(tmp_path)], capture_output=True, text=True)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr and "not a data directory" in bad.stderr
+    assert ckpt.sha256(model) == before
 
 
 def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, cross_net):

@@ -34,7 +34,7 @@ def exported(request, cross_net, cross_scene, tmp_path_factory):
         sim.simulationStep()
         cosim.verify(seeding)
         writer = ScenarioWriter(str(out), "scene_000")
-        assert os.path.isdir(str(out / "scene_000.partial")) and not os.path.exists(out / "scene_000")
+        assert os.path.isdir(writer.tmp) and ".partial" in writer.tmp and not os.path.exists(out / "scene_000")
         writer.after_seeding(sim, seeding, net, cfg.options(), {"scene": "scene_000"})
         stats = rollout(sim, seeding.agent_ids, 5.0)
         folder = writer.finish(stats.as_dict())
@@ -45,8 +45,9 @@ def exported(request, cross_net, cross_scene, tmp_path_factory):
 
 def test_files_and_scene_json(exported):
     folder, _ = exported
-    assert sorted(os.listdir(folder)) == sorted(FILES)
-    assert not os.path.exists(folder + ".partial")
+    # the network travels in the folder, compressed, so the folder replays wherever it is copied
+    assert sorted(os.listdir(folder)) == sorted(FILES + ("cross.net.xml.gz",))
+    assert not [n for n in os.listdir(os.path.dirname(folder)) if ".partial" in n]
     doc = json.load(open(os.path.join(folder, "scene.json")))
     assert doc["format"] == "sumo-scendiff-scenario" and doc["version"] == 1
     assert doc["counts"] == {"generated": 5, "placed": 4, "refused": 1, "misplaced": 0}
@@ -92,6 +93,20 @@ def test_stock_sumo_runs_the_scenario(exported):
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     assert "Error" not in res.stderr
+
+
+def test_a_copied_folder_replays_in_stock_sumo(exported, tmp_path):
+    """Self-contained: the folder copied elsewhere (the original network gone from its path) still
+    runs, every input named relative to the folder."""
+    import shutil
+    folder, _ = exported
+    copy = tmp_path / "elsewhere" / "scene"
+    shutil.copytree(folder, copy)
+    cfg = (copy / "scenario.sumocfg").read_text()
+    assert "/" not in cfg.split('net-file value="')[1].split('"')[0]
+    res = subprocess.run([sumo_binary(), "-c", "scenario.sumocfg", "--end", "10"], cwd=copy,
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
 
 
 def test_route_file_replays_lane_agents(exported):

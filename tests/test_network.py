@@ -101,3 +101,18 @@ def test_networks_build_reproduces_the_repository_networks(tmp_path):
     splits = json.loads((tmp_path / "splits.json").read_text())
     assert set(splits["train"]) | set(splits["heldout"]) == set(built)
     assert not set(splits["train"]) & set(splits["heldout"])
+
+
+def test_car_lane_km_counts_the_lanes_inside_the_window(diagonal_net):
+    """A one-way road of two 3.2 m lanes whose left edge runs along the window's diagonal: the lane
+    centres lie 1.6 and 4.8 m right of it, so each is 2 * offset shorter than the diagonal."""
+    import numpy as np
+
+    from sumo_scendiff.core.geometry import Window
+    from sumo_scendiff.map.network import Network
+    net = Network.load(diagonal_net)
+    diagonal = 100.0 * np.sqrt(2)
+    expected = (diagonal - 2 * 1.6) + (diagonal - 2 * 4.8)
+    assert net.car_lane_km(Window(150.0, 150.0, 0.0)) == pytest.approx(expected / 1000.0, abs=0.001)
+    assert net.car_lane_km(Window(150.0, 150.0, np.pi / 4)) == pytest.approx(0.2, abs=0.002)
+    assert net.car_lane_km(Window(1000.0, 0.0, 0.0)) == 0.0

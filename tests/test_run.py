@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 
 import pytest
 
@@ -125,7 +126,7 @@ def test_bad_input_one_line_exit_2(case, expect, cross_net, demand, tmp_path, ca
 
 def test_negative_guidance_is_a_usage_error(cross_net, tmp_path, capsys):
     code, _, err = _run(["-n", cross_net, "--center", "0,0", "--guidance", "-1", "-o", str(tmp_path / "o")], capsys)
-    assert code == 2 and "--guidance and --scene-guidance >= 0" in err and not (tmp_path / "o").exists()
+    assert code == 2 and "--guidance: must be >= 0" in err and not (tmp_path / "o").exists()
 
 
 def test_cli_defaults_are_the_generators():
@@ -133,3 +134,30 @@ def test_cli_defaults_are_the_generators():
     o = run_cli.get_options(["-n", "x.net.xml"])
     assert (o.steps, o.guidance, o.threshold) == (GenerationConfig().steps, GenerationConfig().guidance,
                                                   GenerationConfig().threshold)
+
+
+def test_resume_writes_only_the_missing_scenes(cross_net, tmp_path, capsys):
+    out = tmp_path / "out"
+    args = ["-n", cross_net, "--center", "0,0", "--scenes", "3", "--rollout", "2", "-s", "3", "--steps", "4",
+            "-o", str(out)]
+    code, _, err = _run(args, capsys)
+    assert code == 0, err
+    whole = {k: (out / f"scene_{k:03d}" / "scene.json").read_bytes() for k in range(3)}
+    rows = json.loads((out / "run.json").read_text())["scenes"]
+    # an interrupted run: scene_001 never completed, its writer died half-way, no run.json
+    shutil.rmtree(out / "scene_001")
+    os.remove(out / "run.json")
+    (out / "scene_001.partial-999999999").mkdir()
+    (out / "scene_000" / "kept").write_text("")
+    code, _, err = _run(args + ["--resume"], capsys)
+    assert code == 0, err
+    assert (out / "scene_000" / "kept").exists()              # complete scenes are not written again
+    assert {k: (out / f"scene_{k:03d}" / "scene.json").read_bytes() for k in range(3)} == whole
+    assert json.loads((out / "run.json").read_text())["scenes"] == rows
+    assert sorted(os.listdir(out)) == ["run.json", "scene_000", "scene_001", "scene_002"]
+
+    code, _, err = _run(args + ["--resume", "--force"], capsys)
+    assert code == 2 and "not allowed with" in err.splitlines()[-1]
+    code, _, err = _run(args + ["--resume", "-s", "4"], capsys)     # not this run's scenes: refused
+    assert code == 2 and err.count("\n") == 1 and "scene_000: written by another command" in err
+    assert {k: (out / f"scene_{k:03d}" / "scene.json").read_bytes() for k in range(3)} == whole

@@ -10,8 +10,11 @@ import time
 
 import pytest
 
+from sumo_scendiff.core.outputs import LOCK
 from sumo_scendiff.sweep.__main__ import get_options, main
 from sumo_scendiff.sweep.spec import SpecError, load_spec
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 SPEC = """name = "t"
 networks = ["{net}"]
@@ -60,6 +63,48 @@ def test_spec_expands_the_cross_product(spec_file):
 
 
 
+def test_a_spec_without_density_keeps_its_plan(spec_file):
+    """No density/vehicles key: the plan and ids of before the key (one level, the model's prior);
+    params() keeps its keys and adds the two, unset."""
+    import itertools
+    spec = load_spec(spec_file)
+    sc = spec.scenarios()
+    want = list(itertools.product(["0,0", "auto:0"], ["key[final_speed=0]", "key[final_speed=8]"],
+                                  [0.3, 0.9], [0, 1]))
+    assert [(s.location, s.token_set, s.p_mask, s.seed) for s in sc] == want
+    assert [s.id for s in sc] == [f"s{k:04d}" for k in range(16)]
+    p = sc[5].params()
+    assert (p["id"], p["location"], p["token_set"], p["p_mask"], p["seed"]) == \
+        ("s0005", "0,0", "key[final_speed=8]", 0.3, 1)
+    assert {"id", "network", "location", "token_set", "p_mask", "seed", "steps", "rollout", "step_length",
+            "replay"} <= set(p) and p["density"] is None and p["vehicles"] is None
+    assert all(s.density is None and s.vehicles is None for s in sc)
+    assert len(load_spec(os.path.join(ROOT, "scenarios", "density.json")).scenarios()) == 24
+
+
+def test_density_is_an_axis_crossed_with_the_others(cross_net, tmp_path):
+    path = tmp_path / "levels.toml"
+    base = f'networks = ["{cross_net}"]\nlocations = [{{center = [0.0, 0.0]}}]\np_mask = [0.3, 0.9]\nseeds = 2\n'
+    path.write_text(base + 'density = [10, 30.5, "auto"]\n')
+    sc = load_spec(str(path)).scenarios()
+    assert len(sc) == 2 * 3 * 2                     # p_mask x density x seeds, seeds innermost
+    assert [(s.p_mask, s.density, s.seed) for s in sc[:6]] == \
+        [(0.3, 10.0, 0), (0.3, 10.0, 1), (0.3, 30.5, 0), (0.3, 30.5, 1), (0.3, "auto", 0), (0.3, "auto", 1)]
+    assert all(s.vehicles is None for s in sc) and sc[4].params()["density"] == "auto"
+    path.write_text(base + 'vehicles = [5, 10]\n')
+    sc = load_spec(str(path)).scenarios()
+    assert [(s.p_mask, s.vehicles, s.seed) for s in sc[:4]] == [(0.3, 5, 0), (0.3, 5, 1), (0.3, 10, 0), (0.3, 10, 1)]
+    assert all(s.density is None and isinstance(s.vehicles, int) for s in sc)
+    path.write_text(f'networks = ["{cross_net}"]\n'
+                    '[[scenarios]]\nlocation = "0,0"\ndensity = "auto"\n'
+                    '[[scenarios]]\nlocation = "0,0"\nvehicles = 7\n'
+                    '[[scenarios]]\nlocation = "0,0"\ndensity = 12\nseed = 3\n'
+                    '[[scenarios]]\nlocation = "0,0"\n')
+    sc = load_spec(str(path)).scenarios()
+    assert [(s.density, s.vehicles, s.seed) for s in sc] == [("auto", None, 0), (None, 7, 0), (12.0, None, 3),
+                                                            (None, None, 0)]
+
+
 def test_unset_sampler_settings_are_the_generators_defaults(cross_net, tmp_path):
     from sumo_scendiff.generation.generator import GenerationConfig
     path = tmp_path / "bare.toml"
@@ -102,6 +147,20 @@ def test_batches_depend_on_the_plan_alone(spec_file):
      "token_sets[0]: agents[0]"),
     ('networks = ["x.net.xml"]\n[[scenarios]]\nlocation = "auto:0"\ntoken_set = "nope"\n', "not defined"),
     ('networks = ["x.net.xml"\n', "not valid TOML"),
+    ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\ndensity = 30\n', "density: must be list"),
+    ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\ndensity = [10, -1]\n', "density: values must be"),
+    ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\ndensity = ["lots"]\n', "density: values must be"),
+    ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\ndensity = [true]\n', "density: values must be"),
+    ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\ndensity = [nan]\n', "density: values must be"),
+    ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\ndensity = []\n', "empty"),
+    ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\nvehicles = [2.5]\n', "vehicles: values must be"),
+    ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\nvehicles = ["auto"]\n', "vehicles: values must be"),
+    ('networks = ["x.net.xml"]\nlocations = [{auto = 1}]\ndensity = [10]\nvehicles = [5]\n',
+     "vehicles: give either density or vehicles"),
+    ('networks = ["x.net.xml"]\n[[scenarios]]\nlocation = "auto:0"\ndensity = -3\n',
+     "scenarios[0].density: values must be"),
+    ('networks = ["x.net.xml"]\n[[scenarios]]\nlocation = "auto:0"\ndensity = 3\nvehicles = 2\n',
+     "scenarios[0].vehicles: give either"),
 ])
 def test_bad_spec_names_file_and_key(body, message, tmp_path, capsys):
     path = tmp_path / "bad.toml"
@@ -150,20 +209,20 @@ def test_resume_after_sigkill_equals_uninterrupted(spec_file, reference, tmp_pat
     deadline = time.time() + 240
     while time.time() < deadline and proc.poll() is None:
         done = [d for d in (os.listdir(out) if os.path.isdir(out) else []) if d.startswith("s") and
-                not d.endswith(".partial") and d != "sweep.json"]
+                ".partial" not in d and d != "sweep.json"]
         if len(done) >= 3:
             break
         time.sleep(0.05)
     os.kill(proc.pid, signal.SIGKILL)      # the parent only: its workers must die with it
     proc.wait()
     time.sleep(1.0)
-    finished = [d for d in os.listdir(out) if d.startswith("s0") and not d.endswith(".partial")]
+    finished = [d for d in os.listdir(out) if d.startswith("s0") and ".partial" not in d]
     assert 0 < len(finished) < 16, finished
     res = subprocess.run(cmd + ["--resume"], capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr
     assert f"{len(finished)} done before" in res.stderr
     assert _index(out) == reference
-    assert not [d for d in os.listdir(out) if d.endswith(".partial")]
+    assert not [d for d in os.listdir(out) if ".partial" in d or d == LOCK]
 
 
 def test_ray_engine_on_a_local_instance(spec_file, reference, tmp_path, capsys):
@@ -173,3 +232,132 @@ def test_ray_engine_on_a_local_instance(spec_file, reference, tmp_path, capsys):
                           "--no-pictures"], capsys)
     assert code == 0, err
     assert _index(out) == reference
+
+
+# ---- the density axis in the worker -------------------------------------------------------------
+ROUTES = ('<routes><flow id="f" begin="0" end="400" period="3" from="wc" to="ce"/>'
+          '<flow id="g" begin="0" end="400" period="5" from="sc" to="cn"/></routes>')
+
+
+def _levels_spec(tmp_path, cross_net, levels: str, routes: bool = True):
+    rou = tmp_path / "r.rou.xml"
+    rou.write_text(ROUTES)
+    net = f'{{net = "{cross_net}", routes = "{rou}", begin = 60}}' if routes else f'"{cross_net}"'
+    path = tmp_path / "levels.toml"
+    path.write_text(f'networks = [{net}]\nlocations = [{{center = [0.0, 0.0]}}]\np_mask = [1.0]\n'
+                    f'seeds = 1\nsteps = 4\nrollout = 1.0\n{levels}\n')
+    return load_spec(str(path))
+
+
+def test_the_target_of_a_scenario(cross_net, tmp_path):
+    """Numbers pass, vehicles become a density over the window's car lanes, "auto" is the host
+    simulation's level around the window (or the prior without one); a model without the condition
+    refuses every target that is a number."""
+    import libsumo
+
+    from sumo_scendiff.core.geometry import Window
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.map.network import Network
+    from sumo_scendiff.sim.density import host_density
+    from sumo_scendiff.sweep.worker import DensityUnsupported, scenario_target
+    spec = _levels_spec(tmp_path, cross_net, 'density = [25, "auto"]')
+    num, auto = spec.scenarios()
+    (veh,) = _levels_spec(tmp_path, cross_net, "vehicles = [6]").scenarios()
+    (none,) = _levels_spec(tmp_path, cross_net, "").scenarios()
+    net, w = Network.load(cross_net), Window(0.0, 0.0, 0.0)
+    assert scenario_target(num, net, w) == 25.0
+    assert scenario_target(veh, net, w) == pytest.approx(6 / net.car_lane_km(w))
+    assert scenario_target(auto, net, w) is None and scenario_target(none, net, w) is None
+    assert scenario_target(auto, net, w, has_density=False) is None     # the prior: any model
+    with pytest.raises(DensityUnsupported, match="^density = 25.0: my.pt has no density condition"):
+        scenario_target(num, net, w, checkpoint="my.pt", has_density=False)
+    with pytest.raises(DensityUnsupported, match="^vehicles = 6: the shipped model"):
+        scenario_target(veh, net, w, has_density=False)
+    libsumo.start([sumo_binary(), "-n", cross_net, "-r", str(tmp_path / "r.rou.xml"), "--no-step-log", "true"])
+    try:
+        for _ in range(60):
+            libsumo.simulationStep()
+        got = scenario_target(auto, net, w, sim=libsumo)
+        assert got is not None and got > 0 and got == pytest.approx(host_density(libsumo, net, w))
+        assert scenario_target(num, net, w, sim=libsumo) == 25.0        # a number is the number
+    finally:
+        libsumo.close()
+
+
+class _NoDensity:
+    """A generator without the density condition that must not be called."""
+    has_density = False
+
+    def generate(self, *a, **k):
+        raise AssertionError("generate called for scenarios that should have failed")
+
+
+def test_density_on_a_model_without_it_fails_each_scenario(cross_net, tmp_path):
+    """Each scenario with a target fails with one clear line in its failure record and the index;
+    nothing crashes and the model is never asked."""
+    from sumo_scendiff.sweep.index import write_index
+    from sumo_scendiff.sweep.worker import Worker, failure_path
+    spec = _levels_spec(tmp_path, cross_net, 'density = [10, "auto"]')   # with routes: auto is a number too
+    sc = spec.scenarios()
+    out = str(tmp_path / "out")
+    os.makedirs(out)
+    w = Worker(spec, out, checkpoint="old.pt", generator=_NoDensity())
+    try:
+        assert w.run(sc) == [s.id for s in sc]
+    finally:
+        w.close()
+    rows = write_index(out, sc)
+    assert [r["status"] for r in rows] == ["failed", "failed"]
+    assert [r["density"] for r in rows] == [10.0, "auto"]
+    assert rows[0]["error"].startswith("density = 10.0: old.pt has no density condition")
+    assert rows[1]["error"].startswith("density = 'auto': old.pt has no density condition")
+    rec = json.load(open(failure_path(out, "s0001")))
+    assert rec["status"] == "failed" and rec["vehicles"] is None and "\n" not in rec["error"]
+
+
+class _Recording:
+    """The shipped generator, claiming the density condition and recording the targets asked for
+    (the scenes themselves come from the model's prior: the worker's plumbing is under test)."""
+    def __init__(self, gen):
+        self.gen, self.asked = gen, []
+
+    has_density = True
+
+    def __getattr__(self, name):
+        return getattr(self.gen, name)
+
+    def generate(self, *a, density=None, **k):
+        self.asked.append(density)
+        return self.gen.generate(*a, **k, density=density if self.gen.has_density else None)
+
+
+def test_the_worker_passes_and_records_the_targets(cross_net, tmp_path):
+    from sumo_scendiff.generation.generator import ScenarioGenerator
+    from sumo_scendiff.map.network import Network
+    from sumo_scendiff.sweep.index import COLUMNS, density_axis, stats_plot, write_index
+    from sumo_scendiff.sweep.worker import Worker
+    spec = _levels_spec(tmp_path, cross_net, 'density = [40, "auto"]')
+    sc = spec.scenarios()
+    out = str(tmp_path / "out")
+    os.makedirs(out)
+    gen = _Recording(ScenarioGenerator.load(None))
+    w = Worker(spec, out, generator=gen)
+    try:
+        w.run(sc)
+    finally:
+        w.close()
+    (asked,) = gen.asked                                   # one batched call, one target per scenario
+    assert asked[0] == 40.0 and asked[1] is not None and asked[1] > 0
+    rows = write_index(out, sc)
+    assert [r["status"] for r in rows] == ["ok", "ok"], rows
+    km = Network.load(cross_net).car_lane_km(w.window(spec.networks["cross"], "0,0")[0])
+    for s, r, target in zip(sc, rows, asked):
+        block = json.load(open(os.path.join(out, s.id, "scene.json")))["sweep"]
+        assert block["density"] == s.density and block["density_target_veh_per_km"] == target
+        assert block["car_lane_km"] == pytest.approx(km, abs=1e-3)
+        assert r["density_target_veh_per_km"] == target and r["density"] == s.density
+        assert r["vehicles_in_window"] == r["existing_vehicles"] + r["placed"]
+        assert r["density_veh_per_km"] == pytest.approx(r["vehicles_in_window"] / km, abs=0.02)
+    assert {"density", "vehicles", "density_target_veh_per_km", "density_veh_per_km"} <= set(COLUMNS)
+    assert "density_target_veh_per_km" in open(os.path.join(out, "index.csv")).readline()
+    assert density_axis(rows) and os.path.getsize(stats_plot(out, rows)) > 1000

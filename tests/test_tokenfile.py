@@ -189,3 +189,58 @@ def test_example_files_load():
         [(3.0, -20.0, math.pi / 2, 10.0), (-3.0, -20.0, math.pi / 2, 10.0)]
     for spec in (truck, cross):
         assert agent_tokens_from_dicts(spec.for_window(Window(0.0, 0.0, 0.7))).shape == (len(spec.agents), 170)
+
+
+def test_every_example_file_loads():
+    files = sorted(EXAMPLES.iterdir())
+    assert len(files) >= 4
+    for f in files:
+        spec = load_tokens(f)
+        assert spec.agents and all(isinstance(a, dict) for a in spec.agents)
+
+
+def test_a_users_terms_become_features_and_references():
+    spec = parse_tokens({"agents": [
+        {"ahead": 15, "lane_offset": -1, "vclass": "truck", "speed": 8, "manoeuvre": "stop"},
+        {"edge": "E1", "pos": 30, "manoeuvre": "turn_left"},
+        {"edge": "E1", "lane": 2, "pos": 0.5, "vclass": "motorcycle", "manoeuvre": "turn_right"},
+        {"x": 1, "y": 2, "manoeuvre": "straight", "vclass": "car"}]}, "t.toml")
+    a, b, c, d = spec.agents
+    assert a == {"length": 10.5, "width": 2.5, "speed": 8.0, "final_speed": 0.0, "ahead": 15.0, "lane_offset": -1}
+    assert b == {"heading_to_final": 0.4, "edge": "E1", "lane": 0, "pos": 30.0}       # CCW = left
+    assert c["heading_to_final"] == -0.4 and (c["length"], c["width"], c["lane"]) == (2.2, 0.9, 2)
+    assert d == {"x": 1.0, "y": 2.0, "length": 4.6, "width": 1.8, "heading_to_final": 0.0}
+    # references pass the window frame unchanged: generation resolves them on the network
+    assert spec.for_window(Window(500.0, 500.0, 1.0))[1] == b
+
+
+def test_vehicle_classes_are_the_fleets_sizes():
+    from sumo_scendiff.core.scene import VEHICLE_CLASSES
+    from sumo_scendiff.data.demand import VEHICLE_MIX
+    from sumo_scendiff.tokens.file import VCLASS_SIZES
+    fleet = {vid: (length, width) for vid, _, _, length, width, *_ in VEHICLE_MIX}
+    assert set(VEHICLE_CLASSES) <= set(VCLASS_SIZES)
+    for name, vid in (("passenger", "car"), ("car", "car"), ("delivery", "van"), ("van", "van"),
+                      ("truck", "truck"), ("bus", "bus"), ("motorcycle", "motorcycle")):
+        assert VCLASS_SIZES[name] == fleet[vid]
+
+
+@pytest.mark.parametrize("agent,msg", [
+    ({"x": 1, "y": 1, "vclass": "lorry"}, r"agents\[0\]: vclass: unknown vehicle class 'lorry' \(expected passenger"),
+    ({"x": 1, "y": 1, "vclass": "truck", "length": 9, "width": 2}, r"vclass: conflicts with 'length'"),
+    ({"x": 1, "y": 1, "manoeuvre": "u_turn"}, r"manoeuvre: unknown manoeuvre 'u_turn' \(expected stop, turn_left"),
+    ({"x": 1, "y": 1, "speed": 5, "final_speed": 2, "manoeuvre": "stop"}, r"manoeuvre: 'stop' conflicts with 'final_speed'"),
+    ({"x": 1, "y": 1, "heading_to_final": 0.1, "manoeuvre": "turn_left"}, r"manoeuvre: 'turn_left' conflicts with 'heading_to_final'"),
+    ({"ahead": 10, "x": 1, "y": 1}, r"ahead: conflicts with 'x'"),
+    ({"edge": "E1", "pos": 3, "ahead": 10}, r"edge: conflicts with 'ahead'"),
+    ({"edge": "E1"}, r"pos: missing"),
+    ({"lane": 1, "pos": 3}, r"edge: missing"),
+    ({"edge": 7, "pos": 3}, r"edge: must be an edge id"),
+    ({"edge": "E1", "pos": -3}, r"pos: must be metres >= 0"),
+    ({"edge": "E1", "pos": 3, "lane": 0.5}, r"lane: must be a lane index >= 0"),
+    ({"ahead": 80}, r"ahead: must be metres in \[-50, 50\]"),
+    ({"ahead": 10, "lane_offset": "left"}, r"lane_offset: must be a whole number of lanes"),
+])
+def test_a_users_terms_errors_name_the_key(agent, msg):
+    with pytest.raises(TokenFileError, match=r"^t\.toml: agents\[0\]: " + msg.removeprefix(r"agents\[0\]: ")):
+        parse_tokens({"agents": [agent]}, "t.toml")

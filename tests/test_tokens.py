@@ -33,7 +33,7 @@ def _bin_of(tokens, name):
 
 
 def test_dims():
-    assert AGENT_TOKEN_DIM == 170 and GLOBAL_TOKEN_DIM == 10
+    assert AGENT_TOKEN_DIM == 170 and GLOBAL_TOKEN_DIM == 23
     assert PRESENCE_SLICE == slice(162, 170)
     assert sum(s.stop - s.start for s in FEATURE_SLICES.values()) == 162
 
@@ -114,8 +114,27 @@ def test_tokens_from_scene():
 @pytest.mark.parametrize("p,bucket", [(0.0, 0), (0.05, 0), (0.1, 1), (0.3, 3), (0.7, 7), (0.95, 9),
                                       (1.0, 9)])
 def test_global_token_buckets(p, bucket):
-    g = global_token(p)
+    g = global_token(p, dim=10)                    # a model without the density condition
     assert g.shape == (10,) and g.sum() == 1 and g.argmax() == bucket
+    g = global_token(p)                            # density absent: its bins and presence bit zero
+    assert g.shape == (23,) and g.sum() == 1 and g.argmax() == bucket
+
+
+@pytest.mark.parametrize("density,bucket", [(0.5, 0), (2.0, 0), (2.9, 1), (20.0, 6), (149.0, 11), (900.0, 11)])
+def test_density_bins_are_log_spaced_and_clipped(density, bucket):
+    from sumo_scendiff.tokens.encoding import DENSITY_BINS, density_of_bin
+    g = global_token(0.5, density=density)
+    assert g[10:10 + DENSITY_BINS].argmax() == bucket and g[10 + DENSITY_BINS] == 1 and g.sum() == 3
+    assert 2.0 <= density_of_bin(bucket) <= 150.0
+
+
+def test_density_absent_present_and_refused():
+    g = global_token([0.2, 0.2, 0.2], density=[np.nan, 10.0, np.nan])
+    assert g[:, -1].tolist() == [0.0, 1.0, 0.0]
+    with pytest.raises(TokenError, match="density"):
+        global_token(0.2, density=-3.0)
+    with pytest.raises(TokenError, match="no density condition"):
+        global_token(0.2, density=10.0, dim=10)
 
 
 def test_global_token_batched_and_invalid():

@@ -117,7 +117,7 @@ def test_edm_training_step_reduces_loss():
         loss.backward()
         opt.step()
     assert loss.item() < first.item()
-    assert GLOBAL_TOKEN_DIM == 10
+    assert GLOBAL_TOKEN_DIM == 23   # p_mask (10), density (12), density's presence bit
 
 
 def test_token_cells_follow_the_raster_convention():

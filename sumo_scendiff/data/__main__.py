@@ -18,12 +18,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import signal
 import sys
 from contextlib import closing
 from dataclasses import asdict, replace
 
+from ..core.outputs import OutputError, claim
 from ..core.procs import die_with_parent
 from ..map.network import Network, NetworkError
 from .demand import DemandError, check_routes
@@ -85,12 +85,20 @@ def _record_all(tasks: list[tuple], workers: int):
 
 
 def main(o) -> int:
-    from tqdm import tqdm
     out = os.path.abspath(o.out)
-    partial = out + ".partial"
+    try:  # one recording at a time owns DIR.partial, from the first check to the rename to DIR
+        with claim(out + ".partial") as owner:
+            return _record(o, out, owner)
+    except OutputError as e:
+        o.parser.exit(2, f"{PROG}: error: {e}\n")
+
+
+def _record(o, out: str, owner) -> int:
+    from tqdm import tqdm
+    partial = owner.directory
     if os.path.exists(out) and (not os.path.isdir(out) or os.listdir(out)):
         o.parser.exit(2, f"{PROG}: error: {o.out}: exists and is not empty (choose another --out)\n")
-    if os.path.exists(partial) and not o.resume:
+    if not owner.created and not o.resume:
         o.parser.exit(2, f"{PROG}: error: {partial}: an interrupted run is there; "
                          f"continue it with --resume or remove it\n")
     try:
@@ -112,10 +120,6 @@ def main(o) -> int:
         config["density"] = list(o.density)
     if not o.square:
         config["disc"] = True
-    try:
-        os.makedirs(partial, exist_ok=True)
-    except OSError as e:
-        o.parser.exit(2, f"{PROG}: error: {partial}: cannot create ({e.strerror})\n")
     plan_file = os.path.join(partial, "plan.json")
     if os.path.exists(plan_file):
         with open(plan_file) as f:
@@ -167,7 +171,7 @@ def main(o) -> int:
     os.remove(plan_file)
     if os.path.isdir(out):
         os.rmdir(out)  # exists but empty (checked above)
-    shutil.move(partial, out)
+    owner.rename(out)
     print(f"{o.out}: {manifest['scenes']} scenes, {manifest['agents']} agents from "
           f"{len(nets)} network(s) in {len(plan)} episode(s)")
     return 0

@@ -50,11 +50,14 @@ class SceneDataset(Dataset):
         if self.rotate:
             rng = np.random.default_rng((self.seed, self.epoch, idx))
             scene = crop_to_window(rotate_scene(scene, float(rng.uniform(-np.pi, np.pi))))
+        net = self.network(self.store.net_path(idx))
+        # the density condition: every vehicle of the window per km of its car lanes
+        km = net.car_lane_km(scene.window)
+        density = len(scene) / km if km > 0 else float("nan")
         if len(scene) > self.max_agents:  # keep the agents nearest the centre
             keep = np.argsort(np.hypot(scene.boxes[:, 0], scene.boxes[:, 1]))[: self.max_agents]
             scene = scene.select(np.sort(keep))
-        net = self.network(self.store.net_path(idx))
-        return {
+        return {"density": density,
             "map": render_map(net, scene.window, self.raster),
             "agents": render_agents(scene.boxes, scene.traj, scene.traj_mask, self.raster),
             "boxes": scene.boxes, "traj": scene.traj, "traj_mask": scene.traj_mask,
@@ -69,6 +72,7 @@ def collate_scenes(items: list[dict]) -> dict:
     out = {"map": torch.from_numpy(np.stack([it["map"] for it in items])),
            "agents": torch.from_numpy(np.stack([it["agents"] for it in items])),
            "index": torch.tensor([it["index"] for it in items]),
+           "density": torch.tensor([it.get("density", float("nan")) for it in items], dtype=torch.float64),
            "window": [it.get("window") for it in items]}
     shapes = {"boxes": (5,), "traj": (5, 3), "traj_mask": (5,), "speed": (5,), "vclass": ()}
     dtypes = {"traj_mask": np.bool_, "vclass": np.int64}

@@ -7,11 +7,13 @@ density drawn per episode, so that recorded scenes range from nearly empty to co
 from __future__ import annotations
 
 import glob
+import gzip
 import os
 import re
 import subprocess
 import sys
 from dataclasses import dataclass
+from typing import Sequence
 
 from ..core.tools import sumo_tool
 
@@ -69,38 +71,56 @@ def random_trips(net_path: str, out_path: str, spec: RandomDemand) -> str:
 
 
 _EDGE_ATTRS = re.compile(rb'\b(?:edges|from|to)="([^"]*)"')
-_DEPART = re.compile(rb'\bdepart="([0-9.]+)"')
+_DEPART = re.compile(rb'<(?:vehicle|trip|flow|person|personFlow)\b[^>]*?\b(?:depart|begin)="([0-9.]+)"')
+_DEMAND = re.compile(rb'<(?:vehicle|trip|flow|person|personFlow|container|containerFlow)\b')
+
+
+def _read_xml(path: str, roots: tuple[bytes, ...]) -> bytes:
+    if not os.path.exists(path):
+        raise DemandError(f"{path}: no such file")
+    if os.path.getsize(path) == 0:
+        raise DemandError(f"{path}: empty file")
+    opener = gzip.open if path.endswith(".gz") else open
+    with opener(path, "rb") as f:
+        data = f.read()
+    root = next((r for r in roots if b"<" + r in data[:65536]), None)
+    if root is None:
+        names = " or ".join(f"<{r.decode()}>" for r in roots)
+        raise DemandError(f"{path}: not a SUMO route file (no {names} element)")
+    if not data.rstrip().endswith(b"</" + root + b">"):
+        raise DemandError(f"{path}: truncated (no closing </{root.decode()}>)")
+    return data
+
+
+def check_demand(route_files: Sequence[str], edge_ids: set[str], additional: Sequence[str] = (),
+                 sample: int = 2000) -> float:
+    """Check route files as the set SUMO loads: each is a closed ``<routes>`` (or ``<additional>``)
+    file, the set (with the additional files, which may hold vTypes or routes too) has vehicles,
+    trips or flows, and the edges they use are the network's. A file of vTypes alone is legal.
+    Returns the first departure (s). Raises :class:`DemandError` naming the file."""
+    data = {p: _read_xml(p, (b"routes", b"additional")) for p in route_files}
+    data.update({p: _read_xml(p, (b"additional", b"routes")) for p in additional})
+    if not any(_DEMAND.search(d) for d in data.values()):
+        raise DemandError(f"{', '.join(route_files) or ', '.join(additional)}: no vehicle routes or "
+                          "trips found")
+    departs = []
+    for path, d in data.items():
+        used = []
+        for m in _EDGE_ATTRS.finditer(d):
+            used.extend(m.group(1).decode().split())
+            if len(used) >= sample:
+                break
+        unknown = [e for e in used if e not in edge_ids]
+        if len(unknown) > 0.01 * len(used):
+            raise DemandError(f"{path}: does not match the network ({len(unknown)} of {len(used)} "
+                              f"edges referenced are unknown, e.g. '{unknown[0]}')")
+        departs += [float(m.group(1)) for m in _DEPART.finditer(d, 0, min(len(d), 2_000_000))]
+    return min(departs) if departs else 0.0
 
 
 def check_routes(routes_path: str, edge_ids: set[str], sample: int = 2000) -> float:
-    """Check that a route / trip file refers to this network's edges; returns its first departure (s).
-
-    Raises :class:`DemandError` for a missing, empty or non-route file, or one whose edges are not in
-    the network.
-    """
-    if not os.path.exists(routes_path):
-        raise DemandError(f"{routes_path}: no such file")
-    if os.path.getsize(routes_path) == 0:
-        raise DemandError(f"{routes_path}: empty file")
-    with open(routes_path, "rb") as f:
-        data = f.read()
-    if b"<routes" not in data[:65536]:
-        raise DemandError(f"{routes_path}: not a SUMO route file (no <routes> element)")
-    if not data.rstrip().endswith(b"</routes>"):
-        raise DemandError(f"{routes_path}: truncated (no closing </routes>)")
-    used = []
-    for m in _EDGE_ATTRS.finditer(data):
-        used.extend(m.group(1).decode().split())
-        if len(used) >= sample:
-            break
-    if not used:
-        raise DemandError(f"{routes_path}: no vehicle routes or trips found")
-    unknown = [e for e in used if e not in edge_ids]
-    if len(unknown) > 0.01 * len(used):
-        raise DemandError(f"{routes_path}: does not match the network ({len(unknown)} of {len(used)} "
-                          f"edges referenced are unknown, e.g. '{unknown[0]}')")
-    departs = [float(m.group(1)) for m in _DEPART.finditer(data, 0, min(len(data), 2_000_000))]
-    return min(departs) if departs else 0.0
+    """:func:`check_demand` of one route file, which must hold vehicles itself."""
+    return check_demand([routes_path], edge_ids, sample=sample)
 
 
 def find_demand(net) -> str | None:

@@ -29,11 +29,10 @@ import numpy as np
 from ..core.geometry import Window, wrap_angle
 from ..data.demand import DemandError, find_demand
 from ..data.shards import SceneStore
+from ..generation.config import GenerationConfig, SettingError
 from ..map.network import Network, NetworkError
 from .baselines import LaneUniform, RandomLogSelection
 from .metrics import evaluate_scenes
-
-SAMPLER_NAMES = ("dpmpp-2m", "euler", "heun")  # model.edm.SAMPLERS' keys (torch is imported lazily)
 
 PROG = "python -m sumo_scendiff.evaluate"
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -66,37 +65,17 @@ def get_options(args=None):
     p.add_argument("--no-map-checkpoint", default=None, help="the no-map ablation model (a row)")
     p.add_argument("--tokens", action="store_true", help="also the token tables (2, 3, E.2)")
     p.add_argument("--token-scenes", type=int, default=100, help="scenes per net for --tokens")
-    p.add_argument("--steps", type=int, default=None, help="sampler steps for the model")
-    p.add_argument("--sampler", choices=SAMPLER_NAMES, default=None,
-                   help="ODE solver for the model (default: generate's)")
-    p.add_argument("--guidance", type=float, default=None,
-                   help="classifier-free guidance weight of the agent tokens (default: generate's)")
-    p.add_argument("--scene-guidance", type=float, default=None,
-                   help="classifier-free guidance weight of the global token (default: generate's)")
-    p.add_argument("--scene-guidance-sigma", type=float, default=None, metavar="SIGMA",
-                   help="apply the global token's guidance only above this noise level "
-                        "(default: generate's)")
-    p.add_argument("--no-pin-tokens", dest="pin_tokens", action="store_false",
-                   help="agent tokens are conditions only, as in the paper (default: a token with "
-                        "pose, size and speed is pinned in the latent; README \"Token control\")")
-    p.add_argument("--no-pin-calibration", dest="pin_calibration", action="store_false",
-                   help="draw pinned tokens at the speeds they ask, not at those the decoder turns "
-                        "into the token's (pinning.calibrated_pins)")
-    p.add_argument("--no-pin-speeds", dest="pin_speeds", action="store_false",
-                   help="a pinned token's agent keeps its decoded speeds, the model's own (the paper's "
-                        "Table 3; default: it moves at the token's, pinning.pace_to_pins)")
-    p.add_argument("--no-lane-headings", dest="lane_headings", action="store_false",
-                   help="junction boxes keep the heading head's argmax (generate's lane_headings)")
-    p.add_argument("--no-lane-snap", dest="lane_snap", action="store_false",
-                   help="poses stay as decoded, off the lane centre lines (generate's lane_snap)")
     p.add_argument("--json", default=None, metavar="PATH", help="also write all results as JSON")
     p.add_argument("--pictures", default=None, metavar="DIR",
                    help="write DIR/<net>.png: three windows, ground truth beside every method")
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("-v", "--verbose", action="store_true")
+    GenerationConfig.add_arguments(p)
     o = p.parse_args(args)
-    if not all(w is None or w >= 0 for w in (o.guidance, o.scene_guidance, o.scene_guidance_sigma)):
-        p.error("--guidance, --scene-guidance and --scene-guidance-sigma must be >= 0")
+    try:
+        GenerationConfig.from_options(o)
+    except SettingError as e:
+        p.error(str(e))
     if o.tokens and o.no_model:
         p.error("--tokens measures the model: it cannot go with --no-model")
     o.parser = p
@@ -146,7 +125,17 @@ def methods_for(net: Network, pool: SceneStore, models: dict, seed: int):
             lambda gts: [lane.generate(g.window, n=len(g), index=i) for i, g in enumerate(gts)])]
     for name, gen in models.items():  # map-only generation: no agent tokens, p_mask = 1
         out.append((name, lambda gts, gen=gen: gen.generate(net, [g.window for g in gts], seed=seed)))
+    for name, gen in models.items():  # told each window's true count, as `run --vehicles N` is
+        if gen.has_density:
+            out.append((f"{name} (true count)", lambda gts, gen=gen: gen.generate(
+                net, [g.window for g in gts], seed=seed, density=[true_density(net, g) for g in gts])))
     return out
+
+
+def true_density(net: Network, scene) -> float:
+    """The ground truth's vehicles per km of car lane in its window (what --vehicles N asks for)."""
+    km = net.car_lane_km(scene.window)
+    return len(scene) / km if km > 0 else float("nan")
 
 
 def ground_truth(net: Network, o) -> tuple[str | None, list, list]:
@@ -205,8 +194,12 @@ def save_pictures(net: Network, tiles: dict, path: str) -> None:
     rows = [[draw_scene(net, scenes[r], 320, title=name) for name, scenes in tiles.items()]
             for r in range(len(next(iter(tiles.values()))))]
     if rows:
+        from ..core.outputs import partial_path
         os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-        cv2.imwrite(path, contact_sheet(rows))
+        tmp = partial_path(path)   # complete or absent, never a half-written picture
+        with open(tmp, "wb") as f:
+            f.write(cv2.imencode(".png", contact_sheet(rows))[1].tobytes())
+        os.replace(tmp, path)
 
 
 def _row(res: dict) -> dict:
@@ -267,18 +260,8 @@ def load_models(o) -> dict:
     """name -> ScenarioGenerator for the model rows (none with --no-model)."""
     if o.no_model:
         return {}
-    from ..generation.generator import (
-        DEFAULT_CHECKPOINT,
-        GenerationConfig,
-        ScenarioGenerator,
-    )
-    from ..model.edm import SAMPLERS
-    cfg = replace(GenerationConfig(), scene_guidance=o.scene_guidance,
-                  scene_guidance_sigma=o.scene_guidance_sigma, pin_tokens=o.pin_tokens,
-                  pin_calibration=o.pin_calibration,
-                  pin_speeds=o.pin_speeds, lane_headings=o.lane_headings, lane_snap=o.lane_snap,
-                  **{k: v for k, v in (("steps", o.steps), ("guidance", o.guidance),
-                                       ("sampler", o.sampler and SAMPLERS[o.sampler])) if v is not None})
+    from ..generation.generator import DEFAULT_CHECKPOINT, ScenarioGenerator
+    cfg = GenerationConfig.from_options(o)
     path = o.checkpoint or DEFAULT_CHECKPOINT
     if o.checkpoint is None and not os.path.exists(path):
         print(f"{PROG}: no shipped checkpoint at {path}: baselines only", file=sys.stderr)
@@ -292,6 +275,17 @@ def load_models(o) -> dict:
 
 
 def main(o) -> int:
+    from ..core.outputs import OutputError, claim
+    from ..core.threads import share_cpu
+    share_cpu()
+    try:  # --pictures DIR is this evaluation's until it ends: a second one stops before any work
+        with claim(o.pictures) if o.pictures else contextlib.nullcontext():
+            return _evaluate(o)
+    except OutputError as e:
+        o.parser.exit(2, f"{PROG}: error: {e}\n")
+
+
+def _evaluate(o) -> int:
     from ..model.checkpoint import CheckpointError
     try:
         nets = [Network.load(p) for p in (o.nets or default_nets())]  # bad input first, before work

@@ -1,37 +1,171 @@
-"""Generation settings: the one place that defines them."""
+"""Generation settings: the one place that defines them, their defaults, help and ranges.
+
+    cfg = GenerationConfig(steps=20, sampler="euler")
+    GenerationConfig.add_arguments(parser)                 # --steps, --sampler, ..., --no-lane-snap
+    cfg = GenerationConfig.from_options(parser.parse_args())
+    cfg = GenerationConfig.from_mapping(spec_table, "sweep.toml")   # a sweep spec's keys
+    info["model"] = cfg.record(generator)                  # the scene record's "model" block
+
+Torch-free, so that a command line's ``--help`` does not load the model: the sampler is a name,
+turned into its solver (:data:`~sumo_scendiff.model.edm.SAMPLERS`) where the generator samples.
+"""
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Callable
+import argparse
+from dataclasses import dataclass, field, fields
 
-from ..model.edm import sample_dpmpp_2m
+# model.edm.SAMPLERS' keys (tests/test_generation_config.py holds them equal), default first
+SAMPLER_NAMES = ("dpmpp-2m", "euler", "heun")
 
 
-@dataclass
+class SettingError(ValueError):
+    """One line: where the setting came from (a file, or the flag), the key, the problem."""
+
+
+def _setting(default, help: str, *, kind: type, minimum: float | None = None, above: float | None = None,
+             maximum: float | None = None, choices: tuple | None = None, flag: str | None = None):
+    """A user setting: its default, help text and range, read by the flags, specs and checks."""
+    return field(default=default, metadata={"help": help, "kind": kind, "minimum": minimum, "above": above,
+                                            "maximum": maximum, "choices": choices, "flag": flag})
+
+
+@dataclass(frozen=True)
 class GenerationConfig:
     # DPM-Solver++(2M) at 10 steps: the quality of 20 Euler steps (the paper's solver) at half the
-    # UNet passes (README, "The model"); any solver of model.edm fits (sampler=sample_euler)
-    steps: int = 10
-    sampler: Callable = sample_dpmpp_2m
-    threshold: float = 0.8       # box probability (paper sec. 4.1: 80 %)
-    batch_size: int = 32
-    guidance: float = 3.0        # classifier-free guidance weight of the agent tokens (1 = off);
-                                 # costs a second UNet pass only for batches that carry tokens
-    scene_guidance: float | None = None  # ... of the global token, for windows without agent tokens
-                                         # (1 = off; None: the checkpoint's calibrated weight)
-    scene_guidance_sigma: float | None = None  # ... applied only at noise levels above this
-                                               # (None: the checkpoint's, calibrated with the weight)
-    pin_tokens: bool = True      # a token giving pose, size and speed is imposed in the latent
-                                 # (pinning.py) and its agent takes the token's heading; False:
-                                 # every token is a condition only (the paper)
-    pin_calibration: bool = True   # ... drawn at the speeds the decoder turns into the token's
-                                   # (pinning.calibrated_pins; README "The model", pinned tokens)
-    pin_speeds: bool = True      # ... and its agent moves along its decoded path at the token's
-                                 # speed and final speed, and turns by its heading_to_final
-                                 # (pinning.pace_to_pins); False: the decoder's speeds and path
-                                 # (what the paper's Table 3 measures)
-    lane_headings: bool = True   # a box on a junction takes the heading of the network's lane through
-                                 # it that the heading head finds most probable (lane_heading.py)
-    lane_snap: bool = True       # poses within 3 m of an agreeing car lane move onto its centre line
-                                 # and take its heading, as SUMO's traffic drives (lane_snap.py);
-                                 # an agent on no such lane is removed unless a token put it there
+    # UNet passes (README, "The model")
+    steps: int = _setting(10, "ODE solver steps", kind=int, minimum=1)
+    sampler: str = _setting(SAMPLER_NAMES[0], "ODE solver of model.edm (dpmpp-2m: DPM-Solver++(2M); "
+                            "euler: the paper's)", kind=str, choices=SAMPLER_NAMES)
+    threshold: float = _setting(0.8, "box probability threshold (paper sec. 4.1)", kind=float,
+                                above=0.0, maximum=1.0)
+    batch_size: int = 32         # windows per model call (not a user setting)
+    # a second UNet pass only for batches that carry tokens
+    guidance: float = _setting(3.0, "classifier-free guidance weight of the agent tokens (1 = off)",
+                               kind=float, minimum=0.0)
+    scene_guidance: float | None = _setting(
+        None, "classifier-free guidance weight of the global token for windows without agent tokens: "
+        "more agents above 1 (default: the model's calibrated value; 1 = off)", kind=float, minimum=0.0)
+    scene_guidance_sigma: float | None = _setting(
+        None, "apply the global token's guidance only above this noise level (default: the model's, "
+        "calibrated with the weight)", kind=float, minimum=0.0)
+    pin_tokens: bool = _setting(
+        True, "tokens are conditions only, as in the paper (default: a token giving pose, size and "
+        "speed -- every vehicle already in the window -- is pinned in the latent where it is, "
+        "generation/pinning.py)", kind=bool, flag="--no-pin-tokens")
+    pin_calibration: bool = _setting(
+        True, "draw pinned tokens at the speeds they ask (default: at the speeds the decoder turns "
+        "into the token's, pinning.calibrated_pins; README \"The model\")", kind=bool,
+        flag="--no-pin-calibration")
+    pin_speeds: bool = _setting(
+        True, "a pinned token's vehicle keeps the speeds and path the model draws, what the paper's "
+        "Table 3 measures (default: it moves along that path at the token's speed and final speed and "
+        "turns by its heading_to_final, pinning.pace_to_pins)", kind=bool, flag="--no-pin-speeds")
+    deliver_tokens: bool = _setting(
+        True, "a token missing a pinning feature is a condition only, its vehicle as the model draws "
+        "it or absent (default: the generated vehicle matched to it takes the speed, final speed, "
+        "turn, heading and size it gives, and a positioned token no vehicle matches is placed on its "
+        "lane, generation/deliver.py)", kind=bool, flag="--no-deliver-tokens")
+    lane_headings: bool = _setting(
+        True, "vehicles on a junction keep the decoder's own heading (default: the heading of the "
+        "network's lane through them that the heading head finds most probable, lane_heading.py)",
+        kind=bool, flag="--no-lane-headings")
+    lane_snap: bool = _setting(
+        True, "vehicles keep their decoded pose (default: a pose within 3 m of an agreeing car lane "
+        "moves onto its centre line and takes its heading, as SUMO's traffic drives; a vehicle on no "
+        "such lane is removed unless a token put it there, lane_snap.py)", kind=bool,
+        flag="--no-lane-snap")
+
+    # ---- the settings ---------------------------------------------------------------------
+    @classmethod
+    def settings(cls) -> tuple[str, ...]:
+        """The user settings' names (flags, spec keys), in order."""
+        return tuple(f.name for f in fields(cls) if "help" in f.metadata)
+
+    @classmethod
+    def flag(cls, name: str) -> str:
+        """The command-line flag of a setting."""
+        meta = {f.name: f.metadata for f in fields(cls)}[name]
+        return meta["flag"] or "--" + name.replace("_", "-")
+
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser):
+        """Add every setting's flag (dest: the field's name) to ``parser``; returns the group."""
+        group = parser.add_argument_group("generation")
+        for f in fields(cls):
+            m = f.metadata
+            if "help" not in m:
+                continue
+            if m["kind"] is bool:   # on by default: the flag turns it off
+                group.add_argument(cls.flag(f.name), dest=f.name, action="store_false", help=m["help"])
+                continue
+            shown = "" if f.default is None else " (default: %(default)s)"
+            group.add_argument(cls.flag(f.name), dest=f.name, type=m["kind"], default=f.default,
+                               choices=m["choices"], help=m["help"] + shown,
+                               metavar=None if m["choices"] else f.name.split("_")[-1].upper())
+        return group
+
+    @classmethod
+    def from_options(cls, options) -> GenerationConfig:
+        """The config of parsed flags (:meth:`add_arguments`); a bad value raises
+        :class:`SettingError` naming the flag."""
+        cfg = cls(**{name: getattr(options, name) for name in cls.settings()})
+        for name, problem in cfg._problems():
+            raise SettingError(f"{cls.flag(name)}: {problem}")
+        return cfg
+
+    @classmethod
+    def from_mapping(cls, table: dict, source: str) -> GenerationConfig:
+        """The config of a table of settings (a sweep spec's keys; absent keys: the defaults). An
+        unknown key, a wrong type or a value out of range raises :class:`SettingError` naming
+        ``source`` and the key."""
+        meta = {f.name: f.metadata for f in fields(cls) if "help" in f.metadata}
+        values = {}
+        for key, v in table.items():
+            if key not in meta:
+                raise SettingError(f"{source}: {key}: unknown key (expected {', '.join(meta)})")
+            kind = meta[key]["kind"]
+            if kind is float and isinstance(v, int) and not isinstance(v, bool):
+                v = float(v)
+            if not isinstance(v, kind) or (kind is int and isinstance(v, bool)):
+                raise SettingError(f"{source}: {key}: must be {kind.__name__}, got {v!r}")
+            values[key] = v
+        cfg = cls(**values)
+        for name, problem in cfg._problems():
+            raise SettingError(f"{source}: {name}: {problem}")
+        return cfg
+
+    def validate(self) -> GenerationConfig:
+        """This config, or :class:`SettingError` for the first setting out of range."""
+        for name, problem in self._problems():
+            raise SettingError(f"{name}: {problem}")
+        return self
+
+    def _problems(self):
+        for f in fields(self):
+            m, v = f.metadata, getattr(self, f.name)
+            if "help" not in m or v is None:
+                continue
+            if m["choices"] and v not in m["choices"]:
+                yield f.name, f"must be one of {', '.join(m['choices'])}, got {v!r}"
+            elif m["minimum"] is not None and not v >= m["minimum"]:
+                yield f.name, f"must be >= {m['minimum']:g}, got {v!r}"
+            elif m["above"] is not None and not v > m["above"]:
+                yield f.name, f"must be > {m['above']:g}, got {v!r}"
+            elif m["maximum"] is not None and not v <= m["maximum"]:
+                yield f.name, f"must be <= {m['maximum']:g}, got {v!r}"
+
+    # ---- use ------------------------------------------------------------------------------
+    def solver(self):
+        """The sampler's function (:data:`~sumo_scendiff.model.edm.SAMPLERS`)."""
+        from ..model.edm import SAMPLERS
+        return SAMPLERS[self.sampler]
+
+    def record(self, generator) -> dict:
+        """The scene record's "model" block: the checkpoint and what this config generates with
+        (the global token's guidance resolved against the checkpoint's calibrated values)."""
+        return {"sha256": generator.sha256, "sampler": self.solver().__name__, "steps": self.steps,
+                "threshold": self.threshold, "pin_tokens": self.pin_tokens, "pin_speeds": self.pin_speeds,
+                "lane_headings": self.lane_headings, "lane_snap": self.lane_snap, "guidance": self.guidance,
+                "scene_guidance": generator.scene_guidance_for(self),
+                "scene_guidance_sigma": generator.scene_guidance_sigma_for(self),
+                "deliver_tokens": self.deliver_tokens}

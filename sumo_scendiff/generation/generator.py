@@ -8,10 +8,10 @@ Pipeline per batch: map raster m -> initial noise (one generator per window, so 
 not depend on what else is in the batch) -> pinned tokens' latent cells (pinning.py) -> ODE from
 sigma_max to 0 (DPM-Solver++(2M) by default) -> D(z, m) ->
 boxes above ``threshold`` -> overlapping boxes removed (most probable kept) -> pinned tokens' agents
-turned to the tokens' headings and paced to their speeds (pinning.turn_to_pins, pace_to_pins) ->
-poses snapped onto
+turned to the tokens' headings and paced to their speeds (pinning.turn_to_pins, pace_to_pins), the agents
+of positioned partial tokens given what those tokens give (deliver.py) -> poses snapped onto
 lane centre lines (lane_snap.py; agents on no lane removed unless a token asked for them, overlaps
-removed again) -> scene-frame
+removed again) -> partial tokens no agent matched placed on their lanes (deliver.place_rows) -> scene-frame
 :class:`~sumo_scendiff.core.scene.Scene` with speeds from the trajectory.
 """
 from __future__ import annotations
@@ -32,6 +32,7 @@ from ..model.detection import decode_boxes
 from ..model.diffusion import DiffusionConfig, ScenarioDiffusion
 from ..tokens.encoding import (
     AGENT_TOKEN_DIM,
+    GLOBAL_TOKEN_DIM,
     agent_tokens_from_dicts,
     global_token,
     pad_tokens,
@@ -40,7 +41,9 @@ from ..tokens.encoding import (
 from .config import GenerationConfig
 from .lane_heading import junction_yaw
 from .lane_snap import snap_to_lanes
-from .pinning import pace_to_pins, pinned_latent, pinned_poses, turn_to_pins
+from .deliver import apply_rows, delivered_rows, match_rows, pace_rows, place_rows
+from .pinning import match_pins, pace_to_pins, pinned_latent, pinned_poses, turn_to_pins
+from .token_resolve import resolve_tokens
 
 DECIMALS = 3   # generated poses are rounded to mm / mrad
 ASKED_RADIUS = 2.0  # m: a decoded agent this close to a token's position is what the token asked for
@@ -85,8 +88,7 @@ class ScenarioGenerator:
                  latent_scale: float, raster: RasterConfig = RasterConfig(), sha256: str = "",
                  config: GenerationConfig = GenerationConfig(), scene_guidance: float = 1.0,
                  scene_guidance_sigma: float = 0.0):
-        # channels-last: oneDNN's faster convolution layout on CPU (the 128 px map encoder: 0.34 ->
-        # 0.25 s per batch of 32, measured)
+        # channels-last: oneDNN's faster convolution layout on CPU
         self.ae = autoencoder.eval().to(memory_format=torch.channels_last)
         self.diffusion = diffusion.eval().to(memory_format=torch.channels_last)
         self.latent_scale = latent_scale
@@ -115,6 +117,11 @@ class ScenarioGenerator:
                    scene_guidance=float(ck.get("scene_guidance", 1.0)),
                    scene_guidance_sigma=float(ck.get("scene_guidance_sigma", 0.0)))
 
+    @property
+    def has_density(self) -> bool:
+        """Whether the model takes the density condition (vehicles per km of car lane)."""
+        return self.diffusion.cfg.unet.global_dim == GLOBAL_TOKEN_DIM
+
     def scene_guidance_for(self, cfg: GenerationConfig) -> float:
         """The global token's guidance weight a config generates with (None: the checkpoint's)."""
         return self.scene_guidance if cfg.scene_guidance is None else cfg.scene_guidance
@@ -127,14 +134,15 @@ class ScenarioGenerator:
     @torch.no_grad()
     def _batch(self, maps: np.ndarray, tokens: list[np.ndarray], p_mask: np.ndarray,
                seeds: list[int], cfg: GenerationConfig, pins: Sequence | None = None,
-               net=None, windows: Sequence[Window] = ()):
+               net=None, windows: Sequence[Window] = (), density: np.ndarray | None = None):
         m = torch.from_numpy(maps).contiguous(memory_format=torch.channels_last)
         tok, pad = pad_tokens(tokens)
-        glob = torch.from_numpy(global_token(p_mask).reshape(len(maps), -1))
+        glob = torch.from_numpy(global_token(p_mask, density, dim=self.diffusion.cfg.unet.global_dim)
+                                .reshape(len(maps), -1))
         noise = torch.stack([torch.randn(self.diffusion.cfg.unet.c_z, self.diffusion.cfg.unet.res,
                                          self.diffusion.cfg.unet.res,
                                          generator=torch.Generator().manual_seed(s)) for s in seeds])
-        z = self.diffusion.sample(m, tok, pad, glob, steps=cfg.steps, sampler=cfg.sampler,
+        z = self.diffusion.sample(m, tok, pad, glob, steps=cfg.steps, sampler=cfg.solver(),
                                   noise=noise, guidance=cfg.guidance,
                                   scene_guidance=self.scene_guidance_for(cfg),
                                   scene_guidance_sigma=self.scene_guidance_sigma_for(cfg),
@@ -148,7 +156,8 @@ class ScenarioGenerator:
         return dec.prob.numpy(), dec.boxes.numpy(), dec.traj.numpy()
 
     def _scene(self, window: Window, prob, boxes, traj, cfg: GenerationConfig, net,
-               tokens: np.ndarray | None = None, pins: np.ndarray | None = None) -> Scene:
+               tokens: np.ndarray | None = None, pins: np.ndarray | None = None,
+               given: Sequence | None = None) -> Scene:
         keep = select_boxes(window, prob, boxes, cfg.threshold)
         boxes, traj = boxes[keep], traj[keep]
         turned = np.zeros(len(keep), bool)
@@ -156,6 +165,19 @@ class ScenarioGenerator:
             boxes, traj, turned = turn_to_pins(boxes, traj, pins, ASKED_RADIUS)
             if cfg.pin_speeds:
                 traj, _ = pace_to_pins(boxes, traj, pins, ASKED_RADIUS)
+        # the positioned tokens not pinned: their agents take what they give (deliver.py)
+        rows = delivered_rows(given) if cfg.deliver_tokens else np.zeros((0, 9))
+        owner = np.full(len(keep), -1, np.int64)       # per agent: the delivered token's index
+        paced = np.full((len(keep), 2), np.nan)
+        if len(rows):
+            pinned = np.zeros(len(keep), bool)
+            if cfg.pin_tokens and pins is not None and len(pins):
+                pinned[[a for a, _ in match_pins(boxes, pins, ASKED_RADIUS)]] = True
+            pairs = match_rows(boxes, rows, ASKED_RADIUS, taken=pinned)
+            boxes, traj, told, paced = apply_rows(boxes, traj, rows, pairs)
+            turned = turned | told
+            for a, r in pairs:
+                owner[a] = int(rows[r, 0])
         off_lane = 0
         if cfg.lane_snap and net is not None:
             boxes, traj, snapped = snap_to_lanes(boxes, traj, window, net, given=turned)
@@ -170,40 +192,68 @@ class ScenarioGenerator:
             ok = ok[remove_overlaps(boxes[ok], p[ok])]
             ok = ok[window.contains(boxes[ok, :2])]
             ok = ok[np.argsort(-p[ok], kind="stable")]
-            keep, boxes, traj = keep[ok], boxes[ok], traj[ok]
+            keep, boxes, traj, owner, paced = keep[ok], boxes[ok], traj[ok], owner[ok], paced[ok]
             if cfg.pin_tokens and cfg.pin_speeds and pins is not None and len(pins):
                 # snapping moved the poses onto the lanes, and so the steps: the token's speeds again
                 traj, _ = pace_to_pins(boxes, traj, pins, ASKED_RADIUS, turn=False)
+            if len(rows):
+                traj = pace_rows(traj, paced)
+        score = np.round(prob[keep], 4).tolist()
+        cell = keep.tolist()
+        warnings: list[str] = []
+        if len(rows) and net is not None:
+            boxes, traj, owner, gone, warnings = place_rows(boxes, traj, owner, rows, window, net)
+            kept = [k for k in range(len(keep)) if k not in set(gone)]
+            placed = len(owner) - len(kept)
+            # a placed vehicle is the user's, not the model's: score 1, no latent cell
+            score, cell = [score[k] for k in kept] + [1.0] * placed, [cell[k] for k in kept] + [-1] * placed
         # millimetres / milliradians: the float noise of batch composition and thread count
         # (~1e-6) must not make the same seed seed SUMO differently
         b, t = np.round(boxes, DECIMALS).astype(np.float32), np.round(traj, DECIMALS).astype(np.float32)
-        mask = np.ones((len(keep), len(TIMES)), bool)
+        mask = np.ones((len(b), len(TIMES)), bool)
+        meta = {"score": score, "cell": cell, "off_lane_removed": off_lane}
+        if len(rows):
+            # per agent, the user token it delivers (None: the model's own); a tuple, not selected per agent
+            meta["delivers"] = [int(o) if o >= 0 else None for o in owner]
+            if warnings:
+                meta["token_warnings"] = tuple(warnings)
         return Scene(window, b, t, mask, speeds_from_traj(t, mask), vclass_from_size(b[:, 3], b[:, 4]),
-                     net.name, meta={"score": np.round(prob[keep], 4).tolist(), "cell": keep.tolist(),
-                                     "off_lane_removed": off_lane})
+                     net.name, meta=meta)
 
     # ---- public API -----------------------------------------------------------------------
     def generate(self, net, windows: Sequence[Window], tokens=None, p_mask=1.0, seed: int = 0,
                  config: GenerationConfig | None = None, progress: bool = False,
-                 maps: np.ndarray | None = None, noise_seeds: Sequence[int] | None = None) -> list[Scene]:
+                 maps: np.ndarray | None = None, noise_seeds: Sequence[int] | None = None,
+                 density=None) -> list[Scene]:
         """Scenes for ``windows`` on ``net``.
 
         ``tokens``: per window, agent tokens as a list of feature dicts (any subset of
         :data:`~sumo_scendiff.tokens.encoding.FEATURES`, scene frame of that window) or an encoded
         (T, 170) array; ``None`` for no tokens. A dict with pose, size and speed is pinned
-        (:mod:`~sumo_scendiff.generation.pinning`) unless ``config.pin_tokens`` is False. ``p_mask``: the
+        (:mod:`~sumo_scendiff.generation.pinning`) unless ``config.pin_tokens`` is False; a positioned
+        one without them is delivered (:mod:`~sumo_scendiff.generation.deliver`) unless
+        ``config.deliver_tokens`` is False; network references of token files (``edge``/``lane``/``pos``,
+        ``ahead``/``lane_offset``) are resolved first (:mod:`.token_resolve`). ``p_mask``: the
         global scene token per window (or one for all); 1.0 with no tokens = map-only generation.
         The same ``seed`` gives the same scenes; window ``i`` uses the seed ``(seed, i)``. ``maps``: the windows' map rasters when
         already rendered (``render_map``), else rendered here. ``noise_seeds``: one seed per
         window instead (window ``i`` starts from the noise of ``noise_seeds[i]`` alone, whatever
         else is in the batch: the same seed with other tokens gives the variant of the same scene).
+        ``density``: per window (or one for all) the vehicles per km of car lane the scene should
+        hold, tokens' vehicles included; None or NaN: the model's own prior (needs a checkpoint with
+        the density condition, :attr:`has_density`).
         """
         cfg = config or self.config
         n = len(windows)
+        if tokens is not None and len(tokens) == n:
+            # token-file references to the network (edge/lane/pos, ahead/lane_offset) made poses
+            tokens = [resolve_tokens(net, w, t) for w, t in zip(windows, tokens)]
         toks = [_encode(t) for t in (tokens if tokens is not None else [None] * n)]
         if len(toks) != n:
             raise ValueError(f"{len(toks)} token sets for {n} windows")
         pm = np.broadcast_to(np.asarray(p_mask, np.float64), (n,))
+        dens = None if density is None else np.broadcast_to(
+            np.asarray([np.nan if d is None else d for d in np.atleast_1d(density)], np.float64), (n,))
         if noise_seeds is not None and len(noise_seeds) != n:
             raise ValueError(f"{len(noise_seeds)} noise seeds for {n} windows")
         keys = [[int(s)] for s in noise_seeds] if noise_seeds is not None else [[seed, i] for i in range(n)]
@@ -216,10 +266,12 @@ class ScenarioGenerator:
                                                              for w in windows[sl]])
             prob, boxes, traj = self._batch(m, toks[sl], pm[sl], seeds[sl], cfg,
                                             tokens[sl] if tokens is not None else None,
-                                            net=net, windows=windows[sl])
+                                            net=net, windows=windows[sl],
+                                            density=None if dens is None else dens[sl])
             for k, w in enumerate(windows[sl]):
                 out.append(self._scene(w, prob[k], boxes[k], traj[k], cfg, net, toks[s + k],
-                                       pinned_poses(tokens[s + k]) if tokens is not None else None))
+                                       pinned_poses(tokens[s + k]) if tokens is not None else None,
+                                       tokens[s + k] if tokens is not None else None))
         return out
 
 

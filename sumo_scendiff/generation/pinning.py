@@ -5,7 +5,7 @@
     z = diffusion.sample(m, tok, pad, glob, known=known)     # the agent is where the token says
 
 The paper conditions on tokens only (cross-attention), and on this CPU-sized model a token's agent
-is generated within 2.2 m / 0.2 rad about 80-86 % of the time ("Token control"). A token that gives
+is not always generated where the token says (README, "Token control"). A token that gives
 position, heading, length, width and speed describes the agent completely enough to draw it: its
 trajectory is synthesised (:func:`token_trajectories`: constant acceleration from ``speed`` to
 ``final_speed``, a circular arc whose chord turns by ``heading_to_final``, the past at the same
@@ -13,9 +13,8 @@ acceleration, never backwards), the token agents alone are rendered to the agent
 by the autoencoder's E, and the latent cells they change (their *footprint*: the largest channel of
 |mu(tokens) - mu(empty)| above :data:`FOOTPRINT`) are fixed to that latent while the diffusion model
 generates the rest around them (:func:`~sumo_scendiff.model.edm.inpainted`). The decoder then finds
-each pinned agent about as the autoencoder reconstructs it (every-token F1 0.971 against the
-autoencoder's 0.977 on held-out scenes, benchmarks/reconstruction.py). Tokens missing
-any of those features stay conditions only. A generated agent that would share a latent cell
+each pinned agent about as the autoencoder reconstructs it (README, "The model", pinned tokens).
+Tokens missing any of those features stay conditions only. A generated agent that would share a latent cell
 (6.25 m) with a pinned one is not drawn there: the cell holds the pinned agent alone. After
 decoding, the agent found within 2 m of a pinned token takes the token's heading
 (:func:`turn_to_pins`): inside a junction the decoder's heading is its least certain output; and it
@@ -91,7 +90,7 @@ def _arc(x: float, y: float, h: float, s: np.ndarray, alpha: float, t: np.ndarra
 
 # Pin calibration: offsets (m/s) tried for the drawn speed, then for the drawn final speed, of pins
 # asked to move at least MOVING m/s. Not the length, nor standing pins: calibrating those moved the
-# decoded boxes off their tokens (city match rate 0.977 -> 0.957, README "The model", pinned tokens)
+# decoded boxes off their tokens (README "The model", pinned tokens)
 SPEED_OFFSETS = (-1.0, 0.0, 1.0, 2.0, 3.0, 4.0)
 MOVING = 0.5
 CALIBRATION_RADIUS = 2.0   # m: the decoded agent within this of a pin is the pin's
@@ -145,8 +144,8 @@ def calibrated_pins(autoencoder, maps: torch.Tensor, pins: list[list[dict]],
                     raster: RasterConfig = RasterConfig(), footprint: float = FOOTPRINT) -> list[list[dict]]:
     """The pins as they must be drawn for D(E(x), m) to decode the speeds they ask.
 
-    The autoencoder shrinks what it draws toward the typical, and not linearly: a 9 m truck drawn
-    at 2 m/s decodes at 0.45 m/s, drawn at 3 m/s at 2.4; a car drawn at 10 m/s at 7.9. So every pin
+    The autoencoder shrinks what it draws toward the typical, and not linearly (README, "The
+    model", pin calibration): a slow truck decodes much slower than drawn. So every pin
     asked to move (:data:`MOVING`) is drawn at each of :data:`SPEED_OFFSETS` added to its speed (all
     pins of a window at once, one copy of the window per offset), each copy is encoded and decoded
     on the window's map ``maps`` (B, C, H, W) from its footprint cells alone (the rest of the latent
@@ -265,8 +264,8 @@ def pace_to_pins(boxes: np.ndarray, traj: np.ndarray, pins: np.ndarray, radius: 
     and turns as the token says where it says.
 
     ``pins`` (P, 6): x, y, heading, speed, final speed, heading to final (:func:`pinned_poses`; NaN:
-    not given). The decoder shrinks speeds toward the typical (1.0-1.6 m/s off for moving vehicles,
-    README "The model", pinned speeds; it never draws a stop) and draws the future from the map, not
+    not given). The decoder shrinks speeds toward the typical (README "The model",
+    pinned speeds; it never draws a stop) and draws the future from the map, not
     from a token's turn, while the token states them: a matched agent's poses are moved along its
     own path (:func:`retime`) to where SUMO's 1-s update at constant acceleration from ``speed`` to
     ``final_speed`` puts them (:func:`token_trajectories`' convention; no final speed: the decoded

@@ -124,6 +124,12 @@ class LaneMatch:
     heading_diff: np.ndarray
 
 
+def _square(window) -> shapely.Polygon:
+    """The (turned) window's square in world coordinates."""
+    return shapely.Polygon(window.scene_to_world(np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]])
+                                                 * 0.5 * window.size))
+
+
 class Network:
     """Lanes and junctions of one SUMO network with STRtrees for window and point queries."""
 
@@ -203,7 +209,7 @@ class Network:
         network = cls(path, lanes, junctions, net)
         # A big network is ~100k long-lived Python objects; without this, every full garbage collection
         # triggered by per-window work walks them all, and a 100 m window costs more on a larger net
-        # (measured: 0.89 vs 0.55 ms per raster on ingolstadt21 vs ingolstadt1; 0.64 vs 0.52 frozen).
+        # (benchmarks/raster.py).
         gc.collect()
         gc.freeze()
         return network
@@ -220,10 +226,22 @@ class Network:
 
     def has_road(self, window) -> bool:
         """Whether any car lane crosses the window's square."""
-        square = shapely.Polygon(window.scene_to_world(np.array(
-            [[1, 1], [-1, 1], [-1, -1], [1, -1]]) * 0.5 * window.size))
+        square = _square(window)
         idx = self.lane_tree.query(square, predicate="intersects")
         return any(self.lanes[i].car for i in idx)
+
+    def car_lanes_in(self, window) -> tuple[np.ndarray, np.ndarray]:
+        """(lane indices, km of each inside the window's square) of the car lanes crossing it
+        (junction-internal lanes included)."""
+        square = _square(window)
+        idx = self.lane_tree.query(square, predicate="intersects")
+        idx = np.sort(idx[np.isin(idx, self.car_lane_ids)])
+        return idx, shapely.length(shapely.intersection(self.lines[idx], square)) / 1000.0
+
+    def car_lane_km(self, window) -> float:
+        """Kilometres of car lane inside the window's square: the denominator of a window's density
+        in vehicles per km of car lane."""
+        return float(self.car_lanes_in(window)[1].sum())
 
     # ---- point queries --------------------------------------------------------------------
     def on_drivable(self, points) -> np.ndarray:

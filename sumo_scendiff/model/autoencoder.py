@@ -28,7 +28,7 @@ from .detection import C_Y, DetectionLossConfig, detection_loss
 from .heading import bin_width
 
 
-@dataclass
+@dataclass(frozen=True)
 class AutoencoderConfig:
     """Hyper-parameters of :class:`ScenarioAutoencoder` (names follow the paper's symbols)."""
 

@@ -48,9 +48,9 @@ def config_from_dict(cls, d: dict):
 
 
 def save(path: str, kind: str, **content) -> str:
-    """Atomically write a checkpoint of ``kind`` (temporary file, then rename); returns its SHA-256."""
+    """Atomically write a checkpoint of ``kind`` (``PATH.partial``, then rename); returns its SHA-256."""
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    tmp = path + ".tmp"
+    tmp = path + ".partial"
     torch.save({"format": FORMAT, "version": VERSION, "kind": kind, **content}, tmp)
     os.replace(tmp, path)
     return sha256(path)
@@ -76,6 +76,14 @@ def load(path: str, kind: str | tuple[str, ...]) -> dict:
     if ck.get("kind") not in kinds:
         raise CheckpointError(f"{path}: a {ck.get('kind')!r} checkpoint, expected {' or '.join(kinds)}")
     return ck
+
+
+def update(path: str, kind: str, **changes) -> str:
+    """Rewrite the checkpoint at ``path`` with some of its entries replaced (atomically, as
+    :func:`save`); returns its new SHA-256."""
+    ck = load(path, kind)
+    content = {k: v for k, v in ck.items() if k not in ("format", "version", "kind")}
+    return save(path, kind, **{**content, **changes})
 
 
 def load_state(module: torch.nn.Module, state: dict, path: str) -> None:

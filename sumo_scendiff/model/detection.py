@@ -36,7 +36,7 @@ STEPS = (0, 1, 3, 4)  # indices into TIMES of the trajectory delta blocks (t = -
 STATIONARY, STRAIGHT, TURNING = 0, 1, 2  # trajectory categories (appendix C.2)
 
 
-@dataclass
+@dataclass(frozen=True)
 class DetectionLossConfig:
     """Weights and thresholds of the reconstruction loss (appendix C.2)."""
 

@@ -17,6 +17,7 @@ import torch
 from torch import Tensor, nn
 
 from ..map.raster import MAP_CHANNELS
+from ..tokens.encoding import P_MASK_BINS
 from ..tokens.encoding import global_token as encode_global_token
 from .autoencoder import ConvEncoder
 from .edm import (
@@ -33,7 +34,7 @@ from .edm import (
 from .unet import UNet, UNetConfig
 
 
-@dataclass
+@dataclass(frozen=True)
 class DiffusionConfig:
     """E_m and the UNet. ``map_channels``: widths of E_m at 128, 64, 32, 16 px (appendix D.1)."""
 
@@ -89,8 +90,12 @@ class ScenarioDiffusion(nn.Module):
         token is kept)."""
         pad, glob = cond["agent_pad_mask"], cond["global_token"]
         has_tokens = ~pad.all(dim=1)    # False for every example when the batch has no token at all
-        g = {p: torch.from_numpy(encode_global_token(p)).to(glob).expand_as(glob) for p in (0.0, 1.0)}
+        g = {p: torch.from_numpy(encode_global_token(p, dim=glob.shape[-1])).to(glob).expand_as(glob)
+             for p in (0.0, 1.0)}
         null_glob = torch.where(has_tokens[:, None], g[1.0], g[0.0])
+        # the density condition stays in the null: the weight calibrated for p_mask's "add agents"
+        # must not also amplify the density the user asked for
+        null_glob[:, P_MASK_BINS:] = glob[:, P_MASK_BINS:]
         w = torch.where(has_tokens, torch.tensor(float(guidance)), torch.tensor(float(scene_guidance)))
         sigma_lo = torch.where(has_tokens, torch.tensor(0.0), torch.tensor(float(scene_guidance_sigma)))
         return dict(cond, agent_pad_mask=torch.ones_like(pad), global_token=null_glob), w, sigma_lo

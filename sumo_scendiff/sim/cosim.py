@@ -9,8 +9,12 @@
     cosim.verify(seeding)                                # who stands where it was generated, settled
     while running:
         sim.simulationStep()
-        cosim.reseed_ahead("ego", every=60.0)            # new traffic ahead as the ego drives
+        cosim.reseed_ahead("ego", every_m=60.0)          # new traffic ahead every 60 m the ego drives
 
+Units: distances in metres (``ahead_m``, ``every_m``; token ``x``/``y``/``length``/``width``), times in
+seconds, speeds in m/s, headings in radians counter-clockwise from +x (east). Token positions are in
+the window's frame (x along the ego's heading, metres from the window centre) unless a token file says
+``frame = "world"``.
 Vehicles already in the window are kept: they become agent tokens (pose, size, speed), so the
 model fills in *around* them (the paper's scene infill); generated agents that the model put on
 top of them (matched to their tokens, or overlapping their boxes) are not seeded. The caller's
@@ -18,6 +22,7 @@ simulation is never stopped by a refused vehicle: it is reported in ``seeding.re
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,7 +39,9 @@ from ..core.geometry import (
 )
 from ..core.matching import match_agents
 from ..core.scene import Scene
+from ..generation.token_check import heading_warnings
 from ..map.network import Network
+from .density import window_target
 from .seeding import Seeder, SeedReport
 
 EXISTING_MARGIN = 10.0   # m beyond the window where existing vehicles still block generated ones
@@ -142,39 +149,48 @@ class CoSimulation:
                        dropped=int(len(scene) - len(idx)), seed=seed, p_mask=p_mask)
 
     def seed_window(self, window: Window, tokens: list[dict] = (), p_mask: float | None = None,
-                    seed: int | None = None) -> Seeding:
+                    seed: int | None = None, density: float | str | None = None,
+                    vehicles: int | None = None) -> Seeding:
         """Generate around the vehicles already in ``window`` and seed the new agents.
 
         ``tokens``: the caller's agent tokens (window frame, see :mod:`~sumo_scendiff.tokens.encoding`);
-        ``p_mask``: the global scene token (default 1.0 in an empty window, else 0.5).
+        ``p_mask``: the global scene token (default 1.0 in an empty window, else 0.5);
+        ``density``: vehicles per km of car lane the window should hold, those already there
+        included, or "auto" (this simulation's own level around the window, sim.density);
+        ``vehicles``: that many in the window instead. Neither: the model's own prior.
         """
+        for line in heading_warnings(self.net, window, tokens):
+            warnings.warn(line, stacklevel=2)
         ex = self.existing(window)
         all_tokens = list(tokens) + ex.tokens()
         source = ["user"] * len(tokens) + ex.token_ids()
         p = p_mask if p_mask is not None else (1.0 if not all_tokens else 0.5)
         s = self.seed + self.count if seed is None else seed
-        scene = self.generator.generate(self.net, [window], tokens=[all_tokens], p_mask=p, seed=s)[0]
+        target = window_target(self.net, window, density, vehicles, sim=self.sim)
+        scene = self.generator.generate(self.net, [window], tokens=[all_tokens], p_mask=p, seed=s,
+                                        density=None if target is None else [target])[0]
         return self.place(scene, all_tokens, source, ex, seed=s, p_mask=p)
 
-    def ego_window(self, ego: str, ahead: float = 0.0, size: float = 100.0) -> Window:
-        """The window centred ``ahead`` metres in front of vehicle ``ego``, turned with it."""
+    def ego_window(self, ego: str, ahead_m: float = 0.0, size: float = 100.0) -> Window:
+        """The window centred ``ahead_m`` metres in front of vehicle ``ego``, turned with it."""
         x, y = self.sim.vehicle.getPosition(ego)
         cx, cy, yaw = sumo_to_pose(x, y, self.sim.vehicle.getAngle(ego), self.sim.vehicle.getLength(ego))
-        return Window(cx + ahead * np.cos(yaw), cy + ahead * np.sin(yaw), float(yaw), size)
+        return Window(cx + ahead_m * np.cos(yaw), cy + ahead_m * np.sin(yaw), float(yaw), size)
 
-    def seed_around(self, ego: str, tokens: list[dict] = (), ahead: float = 0.0, **kw) -> Seeding:
-        seeding = self.seed_window(self.ego_window(ego, ahead), tokens, **kw)
+    def seed_around(self, ego: str, tokens: list[dict] = (), ahead_m: float = 0.0, **kw) -> Seeding:
+        """Seed the window ``ahead_m`` metres in front of vehicle ``ego`` (turned with it)."""
+        seeding = self.seed_window(self.ego_window(ego, ahead_m), tokens, **kw)
         self._last_seed_xy[ego] = np.asarray(self.sim.vehicle.getPosition(ego))
         return seeding
 
-    def reseed_ahead(self, ego: str, every: float = 60.0, ahead: float = 60.0, **kw) -> Seeding | None:
-        """Once the ego has driven ``every`` metres since its last seeding, seed the window
-        ``ahead`` metres in front of it; otherwise None. Call it each step."""
+    def reseed_ahead(self, ego: str, every_m: float = 60.0, ahead_m: float = 60.0, **kw) -> Seeding | None:
+        """Once the ego has driven ``every_m`` metres since its last seeding, seed the window
+        ``ahead_m`` metres in front of it; otherwise None. Call it each step."""
         xy = np.asarray(self.sim.vehicle.getPosition(ego))
         last = self._last_seed_xy.get(ego)
-        if last is not None and np.hypot(*(xy - last)) < every:
+        if last is not None and np.hypot(*(xy - last)) < every_m:
             return None
-        return self.seed_around(ego, ahead=ahead, **kw)
+        return self.seed_around(ego, ahead_m=ahead_m, **kw)
 
     def follow(self, seeding: Seeding, tau: float) -> int:
         """Hold every seeded agent on its generated future: place it at its interpolated pose and

@@ -1,11 +1,13 @@
 """Export of one seeded scene: the files of ``<out>/<scene>/`` (documented in the README).
 
-    folder = ScenarioWriter(out_dir, "scene_000")        # writes into scene_000.partial/
+    folder = ScenarioWriter(out_dir, "scene_000")        # writes into scene_000.partial-<pid>/
     folder.after_seeding(sim, seeding, net, sim_cfg, info)   # scene.json, routes, sumocfg, state, png
     folder.finish(stats)                                 # rollout.json, then rename to scene_000/
 
 A scene folder only appears under its final name once every file is written; an interrupted run
-leaves ``*.partial`` folders, which are never mistaken for results.
+leaves ``*.partial-<pid>`` folders, which are never mistaken for results. The name is the writing
+process's own, so a folder in progress is never removed by another process (the owner of the output
+directory, :mod:`~sumo_scendiff.core.outputs`, removes those of processes that died).
 """
 from __future__ import annotations
 
@@ -18,8 +20,10 @@ import cv2
 import numpy as np
 
 from ..core.geometry import sumo_to_pose, wrap_angle
+from ..core.outputs import partial_path, publish
 from ..map.picture import draw_scene
 from ..tokens.features import is_pinnable
+from .bundle import bundle
 
 FORMAT, VERSION = "sumo-scendiff-scenario", 1
 FILES = ("scene.json", "scenario.rou.xml", "scenario.sumocfg", "state.xml.gz", "rollout.json", "scene.png")
@@ -101,14 +105,19 @@ def write_routes(path: str, sim, vehicle_ids, net) -> dict[str, bool]:
     return exact
 
 
+LONG_NAMES = {"n": "net-file", "r": "route-files", "a": "additional-files", "b": "begin", "e": "end"}
+INPUTS = ("net-file", "route-files", "additional-files")
+
+
 def write_sumocfg(path: str, options: dict[str, str], state: str | None) -> None:
-    """scenario.sumocfg with paths relative to its folder; loads the saved state when given."""
+    """scenario.sumocfg that runs in stock SUMO from wherever the folder is copied: the network and
+    the route and additional files travel in the folder (sim.bundle); loads the saved state when given."""
     here = os.path.dirname(os.path.abspath(path))
     lines = ["<configuration>"]
     for name, value in options.items():
-        if name in ("net-file", "n", "route-files", "r"):
-            value = ",".join(os.path.relpath(v, here) for v in value.split(","))
-            name = {"n": "net-file", "r": "route-files"}.get(name, name)
+        name = LONG_NAMES.get(name, name)
+        if name in INPUTS:
+            value = ",".join(bundle(v, here) for v in value.split(","))
         lines.append(f"    <{name} value={quoteattr(value)}/>")
     if state:
         lines.append(f"    <load-state value={quoteattr(state)}/>")
@@ -117,20 +126,27 @@ def write_sumocfg(path: str, options: dict[str, str], state: str | None) -> None
         f.write("\n".join(lines))
 
 
-def write_picture(path: str, seeding, net) -> None:
+def write_picture(path: str, seeding, net, ego=None) -> None:
+    """scene.png: generated agents, those realising a token, the vehicles kept from the simulation
+    (the tokens that are not the user's), the user's tokens circled; ``ego``: scene-frame point to ring."""
     scene = seeding.scene
-    xy = [(t["x"], t["y"]) for t in seeding.tokens if t.get("x") is not None]
+    user = [t for t, s in zip(seeding.tokens, seeding.token_source) if s == "user"]
+    xy = [(t["x"], t["y"]) for t in user if t.get("x") is not None]
+    kept = [[t[k] for k in ("x", "y", "heading", "length", "width")]
+            for t, s in zip(seeding.tokens, seeding.token_source) if s != "user"]
+    kinds = ["generated" if tok is None else "token" for tok in seeding.token_of]
     c = seeding.report
     title = (f"{net.name}  seed {seeding.seed}  p_mask {seeding.p_mask:.2f}  agents {len(scene)} "
              f"(placed {c.placed}, refused {len(c.refused)})")
-    img = draw_scene(net, scene, pixels=600, token_xy=np.array(xy).reshape(-1, 2), title=title)
+    img = draw_scene(net, scene, pixels=800, token_xy=np.array(xy).reshape(-1, 2), title=title,
+                     kinds=kinds, kept=np.array(kept).reshape(-1, 5), ego=ego)
     cv2.imwrite(path, img)
 
 
 class ScenarioWriter:
     def __init__(self, out_dir: str, name: str, force: bool = False):
         self.final = os.path.join(out_dir, name)
-        self.tmp = self.final + ".partial"
+        self.tmp = partial_path(self.final)
         if os.path.exists(self.final) and not force:
             raise FileExistsError(f"{self.final}: exists (choose another --output-dir or add --force)")
         shutil.rmtree(self.tmp, ignore_errors=True)
@@ -150,15 +166,13 @@ class ScenarioWriter:
         for a in doc["agents"]:
             a["replay_exact"] = exact.get(a["vehicle"]) if a["vehicle"] else None
         self._json("scene.json", doc)
-        write_picture(self.path("scene.png"), seeding, net)
+        # an ego window is centred on the ego (CoSimulation.ego_window), which is one of the kept vehicles
+        write_picture(self.path("scene.png"), seeding, net, ego=(0.0, 0.0) if info.get("location") == "ego" else None)
         return doc
 
     def finish(self, stats: dict) -> str:
         self._json("rollout.json", stats)
-        if os.path.exists(self.final) and self.force:
-            shutil.rmtree(self.final)
-        os.replace(self.tmp, self.final)
-        return self.final
+        return publish(self.tmp, self.final, replace=self.force)
 
     def abandon(self) -> None:
         shutil.rmtree(self.tmp, ignore_errors=True)

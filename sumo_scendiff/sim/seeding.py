@@ -9,17 +9,20 @@
 
 For each agent:
 the lane it stands on (heading agreement; an internal junction lane gives the route its incoming
-and outgoing edges, never starts a route), a route through the lanes of its +1/+2 s poses and on
-along the network (no u-turns) to a fringe or 30 edges, a vehicle type with its box and a minGap that
+and outgoing edges, never starts a route), a route through the lanes of its +1/+2 s poses and on by
+SUMO's router to a destination the host's traffic drives to, or the network's fringe
+(:mod:`~sumo_scendiff.sim.routes`), a vehicle type with its box and a minGap that
 fits the gap to the vehicle ahead in the scene, a departure speed that is its generated speed capped
 at the Krauss safe speed behind that vehicle, then ``vehicle.add`` and ``vehicle.moveToXY``. SUMO
-refusing a vehicle never crashes the host simulation: the agent is reported as refused. After the
+refusing a vehicle never crashes the host simulation: the agent is reported as refused. Before any
+is added, agents on internal lanes of one junction whose links conflict are resolved to one
+(:mod:`~sumo_scendiff.sim.junctions`; the others are in ``report.conflicts``). After the
 seeding step, :meth:`Seeder.settle` checks both again against the leader SUMO itself sees.
 
 Generated agents are rarely on a lane's centre line. With SUMO's sublane model
 (``--lateral-resolution``, which :mod:`~sumo_scendiff.sim.sumo` turns on) ``moveToXY`` with
-``keepRoute=1`` keeps their lateral offset; without it SUMO snaps them to the centre line (measured
-on city.net.xml: 73 of 96 generated agents then off by 0.5-4 m), so the Seeder uses ``keepRoute=2``
+``keepRoute=1`` keeps their lateral offset; without it SUMO snaps them to the centre line (most
+generated agents then end up off their pose; README, "Seeding SUMO"), so the Seeder uses ``keepRoute=2``
 (exact pose, mapped to the nearest lane of its route) in such host simulations.
 """
 from __future__ import annotations
@@ -31,9 +34,11 @@ import numpy as np
 from ..core.geometry import T0, pose_to_sumo, wrap_angle
 from ..core.scene import VEHICLE_CLASSES, Scene
 from ..map.network import Network
+from .junctions import JunctionConflicts
+from .routes import RouteChooser
 
 POS_TOLERANCE, YAW_TOLERANCE = 0.5, 0.1   # m, rad: "present where it was generated"
-MAX_ROUTE_EDGES = 30
+GAP_EDGES = 3          # at most this many edges between two generated poses' edges are filled in
 DEFAULT_MIN_GAP = 2.5
 MIN_GAP_MARGIN = 0.2   # m: a seeded vehicle's minGap stays this much below its bumper gap
 
@@ -46,6 +51,7 @@ class SeedReport:
     targets: dict[int, tuple] = field(default_factory=dict)  # agent index -> (x_front, y_front, angle)
     slowed: dict[int, tuple] = field(default_factory=dict)   # agent index -> (generated, departure speed)
     gap_fitted: dict[int, tuple] = field(default_factory=dict)  # agent index -> (minGap, minGap fitted)
+    conflicts: dict[int, str] = field(default_factory=dict)  # agent index -> why not seeded (junction foe)
 
     @property
     def placed(self) -> int:
@@ -75,6 +81,9 @@ class Seeder:
         self.count = 0
         self._via = self._internal_links()
         self.keep_route = 1 if sublane(sim) else 2
+        self.routes = RouteChooser(sim, net, exclude_prefix=prefix.split(".")[0])
+        self.junctions = JunctionConflicts(net)
+        self.resolve_junctions = True
 
     # ---- network helpers --------------------------------------------------------------------
     def _internal_links(self) -> dict[str, tuple[str, str]]:
@@ -106,35 +115,83 @@ class Seeder:
             return None if link is None else (list(link), 0, lane)
         return [lane.edge], lane.index, lane
 
-    def _extend(self, edges: list[str]) -> list[str]:
-        """Continue along the network from the last edge: random successor, no u-turns."""
+    def _fill(self, a: str, b: str) -> list[str]:
+        """Edges after ``a`` up to ``b`` when a generated pose skipped a short edge ([] if none)."""
         snet = self.net.sumo_net
-        while len(edges) < MAX_ROUTE_EDGES:
-            last = snet.getEdge(edges[-1])
-            back = last.getFromNode().getID()
-            succ = [e for e, conns in sorted(last.getOutgoing().items(), key=lambda kv: kv[0].getID())
-                    if e.allows("passenger") and e.getToNode().getID() != back
-                    and any(c.allows("passenger") for c in conns)]
-            if not succ:
-                break
-            edges.append(succ[int(self.rng.integers(len(succ)))].getID())
-        return edges
+        if snet.getEdge(b) in snet.getEdge(a).getOutgoing():
+            return [b]
+        try:
+            edges = list(self.sim.simulation.findRoute(a, b).edges)
+        except Exception:
+            return []
+        ok = edges and edges[0] == a and len(edges) <= GAP_EDGES + 2 and self.routes.valid(edges)
+        return edges[1:] if ok else []
 
     def route_for(self, scene: Scene, i: int, world: np.ndarray, yaws: np.ndarray):
-        """Edges for agent ``i``: its lane now, the lanes of its observed future poses, then onwards."""
+        """Agent ``i``'s generated part of a route: (edges through its lane now and the lanes of its
+        observed future poses, lane index on the first edge, its lane now, the id of the last normal
+        lane it is seen on, or None). :meth:`seed` continues it to a destination."""
         start = self._edges_at(world[T0, 0], world[T0, 1], yaws[T0])
         if start is None:
             return None
         edges, lane_index, lane = start
-        snet = self.net.sumo_net
+        last_lane = None if lane.internal else lane.id
         for k in range(T0 + 1, len(yaws)):
             if not scene.traj_mask[i, k]:
                 continue
             nxt = self._edges_at(world[k, 0], world[k, 1], yaws[k])
             for e in (nxt[0] if nxt else []):
-                if e != edges[-1] and snet.getEdge(e) in snet.getEdge(edges[-1]).getOutgoing():
-                    edges.append(e)
-        return self._extend(edges), lane_index, lane
+                if e != edges[-1] and e not in edges:
+                    fill = self._fill(edges[-1], e)
+                    edges += fill
+                    if fill and not nxt[2].internal:
+                        last_lane = nxt[2].id
+                elif e == edges[-1] and not nxt[2].internal:
+                    last_lane = nxt[2].id
+        if last_lane is not None and last_lane.rsplit("_", 1)[0] != edges[-1]:
+            last_lane = None
+        return edges, lane_index, lane, last_lane
+
+    def junction_lanes(self, scene: Scene, boxes: np.ndarray) -> list[str | None]:
+        """Per box (world frame), the internal lane its front bumper or centre stands on, else None:
+        SUMO puts a vehicle by its front bumper, so a car whose nose is past the stop line is on
+        the junction."""
+        out = []
+        for x, y, yaw, length in boxes[:, :4]:
+            lane = None
+            for d in (0.5 * length, 0.0):
+                hit = self.net.lookup(x + d * np.cos(yaw), y + d * np.sin(yaw), yaw)
+                if hit is not None and hit[0].internal and hit[0].id in self.junctions.link:
+                    lane = hit[0].id
+                    break
+            out.append(lane)
+        return out
+
+    def resolve(self, scene: Scene, others: np.ndarray) -> tuple[np.ndarray, dict[int, str]]:
+        """Which agents to seed: of agents on conflicting internal lanes of one junction, one
+        (:class:`~sumo_scendiff.sim.junctions.JunctionConflicts`); ``others`` the host's boxes (scene
+        frame), which are never dropped."""
+        n = len(scene)
+        if not self.resolve_junctions or not n:
+            return np.ones(n, bool), {}
+        w = scene.window
+
+        def world(b):
+            b = np.asarray(b, np.float64).reshape(-1, 5).copy()
+            if len(b):
+                b[:, :2] = w.scene_to_world(b[:, :2])
+                b[:, 2] = np.asarray(w.yaw_to_world(b[:, 2]))
+            return b
+        mine, theirs = world(scene.boxes[:, :5]), world(others)
+        lanes = self.junction_lanes(scene, mine)
+        if not any(lanes):
+            return np.ones(n, bool), {}
+        fixed = [(ln, b) for ln, b in zip(self.junction_lanes(scene, theirs), theirs) if ln]
+        score = scene.meta.get("score")
+        score = np.asarray(score, np.float64) if score is not None and len(score) == n else None
+        keep, dropped = self.junctions.resolve(lanes, mine, score, fixed)
+        return keep, {i: f"on junction {self.junctions.link[lanes[i]][0]}: its link conflicts with "
+                         f"another vehicle's there" for i in dropped}
 
     # ---- vehicle types ------------------------------------------------------------------------
     def vtype(self, vid: str, length: float, width: float, vclass: int, min_gap: float) -> str:
@@ -186,7 +243,11 @@ class Seeder:
         lead, bumper_gap = self.leaders(scene.boxes, other_boxes)
         gaps = self.min_gaps(bumper_gap)
         lead_speed = np.concatenate([scene.speed[:, T0], other_speed]).astype(np.float64)
+        keep, report.conflicts = self.resolve(scene, other_boxes)
+        self.routes.refresh()
         for i in range(len(scene)):
+            if not keep[i]:
+                continue
             world = w.scene_to_world(scene.traj[i, :, :2])
             yaws = np.asarray(w.yaw_to_world(scene.traj[i, :, 2]))
             fx, fy, angle = pose_to_sumo(world[T0, 0], world[T0, 1], yaws[T0], scene.boxes[i, 3])
@@ -194,12 +255,12 @@ class Seeder:
             if route is None:
                 report.refused[i] = "no car lane at its pose"
                 continue
-            edges, lane_index, lane = route
+            edges, lane_index, lane, last_lane = route
             vid = f"{self.prefix}{self.count}"
             self.count += 1
             try:
-                sim.route.add(f"{vid}_route", edges)
                 tid = self.vtype(vid, scene.boxes[i, 3], scene.boxes[i, 4], scene.vclass[i], gaps[i])
+                sim.route.add(f"{vid}_route", self.routes.complete(edges, last_lane, tid, self.rng))
                 speed, slowed = max(float(scene.speed[i, T0]), 0.0), None
                 if lead[i] >= 0:
                     safe = krauss_safe_speed(bumper_gap[i] - gaps[i], max(float(lead_speed[lead[i]]), 0.0),

@@ -23,7 +23,7 @@ from dataclasses import replace
 from .cosim import CoSimulation, Existing
 from .export import ScenarioWriter
 from .rollout import rollout
-from .sumo import SimConfig, close, start
+from .sumo import SimConfig, SimError, close, start
 
 
 class Session:
@@ -41,7 +41,14 @@ class Session:
         self.sim = start(self.cfg, quiet=self.quiet)
         self._at_base = True
         if warm_up is not None:
-            warm_up(self.sim)
+            try:
+                warm_up(self.sim)
+            except Exception as e:   # SUMO stopping on the demand (an unknown vType, a broken route)
+                if type(e).__name__ not in ("TraCIException", "FatalTraCIError"):
+                    raise
+                msg = str(e).strip().splitlines()
+                raise SimError(f"SUMO stopped while running the demand: {msg[-1] if msg else type(e).__name__}"
+                               ) from None
             fd, self.base = tempfile.mkstemp(suffix=".xml.gz", prefix="scendiff-base-")
             os.close(fd)
             self.sim.simulation.saveState(self.base)

@@ -11,6 +11,7 @@ vehicle at 15 m/s moves 7.5 m per step; SUMO's 1 s default hides emergency braki
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass, field
 
 from ..core.tools import sumo_binary
@@ -24,6 +25,7 @@ class SimError(RuntimeError):
 class SimConfig:
     net: str
     routes: tuple[str, ...] = ()
+    additional: tuple[str, ...] = ()    # vTypes, TLS programs, detectors, stops (-a)
     step_length: float = 0.5
     lateral_resolution: float = 0.8     # sublane model; 0 = off (agents snap to lane centres)
     check_junctions: bool = True        # collisions inside junctions count too
@@ -43,6 +45,8 @@ class SimConfig:
             a += ["--lateral-resolution", f"{self.lateral_resolution:g}"]
         if self.routes:
             a += ["-r", ",".join(os.path.abspath(r) for r in self.routes)]
+        if self.additional:
+            a += ["-a", ",".join(os.path.abspath(f) for f in self.additional)]
         if self.begin is not None:
             a += ["-b", f"{self.begin:g}"]
         return a + list(self.extra)
@@ -53,9 +57,18 @@ class SimConfig:
         return {a[i].lstrip("-"): a[i + 1] for i in range(0, len(a) - 1, 2)}
 
 
+def has_display() -> bool:
+    """Whether a GUI can open: sumo-gui without one retries its display connection forever."""
+    return not sys.platform.startswith("linux") or bool(os.environ.get("DISPLAY")
+                                                        or os.environ.get("WAYLAND_DISPLAY"))
+
+
 def start(cfg: SimConfig, quiet: bool = True):
     """Start SUMO and return the module to drive it (``libsumo``, or ``traci`` for the GUI)."""
     args = cfg.args() + (["--no-warnings", "true"] if quiet else [])
+    if cfg.gui and not has_display():
+        raise SimError("--gui: no display to open sumo-gui on (DISPLAY is not set); run without --gui "
+                       "and open the exported scenario.sumocfg where there is a screen")
     try:
         if cfg.gui or cfg.traci:
             import traci

@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import sys
 import time
 
@@ -48,7 +47,9 @@ class SweepError(Exception):
 
 
 def prepare_out(o, spec, scenarios) -> list:
-    """Create or check OUT; returns the scenarios still to run (stale partial output removed)."""
+    """Check OUT (claimed by this process); returns the scenarios still to run (partial output of
+    processes that died removed)."""
+    from ..core.outputs import LOCK, clean_stale, partial_path
     plan_path = os.path.join(o.out, "sweep.json")
     if os.path.exists(plan_path):
         if not o.resume:
@@ -60,11 +61,10 @@ def prepare_out(o, spec, scenarios) -> list:
             raise SweepError(f"{o.spec}: differs from the spec {o.out} was started with "
                              f"({plan.get('spec')}); start a new --out")
     else:
-        if os.path.isdir(o.out) and [n for n in os.listdir(o.out) if not n.endswith(".partial")]:
+        if [n for n in os.listdir(o.out) if n != LOCK and ".partial" not in n]:
             raise SweepError(f"{o.out}: exists and is not a sweep directory (choose another --out)")
         try:
-            os.makedirs(o.out, exist_ok=True)
-            tmp = plan_path + ".partial"
+            tmp = partial_path(plan_path)
             with open(tmp, "w") as f:
                 json.dump({"spec": os.path.abspath(o.spec), "digest": spec.digest, "name": spec.name,
                            "scenarios": [s.params() for s in scenarios]}, f, indent=1)
@@ -72,10 +72,7 @@ def prepare_out(o, spec, scenarios) -> list:
         except OSError as e:
             raise SweepError(f"{o.out}: cannot write ({e.strerror or e})") from None
     from .worker import failure_path
-    for name in os.listdir(o.out):
-        if name.endswith(".partial"):
-            path = os.path.join(o.out, name)
-            shutil.rmtree(path) if os.path.isdir(path) else os.remove(path)
+    clean_stale(o.out)
     todo = []
     for s in scenarios:
         if os.path.isdir(os.path.join(o.out, s.id)):
@@ -87,19 +84,26 @@ def prepare_out(o, spec, scenarios) -> list:
 
 
 def main(o) -> int:
-    from tqdm import tqdm
-
+    from ..core.outputs import OutputError, claim
     from ..tokens.file import TokenFileError
-    from .engines import EngineError, run_local, run_ray, tasks
-    from .index import contact_sheet, stats_plot, write_index
     from .spec import SpecError, load_spec
     t0 = time.perf_counter()
     try:
         spec = load_spec(o.spec)
         scenarios = spec.scenarios()
-        todo = prepare_out(o, spec, scenarios)
-    except (SpecError, TokenFileError, SweepError) as e:
+        with claim(o.out):
+            return _sweep(o, spec, scenarios, t0)
+    except (SpecError, TokenFileError, SweepError, OutputError) as e:
         o.parser.exit(2, f"{PROG}: error: {e}\n")
+
+
+def _sweep(o, spec, scenarios, t0) -> int:
+    """Run the sweep as the owner of OUT."""
+    from tqdm import tqdm
+
+    from .engines import EngineError, run_local, run_ray, tasks
+    from .index import contact_sheet, stats_plot, write_index
+    todo = prepare_out(o, spec, scenarios)
     if todo:
         print(f"{spec.name}: {len(scenarios)} scenarios, {len(scenarios) - len(todo)} done before, "
               f"{len(todo)} to run on {o.workers} {o.engine} worker(s)", file=sys.stderr)

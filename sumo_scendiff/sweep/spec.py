@@ -4,27 +4,34 @@
     scenarios = spec.scenarios()          # the cross product (or the explicit list), in a fixed order
 
 The format is documented in ``docs/sweeps.md``; every key is checked (an unknown key or a wrong type
-names the key and the file). A scenario is one (network, location, token set, p_mask, seed) with the
-sampler and rollout settings; its ``id`` is its position in the plan, so a resumed sweep (same spec)
-finds the same ids.
+names the key and the file). A scenario is one (network, location, token set, p_mask, traffic level,
+seed) with the
+generation settings (:class:`~sumo_scendiff.generation.config.GenerationConfig`, whose fields are
+also the spec's keys) and the rollout settings; its ``id`` is its position in the plan, so a resumed
+sweep (same spec) finds the same ids.
 """
 from __future__ import annotations
 
 import hashlib
 import itertools
 import json
+import math
 import os
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from ..generation.config import GenerationConfig, SettingError
+
+# the sweep's own keys; GenerationConfig.settings() are keys too, checked by GenerationConfig
 KEYS = {"name": str, "networks": list, "locations": list, "token_sets": list, "p_mask": list,
-        "seeds": (list, int), "steps": int, "threshold": float, "guidance": float, "scene_guidance": float,
-        "pin_tokens": bool, "pin_speeds": bool, "lane_headings": bool, "lane_snap": bool, "rollout": float,
-        "step_length": float, "replay": float, "scenarios": list}
+        "seeds": (list, int), "rollout": float, "step_length": float, "replay": float, "scenarios": list,
+        "density": list, "vehicles": list}
+SWEEP_DEFAULTS = {"rollout": 60.0, "step_length": 0.5, "replay": 0.0}
 NET_KEYS = {"net": str, "routes": str, "begin": float}
 LOC_KEYS = {"auto": int, "center": list, "yaw": float}
 SET_KEYS = {"name": str, "frame": str, "p_mask": float, "agents": list, "vary": dict}
-SCENARIO_KEYS = {"network": str, "location": str, "token_set": str, "p_mask": float, "seed": int}
+SCENARIO_KEYS = {"network": str, "location": str, "token_set": str, "p_mask": float, "seed": int,
+                 "density": None, "vehicles": None}
 
 
 class SpecError(ValueError):
@@ -41,26 +48,34 @@ class NetworkEntry:
 
 @dataclass(frozen=True)
 class Scenario:
+    """One scenario of the plan; its generation settings read as its own (``s.steps``)."""
     id: str
     network: str                 # NetworkEntry.name
     location: str                # "auto:K" or "X,Y" (or "X,Y,yaw")
     token_set: str
     p_mask: float | None         # None: the token set's own
     seed: int
-    steps: int
-    threshold: float
-    guidance: float
-    scene_guidance: float | None  # None: the generator's default
     rollout: float
     step_length: float
     replay: float = 0.0          # seconds the agents follow their generated future first
-    pin_tokens: bool = True      # tokens with pose, size and speed held in the latent (pinning.py)
-    pin_speeds: bool = True      # ... their agents moving at the tokens' speeds (pinning.pace_to_pins)
-    lane_headings: bool = True   # junction boxes take the most probable lane's heading (lane_heading.py)
-    lane_snap: bool = True       # poses onto lane centre lines, off-lane agents removed (lane_snap.py)
+    generation: GenerationConfig = field(default_factory=GenerationConfig)
+    density: float | str | None = None   # veh per km of car lane, "auto" or None (the model's prior)
+    vehicles: int | None = None          # vehicles in the window instead (exclusive with density)
+
+    def __getattr__(self, name: str):
+        # only for names the dataclass does not have; guarded so that unpickling (no attributes
+        # yet) sees a plain AttributeError
+        if name in GenerationConfig.settings() and "generation" in self.__dict__:
+            return getattr(self.__dict__["generation"], name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     def params(self) -> dict:
-        return asdict(self)
+        """The scenario as a flat record (plan, index, scene.json): its generation settings beside
+        its place and rollout."""
+        own = {k: v for k, v in asdict(self).items() if k != "generation"}
+        head = {k: own.pop(k) for k in ("id", "network", "location", "token_set", "p_mask", "density",
+                                        "vehicles", "seed")}
+        return {**head, **{k: getattr(self.generation, k) for k in GenerationConfig.settings()}, **own}
 
 
 @dataclass
@@ -72,9 +87,11 @@ class Spec:
     token_sets: dict[str, Any]   # name -> tokenfile.TokenSpec
     p_masks: list[float | None]
     seeds: list[int]
-    settings: dict[str, float] = field(default_factory=dict)
+    settings: dict[str, float] = field(default_factory=dict)   # rollout, step_length, replay
+    generation: GenerationConfig = field(default_factory=GenerationConfig)
     explicit: list[dict] | None = None
     digest: str = ""
+    levels: list[tuple] = field(default_factory=lambda: [(None, None)])   # (density, vehicles) axis
 
     def auto_count(self) -> int:
         """How many automatic locations the sweep uses per network."""
@@ -84,14 +101,16 @@ class Spec:
 
     def scenarios(self) -> list[Scenario]:
         if self.explicit is not None:
-            combos = [(e["network"], e["location"], e["token_set"], e.get("p_mask"), e["seed"])
-                      for e in self.explicit]
-        else:
+            combos = [(e["network"], e["location"], e["token_set"], e.get("p_mask"),
+                       (e.get("density"), e.get("vehicles")), e["seed"]) for e in self.explicit]
+        else:   # without density/vehicles the level axis is one (None, None): today's plan and ids
             combos = list(itertools.product(self.networks, self.locations, self.token_sets,
-                                            self.p_masks, self.seeds))
+                                            self.p_masks, self.levels, self.seeds))
         if not combos:
             raise SpecError(f"{self.source}: the sweep is empty (a list in the cross product is empty)")
-        return [Scenario(f"s{k:04d}", *c, **self.settings) for k, c in enumerate(combos)]
+        return [Scenario(f"s{k:04d}", net, loc, ts, pm, seed, **{**SWEEP_DEFAULTS, **self.settings},
+                         generation=self.generation, density=level[0], vehicles=level[1])
+                for k, (net, loc, ts, pm, level, seed) in enumerate(combos)]
 
 
 def _err(source: str, key: str, msg: str) -> SpecError:
@@ -106,6 +125,8 @@ def _check_keys(source: str, where: str, table: Any, allowed: dict) -> dict:
             raise _err(source, f"{where}.{k}" if where else k,
                        f"unknown key (expected {', '.join(allowed)})")
         want = allowed[k]
+        if want is None:   # checked by its owner
+            continue
         if want is bool:
             ok = isinstance(v, bool)
         else:
@@ -149,6 +170,33 @@ def _locations(source: str, raw: list) -> list[str]:
                 raise _err(source, f"locations[{i}].center", f"must be [x, y] in metres, got {c!r}")
             out.append(f"{float(c[0]):g},{float(c[1]):g}" + (f",{float(e['yaw']):g}" if "yaw" in e else ""))
     return out
+
+
+def _density(source: str, key: str, v):
+    """A density value: "auto" or a finite number >= 0 (vehicles per km of car lane)."""
+    if isinstance(v, str) and v.strip().lower() == "auto":
+        return "auto"
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+        raise _err(source, key, f"values must be numbers >= 0 (vehicles per km of car lane) or "
+                   f"\"auto\", got {v!r}")
+    return float(v)
+
+
+def _vehicles(source: str, key: str, v) -> int:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0 or v != int(v):
+        raise _err(source, key, f"values must be whole numbers >= 0 (vehicles per window), got {v!r}")
+    return int(v)
+
+
+def _levels(source: str, data: dict) -> list[tuple]:
+    """The traffic-level axis: (density, None) or (None, vehicles) per value; [(None, None)] without."""
+    if "density" in data and "vehicles" in data:
+        raise _err(source, "vehicles", "give either density or vehicles, not both")
+    if "density" in data:
+        return [(_density(source, "density", v), None) for v in data["density"]]
+    if "vehicles" in data:
+        return [(None, _vehicles(source, "vehicles", v)) for v in data["vehicles"]]
+    return [(None, None)]
 
 
 def _location_ok(loc) -> bool:
@@ -195,7 +243,12 @@ def _token_sets(source: str, raw: list) -> dict[str, Any]:
 
 
 def parse_spec(data: dict, source: str, here: str = ".") -> Spec:
-    _check_keys(source, "", data, KEYS)
+    names = GenerationConfig.settings()
+    _check_keys(source, "", data, {**KEYS, **dict.fromkeys(names)})
+    try:
+        generation = GenerationConfig.from_mapping({k: v for k, v in data.items() if k in names}, source)
+    except SettingError as e:
+        raise SpecError(str(e)) from None
     for key in ("networks", "locations"):
         if key not in data and "scenarios" not in data:
             raise _err(source, key, "missing")
@@ -210,18 +263,13 @@ def parse_spec(data: dict, source: str, here: str = ".") -> Spec:
     seeds = list(range(seeds)) if isinstance(seeds, int) else seeds
     if not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds):
         raise _err(source, "seeds", f"must be integers (or a count), got {seeds!r}")
-    settings = {"steps": int(data.get("steps", 10)), "threshold": float(data.get("threshold", 0.8)),
-                "guidance": float(data.get("guidance", 3.0)),
-                "scene_guidance": None if data.get("scene_guidance") is None else float(data["scene_guidance"]),
-                "rollout": float(data.get("rollout", 60.0)), "step_length": float(data.get("step_length", 0.5)),
-                "replay": float(data.get("replay", 0.0)), "pin_tokens": data.get("pin_tokens", True),
-                "pin_speeds": data.get("pin_speeds", True),
-                "lane_headings": data.get("lane_headings", True), "lane_snap": data.get("lane_snap", True)}
-    if settings["steps"] < 1 or not 0 < settings["threshold"] <= 1 or settings["rollout"] < 0 \
-            or settings["step_length"] <= 0 or not 0 <= settings["replay"] <= 2 or not settings["guidance"] >= 0 \
-            or not (settings["scene_guidance"] is None or settings["scene_guidance"] >= 0):
-        raise _err(source, "steps/threshold/guidance/scene_guidance/rollout/step_length/replay",
-                   f"out of range: {settings}")
+    levels = _levels(source, data)
+    settings = {k: float(data.get(k, v)) for k, v in SWEEP_DEFAULTS.items()}
+    for key, ok, rule in (("rollout", settings["rollout"] >= 0, ">= 0"),
+                          ("step_length", settings["step_length"] > 0, "> 0"),
+                          ("replay", 0 <= settings["replay"] <= 2, "in [0, 2]")):
+        if not ok:
+            raise _err(source, key, f"must be {rule}, got {settings[key]!r}")
     explicit = None
     if "scenarios" in data:
         explicit = []
@@ -236,10 +284,16 @@ def parse_spec(data: dict, source: str, here: str = ".") -> Spec:
                 raise _err(source, f"scenarios[{i}].location", f"must be 'auto:K' or 'X,Y' (or "
                            f"'X,Y,yaw'), got {e.get('location')!r}")
             e.setdefault("seed", 0)
+            if "density" in e and "vehicles" in e:
+                raise _err(source, f"scenarios[{i}].vehicles", "give either density or vehicles, not both")
+            if "density" in e:
+                e["density"] = _density(source, f"scenarios[{i}].density", e["density"])
+            if "vehicles" in e:
+                e["vehicles"] = _vehicles(source, f"scenarios[{i}].vehicles", e["vehicles"])
             explicit.append(e)
     digest = hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
     return Spec(source, data.get("name", os.path.splitext(os.path.basename(source))[0]), nets, locs,
-                sets, p_masks, seeds, settings, explicit, digest)
+                sets, p_masks, seeds, settings, generation, explicit, digest, levels)
 
 
 def load_spec(path: str) -> Spec:

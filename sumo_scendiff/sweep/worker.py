@@ -25,22 +25,42 @@ def failure_path(out: str, sid: str) -> str:
     return os.path.join(out, f"{sid}.failed.json")
 
 
-def write_failure(out: str, s: Scenario, error: str) -> None:
+def write_failure(out: str, s: Scenario, error: str, **extra) -> None:
     tmp = failure_path(out, s.id) + ".partial"
     with open(tmp, "w") as f:
-        json.dump({**s.params(), "status": "failed", "error": error}, f)
+        json.dump({**s.params(), **extra, "status": "failed", "error": error}, f)
     os.replace(tmp, failure_path(out, s.id))
 
 
-class Worker:
-    def __init__(self, spec: Spec, out: str, checkpoint: str | None = None, threads: int | None = None):
-        import torch
+class DensityUnsupported(ValueError):
+    """A scenario asks for a traffic level the model cannot condition on."""
 
+
+def scenario_target(s: Scenario, net, window, sim=None, checkpoint: str | None = None,
+                    has_density: bool = True) -> float | None:
+    """The scenario's density target (veh per km of car lane, vehicles already in the window
+    included) from its ``density``/``vehicles``: ``"auto"`` is ``sim``'s own level around the window
+    (the session's simulation of a network with routes) or, without one, None (the model's prior).
+    A target the model cannot take (``has_density`` False) raises :class:`DensityUnsupported`."""
+    from ..sim.density import window_target
+    target = window_target(net, window, s.density, s.vehicles, sim=sim)
+    if target is not None and not has_density:
+        what = f"density = {s.density!r}" if s.vehicles is None else f"vehicles = {s.vehicles}"
+        raise DensityUnsupported(f"{what}: {checkpoint or 'the shipped model'} has no density condition "
+                                 f"(trained before it); leave density/vehicles out of the spec or use a "
+                                 f"newer --checkpoint")
+    return target
+
+
+class Worker:
+    def __init__(self, spec: Spec, out: str, checkpoint: str | None = None, threads: int | None = None,
+                 generator=None):
+        from ..core.threads import share_cpu
+        share_cpu(threads)   # before torch is imported: idle threads sleep instead of spinning
         from ..generation.generator import ScenarioGenerator
-        if threads:
-            torch.set_num_threads(threads)
-        self.spec, self.out = spec, out
-        self.generator = ScenarioGenerator.load(checkpoint)
+        self.spec, self.out, self.checkpoint = spec, out, checkpoint
+        # ``generator``: an already loaded one (tests); else the checkpoint's
+        self.generator = generator if generator is not None else ScenarioGenerator.load(checkpoint)
         self._nets: dict[str, object] = {}
         self._sessions: dict[tuple, object] = {}
         self._auto: dict[str, list] = {}
@@ -91,7 +111,6 @@ class Worker:
         model call then sees the same batch as in an uninterrupted sweep, and float results depend
         on the batch (the classifier-free guidance amplifies that noise)."""
         from ..data.demand import DemandError
-        from ..generation.generator import GenerationConfig
         from ..map.locations import LocationError
         from ..map.network import NetworkError
         from ..sim.sumo import SimError
@@ -116,34 +135,35 @@ class Worker:
                 tokens = user + existing.tokens()
                 sources = ["user"] * len(user) + existing.token_ids()
                 p_mask = s.p_mask if s.p_mask is not None else spec_tokens.p_mask
-                ready.append((s, window, kind, tokens, sources, existing, p_mask))
-            except bad as e:
+                # after existing(): the session's simulation is at the seeding time
+                target = scenario_target(s, session.net, window, session.sim if entry.routes else None,
+                                         self.checkpoint, self.generator.has_density)
+                ready.append((s, window, kind, tokens, sources, existing, p_mask, target))
+            except bad + (DensityUnsupported,) as e:
                 if s.id not in done:
                     write_failure(self.out, s, str(e))
         if ready:
-            cfg = GenerationConfig(steps=first.steps, threshold=first.threshold, guidance=first.guidance,
-                                   scene_guidance=first.scene_guidance, pin_tokens=first.pin_tokens,
-                                   pin_speeds=first.pin_speeds, lane_headings=first.lane_headings, lane_snap=first.lane_snap)
+            cfg = first.generation
+            targets = [r[7] for r in ready]
             scenes = self.generator.generate(session.net, [r[1] for r in ready], tokens=[r[3] for r in ready],
                                              p_mask=[r[6] for r in ready], config=cfg,
-                                             noise_seeds=[noise_seed(r[0]) for r in ready])
-            for (s, window, kind, tokens, sources, existing, p_mask), scene in zip(ready, scenes):
+                                             noise_seeds=[noise_seed(r[0]) for r in ready],
+                                             density=targets if any(d is not None for d in targets) else None)
+            for (s, window, kind, tokens, sources, existing, p_mask, target), scene in zip(ready, scenes):
                 if s.id in done:
                     continue
                 info = {"scene": s.id, "location": kind, "sweep": {**s.params(), "kind": kind,
-                                                                    "p_mask_used": p_mask},
-                        "model": {"sha256": self.generator.sha256, "sampler": cfg.sampler.__name__,
-                                  "steps": s.steps, "threshold": s.threshold, "pin_tokens": cfg.pin_tokens,
-                                  "pin_speeds": cfg.pin_speeds,
-                                  "lane_headings": cfg.lane_headings, "lane_snap": cfg.lane_snap,
-                                  "guidance": s.guidance, "scene_guidance": self.generator.scene_guidance_for(cfg),
-                                  "scene_guidance_sigma": self.generator.scene_guidance_sigma_for(cfg)},
+                                                                    "p_mask_used": p_mask,
+                                                                    "density_target_veh_per_km": target,
+                                                                    "car_lane_km": round(
+                                                                        session.net.car_lane_km(window), 4)},
+                        "model": cfg.record(self.generator),
                         "sumo_options": session.cfg.options()}
                 try:
                     session.realise(scene, tokens, sources, existing, self.out, s.id, info, s.rollout,
                                     seed=s.seed, p_mask=p_mask, replay=s.replay)
                 except bad as e:
-                    write_failure(self.out, s, str(e))
+                    write_failure(self.out, s, str(e), density_target_veh_per_km=target)
         return [s.id for s in scenarios if s.id not in done]
 
     def close(self) -> None:

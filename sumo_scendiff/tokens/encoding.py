@@ -56,7 +56,10 @@ for _f in FEATURES:
     _o += FEATURE_DIMS[_f]
 PRESENCE_SLICE = slice(_o, _o + N_FEATURES)
 AGENT_TOKEN_DIM = _o + N_FEATURES             # 170
-GLOBAL_TOKEN_DIM = 10
+P_MASK_BINS = 10
+DENSITY_RANGE = (2.0, 150.0)  # vehicles per km of car lane: empty streets to stop-and-go queues
+DENSITY_BINS = 12             # log-spaced: each bin about 43 % wider than the last
+GLOBAL_TOKEN_DIM = P_MASK_BINS + DENSITY_BINS + 1   # p_mask, density, density's presence bit
 del _o, _f
 
 FEATURE_GROUPS: dict[str, tuple[str, ...]] = {
@@ -193,9 +196,28 @@ def tokens_from_scene(boxes: np.ndarray, traj: np.ndarray, traj_mask: np.ndarray
     return encode_agent_tokens(*features_from_scene(boxes, traj, traj_mask, speed))
 
 
-def global_token(p_mask: float | Sequence[float] | np.ndarray) -> np.ndarray:
-    """p_mask (scalar or (B,)) -> one-hot over 10 buckets [0, .1), ..., [.9, 1.0]:
-    (GLOBAL_TOKEN_DIM,) or (B, GLOBAL_TOKEN_DIM) float32. 1.0 falls in the last bucket."""
+def density_bins(density) -> np.ndarray:
+    """Vehicles per km of car lane -> bin index on the log scale over :data:`DENSITY_RANGE` (values
+    outside fall into the end bins)."""
+    edges = np.geomspace(*DENSITY_RANGE, DENSITY_BINS + 1)
+    d = np.maximum(np.asarray(density, np.float64), 1e-9)
+    return np.clip(np.searchsorted(edges, d, side="right") - 1, 0, DENSITY_BINS - 1)
+
+
+def density_of_bin(idx) -> np.ndarray:
+    """The geometric centre (veh/km) of density bin ``idx``."""
+    edges = np.geomspace(*DENSITY_RANGE, DENSITY_BINS + 1)
+    idx = np.asarray(idx)
+    return np.sqrt(edges[idx] * edges[idx + 1])
+
+
+def global_token(p_mask: float | Sequence[float] | np.ndarray, density=None,
+                 dim: int = GLOBAL_TOKEN_DIM) -> np.ndarray:
+    """p_mask (scalar or (B,)) -> one-hot over 10 buckets [0, .1), ..., [.9, 1.0] (1.0 falls in the
+    last), then, for a model with the density condition (``dim`` = :data:`GLOBAL_TOKEN_DIM`), the
+    window's density in vehicles per km of car lane one-hot over :data:`DENSITY_BINS` log bins and
+    its presence bit (``density`` None or NaN: absent). Returns (dim,) or (B, dim) float32; ``dim`` =
+    :data:`P_MASK_BINS` is the p_mask part alone, what models without the density condition read."""
     try:
         if isinstance(p_mask, (bool, np.bool_, str, bytes)):
             raise TypeError
@@ -204,8 +226,22 @@ def global_token(p_mask: float | Sequence[float] | np.ndarray) -> np.ndarray:
         raise TokenError(f"p_mask must be a number in [0, 1], got {p_mask!r}") from None
     if not np.all(np.isfinite(p)) or np.any(p < 0) or np.any(p > 1):
         raise TokenError(f"p_mask must be in [0, 1], got {p_mask!r}")
-    idx = np.minimum(np.floor(p * GLOBAL_TOKEN_DIM), GLOBAL_TOKEN_DIM - 1).astype(np.int64)
-    out = _one_hot(idx.reshape(-1), GLOBAL_TOKEN_DIM)
+    if dim not in (P_MASK_BINS, GLOBAL_TOKEN_DIM):
+        raise ValueError(f"global token dim must be {P_MASK_BINS} or {GLOBAL_TOKEN_DIM}, got {dim}")
+    idx = np.minimum(np.floor(p * P_MASK_BINS), P_MASK_BINS - 1).astype(np.int64)
+    out = _one_hot(idx.reshape(-1), P_MASK_BINS)
+    if dim == GLOBAL_TOKEN_DIM:
+        d = np.broadcast_to(np.asarray(np.nan if density is None else density, np.float64),
+                            out.shape[:1]).astype(np.float64)
+        if np.any(d[np.isfinite(d)] < 0):
+            raise TokenError(f"density must be >= 0 vehicles per km, got {density!r}")
+        dens = np.zeros((len(out), DENSITY_BINS + 1), np.float32)
+        present = np.isfinite(d)
+        dens[present, density_bins(d[present])] = 1.0
+        dens[present, -1] = 1.0
+        out = np.concatenate([out, dens], axis=1)
+    elif density is not None and np.any(np.isfinite(np.asarray(density, np.float64))):
+        raise TokenError("this model has no density condition (a checkpoint trained before it)")
     return out[0] if p.ndim == 0 else out
 
 

@@ -7,6 +7,7 @@ Usage::
     from sumo_scendiff.tokens.file import load_tokens
     spec = load_tokens("tokens.toml")            # or .json; raises TokenFileError
     agents = spec.for_window(window)             # list of feature dicts in the window frame
+                                                 # (network references stay: generation resolves them)
     tokens = agent_tokens_from_dicts(agents)     # (T, 170), see sumo_scendiff.tokens.encoding
 
 A file is TOML (``.toml``) or JSON (``.json``) with the same structure (see docs/tokens.md)::
@@ -17,6 +18,11 @@ A file is TOML (``.toml``) or JSON (``.json``) with the same structure (see docs
     x = 12.0
     y = -1.6
     speed = 8.0
+    [[agents]]          # a user's terms: places on the road, vehicle classes, manoeuvres
+    ahead = 15.0        # or edge = "E1", lane = 0, pos = 30 (resolved at generation)
+    lane_offset = 1
+    vclass = "truck"
+    manoeuvre = "stop"
 
 Every error is a :class:`TokenFileError` with a one-line message that starts with the file path.
 """
@@ -33,6 +39,20 @@ import numpy as np
 
 FRAMES = ("window", "world")
 TOP_KEYS = ("frame", "p_mask", "agents")
+
+# places on the road, resolved on the network at generation (generation/token_resolve.py)
+REFERENCE_KEYS = ("ahead", "lane_offset", "edge", "lane", "pos")
+# vehicle classes by name: data/demand.py VEHICLE_MIX's sizes (tests/test_tokenfile.py holds them
+# equal; data/ is a room this one may not import), with core.scene.VEHICLE_CLASSES' names and aliases
+VCLASS_SIZES = {"passenger": (4.6, 1.8), "car": (4.6, 1.8), "delivery": (6.0, 2.1), "van": (6.0, 2.1),
+                "truck": (10.5, 2.5), "bus": (12.0, 2.55), "motorcycle": (2.2, 0.9)}
+# manoeuvres in the token's own features. A turn's 0.4 rad chord turns the heading by 0.8 rad over
+# the 2 s, about what a car turning at a junction does in its first 2 s; inside the model's
+# [-0.7, 0.7] heading_to_final range (tokens/encoding.py: CCW positive = left)
+TURN = 0.4
+MANOEUVRES = {"stop": ("final_speed", 0.0), "turn_left": ("heading_to_final", TURN),
+              "turn_right": ("heading_to_final", -TURN), "straight": ("heading_to_final", 0.0)}
+USER_KEYS = REFERENCE_KEYS + ("vclass", "manoeuvre")
 
 
 class TokenFileError(ValueError):
@@ -161,6 +181,8 @@ def _parse_agent(item: Mapping[str, Any], frame: str, source: str, where: str) -
     )
 
     given = {k: v for k, v in item.items() if v is not None}  # JSON null = feature absent
+    user = {k: given.pop(k) for k in USER_KEYS if k in given}
+    given.update(_user_features(user, given, source, where))
     for k, v in given.items():
         if isinstance(v, (list, tuple, Mapping)):
             raise _error(source, where, f"token feature {k!r} must be a single number, got {v!r}")
@@ -177,6 +199,68 @@ def _parse_agent(item: Mapping[str, Any], frame: str, source: str, where: str) -
     except TokenError as e:
         raise _error(source, where, e) from None
     agent = {k: float(given[k]) for k in FEATURES if k in valid and np.isfinite(valid[k][0])}
+    agent.update(_references(user, given, source, where))
     if not agent:
         raise _error(source, where, f"no token features (give at least one of {', '.join(FEATURES)})")
     return agent
+
+
+def _user_features(user: dict, given: Mapping, source: str, where: str) -> dict:
+    """The features ``vclass`` and ``manoeuvre`` stand for; a name not known, or a feature also
+    given directly, is an error naming the key."""
+    out = {}
+    if "vclass" in user:
+        name = user["vclass"]
+        if not isinstance(name, str) or name not in VCLASS_SIZES:
+            raise _error(source, where, f"vclass: unknown vehicle class {name!r} "
+                         f"(expected {', '.join(VCLASS_SIZES)})")
+        for k in ("length", "width"):
+            if k in given:
+                raise _error(source, where, f"vclass: conflicts with {k!r} (give a class or a size)")
+        out["length"], out["width"] = VCLASS_SIZES[name]
+    if "manoeuvre" in user:
+        name = user["manoeuvre"]
+        if not isinstance(name, str) or name not in MANOEUVRES:
+            raise _error(source, where, f"manoeuvre: unknown manoeuvre {name!r} "
+                         f"(expected {', '.join(MANOEUVRES)})")
+        feature, value = MANOEUVRES[name]
+        if feature in given:
+            raise _error(source, where, f"manoeuvre: {name!r} conflicts with {feature!r}")
+        out[feature] = value
+    return out
+
+
+def _references(user: dict, given: Mapping, source: str, where: str) -> dict:
+    """The checked places on the road (:data:`REFERENCE_KEYS`), as they stay until generation."""
+    ref = {k: user[k] for k in REFERENCE_KEYS if k in user}
+    if not ref:
+        return {}
+    lane_form, ahead_form = [k for k in ("edge", "lane", "pos") if k in ref], [k for k in ("ahead", "lane_offset") if k in ref]
+    if lane_form and ahead_form:
+        raise _error(source, where, f"{lane_form[0]}: conflicts with {ahead_form[0]!r} "
+                     f"(place the vehicle by edge/lane/pos or by ahead/lane_offset)")
+    for k in ("x", "y"):
+        if k in given:
+            raise _error(source, where, f"{next(iter(ref))}: conflicts with {k!r} (give a position once)")
+    if lane_form:
+        for k in ("edge", "pos"):
+            if k not in ref:
+                raise _error(source, where, f"{k}: missing (edge and pos place a vehicle on a lane; lane defaults to 0)")
+        if not isinstance(ref["edge"], str) or not ref["edge"]:
+            raise _error(source, where, f"edge: must be an edge id (a string), got {ref['edge']!r}")
+        if not _is_number(ref["pos"]) or not math.isfinite(ref["pos"]) or ref["pos"] < 0:
+            raise _error(source, where, f"pos: must be metres >= 0 along the lane, got {ref['pos']!r}")
+        lane = ref.get("lane", 0)
+        if not _is_integer(lane) or lane < 0:
+            raise _error(source, where, f"lane: must be a lane index >= 0, got {lane!r}")
+        return {"edge": ref["edge"], "lane": int(lane), "pos": float(ref["pos"])}
+    ahead, offset = ref.get("ahead", 0.0), ref.get("lane_offset", 0)
+    if not _is_number(ahead) or not math.isfinite(ahead) or abs(ahead) > 50.0:
+        raise _error(source, where, f"ahead: must be metres in [-50, 50] along the window's axis, got {ahead!r}")
+    if not _is_integer(offset):
+        raise _error(source, where, f"lane_offset: must be a whole number of lanes (+ left, - right), got {offset!r}")
+    return {"ahead": float(ahead), "lane_offset": int(offset)}
+
+
+def _is_integer(v: Any) -> bool:
+    return _is_number(v) and float(v) == int(v)

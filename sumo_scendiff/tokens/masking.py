@@ -14,10 +14,10 @@ from typing import Mapping
 
 import numpy as np
 
-from .encoding import FEATURE_GROUPS, encode_agent_tokens, global_token
+from .encoding import FEATURE_GROUPS, GLOBAL_TOKEN_DIM, P_MASK_BINS, encode_agent_tokens, global_token
 
 
-@dataclass
+@dataclass(frozen=True)
 class TokenMaskConfig:
     """Partial tokenisation (paper sec. 4.3.1) and feature dropout hyper-parameters."""
 
@@ -28,6 +28,7 @@ class TokenMaskConfig:
     p_all_features: float = 0.5         # a kept token keeps every feature with this probability
     p_drop_group: float = 0.3           # otherwise each group is dropped with this probability
     p_drop_position: float = 0.15       # ... except position (see module docstring)
+    p_drop_density: float = 0.3         # the window's density absent, so one model works without it
 
 
 def sample_token_mask(n_agents: int, rng: np.random.Generator,
@@ -63,15 +64,20 @@ def sample_feature_dropout(n_tokens: int, rng: np.random.Generator,
 
 
 def partial_tokens(features: Mapping[str, np.ndarray], present: Mapping[str, np.ndarray],
-                   rng: np.random.Generator, cfg: TokenMaskConfig = TokenMaskConfig()
+                   rng: np.random.Generator, cfg: TokenMaskConfig = TokenMaskConfig(),
+                   density: float | None = None, global_dim: int = GLOBAL_TOKEN_DIM
                    ) -> tuple[np.ndarray, np.ndarray, float]:
     """One training example's conditioning: token masking, then feature dropout, then encoding.
+    ``density``: the window's vehicles per km of car lane, given to a model with the density
+    condition (``global_dim``) unless dropped (``p_drop_density``).
 
-    Returns ``(agent_tokens (K, 170), global_token (10,), p_mask)`` for the K kept agents.
+    Returns ``(agent_tokens (K, 170), global_token (global_dim,), p_mask)`` for the K kept agents.
     """
     n = len(next(iter(features.values()))) if features else 0
     p_mask, keep = sample_token_mask(n, rng, cfg)
     fk = sample_feature_dropout(int(keep.sum()), rng, cfg)
     feats = {k: np.asarray(v)[keep] for k, v in features.items()}
     pres = {k: np.asarray(present.get(k, np.ones(n, bool)))[keep] & fk[k] for k in features}
-    return encode_agent_tokens(feats, pres), global_token(p_mask), p_mask
+    if global_dim == P_MASK_BINS or density is None or rng.random() < cfg.p_drop_density:
+        density = None
+    return encode_agent_tokens(feats, pres), global_token(p_mask, density, dim=global_dim), p_mask

@@ -23,7 +23,7 @@ from torch.utils.data import DataLoader, DistributedSampler, RandomSampler
 from ..data.dataset import SceneDataset, collate_scenes
 from ..data.shards import DataError, read_manifest
 from ..model import checkpoint as ckpt
-from ..tokens.encoding import features_from_scene, pad_tokens
+from ..tokens.encoding import GLOBAL_TOKEN_DIM, features_from_scene, pad_tokens
 from ..tokens.masking import TokenMaskConfig, partial_tokens
 
 VAL_STEP = 1_000_000_000  # "step" given to step_loss in validation: its token masks never repeat training's
@@ -64,15 +64,17 @@ class _LossModule(nn.Module):
 
 
 def conditioning(batch: dict, seed: int, step: int, device,
-                 mask_cfg: TokenMaskConfig = TokenMaskConfig()) -> tuple:
-    """Partial tokenisation of a batch (paper sec. 4.3.1): agent tokens, padding mask, global token."""
+                 mask_cfg: TokenMaskConfig = TokenMaskConfig(), global_dim: int = GLOBAL_TOKEN_DIM) -> tuple:
+    """Partial tokenisation of a batch (paper sec. 4.3.1): agent tokens, padding mask, global token
+    (with the window's density for a model that takes it, ``global_dim``)."""
     toks, globs = [], []
     for i in range(batch["boxes"].shape[0]):
         v = batch["valid"][i].cpu().numpy()
         arrays = [batch[k][i].cpu().numpy()[v] for k in ("boxes", "traj", "traj_mask", "speed")]
         feats, present = features_from_scene(*arrays)
         rng = np.random.default_rng([seed, step, int(batch["index"][i]), rank()])
-        tok, glob, _ = partial_tokens(feats, present, rng, mask_cfg)
+        density = float(batch["density"][i]) if "density" in batch else None
+        tok, glob, _ = partial_tokens(feats, present, rng, mask_cfg, density=density, global_dim=global_dim)
         toks.append(tok)
         globs.append(glob)
     tokens, pad = pad_tokens(toks)

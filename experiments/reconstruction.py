@@ -1,8 +1,8 @@
 """Where a model loses agents: autoencoder reconstruction vs diffusion samples, on held-out scenes.
 
-    python benchmarks/reconstruction.py [--checkpoint PATH] [--data data/val] [--scenes 96] [-o FILE]
-    python benchmarks/reconstruction.py --autoencoder runs/ae/last.pt    # a training run's autoencoder alone
-    python benchmarks/reconstruction.py --data data/val_dense_disc --turned   # turned whole windows
+    python experiments/reconstruction.py [--checkpoint PATH] [--data data/val] [--scenes 96] [-o FILE]
+    python experiments/reconstruction.py --autoencoder runs/ae/last.pt    # a training run's autoencoder alone
+    python experiments/reconstruction.py --data data/val_dense_disc --turned   # turned whole windows
 
 For each held-out scene (generated networks' validation split, no rotation; ``--turned``: each
 window turned by a random angle as training sees it, whole when the data is a recording of circles),
@@ -126,7 +126,8 @@ def from_noised_data(gen, z0: torch.Tensor, m: torch.Tensor, gts: list, o, truth
     """Rows 'diffusion from the data at sigma': z0 + sigma * eps integrated back to 0, map only."""
     n = len(gts)
     tok, pad = pad_tokens([np.zeros((0, AGENT_TOKEN_DIM), np.float32)] * n)
-    cond = gen.diffusion.cond(m, tok, pad, torch.from_numpy(global_token(np.full(n, 1.0)).reshape(n, -1)))
+    glob = global_token(np.full(n, 1.0), dim=gen.diffusion.cfg.unet.global_dim)
+    cond = gen.diffusion.cond(m, tok, pad, torch.from_numpy(glob.reshape(n, -1)))
     eps = torch.randn(z0.shape, generator=torch.Generator().manual_seed(o.seed))
     schedule, rows = karras_sigmas(40), {}
     for sigma in o.sigmas:
@@ -165,7 +166,7 @@ def main(o) -> None:
     b = collate_scenes([ds[int(i)] for i in idx])
     n = len(idx)
     cfg = GenerationConfig()
-    steps, sampler = o.steps or cfg.steps, cfg.sampler
+    steps, sampler = o.steps or cfg.steps, cfg.solver()
     gts = [b["boxes"][i][b["valid"][i]].numpy() for i in range(n)]
     scene, slot = torch.where(b["valid"])
     junction = on_junction(b["boxes"][scene, slot], scene, b["map"][:, MAP_CHANNELS.index("junction")],
@@ -197,7 +198,8 @@ def main(o) -> None:
                          pinned_latent(ae, dicts, gen.latent_scale)))
         for row, toks, p, w, known in runs if not o.autoencoder else ():
             tok, pad = pad_tokens(toks)
-            glob = torch.from_numpy(global_token(np.full(n, p)).reshape(n, -1))
+            glob = global_token(np.full(n, p), dim=gen.diffusion.cfg.unet.global_dim)
+            glob = torch.from_numpy(glob.reshape(n, -1))
             z = gen.diffusion.sample(m, tok, pad, glob, steps=steps, sampler=sampler, guidance=w,
                                      generator=torch.Generator().manual_seed(o.seed), known=known)
             rows[row] = score(decode_boxes(gen.ae.decode(z / gen.latent_scale, m)), gts, o.threshold, *truth)

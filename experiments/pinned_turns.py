@@ -1,6 +1,6 @@
 """Pinned tokens' turns and speeds: the model's own path against the generator's default.
 
-    python benchmarks/pinned_turns.py [--data data/val_dense_disc] [--scenes 200] [-o FILE]
+    python experiments/pinned_turns.py [--data data/val_dense_disc] [--scenes 200] [-o FILE]
 
 Every fully observed agent of held-out windows (axis-aligned squares) is given as a full token
 (pose, size, speed, final speed, heading to final; p_mask 0), once with ``pin_speeds`` off (the
@@ -9,7 +9,7 @@ path, the token's turn, ``pinning.pace_to_pins``); lane headings and lane snap o
 agent nearest each token (within 2 m) is compared with the recorded one: the turn over 0...+2 s
 (heading at +2 s minus now) for the vehicles that turn more than 0.2 rad and for the rest, and the
 speed and final speed MAE. The model alone does not follow a token's turn
-(``benchmarks/token_response.py``: response 0.00).
+(``experiments/token_response.py``: response 0.00).
 """
 from __future__ import annotations
 

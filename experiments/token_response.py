@@ -1,7 +1,7 @@
 """Does the model follow each token feature? Counterfactual tokens on held-out scenes.
 
-    python benchmarks/token_response.py [--checkpoint PATH] [--data data/val_dense] [--scenes 96] [-o FILE]
-    python benchmarks/token_response.py --autoencoder runs/ae/last.pt   # a training run's autoencoder alone
+    python experiments/token_response.py [--checkpoint PATH] [--data data/val_dense] [--scenes 96] [-o FILE]
+    python experiments/token_response.py --autoencoder runs/ae/last.pt   # a training run's autoencoder alone
 
 On held-out windows of the training networks, every agent is given as a full token; in each window
 one moving agent (> 6 m/s now and at +2 s) is the probe. For each feature, the probe's value is
@@ -103,10 +103,10 @@ def generate(gen, batch, picked, override: tuple[str, float] | None, cfg, seed: 
         dicts.append(feature_dicts(feats, pres))
     tok, pad = pad_tokens(toks)
     n = len(picked)
-    glob = torch.from_numpy(global_token(np.zeros(n)).reshape(n, -1))
+    glob = torch.from_numpy(global_token(np.zeros(n), dim=gen.diffusion.cfg.unet.global_dim).reshape(n, -1))
     with torch.no_grad():
         known = pinned_latent(gen.ae, dicts, gen.latent_scale) if cfg.pin_tokens else None
-        z = gen.diffusion.sample(batch["map"], tok, pad, glob, steps=cfg.steps, sampler=cfg.sampler,
+        z = gen.diffusion.sample(batch["map"], tok, pad, glob, steps=cfg.steps, sampler=cfg.solver(),
                                  guidance=cfg.guidance, generator=torch.Generator().manual_seed(seed), known=known)
         dec = decode_boxes(gen.ae.decode(z / gen.latent_scale, batch["map"]))
     return at_probes(dec, picked, cfg.threshold)
@@ -155,7 +155,7 @@ def main(o) -> None:
     picked = probes(ds, o.scenes, o.seed)
     lines = [f"checkpoint `{name}` (sha256 {sha[:12]}…), {len(picked)} windows of "
              f"`{os.path.relpath(o.data, ROOT)}` with a moving probe agent, every agent a full token, "
-             f"{cfg.steps} steps of {cfg.sampler.__name__}, token guidance {cfg.guidance:g}, tokens "
+             f"{cfg.steps} steps of {cfg.solver().__name__}, token guidance {cfg.guidance:g}, tokens "
              f"{'pinned' if cfg.pin_tokens else 'conditions only'}", "",
              "| feature | read from the generated vehicle | as recorded: asked / generated | asked low → generated "
              "| asked high → generated | response (1 = follows, 0 = ignores) | probes found |",

@@ -1,0 +1,138 @@
+"""Partial tokens as a user writes them: is what the token gives what the scene gets?
+
+    python experiments/user_tokens.py [--cities resco_cologne3 resco_ingolstadt7] [--windows 10] [-o FILE]
+
+Per real city in /work/shared/nets, SUMO's own traffic on its own demand (.rou.xml) is recorded by
+the evaluation cache (``evaluate.__main__.record_cached``, the same recordings ``evaluate`` uses). In
+each recorded window one to three of SUMO's vehicles become partial tokens of one kind at a time:
+
+* ``x,y,speed``; ``x,y,heading,speed``: the vehicle's own values;
+* ``stop``: x, y, heading, speed of a vehicle moving at >= 4 m/s, with ``final_speed`` 0 (asked to stop);
+* ``turn``: x, y, heading, speed, heading_to_final of a vehicle turning (|heading_to_final| >= 0.1 rad).
+
+The scene is generated at p_mask 0.5 with delivery on (the default: generation/deliver.py) and off
+(the model's own drawing, ``deliver_tokens=False``), and the generated agents are matched one-to-one to
+the tokens (Hungarian on position within 2.2 m, heading within 0.2 rad where the token gives one).
+Reported: match rate, |speed - asked| at t = 0, |speed at +2 s - asked final speed|, and for turn
+tokens the share whose generated +2 s direction turns the same way within 0.2 rad of the token's.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from dataclasses import replace
+
+import numpy as np
+
+from sumo_scendiff.core.geometry import T0, wrap_angle
+from sumo_scendiff.core.matching import match_agents
+from sumo_scendiff.data.demand import find_demand
+from sumo_scendiff.data.shards import SceneStore
+from sumo_scendiff.evaluate.__main__ import SHARED_NETS, record_cached
+from sumo_scendiff.generation.generator import ScenarioGenerator
+from sumo_scendiff.map.network import Network
+from sumo_scendiff.tokens.encoding import feature_dicts, features_from_scene
+
+ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
+KINDS = {"x,y,speed": ("x", "y", "speed"),
+         "x,y,heading,speed": ("x", "y", "heading", "speed"),
+         "stop (speed >= 4, final 0)": ("x", "y", "heading", "speed"),
+         "turn (heading_to_final)": ("x", "y", "heading", "speed", "heading_to_final")}
+TURN_MIN, TURN_AGREE = 0.1, 0.2     # rad
+
+
+def tokens_of(scene, kind: str, rng: np.random.Generator) -> list[dict]:
+    """One to three of the window's vehicles as tokens of ``kind``."""
+    feats, present = features_from_scene(scene.boxes, scene.traj, scene.traj_mask, scene.speed)
+    every = feature_dicts(feats, present)
+    names = KINDS[kind]
+    ok = [i for i, d in enumerate(every) if all(f in d for f in names)]
+    if kind.startswith("stop"):
+        ok = [i for i in ok if every[i]["speed"] >= 4.0]
+    if kind.startswith("turn"):
+        ok = [i for i in ok if abs(every[i]["heading_to_final"]) >= TURN_MIN]
+    if not ok:
+        return []
+    pick = rng.choice(ok, size=min(len(ok), int(rng.integers(1, 4))), replace=False)
+    toks = [{f: every[i][f] for f in names} for i in sorted(pick)]
+    if kind.startswith("stop"):
+        toks = [dict(t, final_speed=0.0) for t in toks]
+    return toks
+
+
+def heading_to_final(traj: np.ndarray) -> float:
+    d = traj[-1, :2] - traj[T0, :2]
+    return float(wrap_angle(np.arctan2(d[1], d[0]) - traj[T0, 2]))
+
+
+def score(scenes, tokens) -> dict:
+    n = matched = 0
+    speed, final, turn = [], [], []
+    for s, toks in zip(scenes, tokens):
+        n += len(toks)
+        tb = np.array([[t["x"], t["y"], t.get("heading", np.nan)] for t in toks]).reshape(-1, 3)
+        gi, ti = match_agents(s.boxes[:, :3], tb)
+        matched += len(gi)
+        for g, k in zip(gi, ti):
+            t = toks[k]
+            speed.append(abs(float(s.speed[g, T0]) - t["speed"]))
+            if "final_speed" in t:
+                final.append(abs(float(s.speed[g, -1]) - t["final_speed"]))
+            if "heading_to_final" in t:
+                h = heading_to_final(s.traj[g].astype(np.float64))
+                turn.append(np.sign(h) == np.sign(t["heading_to_final"])
+                            and abs(h - t["heading_to_final"]) <= TURN_AGREE)
+    mean = (lambda v: float(np.mean(v)) if v else float("nan"))
+    return {"tokens": n, "match": matched / max(n, 1), "speed": mean(speed), "final": mean(final),
+            "turn": mean(turn)}
+
+
+def get_options(args=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--cities", nargs="+", default=["resco_cologne3", "resco_ingolstadt7"],
+                   help="folders of /work/shared/nets holding a .net.xml and its .rou.xml")
+    p.add_argument("--windows", type=int, default=10, help="recorded windows per city")
+    p.add_argument("--p-mask", type=float, default=0.5)
+    p.add_argument("-s", "--seed", type=int, default=0)
+    p.add_argument("--cache", default=os.path.join(ROOT, ".cache", "eval"))
+    p.add_argument("--checkpoint", default=None)
+    p.add_argument("-o", "--output", default=None, help="also write the table here (markdown)")
+    return p.parse_args(args)
+
+
+def main(o) -> int:
+    gen = ScenarioGenerator.load(o.checkpoint)
+    lines = ["| city | tokens | n | match (delivered / drawn) | speed MAE m/s | final speed MAE m/s | turn agreement |",
+             "|---|---|---|---|---|---|---|"]
+    for city in o.cities:
+        folder = os.path.join(SHARED_NETS, city)
+        nets = [f for f in sorted(os.listdir(folder)) if f.endswith(".net.xml")]
+        if not nets:
+            sys.exit(f"user_tokens.py: {folder}: no .net.xml")
+        net = Network.load(os.path.join(folder, nets[0]))
+        store = SceneStore(record_cached([net.path], [find_demand(net)], o.windows, o.seed, o.cache,
+                                         f"gt-{net.name}"))
+        gts = [store.scene(i) for i in range(min(o.windows, len(store)))]
+        for kind in KINDS:
+            rng = np.random.default_rng([o.seed, list(KINDS).index(kind)])
+            pairs = [(g.window, t) for g in gts for t in [tokens_of(g, kind, rng)] if t]
+            if not pairs:
+                continue
+            windows, toks = [w for w, _ in pairs], [t for _, t in pairs]
+            res = [score(gen.generate(net, windows, tokens=toks, p_mask=o.p_mask, seed=o.seed,
+                                      config=replace(gen.config, deliver_tokens=d)), toks) for d in (True, False)]
+            fmt = (lambda k, p: " / ".join(f"{r[k]:.{p}f}" for r in res))
+            lines.append(f"| {net.name} | {kind} | {res[0]['tokens']} | {fmt('match', 2)} | {fmt('speed', 2)} | "
+                         f"{fmt('final', 2)} | {fmt('turn', 2)} |")
+            print(lines[-1], file=sys.stderr)
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if o.output:
+        with open(o.output, "w") as f:
+            f.write(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(get_options()))

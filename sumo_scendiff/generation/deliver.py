@@ -1,0 +1,201 @@
+"""Delivered tokens: what a user's token gives is what SUMO gets, for a token that is not pinned.
+
+    rows = delivered_rows(tokens)                               # (D, 10): the positioned partial tokens
+    pairs = match_rows(boxes, rows, radius, taken)              # generated agent <-> token
+    boxes, traj, v = apply_rows(boxes, traj, rows, pairs)       # before lane snap
+    traj = pace_rows(traj, rows, pairs, v)                      # again after it
+    boxes, traj, owner, lines = place_rows(boxes, traj, owner, rows, window, net)  # the unmatched
+
+A pinned token (pose, size and speed: :mod:`.pinning`) is drawn into the latent. A partial one is a
+condition only, and the model follows it loosely: asked for 12 m/s it draws the typical speed, and
+it never draws a stop (docs/tokens.md, "Delivered tokens"). So the generated agent matched one-to-one
+to a positioned partial token (centre within the pins' radius, :func:`~sumo_scendiff.core.matching.assign`)
+takes what the token gives: its heading (turned rigidly, as :func:`~.pinning.turn_to_pins`), its
+length and width, and its speed and final speed along the path the model drew, turned by its
+``heading_to_final`` (:func:`~.pinning.pace_to_pins`' re-timing); what the token does not give stays
+the model's. A positioned token no generated agent matches is placed by :func:`place_rows` on the car
+lane at its position, unless it lies on no car lane (a warning line, never a silent drop).
+"""
+from __future__ import annotations
+
+import logging
+from typing import Mapping, Sequence
+
+import numpy as np
+import shapely
+
+from ..core.geometry import T0, TIMES, Window, box_corners, wrap_angle
+from ..core.matching import assign
+from ..core.scene import speeds_from_traj
+from ..tokens.features import is_pinnable
+from .lane_snap import SNAP_MAX_ANGLE, SNAP_RADIUS, walk_lanes
+from .pinning import _arc, _distance, retime
+
+log = logging.getLogger(__name__)
+
+# a token without a size is placed as the fleet's typical car (data/demand.py VEHICLE_MIX "car")
+CAR_LENGTH, CAR_WIDTH = 4.6, 1.8
+# columns of a row: the token's index in its list, then its features (NaN: not given)
+COLUMNS = ("index", "x", "y", "heading", "length", "width", "speed", "final_speed", "heading_to_final")
+
+
+def _given(t: Mapping, f: str) -> float:
+    v = t.get(f)
+    return np.nan if v is None or not np.isfinite(float(v)) else float(v)
+
+
+def delivered_rows(tokens: Sequence | None) -> np.ndarray:
+    """(D, 9) rows (:data:`COLUMNS`) of the token dicts of one window that give a position but are
+    not pinnable: the pinned ones have their own path (:mod:`.pinning`), and a token without a
+    position names no vehicle of its own."""
+    rows = [[float(i)] + [_given(t, f) for f in COLUMNS[1:]] for i, t in enumerate(tokens or ())
+            if isinstance(t, Mapping) and not is_pinnable(t)
+            and t.get("x") is not None and t.get("y") is not None]
+    return np.array(rows, np.float64).reshape(-1, len(COLUMNS))
+
+
+def match_rows(boxes: np.ndarray, rows: np.ndarray, radius: float, taken: np.ndarray | None = None
+               ) -> list[tuple[int, int]]:
+    """(agent, row) pairs: generated agents (N, 5) not ``taken`` (by a pinned token) matched
+    one-to-one to the rows by centre distance within ``radius`` m."""
+    if len(boxes) == 0 or len(rows) == 0:
+        return []
+    d = np.linalg.norm(np.asarray(boxes)[:, None, :2] - rows[None, :, 1:3], axis=-1)
+    ok = d <= radius
+    if taken is not None:
+        ok &= ~np.asarray(taken, bool)[:, None]
+    a, r = assign(d, ok)
+    return [(int(i), int(j)) for i, j in zip(a, r)]
+
+
+def _speeds(traj: np.ndarray, row: np.ndarray) -> tuple[float, float]:
+    """The (speed, final speed) an agent is paced to: the token's where it gives them; else the
+    drawn one, a drawn change of speed kept when only the speed is given (as pace_to_pins)."""
+    v = speeds_from_traj(traj[None], np.ones((1, len(TIMES)), bool))[0]
+    v0, v2 = row[6], row[7]
+    if not np.isfinite(v0):
+        v0 = float(v[T0])
+    if not np.isfinite(v2):
+        v2 = max(v0 + float(v[-1] - v[T0]), 0.0) if np.isfinite(row[6]) else float(v[-1])
+    return float(v0), float(v2)
+
+
+def apply_rows(boxes: np.ndarray, traj: np.ndarray, rows: np.ndarray, pairs: list[tuple[int, int]]
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each matched agent takes its token's heading (turned rigidly about its pose), size, and
+    speeds along its drawn path, its future turned by the token's ``heading_to_final``. Returns new
+    boxes and traj, which agents' heading a token gave (N,) and the (N, 2) speeds they were paced to
+    (NaN: not paced), for :func:`pace_rows` after lane snap."""
+    boxes, traj = np.array(boxes, np.float64), np.array(traj, np.float64)
+    turned = np.zeros(len(boxes), bool)
+    speeds = np.full((len(boxes), 2), np.nan)
+    t = np.asarray(TIMES)
+    for a, r in pairs:
+        row = rows[r]
+        if np.isfinite(row[3]):
+            delta = float(wrap_angle(row[3] - traj[a, T0, 2]))
+            c, s = np.cos(delta), np.sin(delta)
+            rel = traj[a, :, :2] - traj[a, T0, :2]
+            traj[a, :, :2] = traj[a, T0, :2] + rel @ np.array([[c, s], [-s, c]])
+            traj[a, :, 2] = wrap_angle(traj[a, :, 2] + delta)
+            turned[a] = True
+        if np.isfinite(row[4]):
+            boxes[a, 3:5] = row[4:6]
+        if np.isfinite(row[6:9]).any():
+            v0, v2 = _speeds(traj[a], row)
+            s = _distance(v0, (v2 - v0) / 2.0, t)
+            traj[a] = retime(traj[a], s)
+            if np.isfinite(row[8]):
+                x, y, h = traj[a, T0]
+                traj[a, t > 0] = _arc(x, y, h, s, float(row[8]), t)[t > 0]
+            speeds[a] = v0, v2
+        boxes[a, :3] = traj[a, T0]
+    return boxes, traj, turned, speeds
+
+
+def pace_rows(traj: np.ndarray, speeds: np.ndarray) -> np.ndarray:
+    """The paced agents (``speeds`` not NaN) re-timed again along their path at those speeds: lane
+    snap moved their poses onto the lanes, and so their steps."""
+    traj = np.array(traj, np.float64)
+    t = np.asarray(TIMES)
+    for a in np.flatnonzero(np.isfinite(speeds[:, 0])):
+        v0, v2 = speeds[a]
+        traj[a] = retime(traj[a], _distance(v0, (v2 - v0) / 2.0, t))
+    return traj
+
+
+def lane_trajectory(net, lane: int, pos: float, v0: float, v2: float, turn: float = np.nan
+                    ) -> np.ndarray:
+    """(T, 3) world poses of a vehicle ``pos`` m along ``lane`` moving from ``v0`` to ``v2`` m/s
+    (SUMO's 1-s update at constant acceleration) along the lane graph: behind it the first
+    predecessor branch, ahead the branch whose heading at +2 s is nearest the current heading
+    turned by twice ``turn`` (the token's ``heading_to_final``; absent: straight on)."""
+    t = np.asarray(TIMES)
+    s = _distance(v0, (v2 - v0) / 2.0, t)
+    _, h0 = net.lane_pose(lane, pos)
+    want = h0 + 2.0 * (0.0 if not np.isfinite(turn) else turn)
+    out = np.zeros((len(t), 3))
+    end = min(walk_lanes(net, lane, pos, float(s[-1])),
+              key=lambda lp: abs(wrap_angle(net.lane_pose(*lp)[1] - want)))
+    end_xy = net.lane_pose(*end)[0]
+    for k, sk in enumerate(s):
+        # nearer points on the chosen branch: the candidate at that distance nearest its end
+        cands = walk_lanes(net, lane, pos, float(sk))
+        lp = cands[0] if sk <= 0 else min(cands, key=lambda c: np.linalg.norm(net.lane_pose(*c)[0] - end_xy))
+        xy, h = net.lane_pose(*lp)
+        out[k] = xy[0], xy[1], h
+    return out
+
+
+def place_rows(boxes: np.ndarray, traj: np.ndarray, owner: np.ndarray, rows: np.ndarray,
+               window: Window, net) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int], list[str]]:
+    """Place the rows no generated agent matched: on the car lane at the token's position (within
+    lane snap's radius; heading from the token, else the lane's), size from the token or a typical
+    car, speeds from the token or the lane's limit, moving along the lane graph. A generated agent
+    (``owner`` -1; a token's agent holds its token's index) its box overlaps gives way: the user's
+    token wins. Returns the scene with the placed agents appended, their owners, the indices of
+    the generated agents removed, and one warning line per token that could not be placed."""
+    boxes, traj, owner = np.asarray(boxes, np.float64), np.asarray(traj, np.float64), np.asarray(owner)
+    removed: set[int] = set()
+    lines: list[str] = []
+    add_b, add_t, add_o = [], [], []
+    done = set(owner[owner >= 0].tolist())
+    for row in rows:
+        i = int(row[0])
+        if i in done:
+            continue
+        where = f"token {i} at ({row[1]:.1f}, {row[2]:.1f}) m (window frame)"
+        xy = window.scene_to_world(row[None, 1:3])[0]
+        yaw = None if not np.isfinite(row[3]) else float(window.yaw_to_world(row[3]))
+        m = net.match_poses(xy[None], None if yaw is None else [yaw], radius=SNAP_RADIUS,
+                            max_angle=SNAP_MAX_ANGLE)
+        if m.lane[0] < 0:
+            lines.append(f"{where}: on no car lane within {SNAP_RADIUS:g} m"
+                         f"{'' if yaw is None else ' that runs along its heading'}: not placed")
+            continue
+        lane, pos = int(m.lane[0]), float(m.pos[0])
+        v0 = row[6] if np.isfinite(row[6]) else float(net.lanes[lane].speed)
+        v2 = row[7] if np.isfinite(row[7]) else v0
+        world = lane_trajectory(net, lane, pos, float(v0), float(v2), float(row[8]))
+        tr = np.c_[window.world_to_scene(world[:, :2]), window.yaw_to_scene(world[:, 2])]
+        size = row[4:6] if np.isfinite(row[4]) else np.array([CAR_LENGTH, CAR_WIDTH])
+        box = np.r_[tr[T0], size]
+        mine = shapely.polygons(box_corners(*box[:, None]))[0]
+        all_b = np.concatenate([boxes, np.array(add_b).reshape(-1, 5)])
+        all_o = np.concatenate([owner, np.array(add_o, owner.dtype)])
+        hit = np.flatnonzero(shapely.area(shapely.intersection(
+            shapely.polygons(box_corners(*all_b.T)), mine)) > 1e-3) if len(all_b) else np.zeros(0, int)
+        hit = [k for k in hit.tolist() if k not in removed]
+        if any(all_o[k] >= 0 for k in hit):
+            lines.append(f"{where}: overlaps the vehicle of token {int(all_o[[k for k in hit if all_o[k] >= 0][0]])}"
+                         f": not placed")
+            continue
+        removed.update(hit)
+        add_b.append(box), add_t.append(tr), add_o.append(i)
+    keep = np.array([k for k in range(len(boxes)) if k not in removed], np.int64)
+    new_b = np.concatenate([boxes[keep], np.array(add_b).reshape(-1, 5)])
+    new_t = np.concatenate([traj[keep], np.array(add_t).reshape(-1, len(TIMES), 3)])
+    new_o = np.concatenate([owner[keep], np.array(add_o, owner.dtype)])
+    for line in lines:
+        log.warning(line)
+    return new_b, new_t, new_o, sorted(removed), lines

@@ -1,0 +1,110 @@
+"""Traffic density from SUMO's own edgeData (meandata) files: a user's counts or a calibrated run.
+
+    data = EdgeData.read("counts.xml", net)                   # checked against the network
+    d = data.window_density(net, window, time=28800.0)        # vehicles per km of car lane, or None
+
+Per edge and interval, the density per lane in vehicles per km: ``laneDensity`` where the file has
+it, else ``density`` divided by the edge's lanes, else ``sampledSeconds`` over the interval's
+duration and the edge's lane-kilometres (SUMO's own definitions, "Lane- or Edge-based Traffic
+Measures"). A window's density weighs its edges by the car-lane length they have inside it; edges
+the file does not list are not counted (a counts file may cover only some roads).
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import shapely
+
+
+class EdgeDataError(ValueError):
+    """One line: the file and the problem."""
+
+
+@dataclass(frozen=True)
+class Interval:
+    begin: float
+    end: float
+    density: dict[str, float]        # edge id -> vehicles per km of lane
+
+
+@dataclass(frozen=True)
+class EdgeData:
+    path: str
+    intervals: tuple[Interval, ...]
+
+    @classmethod
+    def read(cls, path: str, net=None) -> "EdgeData":
+        """Read ``path``; with ``net``, it must name at least one of the network's edges."""
+        import xml.sax
+
+        from sumolib.xml import parse
+        if not os.path.isfile(path):
+            raise EdgeDataError(f"{path}: no such file")
+        lanes = _lanes_per_edge(net) if net is not None else {}
+        intervals = []
+        try:
+            for iv in parse(path, "interval"):
+                begin, end = float(iv.begin), float(iv.end)
+                dens = {}
+                for e in iv.getChild("edge") if iv.hasChild("edge") else ():
+                    d = _lane_density(e, end - begin, lanes.get(e.id))
+                    if d is not None:
+                        dens[e.id] = d
+                intervals.append(Interval(begin, end, dens))
+        except (xml.sax.SAXException, AttributeError, ValueError, TypeError) as e:
+            raise EdgeDataError(f"{path}: not a SUMO edgeData file ({str(e).splitlines()[0]})") from None
+        if not intervals:
+            raise EdgeDataError(f"{path}: not a SUMO edgeData file (no <interval> element)")
+        if not any(iv.density for iv in intervals):
+            raise EdgeDataError(f"{path}: no edge with density, laneDensity or sampledSeconds")
+        if net is not None and not any(e in lanes for iv in intervals for e in iv.density):
+            raise EdgeDataError(f"{path}: names no edge of the network {net.path}")
+        return cls(path, tuple(sorted(intervals, key=lambda iv: iv.begin)))
+
+    def at(self, time: float) -> Interval:
+        """The interval covering ``time`` (s)."""
+        for iv in self.intervals:
+            if iv.begin <= time < iv.end or (time == iv.end == self.intervals[-1].end):
+                return iv
+        raise EdgeDataError(f"{self.path}: no interval covers t = {time:g} s (intervals "
+                            f"{self.intervals[0].begin:g}-{self.intervals[-1].end:g} s)")
+
+    def window_density(self, net, window, time: float) -> float | None:
+        """Vehicles per km of car lane in ``window`` at ``time``, weighted by each edge's car-lane
+        length inside it; None where the file lists none of the window's edges."""
+        iv = self.at(time)
+        idx, km = net.car_lanes_in(window)
+        num = den = 0.0
+        for i, k in zip(idx, km):
+            d = iv.density.get(net.lanes[i].edge)
+            if d is not None and k > 0:
+                num, den = num + d * k, den + k
+        return num / den if den > 0 else None
+
+
+def _lanes_per_edge(net) -> dict[str, tuple[int, float]]:
+    """edge id -> (lanes, lane-kilometres)."""
+    out: dict[str, tuple[int, float]] = {}
+    for ln, line in zip(net.lanes, net.lines):
+        n, km = out.get(ln.edge, (0, 0.0))
+        out[ln.edge] = (n + 1, km + (shapely.length(line) / 1000.0 if line is not None else 0.0))
+    return out
+
+
+def _number(e, name: str) -> float | None:
+    v = getattr(e, name, None)
+    return None if v in (None, "") else float(v)
+
+
+def _lane_density(e, duration: float, lanes: tuple[int, float] | None) -> float | None:
+    """Vehicles per km of lane of one edge element (None when it says nothing about density)."""
+    if _number(e, "laneDensity") is not None:
+        return _number(e, "laneDensity")
+    n, km = lanes or (1, 0.0)
+    if _number(e, "density") is not None:
+        return _number(e, "density") / max(n, 1)
+    samples = _number(e, "sampledSeconds")
+    if samples is not None and duration > 0 and km > 0:
+        return samples / duration / km
+    return None

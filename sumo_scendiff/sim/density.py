@@ -1,0 +1,79 @@
+"""How much traffic a window should hold, in vehicles per km of car lane (the model's density
+condition), from what the user said: a number, a vehicle count, or ``auto``.
+
+``auto`` reads the surroundings: with a host simulation, the density of its own traffic on the car
+lanes within :data:`AUTO_RADIUS` of the window (so an emptied or sparse window is filled to the
+level around it, and a full one gets only what is missing: the vehicles already in the window are
+tokens and count towards the target); with an edgeData file, that file's density of the window's
+edges at the seeding time; otherwise the model's own prior (None).
+"""
+from __future__ import annotations
+
+import numpy as np
+import shapely
+
+AUTO_RADIUS = 300.0   # m: the surroundings whose traffic level a window takes
+
+
+class DensityError(ValueError):
+    """One line naming the flag and the problem."""
+
+
+def parse_density(text: str | None, flag: str = "--density") -> float | str | None:
+    """A flag's value: None, "auto" or a density >= 0 (vehicles per km of car lane)."""
+    if text is None:
+        return None
+    if str(text).strip().lower() == "auto":
+        return "auto"
+    try:
+        v = float(text)
+    except ValueError:
+        raise DensityError(f"{flag}: not a number or 'auto': {text!r}") from None
+    if not np.isfinite(v) or v < 0:
+        raise DensityError(f"{flag}: must be a finite number >= 0, got {text}")
+    return v
+
+
+def parse_vehicles(text: str | None, flag: str = "--vehicles") -> int | None:
+    if text is None:
+        return None
+    try:
+        v = float(text)
+    except ValueError:
+        raise DensityError(f"{flag}: not a number: {text!r}") from None
+    if not np.isfinite(v) or v < 0 or v != int(v):
+        raise DensityError(f"{flag}: must be a whole number >= 0, got {text}")
+    return int(v)
+
+
+def host_density(sim, net, window, radius: float = AUTO_RADIUS) -> float | None:
+    """Vehicles per km of car lane of the host simulation's own traffic within ``radius`` m of the
+    window's centre (None where no car lane is that close)."""
+    circle = shapely.Point(window.cx, window.cy).buffer(radius)
+    idx = net.lane_tree.query(circle, predicate="intersects")
+    idx = idx[np.isin(idx, net.car_lane_ids)]
+    km = float(shapely.length(shapely.intersection(net.lines[idx], circle)).sum()) / 1000.0
+    if km <= 0:
+        return None
+    lanes = {net.lanes[i].id for i in idx}
+    n = 0
+    for vid in sim.vehicle.getIDList():
+        if sim.vehicle.getLaneID(vid) in lanes:
+            x, y = sim.vehicle.getPosition(vid)
+            n += (x - window.cx) ** 2 + (y - window.cy) ** 2 <= radius ** 2
+    return n / km
+
+
+def window_target(net, window, density=None, vehicles=None, sim=None, edge_data=None,
+                  time: float | None = None) -> float | None:
+    """The density (veh per km of car lane) a window is generated at, or None (the model's prior)."""
+    km = net.car_lane_km(window)
+    if vehicles is not None:
+        return vehicles / km if km > 0 else None
+    if density != "auto":
+        return density
+    if edge_data is not None:
+        return edge_data.window_density(net, window, time if time is not None else 0.0)
+    if sim is not None:
+        return host_density(sim, net, window)
+    return None

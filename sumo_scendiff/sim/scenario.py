@@ -1,0 +1,111 @@
+"""A user's SUMO scenario as its authors ship it: a ``.sumocfg`` (network, route files, additional
+files with vTypes, TLS programs, detectors, stops; begin and end), or ``-n``/``-r``/``-a`` given
+directly, or both (the flags replace what the configuration names).
+
+    scen = scenario_from_files(config="cologne3.sumocfg")
+    scen = scenario_from_files(net="city.net.xml", routes=["a.rou.xml"], additional=["vtypes.add.xml"])
+    first = check_demand(scen, {ln.edge for ln in net.lanes})     # first departure (s), or None
+
+The configuration is read with sumolib (``sumolib.options.readOptions``); paths in it are relative to
+its folder, as SUMO reads them. Only the inputs and the time window are taken: outputs a
+configuration names (tripinfo, logs, ...) are the user's business, never written beside their files.
+"""
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from typing import Sequence
+
+# option names of a .sumocfg (long and short) -> SumoScenario fields
+_LISTS = {"route-files": "routes", "r": "routes", "additional-files": "additional", "a": "additional"}
+_FILES = {"net-file": "net", "n": "net"}
+_TIMES = {"begin": "begin", "b": "begin", "end": "end", "e": "end"}
+
+
+class ScenarioError(ValueError):
+    """One line: the file (or flag) and the problem."""
+
+
+@dataclass(frozen=True)
+class SumoScenario:
+    net: str
+    routes: tuple[str, ...] = ()
+    additional: tuple[str, ...] = ()
+    begin: float | None = None       # the configuration's <begin> (s)
+    end: float | None = None
+    config: str | None = None        # the .sumocfg it came from
+
+
+def _split(value: str) -> list[str]:
+    return [v for v in re.split(r"[,\s]+", value.strip()) if v]
+
+
+def _time(path: str, name: str, value: str) -> float:
+    try:
+        if ":" in value:   # SUMO also takes [[D:]H:]M:S
+            parts = [float(p) for p in value.split(":")]
+            return sum(p * f for p, f in zip(reversed(parts), (1, 60, 3600, 86400)))
+        return float(value)
+    except ValueError:
+        raise ScenarioError(f"{path}: {name}: not a time in seconds ({value!r})") from None
+
+
+def read_sumocfg(path: str, skip: frozenset[str] = frozenset()) -> dict:
+    """The inputs and time window of a ``.sumocfg`` as a dict of SumoScenario fields, paths resolved
+    against its folder; a file it names that does not exist is an error naming both. Options named
+    in ``skip`` (those a flag replaces) are not read."""
+    import xml.sax
+
+    from sumolib.options import readOptions
+    if not os.path.isfile(path):
+        raise ScenarioError(f"{path}: no such file")
+    try:
+        opts = readOptions(path)
+    except (xml.sax.SAXException, UnicodeDecodeError) as e:
+        raise ScenarioError(f"{path}: not a SUMO configuration ({str(e).splitlines()[0]})") from None
+    if not opts:
+        raise ScenarioError(f"{path}: not a SUMO configuration (no options with a value)")
+    here = os.path.dirname(os.path.abspath(path))
+    out: dict = {"config": os.path.abspath(path)}
+    for opt in (o for o in opts if o.name not in skip):
+        if opt.name in _FILES or opt.name in _LISTS:
+            given = _split(opt.value)
+            files = [os.path.normpath(os.path.join(here, f)) for f in given]
+            for f, g in zip(files, given):
+                if not os.path.exists(f):
+                    raise ScenarioError(f"{path}: {opt.name}: {g}: no such file (give -n/-r/-a to use "
+                                        "other files)")
+            if opt.name in _FILES:
+                out["net"] = files[0]
+            else:
+                out[_LISTS[opt.name]] = tuple(files)
+        elif opt.name in _TIMES:
+            out[_TIMES[opt.name]] = _time(path, opt.name, opt.value)
+    return out
+
+
+def scenario_from_files(config: str | None = None, net: str | None = None,
+                        routes: Sequence[str] = (), additional: Sequence[str] = ()) -> SumoScenario:
+    """The scenario of a ``.sumocfg`` with ``-n``/``-r``/``-a`` replacing what it names, so a
+    configuration naming a file that was not shipped is usable with the flag that replaces it."""
+    skip = {name for name, flag in (("net-file", net), ("n", net), ("route-files", routes), ("r", routes),
+                                    ("additional-files", additional), ("a", additional)) if flag}
+    fields = read_sumocfg(config, frozenset(skip)) if config else {}
+    if net:
+        fields["net"] = os.path.abspath(net)
+    if routes:
+        fields["routes"] = tuple(os.path.abspath(r) for r in routes)
+    if additional:
+        fields["additional"] = tuple(os.path.abspath(a) for a in additional)
+    if not fields.get("net"):
+        raise ScenarioError(f"{config}: names no net-file (give -n)" if config else
+                            "-n/--net-file or -c/--configuration-file is required")
+    for flag, files in (("-n", (fields["net"],)), ("-r", fields.get("routes", ())),
+                        ("-a", fields.get("additional", ()))):
+        for f in files:
+            if not os.path.exists(f):
+                raise ScenarioError(f"{flag}: {f}: no such file")
+    if fields["net"].endswith(".sumocfg"):
+        raise ScenarioError(f"-n: {fields['net']}: a SUMO configuration, not a network (give it with -c)")
+    return SumoScenario(**fields)

@@ -1,0 +1,84 @@
+"""Traffic in traffic terms: density targets from flags, the host's level, vehicle counts; the
+vehicles already in a window counted in run's summary."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from sumo_scendiff.core.geometry import Window
+from sumo_scendiff.map.network import Network
+from sumo_scendiff.sim.density import DensityError, host_density, parse_density, parse_vehicles, window_target
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+@pytest.mark.parametrize("text, want", [("25", 25.0), ("0", 0.0), ("auto", "auto"), ("AUTO", "auto"), (None, None)])
+def test_density_flag_values(text, want):
+    assert parse_density(text) == want
+
+
+@pytest.mark.parametrize("text", ["-1", "nan", "inf", "lots", ""])
+def test_bad_density_values_name_the_flag(text):
+    with pytest.raises(DensityError, match="^--density: "):
+        parse_density(text)
+
+
+@pytest.mark.parametrize("text", ["-2", "2.5", "nan", "ten"])
+def test_bad_vehicle_counts_name_the_flag(text):
+    with pytest.raises(DensityError, match="^--vehicles: "):
+        parse_vehicles(text)
+
+
+def test_vehicles_become_a_density_over_the_windows_car_lanes(diagonal_net):
+    net = Network.load(diagonal_net)
+    w = Window(150.0, 150.0, 0.0)
+    km = net.car_lane_km(w)
+    assert window_target(net, w, vehicles=9) == pytest.approx(9 / km)
+    assert window_target(net, w, density=30.0) == 30.0
+    assert window_target(net, w, density="auto") is None            # no host, no edgeData: the prior
+    assert window_target(net, Window(2000.0, 0.0, 0.0), vehicles=3) is None   # no car lane there
+
+
+def test_the_hosts_own_level_around_a_window(cross_net, tmp_path):
+    import libsumo
+
+    from sumo_scendiff.core.tools import sumo_binary
+    net = Network.load(cross_net)
+    rou = tmp_path / "r.rou.xml"
+    rou.write_text('<routes><flow id="f" begin="0" end="200" period="3" from="wc" to="ce"/></routes>')
+    libsumo.start([sumo_binary(), "-n", cross_net, "-r", str(rou), "--no-step-log", "true"])
+    try:
+        for _ in range(90):
+            libsumo.simulationStep()
+        w = Window(0.0, 0.0, 0.0)
+        d = host_density(libsumo, net, w, radius=150.0)
+        import shapely
+        circle = shapely.Point(0, 0).buffer(150.0)
+        n = sum(shapely.Point(*libsumo.vehicle.getPosition(v)).within(circle) for v in libsumo.vehicle.getIDList())
+        km = sum(shapely.length(shapely.intersection(net.lines[i], circle)) for i in net.car_lane_ids) / 1000
+        assert n > 5 and d == pytest.approx(n / km, rel=0.05)
+    finally:
+        libsumo.close()
+
+
+def test_run_counts_the_vehicles_already_in_the_window(cross_net, tmp_path):
+    """With demand, the summary says how many vehicles were kept and how many generated, and their
+    density over the window's car lanes."""
+    rou = tmp_path / "r.rou.xml"
+    rou.write_text('<routes><flow id="f" begin="0" end="300" period="3" from="wc" to="ce"/>'
+                   '<flow id="g" begin="0" end="300" period="5" from="sc" to="cn"/></routes>')
+    out = tmp_path / "out"
+    res = subprocess.run([sys.executable, "-m", "sumo_scendiff.run", "-n", cross_net, "-r", str(rou), "--begin", "60",
+                          "--center", "0,0", "--scenes", "1", "--rollout", "0", "-o", str(out)],
+                         capture_output=True, text=True, cwd=ROOT, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert res.returncode == 0, res.stderr
+    row = json.load(open(out / "run.json"))["scenes"][0]
+    assert row["existing_vehicles"] >= 3
+    assert row["vehicles_in_window"] == row["existing_vehicles"] + row["placed"]
+    km = Network.load(cross_net).car_lane_km(Window(0.0, 0.0, 0.0))
+    assert row["density_veh_per_km"] == pytest.approx(row["vehicles_in_window"] / km, abs=0.01)
+    assert " kept " in res.stdout.splitlines()[0] and f"beside {row['existing_vehicles']} vehicles kept" in res.stdout

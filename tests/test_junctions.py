@@ -1,0 +1,115 @@
+"""Junction conflicts: generated agents on conflicting internal lanes of one junction (real netconvert
+crossing, real libsumo)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import shapely
+
+from sumo_scendiff.core.geometry import Window
+from sumo_scendiff.core.scene import Scene
+from sumo_scendiff.map.network import Network
+from sumo_scendiff.sim.junctions import JunctionConflicts
+from sumo_scendiff.sim.seeding import Seeder
+
+
+def _lane(net, conflicts, a, b):
+    """The first internal lane of the connection from edge ``a`` to edge ``b``."""
+    for c in net.sumo_net.getEdge(a).getOutgoing()[net.sumo_net.getEdge(b)]:
+        return c.getViaLaneID()
+
+
+def _pose(net, lane_id, along):
+    """Box centre and heading ``along`` metres down an internal lane."""
+    lane = net.lanes[net.lane_index[lane_id]]
+    line = shapely.LineString(lane.shape)
+    p, q = line.interpolate(along), line.interpolate(min(along + 0.5, line.length))
+    return p.x, p.y, math.atan2(q.y - p.y, q.x - p.x)
+
+
+def _scene(poses, speeds, score):
+    n = len(poses)
+    boxes = np.array([[x, y, yaw, 4.6, 1.8] for x, y, yaw in poses])
+    traj = np.zeros((n, 5, 3))
+    for i, (x, y, yaw) in enumerate(poses):     # straight on at its speed (the lanes are ~straight)
+        for k, t in enumerate(range(-2, 3)):
+            traj[i, k] = (x + speeds[i] * t * math.cos(yaw), y + speeds[i] * t * math.sin(yaw), yaw)
+    mask = np.zeros((n, 5), bool)
+    mask[:, :3] = True                          # futures unknown: the route comes from the lane
+    return Scene(Window(0.0, 0.0, 0.0), boxes, traj, mask, np.repeat(np.array(speeds, float)[:, None], 5, 1),
+                 np.zeros(n), "cross", meta={"score": list(score)})
+
+
+@pytest.mark.parametrize("check_junctions", [True, False])
+def test_conflicting_agents_in_a_junction_one_kept(cross_net, check_junctions):
+    """Eastbound straight and northbound straight cross inside the junction: the less probable is
+    dropped; westbound straight does not cross eastbound and stays. The host runs with or without
+    SUMO's junction collision checks: the rule does not depend on them."""
+    import libsumo as sim
+    net = Network.load(cross_net)
+    jc = JunctionConflicts(net)
+    east, north, west = _lane(net, jc, "wc", "ce"), _lane(net, jc, "sc", "cn"), _lane(net, jc, "ec", "cw")
+    assert jc.foes(east, north) and not jc.foes(east, west)
+    poses = [_pose(net, east, 1.0), _pose(net, north, 1.0), _pose(net, west, 1.0)]
+    scene = _scene(poses, [5.0, 5.0, 5.0], [0.9, 0.6, 0.8])
+    args = ["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--step-length", "0.5",
+            "--lateral-resolution", "0.8"] + (["--collision.check-junctions"] if check_junctions else [])
+    sim.start(args)
+    try:
+        seeder = Seeder(sim, net)
+        report = seeder.seed(scene)
+        assert set(report.conflicts) == {1} and "conflicts" in report.conflicts[1]
+        assert set(report.ids) == {0, 2} and not report.refused
+        sim.simulationStep()
+        assert seeder.verify(report).placed == 2
+        for _ in range(20):
+            sim.simulationStep()
+            assert sim.simulation.getCollidingVehiclesNumber() == 0
+            for v in sim.vehicle.getIDList():       # nobody brakes beyond its decel
+                assert sim.vehicle.getAcceleration(v) >= -sim.vehicle.getDecel(v) - 0.05
+    finally:
+        sim.close()
+
+
+def test_without_the_rule_the_pair_collides_or_brakes(cross_net):
+    """The premise: seeded as generated, the two crossing agents meet, or one escapes that only by
+    braking beyond its decel (so the rule is what keeps the previous test calm)."""
+    import libsumo as sim
+    net = Network.load(cross_net)
+    jc = JunctionConflicts(net)
+    east, north = _lane(net, jc, "wc", "ce"), _lane(net, jc, "sc", "cn")
+    scene = _scene([_pose(net, east, 1.0), _pose(net, north, 1.0)], [5.0, 5.0], [0.9, 0.6])
+    sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--step-length", "0.5",
+               "--lateral-resolution", "0.8", "--collision.check-junctions", "--collision.action", "warn"])
+    try:
+        seeder = Seeder(sim, net)
+        seeder.resolve_junctions = False
+        report = seeder.seed(scene)
+        assert set(report.ids) == {0, 1}
+        collided, brake = 0, 0.0
+        for _ in range(20):
+            sim.simulationStep()
+            collided += sim.simulation.getCollidingVehiclesNumber()
+            brake = min([brake] + [sim.vehicle.getAcceleration(v) + sim.vehicle.getDecel(v)
+                                   for v in sim.vehicle.getIDList()])
+        assert collided > 0 or brake < -0.05
+    finally:
+        sim.close()
+
+
+def test_an_agent_past_the_crossing_is_no_conflict(cross_net):
+    """Eastbound has already crossed northbound's path (its rear is beyond the overlap of the two
+    lanes): both stay. A host vehicle on a foe link is never dropped: the agent is."""
+    net = Network.load(cross_net)
+    jc = JunctionConflicts(net)
+    east, north = _lane(net, jc, "wc", "ce"), _lane(net, jc, "sc", "cn")
+    length = net.lanes[net.lane_index[east]].length
+    done = _pose(net, east, length - 0.2)
+    boxes = np.array([[*done, 4.6, 1.8], [*_pose(net, north, 1.0), 4.6, 1.8]])
+    keep, dropped = jc.resolve([east, north], boxes, np.array([0.5, 0.9]))
+    assert keep.all() and not dropped
+    early = np.array([[*_pose(net, east, 1.0), 4.6, 1.8]])
+    keep, dropped = jc.resolve([east], early, np.array([0.99]), fixed=[(north, boxes[1])])
+    assert dropped == [0]

@@ -1,0 +1,87 @@
+"""A user's SUMO scenario as shipped: .sumocfg reading, -n/-r/-a replacing it, route files as a set."""
+from __future__ import annotations
+
+import os
+import shutil
+
+import pytest
+
+from sumo_scendiff.data.demand import DemandError, check_demand
+from sumo_scendiff.sim.scenario import ScenarioError, scenario_from_files
+
+VTYPES = '<additional>\n  <vType id="slow" vClass="passenger" maxSpeed="8"/>\n</additional>\n'
+ROUTES = ('<routes>\n  <vehicle id="v0" type="slow" depart="12.5"><route edges="wc ce"/></vehicle>\n'
+          '  <flow id="f" begin="3" end="60" period="10" from="sc" to="cn"/>\n</routes>\n')
+
+
+@pytest.fixture
+def scenario(tmp_path, cross_net):
+    """A DLR-TS-style folder: network, route file, vTypes in an additional file, a .sumocfg."""
+    d = tmp_path / "scen"
+    (d / "sub").mkdir(parents=True)
+    shutil.copy(cross_net, d / "cross.net.xml")
+    (d / "sub" / "cars.rou.xml").write_text(ROUTES)
+    (d / "vtypes.add.xml").write_text(VTYPES)
+    (d / "run.sumocfg").write_text(
+        '<configuration>\n <input>\n  <net-file value="cross.net.xml"/>\n'
+        '  <route-files value="sub/cars.rou.xml"/>\n  <additional-files value="vtypes.add.xml"/>\n'
+        ' </input>\n <time>\n  <begin value="0:10"/>\n  <end value="3600"/>\n </time>\n'
+        ' <output>\n  <tripinfo-output value="trips.xml"/>\n </output>\n</configuration>\n')
+    return d
+
+
+def test_a_sumocfg_gives_its_inputs_relative_to_its_folder(scenario):
+    s = scenario_from_files(str(scenario / "run.sumocfg"))
+    assert s.net == str(scenario / "cross.net.xml")
+    assert s.routes == (str(scenario / "sub" / "cars.rou.xml"),)
+    assert s.additional == (str(scenario / "vtypes.add.xml"),)
+    assert (s.begin, s.end) == (10.0, 3600.0)       # SUMO's M:S form too
+
+
+def test_flags_replace_what_the_configuration_names(scenario, tmp_path):
+    other = tmp_path / "other.rou.xml"
+    other.write_text(ROUTES)
+    s = scenario_from_files(str(scenario / "run.sumocfg"), routes=[str(other)])
+    assert s.routes == (str(other),) and s.additional == (str(scenario / "vtypes.add.xml"),)
+
+
+def test_a_missing_file_names_the_configuration_the_option_and_the_file(scenario):
+    os.remove(scenario / "sub" / "cars.rou.xml")
+    with pytest.raises(ScenarioError, match=r"run\.sumocfg: route-files: sub/cars\.rou\.xml: no such file"):
+        scenario_from_files(str(scenario / "run.sumocfg"))
+    # ... and the flag that replaces it makes the configuration usable again
+    (scenario / "mine.rou.xml").write_text(ROUTES)
+    assert scenario_from_files(str(scenario / "run.sumocfg"), routes=[str(scenario / "mine.rou.xml")]).routes
+
+
+@pytest.mark.parametrize("text, message", [
+    ("not xml at all <", "not a SUMO configuration"),
+    ("<configuration/>", "not a SUMO configuration"),
+    ('<configuration><route-files value="sub/cars.rou.xml"/></configuration>', "names no net-file"),
+])
+def test_bad_configurations_are_one_line(scenario, text, message):
+    (scenario / "bad.sumocfg").write_text(text)
+    with pytest.raises(ScenarioError, match=message) as e:
+        scenario_from_files(str(scenario / "bad.sumocfg"))
+    assert "\n" not in str(e.value)
+
+
+def test_a_configuration_given_as_network_is_named(scenario):
+    with pytest.raises(ScenarioError, match=r"-n: .*run\.sumocfg: a SUMO configuration, not a network"):
+        scenario_from_files(net=str(scenario / "run.sumocfg"))
+
+
+def test_route_files_are_checked_as_a_set(scenario, cross_net):
+    from sumo_scendiff.map.network import Network
+    edges = {ln.edge for ln in Network.load(cross_net).lanes}
+    routes, vtypes = str(scenario / "sub" / "cars.rou.xml"), str(scenario / "vtypes.add.xml")
+    assert check_demand([routes], edges, additional=[vtypes]) == 3.0     # the flow begins first
+    only_types = scenario / "types.rou.xml"
+    only_types.write_text("<routes>" + VTYPES.split("\n")[1] + "</routes>")
+    assert check_demand([str(only_types), routes], edges) == 3.0         # vTypes alone: legal in a set
+    with pytest.raises(DemandError, match="no vehicle routes or trips"):
+        check_demand([str(only_types)], edges)
+    foreign = scenario / "foreign.rou.xml"
+    foreign.write_text('<routes><vehicle id="x" depart="0"><route edges="nowhere gone"/></vehicle></routes>')
+    with pytest.raises(DemandError, match="foreign.rou.xml: does not match the network"):
+        check_demand([routes, str(foreign)], edges)

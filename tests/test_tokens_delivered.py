@@ -1,0 +1,161 @@
+"""Delivered tokens (generation/deliver.py, token_resolve.py): what a partial token gives is what
+the generated scene, and SUMO, get. Real shipped model on networks/city.net.xml, small scale."""
+import logging
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from sumo_scendiff.core.geometry import T0, Window
+from sumo_scendiff.generation.deliver import delivered_rows, place_rows
+from sumo_scendiff.generation.generator import ScenarioGenerator
+from sumo_scendiff.generation.token_resolve import resolve_tokens
+from sumo_scendiff.map.network import Network
+from sumo_scendiff.tokens.file import TokenFileError, parse_tokens
+
+
+@pytest.fixture(scope="module")
+def city():
+    return Network.load("networks/city.net.xml")
+
+
+@pytest.fixture(scope="module")
+def gen():
+    return ScenarioGenerator.load()
+
+
+def road_window(net) -> Window:
+    """A window centred 50 m along the first long straight lane, its axis along the lane: a token
+    at (0, 0) heading 0 drives along it."""
+    for i in net.car_lane_ids:
+        ln = net.lanes[i]
+        if not ln.internal and ln.length >= 120 and np.ptp(ln.seg_yaw) < 0.01:
+            xy, h = net.lane_pose(i, 50.0)
+            return Window(float(xy[0]), float(xy[1]), float(h))
+    raise AssertionError("no straight lane")
+
+
+def delivered(scene, token_index: int = 0) -> int:
+    return scene.meta["delivers"].index(token_index)
+
+
+def test_a_partial_speed_token_is_delivered(city, gen):
+    w = road_window(city)
+    tok = {"x": 0.0, "y": 0.0, "speed": 12.0}
+    s = gen.generate(city, [w], tokens=[[tok]], p_mask=0.5, seed=0)[0]
+    k = delivered(s)
+    assert np.hypot(*s.boxes[k, :2]) < 2.0
+    assert s.speed[k, T0] == pytest.approx(12.0, abs=0.3)
+    drawn = gen.generate(city, [w], tokens=[[tok]], p_mask=0.5, seed=0,
+                         config=replace(gen.config, deliver_tokens=False))[0]
+    assert "delivers" not in drawn.meta
+
+
+def test_a_stop_token_stops_and_pinned_tokens_are_untouched(city, gen):
+    w = road_window(city)
+    stop = parse_tokens({"agents": [{"x": 0.0, "y": 0.0, "heading": 0.0, "speed": 8.0,
+                                     "manoeuvre": "stop"}]}, "t.toml").agents[0]
+    s = gen.generate(city, [w], tokens=[[stop]], p_mask=0.5, seed=1)[0]
+    k = delivered(s)
+    assert s.speed[k, T0] == pytest.approx(8.0, abs=0.3) and s.speed[k, -1] == pytest.approx(0.0, abs=0.1)
+    # a pinnable token has its own path: delivery leaves the scene byte-identical
+    pin = dict(stop, length=4.6, width=1.8)
+    on = gen.generate(city, [w], tokens=[[pin]], p_mask=0.5, seed=1)[0]
+    off = gen.generate(city, [w], tokens=[[pin]], p_mask=0.5, seed=1,
+                       config=replace(gen.config, deliver_tokens=False))[0]
+    assert np.array_equal(on.boxes, off.boxes) and np.array_equal(on.traj, off.traj) and on.meta == off.meta
+
+
+def test_an_unmatched_token_is_placed_on_its_lane(city, gen):
+    w = road_window(city)
+    nothing = replace(gen.config, threshold=1.0)          # the model generates no agent at all
+    toks = [{"x": 20.3, "y": 0.4, "speed": 5.0}, {"x": -15.0, "y": 0.0, "length": 10.5, "width": 2.5}]
+    s = gen.generate(city, [w], tokens=[toks], p_mask=0.5, seed=0, config=nothing)[0]
+    assert s.meta["delivers"] == [0, 1] and s.meta["cell"] == [-1, -1]
+    lane, _, lateral, _ = city.lookup(*w.scene_to_world(s.boxes[0, :2][None])[0])
+    assert lateral < 0.05 and abs(s.boxes[0, 1]) < 0.05              # on the centre line
+    assert s.boxes[0, 2] == pytest.approx(0.0, abs=0.01)             # the lane's heading
+    assert s.boxes[0, 3:].tolist() == pytest.approx([4.6, 1.8])      # a typical car
+    assert np.allclose(s.speed[0], 5.0, atol=0.05)
+    assert s.boxes[1, 3:].tolist() == pytest.approx([10.5, 2.5])
+    # no speed: the lane's
+    assert s.speed[1, T0] == pytest.approx(city.lanes[city.lane_index[lane.id]].speed, abs=0.05)
+
+
+def test_an_off_road_token_is_a_warning_not_a_silent_drop(city, gen, caplog):
+    w = road_window(city)
+    g = np.stack(np.meshgrid(np.arange(-45, 46, 5.0), np.arange(-45, 46, 5.0)), -1).reshape(-1, 2)
+    off = g[city.match_poses(w.scene_to_world(g), radius=4.0).lane < 0][0]
+    tok = {"x": float(off[0]), "y": float(off[1]), "speed": 5.0}
+    with caplog.at_level(logging.WARNING, logger="sumo_scendiff.generation.deliver"):
+        s = gen.generate(city, [w], tokens=[[tok]], p_mask=0.5, seed=0,
+                         config=replace(gen.config, threshold=1.0))[0]
+    assert len(s) == 0
+    assert len(s.meta["token_warnings"]) == 1 and "token 0 at" in s.meta["token_warnings"][0]
+    assert "not placed" in caplog.text
+
+
+def test_a_placed_token_wins_over_a_generated_agent_it_overlaps(city):
+    w = road_window(city)
+    boxes = np.array([[3.0, 0.0, 0.0, 4.6, 1.8], [-30.0, 0.0, 0.0, 4.6, 1.8]])
+    traj = np.repeat(boxes[:, None, :3], 5, axis=1)
+    rows = delivered_rows([{"x": 0.0, "y": 0.0, "speed": 0.0}, {"x": 0.5, "y": 0.0}])
+    b, _, owner, gone, lines = place_rows(boxes, traj, np.array([-1, -1]), rows, w, city)
+    assert gone == [0] and owner.tolist() == [-1, 0]            # the generated car gave way
+    assert b[0, 0] == -30.0 and abs(b[1, 0]) < 0.1
+    assert len(lines) == 1 and lines[0].startswith("token 1 at") and "token 0" in lines[0]
+
+
+def test_network_references_resolve_to_poses(diagonal_net):
+    net = Network.load(diagonal_net)
+    right, left = (net.lanes[net.lane_index[f"ab_{i}"]] for i in (0, 1))
+    xy, _ = net.lane_pose(net.lane_index[right.id], 200.0)
+    w = Window(float(xy[0]), float(xy[1]), np.pi / 4)                # the ego on the right lane
+    spec = parse_tokens({"agents": [{"ahead": 10, "speed": 5}, {"ahead": 10, "lane_offset": 1},
+                                    {"edge": "ab", "lane": 1, "pos": 200.0}]}, "t.toml")
+    a, b, c = resolve_tokens(net, w, spec.for_window(w))
+    lat = [net.lookup(*w.scene_to_world(np.array([[t["x"], t["y"]]]))[0]) for t in (a, b, c)]
+    # lane 0 is the right-hand lane, lane_offset +1 the one to its left
+    assert [m[0].id for m in lat] == [right.id, left.id, left.id] and max(m[2] for m in lat) < 0.01
+    assert a["x"] == pytest.approx(10.0, abs=0.1) and abs(a["y"]) < 0.01 and b["y"] > 2.5
+    assert c["x"] == pytest.approx(0.0, abs=0.1) and c["y"] == pytest.approx(b["y"], abs=0.01) and c["heading"] == pytest.approx(0.0, abs=1e-3)
+    assert "ahead" not in a and a["speed"] == 5.0
+    for agent, msg in (({"edge": "zz", "pos": 1}, r"token 0: edge: no edge 'zz'"),
+                       ({"edge": "ab", "lane": 2, "pos": 1}, r"edge 'ab' has no lane 2 \(lanes 0\.\.1\)"),
+                       ({"edge": "ab", "pos": 900}, r"token 0: pos: 900 m is not on lane"),
+                       ({"ahead": 10, "lane_offset": -1}, r"token 0: lane_offset: edge 'ab' has no lane -1"),
+                       ({"edge": "ab", "pos": 10}, r"outside the window"),
+                       ({"ahead": 10, "yaw": np.pi}, r"token 0: ahead: no car lane along the window's heading")):
+        # a window turned against the one-way road has no lane along its axis
+        v = Window(w.cx, w.cy, w.yaw + agent.pop("yaw", 0.0))
+        with pytest.raises(TokenFileError, match=msg):
+            resolve_tokens(net, v, parse_tokens({"agents": [agent]}, "t.toml").for_window(v))
+
+
+def test_a_stopping_token_stands_in_sumo_after_the_replayed_future(city, gen):
+    """End to end: the partial token (x, y, heading, speed 8, manoeuvre "stop") seeded into SUMO
+    and held on its generated future for 2 s stands then; the model's own drawing (delivery off)
+    does not stop."""
+    from sumo_scendiff.sim.cosim import CoSimulation
+    from sumo_scendiff.sim.sumo import SimConfig, start
+    w = road_window(city)
+    tok = parse_tokens({"agents": [{"x": 0.0, "y": 0.0, "heading": 0.0, "speed": 8.0,
+                                    "manoeuvre": "stop"}]}, "t.toml").agents[0]
+    speeds = []
+    for deliver in (True, False):
+        scene = gen.generate(city, [w], tokens=[[tok]], p_mask=0.5, seed=1,
+                             config=replace(gen.config, deliver_tokens=deliver))[0]
+        sim = start(SimConfig(net="networks/city.net.xml"))
+        try:
+            cosim = CoSimulation(sim, city, generator=None)
+            seeding = cosim.place(scene, [tok], ["user"], cosim.existing(w))
+            sim.simulationStep()
+            cosim.verify(seeding)
+            k = seeding.token_of.index(0)
+            vid = seeding.agent_ids[k]
+            assert sim.vehicle.getSpeed(vid) == pytest.approx(8.0, abs=0.5) or not deliver
+            cosim.replay_future(seeding, 2.0)
+            speeds.append(sim.vehicle.getSpeed(vid))
+        finally:
+            sim.close()
+    assert speeds[0] < 0.5 and speeds[1] > 0.5
