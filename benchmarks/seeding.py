@@ -20,9 +20,18 @@ Every rollout runs in a freshly started SUMO that loads the state (as ``run``'s 
 each method starts from the same state and random streams. Every method gets one step (the seeding
 step for the generated ones) and ``rollout`` of ``--rollout`` s. Placement = agents within 0.5 m /
 0.1 rad of their generated pose after that step, over the agents generated (refused, misplaced and
-dropped-on-existing ones count against it). "Slowed" counts agents that departed below their generated
-speed, capped at the Krauss safe speed behind the vehicle or red light ahead (``Seeder.seed`` / ``settle``).
-Rollout rates are per 100 agents; "x SUMO" columns are the method's rate over SUMO's.
+dropped-on-existing ones count against it); "dropped (junction foe)" are agents not seeded because
+another agent was already in the area their junction links share (``sim.junctions``; off with
+``--no-junction-rule``), and the second placement rate leaves both kinds of drop out. "Slowed" counts
+agents that departed below their generated speed, capped at the Krauss safe speed behind the vehicle
+or red light ahead (``Seeder.seed`` / ``settle``), or standing to wait for a junction foe.
+Rollout rates are per 100 agents; "x SUMO" columns are the method's rate over SUMO's. Collision events
+are split per net by where and with whom (on a junction, with a host vehicle, a host vehicle ran into
+the agent, in the first 10 s), beside the teleports.
+
+``--scenes FILE`` keeps the generated scenes (per net, windows and generation options) in a pickle:
+a later run with the same options reads them instead of generating, so a change to the seeder is
+measured on the very same scenes (and no model needs to load).
 
 Determinism: with libsumo 1.28 the steps after a ``loadState`` depend on where SUMO's objects lie
 in memory (measured on city.net.xml: the same state file loaded into a fresh SUMO gives other
@@ -86,6 +95,8 @@ def get_options(args=None):
     p.add_argument("--scenes", default=None, metavar="FILE",
                    help="generated scenes cache (pickle): read if it has this net's windows, else generate "
                         "and write; lets a change to the seeder be measured on the very same scenes")
+    p.add_argument("--no-junction-rule", dest="junction_rule", action="store_false",
+                   help="seed agents on conflicting junction links as generated (sim.junctions off)")
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("-o", "--output", default=None, metavar="FILE", help="also write the tables here")
     return p.parse_args(args)
@@ -200,7 +211,7 @@ def bench_net(path: str, gen, o, explicit: bool) -> dict | None:
     # address space randomisation, fixed file names and stdout / stderr, given only this net's inputs,
     # runs the same way whatever else the command does.
     import fcntl
-    opts = {k: getattr(o, k) for k in ("warmup", "rollout", "density", "step_length", "seed")}
+    opts = {k: getattr(o, k) for k in ("warmup", "rollout", "density", "step_length", "seed", "junction_rule")}
     top = os.path.join(tempfile.gettempdir(), f"scendiff-bench-seeding-{os.getuid()}")
     os.makedirs(top, exist_ok=True)
     with open(os.path.join(top, "lock"), "w") as lock:
@@ -273,6 +284,7 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
             try:
                 sim.simulation.loadState(base)
                 cosim = CoSimulation(sim, net, None, seed=o.seed)
+                cosim.seeder.resolve_junctions = getattr(o, "junction_rule", True)
                 ex = cosim.existing(w)
                 if scene is None:                          # (a) SUMO's own traffic in the window
                     sim.simulationStep()

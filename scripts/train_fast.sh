@@ -23,7 +23,7 @@
 # training stage runs as two one-thread DistributedDataParallel processes, each on its share of the
 # batch: on the 2-core CPU that is 1.2-1.6x the steps per second of one process with two threads
 # (benchmarks/train_speed.py), for the same global batch. Times measured on the 2-core CPU are in
-# README "Training"; each stage's start is appended to OUT_DIR/times.log.
+# docs/training.md; each stage's start is appended to OUT_DIR/times.log.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 exec scripts/run_recipe.sh configs/fast.json "${1:-runs/fast}" "${FAST_DATA:-data/fast}" \

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The paper's no-map ablation of the shipped model, configs/nomap.json (README "Evaluation", no-map
+# The paper's no-map ablation of the shipped model, configs/nomap.json (docs/evaluation.md, no-map
 # row): the same model with the map taken away from both of its parts, fine-tuned to live without
 # it. ~50 min on an idle 2-core CPU; needs data/train_dense and data/val_dense (scripts/train_recipe.sh
 # records them). Resumable: run it again after an interruption.

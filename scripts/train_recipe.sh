@@ -2,7 +2,7 @@
 # The recipe that produces the shipped checkpoint sumo_scendiff/weights/scendiff.pt from a fresh clone,
 # using only the project's own generated networks (networks/splits.json "train").
 # Every step is resumable: run the script again after an interruption and it continues.
-# About 12 h 50 min of training on a 2-core CPU plus ~55 minutes of recording (README "Training").
+# About 12 h 50 min of training on a 2-core CPU plus ~55 minutes of recording (docs/training.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # Steps 1-13 record squares (--square, the format those rounds trained on); step 14 records each

@@ -9,7 +9,7 @@ Without ``--center`` or ``--ego`` the windows are busy, varied places of the net
 roundabouts, merges; :mod:`~sumo_scendiff.map.locations`). With ``-r`` SUMO first runs that demand
 (until the ego appears, or ``--begin`` seconds) and the vehicles already in a window become agent
 tokens: the model fills in around them. Each scene is written to ``OUT/scene_NNN/`` (see the
-README, "Scenario files"): scene.json, scenario.rou.xml, scenario.sumocfg, state.xml.gz,
+README, "The scenario folder"): scene.json, scenario.rou.xml, scenario.sumocfg, state.xml.gz,
 rollout.json, scene.png; ``OUT/run.json`` sums the run up. One run at a time writes into an output
 directory (a second one stops with one line naming the first's pid). An interrupted run (Ctrl-C,
 SIGTERM: exit 130; or killed) continues with the same command and ``--resume``: complete scenes are
@@ -30,8 +30,9 @@ EGO_AHEAD_M = 25.0   # the ego window's centre ahead of the ego: it sees its own
 
 def get_options(args=None):
     from .generation.config import GenerationConfig, SettingError
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    from .core.cli import HelpFormatter, description, epilog
+    p = argparse.ArgumentParser(prog=PROG, description=description(__doc__), epilog=epilog(__doc__),
+                                formatter_class=HelpFormatter)
     p.add_argument("-c", "--configuration-file", dest="config", metavar="FILE",
                    help="a SUMO scenario as its authors ship it (.sumocfg: network, route files, "
                         "additional files, begin); -n/-r/-a replace what it names")
@@ -79,12 +80,9 @@ def get_options(args=None):
     p.add_argument("-v", "--verbose", action="store_true")
     GenerationConfig.add_arguments(p)
     o = p.parse_args(args)
-    if not (o.net or o.config):
-        p.error("one of -n/--net-file or -c/--configuration-file is required")
-    for flag, path in (("-n", o.net), ("-c", o.config)):
-        if path and path.endswith(".sumocfg") != (flag == "-c"):
-            p.error(f"{flag}: {path}: " + ("a SUMO configuration, not a network (give it with -c)"
-                                           if flag == "-n" else "not a .sumocfg (a network goes to -n)"))
+    from .sim.scenario import input_flags_problem
+    if input_flags_problem(o.net, o.config):
+        p.error(input_flags_problem(o.net, o.config))
     if o.ego and not (o.routes or o.config):
         p.error("--ego needs demand (-r/--route-files or -c) for the ego to drive in")
     from .sim.density import DensityError, parse_density, parse_vehicles

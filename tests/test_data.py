@@ -11,6 +11,8 @@ import pytest
 from sumo_scendiff.data.shards import SceneStore
 from sumo_scendiff.map.raster import MAP_CHANNELS
 
+pytestmark = pytest.mark.slow   # real runs of the CLIs: the fast tier is -m "not slow"
+
 CLI = [sys.executable, "-m", "sumo_scendiff.data"]
 
 

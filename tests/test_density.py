@@ -82,3 +82,4 @@ def test_run_counts_the_vehicles_already_in_the_window(cross_net, tmp_path):
     km = Network.load(cross_net).car_lane_km(Window(0.0, 0.0, 0.0))
     assert row["density_veh_per_km"] == pytest.approx(row["vehicles_in_window"] / km, abs=0.01)
     assert " kept " in res.stdout.splitlines()[0] and f"beside {row['existing_vehicles']} vehicles kept" in res.stdout
+

@@ -18,6 +18,8 @@ from sumo_scendiff.core.scene import Scene
 from sumo_scendiff.data.shards import net_entry, write_manifest, write_shard
 from sumo_scendiff.map.network import Network
 
+pytestmark = pytest.mark.slow   # real runs of the CLIs: the fast tier is -m "not slow"
+
 TINY_AE = {"enc_channels": [8, 8, 16, 16], "dec_channels": [16, 16, 16], "C_map": 8}
 TINY_DIFF = {"map_channels": [4, 8, 8, 8],
              "unet": {"channels": [16, 32, 32], "d_model": 32, "heads": 4, "c_map": 8}}

@@ -6,6 +6,10 @@ import json
 import subprocess
 import sys
 
+import pytest
+
+pytestmark = pytest.mark.slow   # real runs of the CLIs: the fast tier is -m "not slow"
+
 CLI = [sys.executable, "-m", "sumo_scendiff.evaluate"]
 
 

@@ -42,33 +42,67 @@ def _scene(poses, speeds, score):
                  np.zeros(n), "cross", meta={"score": list(score)})
 
 
-@pytest.mark.parametrize("check_junctions", [True, False])
-def test_conflicting_agents_in_a_junction_one_kept(cross_net, check_junctions):
-    """Eastbound straight and northbound straight cross inside the junction: the less probable is
-    dropped; westbound straight does not cross eastbound and stays. The host runs with or without
-    SUMO's junction collision checks: the rule does not depend on them."""
+def _start(cross_net, check_junctions=True):
     import libsumo as sim
+    sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--step-length", "0.5",
+               "--lateral-resolution", "0.8"] + (["--collision.check-junctions"] if check_junctions else []))
+    return sim
+
+
+def _calm(sim, steps=20):
+    """Step; no collision, nobody braking beyond its decel."""
+    for _ in range(steps):
+        sim.simulationStep()
+        assert sim.simulation.getCollidingVehiclesNumber() == 0
+        for v in sim.vehicle.getIDList():
+            assert sim.vehicle.getAcceleration(v) >= -sim.vehicle.getDecel(v) - 0.05
+
+
+@pytest.mark.parametrize("check_junctions", [True, False])
+def test_both_in_the_shared_area_one_kept(cross_net, check_junctions):
+    """Eastbound straight and northbound straight with their noses in the area both links cross: the
+    less probable is not seeded; westbound straight does not cross eastbound and stays. The host runs
+    with or without SUMO's junction collision checks: the rule does not depend on them."""
     net = Network.load(cross_net)
     jc = JunctionConflicts(net)
     east, north, west = _lane(net, jc, "wc", "ce"), _lane(net, jc, "sc", "cn"), _lane(net, jc, "ec", "cw")
     assert jc.foes(east, north) and not jc.foes(east, west)
-    poses = [_pose(net, east, 1.0), _pose(net, north, 1.0), _pose(net, west, 1.0)]
-    scene = _scene(poses, [5.0, 5.0, 5.0], [0.9, 0.6, 0.8])
-    args = ["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--step-length", "0.5",
-            "--lateral-resolution", "0.8"] + (["--collision.check-junctions"] if check_junctions else [])
-    sim.start(args)
+    nose_in = [jc._area(east, north)[0] + 0.5 - 2.3, jc._area(north, east)[0] + 0.5 - 2.3]
+    poses = [_pose(net, east, nose_in[0]), _pose(net, north, nose_in[1]), _pose(net, west, 1.0)]
+    scene = _scene(poses, [3.0, 3.0, 5.0], [0.9, 0.6, 0.8])
+    sim = _start(cross_net, check_junctions)
     try:
         seeder = Seeder(sim, net)
         report = seeder.seed(scene)
-        assert set(report.conflicts) == {1} and "conflicts" in report.conflicts[1]
+        assert set(report.conflicts) == {1} and "shares" in report.conflicts[1]
         assert set(report.ids) == {0, 2} and not report.refused
         sim.simulationStep()
         assert seeder.verify(report).placed == 2
-        for _ in range(20):
-            sim.simulationStep()
-            assert sim.simulation.getCollidingVehiclesNumber() == 0
-            for v in sim.vehicle.getIDList():       # nobody brakes beyond its decel
-                assert sim.vehicle.getAcceleration(v) >= -sim.vehicle.getDecel(v) - 0.05
+        _calm(sim)
+    finally:
+        sim.close()
+
+
+def test_both_before_the_shared_area_the_later_waits(cross_net):
+    """Both a metre into the junction, before the area their links share: both are seeded, the one
+    that would reach that area later departs standing and waits; nobody collides or brakes beyond
+    decel."""
+    net = Network.load(cross_net)
+    jc = JunctionConflicts(net)
+    east, north = _lane(net, jc, "wc", "ce"), _lane(net, jc, "sc", "cn")
+    scene = _scene([_pose(net, east, 1.0), _pose(net, north, 1.0)], [5.0, 5.0], [0.9, 0.6])
+    sim = _start(cross_net)
+    try:
+        seeder = Seeder(sim, net)
+        report = seeder.seed(scene)
+        assert not report.conflicts and set(report.ids) == {0, 1}
+        b = scene.boxes.astype(float)         # the window is the world frame here
+        first = jc.occupancy(east, b[0], 5.0, north)[0] < jc.occupancy(north, b[1], 5.0, east)[0]
+        later = 1 if first else 0
+        assert set(report.slowed) == {later} and report.slowed[later] == (5.0, 0.0)
+        sim.simulationStep()
+        assert seeder.verify(report).placed == 2
+        _calm(sim)
     finally:
         sim.close()
 
@@ -101,15 +135,20 @@ def test_without_the_rule_the_pair_collides_or_brakes(cross_net):
 
 def test_an_agent_past_the_crossing_is_no_conflict(cross_net):
     """Eastbound has already crossed northbound's path (its rear is beyond the overlap of the two
-    lanes): both stay. A host vehicle on a foe link is never dropped: the agent is."""
+    lanes): both stay. A host vehicle on a foe link is never dropped or held: the agent waits, or is
+    not seeded if its nose is in the shared area already."""
     net = Network.load(cross_net)
     jc = JunctionConflicts(net)
     east, north = _lane(net, jc, "wc", "ce"), _lane(net, jc, "sc", "cn")
     length = net.lanes[net.lane_index[east]].length
     done = _pose(net, east, length - 0.2)
     boxes = np.array([[*done, 4.6, 1.8], [*_pose(net, north, 1.0), 4.6, 1.8]])
-    keep, dropped = jc.resolve([east, north], boxes, np.array([0.5, 0.9]))
-    assert keep.all() and not dropped
+    keep, hold = jc.resolve([east, north], boxes, [5.0, 5.0], np.array([0.5, 0.9]))
+    assert keep.all() and not hold.any()
     early = np.array([[*_pose(net, east, 1.0), 4.6, 1.8]])
-    keep, dropped = jc.resolve([east], early, np.array([0.99]), fixed=[(north, boxes[1])])
-    assert dropped == [0]
+    host = (north, boxes[1], 5.0)
+    keep, hold = jc.resolve([east], early, [5.0], np.array([0.99]), fixed=[host])
+    assert keep.all() and hold.all()                  # before the shared area: it waits
+    inside = np.array([[*_pose(net, east, jc._area(east, north)[0] + 0.5 - 2.3), 4.6, 1.8]])
+    keep, hold = jc.resolve([east], inside, [5.0], np.array([0.99]), fixed=[host])
+    assert not keep.any()                             # in it already: not seeded

@@ -20,6 +20,8 @@ from sumo_scendiff.core.outputs import (
 )
 from sumo_scendiff.sim.export import FILES
 
+pytestmark = pytest.mark.slow   # real runs of the CLIs: the fast tier is -m "not slow"
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CITY = os.path.join(ROOT, "networks", "city.net.xml")
 RUN = [sys.executable, "-m", "sumo_scendiff.run", "-n", CITY, "--scenes", "3", "-s", "2"]

@@ -22,6 +22,8 @@ from sumo_scendiff.model import checkpoint as ckpt
 from sumo_scendiff.train import recipe as rc
 from sumo_scendiff.train.stages import _merge
 
+pytestmark = pytest.mark.slow   # real runs of the CLIs: the fast tier is -m "not slow"
+
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FAST = os.path.join(REPO, "configs", "fast.json")
 
@@ -77,7 +79,7 @@ def test_the_fast_recipe_parses_with_todays_clis(tmp_path):
     stages = [c[1] for c in calls if c[0] == "sumo_scendiff.train"]
     assert stages == ["autoencoder", "autoencoder", "diffusion", "export", "calibrate"]
     trains = [c for c in calls if c[1] in ("autoencoder", "diffusion")]
-    # the run measured in README "Training": its steps and learning-rate drops
+    # the run measured in docs/training.md: its steps and learning-rate drops
     assert [(_flag(c, "--steps"), _flag(c, "--lr-drop-at")) for c in trains] == [
         ("5500", "4600"), ("2500", "2100"), ("3600", "3000")]
     # two DDP processes, each on half of the global batches of 16 / 16 / 32
@@ -127,24 +129,32 @@ def assert_recorded(stated: dict, recorded: dict, where: str) -> None:
             assert got == value, f"{where}.{key}: recipe {value!r}, shipped {got!r}"
 
 
-def test_the_fast_recipe_is_what_the_shipped_model_records():
+def test_the_recipes_are_what_the_shipped_model_records():
+    """The shipped model is configs/fast.json's autoencoder and its diffusion model fine-tuned by
+    configs/density.json (the density condition)."""
     shipped = ckpt.load(os.path.join(REPO, "sumo_scendiff", "weights", "scendiff.pt"), "scenario-diffusion")
-    recipe = rc.load(FAST)
-    ae, decoder, diffusion = (rc.stage(recipe, n) for n in ("autoencoder", "decoder", "diffusion"))
+    fast, density = rc.load(FAST), rc.load(os.path.join(REPO, "configs", "density.json"))
+    ae, decoder, diffusion = (rc.stage(fast, n) for n in ("autoencoder", "decoder", "diffusion"))
+    tuned = rc.stage(density, "diffusion")
     # the decoder stage continues the autoencoder's config with its own overrides on top
     assert_recorded(_merge(ae["model_config"], decoder["model_config"]), shipped["autoencoder_config"],
                     "autoencoder_config")
-    assert_recorded(diffusion["model_config"], shipped["diffusion_config"], "diffusion_config")
+    assert_recorded(_merge(diffusion["model_config"], tuned["model_config"]), shipped["diffusion_config"],
+                    "diffusion_config")
+    assert shipped["diffusion_config"]["unet"]["global_dim"] == 23    # p_mask, density, its presence bit
     trained = shipped["trained"]
     assert trained["autoencoder_steps"] == ae["steps"] + decoder["steps"]
-    assert trained["diffusion_steps"] == diffusion["steps"]
+    assert trained["diffusion_steps"] == diffusion["steps"] + tuned["steps"]
     assert trained["diffusion_ema"]   # the diffusion stage's default EMA, which the export ships
-    record = rc.stage(recipe, "record-train")
+    record = rc.stage(density, "record-train")
     assert trained["data"]["scenes"] == record["scenes"]
     with open(os.path.join(REPO, "networks", "splits.json")) as f:
         nets = json.load(f)[record["split"]]
     assert trained["data"]["nets"] == [n.removesuffix(".net.xml") for n in nets]
-    assert shipped["scene_guidance_sigma"] == rc.stage(recipe, "export")["scene_guidance_sigma"]
+    export = rc.stage(density, "export")
+    assert (shipped["scene_guidance"], shipped["scene_guidance_sigma"]) == (export["scene_guidance"],
+                                                                           export["scene_guidance_sigma"])
+    assert shipped["density_guidance"] > 1.0     # calibrated by the recipe's last stage
 
 
 def recipe_cli(*args, cwd=REPO):
@@ -180,3 +190,13 @@ def test_bad_recipe_request_exit_2(args, words):
     res = recipe_cli("configs/fast.json", *args)
     assert res.returncode == 2 and "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1
     assert words in res.stderr and not res.stdout
+
+
+def test_the_density_recipe_parses_with_todays_clis():
+    """Every stage of configs/density.json (the shipped round) is checked by its program's parser."""
+    recipe = rc.load(os.path.join(REPO, "configs", "density.json"))
+    for stage in recipe["stages"]:
+        res = recipe_cli("configs/density.json", "--print-stage", stage["name"], "--out", "runs/x",
+                         "--data-dir", "data/x", "--procs", "2")
+        assert res.returncode == 0, res.stderr
+        assert res.stdout.split("\n")[0] == stage["run"]

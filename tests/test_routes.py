@@ -1,6 +1,8 @@
 """Routes of seeded agents: the generated part, then SUMO's fastest route to a destination (real libsumo)."""
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 
 from sumo_scendiff.map.network import Network
@@ -9,7 +11,7 @@ from sumo_scendiff.sim.routes import RouteChooser
 
 def _turns_back(snet, edges) -> bool:
     es = [snet.getEdge(e) for e in edges]
-    return any(b.getToNode() is a.getFromNode() and b.getFromNode() is a.getToNode() for a, b in zip(es, es[1:]))
+    return any(b.getToNode() is a.getFromNode() and b.getFromNode() is a.getToNode() for a, b in pairwise(es))
 
 
 def test_without_demand_a_route_ends_at_the_fringe(cross_net):
@@ -44,8 +46,7 @@ def test_with_demand_a_route_goes_where_the_host_traffic_goes(grid):
     try:
         edges = sorted(e.getID() for e in snet.getEdges(withInternal=False))
         dest = "A0B0" if "A0B0" in edges else edges[0]
-        far = next(e for e in reversed(edges) if not sim.simulation.findRoute(e, dest).edges == ()
-                   and len(sim.simulation.findRoute(e, dest).edges) >= 4)
+        far = next(e for e in reversed(edges) if len(sim.simulation.findRoute(e, dest).edges) >= 4)
         sim.route.add("host_route", list(sim.simulation.findRoute(far, dest).edges))
         for k in range(3):
             sim.vehicle.add(f"host{k}", "host_route", depart="now")
@@ -76,6 +77,7 @@ def test_the_first_turn_is_one_the_lane_makes(tmp_path):
     an agent in the right lane is never routed left (a turn its lane does not make, which it could
     only reach by changing lanes at the stop line); one in the left lane goes left."""
     import libsumo as sim
+
     from .conftest import netconvert
     nodes = ('<node id="c" x="0" y="0" type="priority"/><node id="w" x="-200" y="0"/>'
              '<node id="e" x="200" y="0"/><node id="s" x="0" y="-200"/><node id="n" x="0" y="200"/>')

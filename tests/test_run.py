@@ -9,6 +9,8 @@ import pytest
 
 from sumo_scendiff import run as run_cli
 
+pytestmark = pytest.mark.slow   # real runs of the CLIs: the fast tier is -m "not slow"
+
 TOKENS = """p_mask = 0.6
 [[agents]]
 x = 20.0

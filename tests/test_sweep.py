@@ -14,6 +14,8 @@ from sumo_scendiff.core.outputs import LOCK
 from sumo_scendiff.sweep.__main__ import get_options, main
 from sumo_scendiff.sweep.spec import SpecError, load_spec
 
+pytestmark = pytest.mark.slow   # real runs of the CLIs: the fast tier is -m "not slow"
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 SPEC = """name = "t"
@@ -186,7 +188,8 @@ def test_sweep_index_pictures_and_a_failing_network(cross_net, tmp_path, capsys)
     assert [r["status"] for r in rows] == ["ok", "failed"]
     assert "junk.net.xml" in rows[1]["error"] and "failed s0001" in stdout
     assert sorted(os.listdir(out / "s0000")) == sorted(["scene.json", "scenario.rou.xml", "scenario.sumocfg",
-                                                        "state.xml.gz", "rollout.json", "scene.png"])
+                                                        "state.xml.gz", "rollout.json", "scene.png",
+                                                        "cross.net.xml.gz"])   # the folder replays alone
     assert os.path.getsize(out / "contact_sheet.png") > 1000 and os.path.getsize(out / "stats.png") > 1000
     assert open(out / "index.csv").read().count("\n") == 3
     code, _, err = _main(["--spec", str(spec), "--out", str(out)], capsys)   # not without --resume
@@ -310,8 +313,9 @@ def test_density_on_a_model_without_it_fails_each_scenario(cross_net, tmp_path):
     assert [r["status"] for r in rows] == ["failed", "failed"]
     assert [r["density"] for r in rows] == [10.0, "auto"]
     assert rows[0]["error"].startswith("density = 10.0: old.pt has no density condition")
-    assert rows[1]["error"].startswith("density = 'auto': old.pt has no density condition")
-    rec = json.load(open(failure_path(out, "s0001")))
+    assert rows[1]["error"].startswith("density = 'auto' (") and "old.pt has no density condition" in rows[1]["error"]
+    with open(failure_path(out, "s0001")) as f:
+        rec = json.load(f)
     assert rec["status"] == "failed" and rec["vehicles"] is None and "\n" not in rec["error"]
 
 
@@ -352,12 +356,14 @@ def test_the_worker_passes_and_records_the_targets(cross_net, tmp_path):
     assert [r["status"] for r in rows] == ["ok", "ok"], rows
     km = Network.load(cross_net).car_lane_km(w.window(spec.networks["cross"], "0,0")[0])
     for s, r, target in zip(sc, rows, asked):
-        block = json.load(open(os.path.join(out, s.id, "scene.json")))["sweep"]
+        with open(os.path.join(out, s.id, "scene.json")) as f:
+            block = json.load(f)["sweep"]
         assert block["density"] == s.density and block["density_target_veh_per_km"] == target
         assert block["car_lane_km"] == pytest.approx(km, abs=1e-3)
         assert r["density_target_veh_per_km"] == target and r["density"] == s.density
         assert r["vehicles_in_window"] == r["existing_vehicles"] + r["placed"]
         assert r["density_veh_per_km"] == pytest.approx(r["vehicles_in_window"] / km, abs=0.02)
     assert {"density", "vehicles", "density_target_veh_per_km", "density_veh_per_km"} <= set(COLUMNS)
-    assert "density_target_veh_per_km" in open(os.path.join(out, "index.csv")).readline()
+    with open(os.path.join(out, "index.csv")) as f:
+        assert "density_target_veh_per_km" in f.readline()
     assert density_axis(rows) and os.path.getsize(stats_plot(out, rows)) > 1000

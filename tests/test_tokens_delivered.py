@@ -13,6 +13,8 @@ from sumo_scendiff.generation.token_resolve import resolve_tokens
 from sumo_scendiff.map.network import Network
 from sumo_scendiff.tokens.file import TokenFileError, parse_tokens
 
+pytestmark = pytest.mark.slow   # real runs of the CLIs: the fast tier is -m "not slow"
+
 
 @pytest.fixture(scope="module")
 def city():

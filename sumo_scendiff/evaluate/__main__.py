@@ -51,8 +51,8 @@ COLUMNS = (("mmd2_position", "MMD² pos"), ("mmd2_heading", "MMD² head"),
 
 
 def get_options(args=None):
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    from ..core.cli import HelpFormatter, description
+    p = argparse.ArgumentParser(prog=PROG, description=description(__doc__), formatter_class=HelpFormatter)
     p.add_argument("-n", "--net-file", "--net", dest="nets", action="append", default=None,
                    metavar="NET", help="network to evaluate on (repeat); default: held-out + real cities")
     p.add_argument("--scenes", type=int, default=200, help="ground-truth scenes per network")
@@ -91,19 +91,26 @@ def default_nets() -> list[str]:
 
 def record_cached(nets: list[str], routes: list[str | None], scenes: int, seed: int, cache: str,
                   tag: str) -> str:
-    """Record (once) scenes with the data CLI into the cache; returns the data directory."""
-    from ..data.__main__ import get_options as data_options
-    from ..data.__main__ import main as data_main
+    """Record (once) scenes into the cache (continuing an interrupted recording there); returns the
+    data directory. Exits as the data CLI does (2 for bad input, 130 when interrupted)."""
+    from ..core.outputs import OutputError
     from ..data.record import RECORDER_VERSION
+    from ..data.recording import RecordingError, RecordingInterrupted, record_dataset
     key = json.dumps([[os.path.abspath(n) for n in nets], routes, scenes, seed, RECORDER_VERSION])
     out = os.path.join(cache, f"{tag}-{hashlib.sha1(key.encode()).hexdigest()[:12]}")
     if not os.path.exists(os.path.join(out, "manifest.json")):
-        args = [a for n in nets for a in ("-n", n)] + [a for r in routes if r for a in ("-r", r)]
-        args += ["-o", out, "--scenes", str(scenes), "-s", str(seed), "--scenes-per-episode", "100"]
-        if os.path.exists(out + ".partial"):
-            args.append("--resume")
-        with contextlib.redirect_stdout(sys.stderr):  # keep stdout for the table
-            data_main(data_options(args))
+        try:
+            with contextlib.redirect_stdout(sys.stderr):  # keep stdout for the table
+                m = record_dataset(nets, out, scenes, seed, routes=routes,
+                                   per_episode=100, resume=os.path.exists(out + ".partial"))
+                print(f"{out}: {m['scenes']} scenes, {m['agents']} agents from "
+                      f"{len(m['nets'])} network(s) in {len(m['episodes'])} episode(s)")
+        except (RecordingError, OutputError) as e:
+            print(f"{PROG}: error: {e}", file=sys.stderr)
+            raise SystemExit(2) from None
+        except RecordingInterrupted as e:
+            print(f"{PROG}: interrupted: {e}", file=sys.stderr)
+            raise SystemExit(130) from None
     return out
 
 
@@ -304,7 +311,7 @@ def _evaluate(o) -> int:
         o.parser.exit(2, f"{PROG}: error: {e}\n")
     print(summary(results))
     print()
-    # Random Log's agents come from this pool, and the MMD² ratios depend on it (README, "Evaluation")
+    # Random Log's agents come from this pool, and the MMD² ratios depend on it (docs/evaluation.md)
     roots = sorted({os.path.relpath(r) for r, _ in pool.sources})
     print(f"Random Log pool: {', '.join(roots)} ({len(pool)} scenes)")
     print()

@@ -32,7 +32,7 @@ def _setting(default, help: str, *, kind: type, minimum: float | None = None, ab
 @dataclass(frozen=True)
 class GenerationConfig:
     # DPM-Solver++(2M) at 10 steps: the quality of 20 Euler steps (the paper's solver) at half the
-    # UNet passes (README, "The model")
+    # UNet passes (docs/model.md)
     steps: int = _setting(10, "ODE solver steps", kind=int, minimum=1)
     sampler: str = _setting(SAMPLER_NAMES[0], "ODE solver of model.edm (dpmpp-2m: DPM-Solver++(2M); "
                             "euler: the paper's)", kind=str, choices=SAMPLER_NAMES)

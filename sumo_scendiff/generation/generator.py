@@ -97,6 +97,8 @@ class ScenarioGenerator:
         self.raster = raster
         self.sha256 = sha256
         self.config = config
+        # the global token's guidance weight for windows given a density (None: scene_guidance's)
+        self.density_guidance: float | None = None
 
     @classmethod
     def load(cls, path: str | None = None, config: GenerationConfig = GenerationConfig()):
@@ -113,9 +115,12 @@ class ScenarioGenerator:
             raise ckpt.CheckpointError(f"{path}: incomplete or incompatible checkpoint ({e})") from None
         ckpt.load_state(ae, {k: v.float() for k, v in ck["autoencoder"].items()}, path)
         ckpt.load_state(df, {k: v.float() for k, v in ck["diffusion"].items()}, path)
-        return cls(ae, df, float(ck["latent_scale"]), sha256=ckpt.sha256(path), config=config,
-                   scene_guidance=float(ck.get("scene_guidance", 1.0)),
-                   scene_guidance_sigma=float(ck.get("scene_guidance_sigma", 0.0)))
+        gen = cls(ae, df, float(ck["latent_scale"]), sha256=ckpt.sha256(path), config=config,
+                  scene_guidance=float(ck.get("scene_guidance", 1.0)),
+                  scene_guidance_sigma=float(ck.get("scene_guidance_sigma", 0.0)))
+        gen.density_guidance = ck.get("density_guidance")
+        return gen
+
 
     @property
     def has_density(self) -> bool:
@@ -146,6 +151,8 @@ class ScenarioGenerator:
                                   noise=noise, guidance=cfg.guidance,
                                   scene_guidance=self.scene_guidance_for(cfg),
                                   scene_guidance_sigma=self.scene_guidance_sigma_for(cfg),
+                                  density_guidance=self.density_guidance if cfg.scene_guidance is None
+                                  else cfg.scene_guidance,
                                   known=pinned_latent(self.ae, pins, self.latent_scale, self.raster,
                                                       maps=m if cfg.pin_calibration else None)
                                   if cfg.pin_tokens and pins is not None else None)

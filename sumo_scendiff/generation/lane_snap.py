@@ -3,11 +3,9 @@
     boxes, traj, snapped = snap_to_lanes(boxes, traj, window, net)   # scene frame in and out
 
 SUMO's own traffic, which the model learns from, drives on lane centre lines (the recorder runs
-without the sublane model): on cologne3 the recorded vehicles stand 0.00 m from the centre line at
-the median and 0.03 m at the 95th percentile, heading along the lane within 0.004 rad. Decoded poses
-scatter around those lines (0.30 m median, 1.1 m at the 90th percentile; README "How the shipped
-checkpoint was found", item 16), which puts a box's corner or a future waypoint off the road and
-tilts it against its lane. Every pose (the box at t = 0 and each trajectory pose) that has a car lane
+without the sublane model), heading along the lane. Decoded poses scatter around those lines
+(docs/history.md, item 16, has the measurements), which puts a box's corner or a future waypoint off
+the road and tilts it against its lane. Every pose (the box at t = 0 and each trajectory pose) that has a car lane
 within ``radius`` m agreeing with its yaw within ``max_angle`` moves to the nearest point of that
 lane's centre line and takes the lane's heading there; the lane is the one SUMO seeding would choose
 (:meth:`~sumo_scendiff.map.network.Network.match_poses`, the same rule as ``Network.lookup``). A pose with

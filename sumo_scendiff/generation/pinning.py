@@ -5,7 +5,7 @@
     z = diffusion.sample(m, tok, pad, glob, known=known)     # the agent is where the token says
 
 The paper conditions on tokens only (cross-attention), and on this CPU-sized model a token's agent
-is not always generated where the token says (README, "Token control"). A token that gives
+is not always generated where the token says (docs/evaluation.md, "Token control"). A token that gives
 position, heading, length, width and speed describes the agent completely enough to draw it: its
 trajectory is synthesised (:func:`token_trajectories`: constant acceleration from ``speed`` to
 ``final_speed``, a circular arc whose chord turns by ``heading_to_final``, the past at the same
@@ -13,7 +13,7 @@ acceleration, never backwards), the token agents alone are rendered to the agent
 by the autoencoder's E, and the latent cells they change (their *footprint*: the largest channel of
 |mu(tokens) - mu(empty)| above :data:`FOOTPRINT`) are fixed to that latent while the diffusion model
 generates the rest around them (:func:`~sumo_scendiff.model.edm.inpainted`). The decoder then finds
-each pinned agent about as the autoencoder reconstructs it (README, "The model", pinned tokens).
+each pinned agent about as the autoencoder reconstructs it (docs/model.md, pinned tokens).
 Tokens missing any of those features stay conditions only. A generated agent that would share a latent cell
 (6.25 m) with a pinned one is not drawn there: the cell holds the pinned agent alone. After
 decoding, the agent found within 2 m of a pinned token takes the token's heading
@@ -37,7 +37,7 @@ from ..tokens.features import is_pinnable
 
 # |delta mu| (autoencoder units) above which a latent cell belongs to a pinned agent: 3-4 cells per
 # agent. At 0.3 (12-19 cells) the pins crowd out the generated agents around them; at 2.5 (1 cell)
-# they no longer hold (README "The model", pinned tokens)
+# they no longer hold (docs/model.md, pinned tokens)
 FOOTPRINT = 1.0
 
 
@@ -90,7 +90,7 @@ def _arc(x: float, y: float, h: float, s: np.ndarray, alpha: float, t: np.ndarra
 
 # Pin calibration: offsets (m/s) tried for the drawn speed, then for the drawn final speed, of pins
 # asked to move at least MOVING m/s. Not the length, nor standing pins: calibrating those moved the
-# decoded boxes off their tokens (README "The model", pinned tokens)
+# decoded boxes off their tokens (docs/model.md, pinned tokens)
 SPEED_OFFSETS = (-1.0, 0.0, 1.0, 2.0, 3.0, 4.0)
 MOVING = 0.5
 CALIBRATION_RADIUS = 2.0   # m: the decoded agent within this of a pin is the pin's
@@ -223,7 +223,7 @@ def turn_to_pins(boxes: np.ndarray, traj: np.ndarray, pins: np.ndarray, radius: 
     (N, T, 3), scene frame) are matched to the pins ``(P, >= 3)``: x, y, heading) by
     :func:`match_pins`, and a matched agent's box and trajectory turn rigidly about its current pose
     by the difference. Inside a junction the decoder's heading is the least certain part of a pinned
-    agent (README "Token control"), and the token states it exactly.
+    agent (docs/evaluation.md, "Token control"), and the token states it exactly.
     Returns new arrays and which agents turned (N,)."""
     boxes, traj = np.array(boxes, np.float64), np.array(traj, np.float64)
     turned = np.zeros(len(boxes), bool)
@@ -264,7 +264,7 @@ def pace_to_pins(boxes: np.ndarray, traj: np.ndarray, pins: np.ndarray, radius: 
     and turns as the token says where it says.
 
     ``pins`` (P, 6): x, y, heading, speed, final speed, heading to final (:func:`pinned_poses`; NaN:
-    not given). The decoder shrinks speeds toward the typical (README "The model",
+    not given). The decoder shrinks speeds toward the typical (docs/model.md,
     pinned speeds; it never draws a stop) and draws the future from the map, not
     from a token's turn, while the token states them: a matched agent's poses are moved along its
     own path (:func:`retime`) to where SUMO's 1-s update at constant acceleration from ``speed`` to

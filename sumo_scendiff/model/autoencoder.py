@@ -9,7 +9,7 @@ resolution, narrowed for CPU training and without the mid-block self-attention:
   resolution is truncated at 64 px as in appendix C.1. See ``detection.py`` for the layout of y.
   With ``map_skips`` (beyond the paper) D_down's 32 and 64 px features are added (1x1 projections)
   into D_up at those resolutions, U-Net fashion, so the decoder sees the lanes finer than the 16 px
-  bottleneck's 6.25 m cells (README "The model": a small gain in lane heading).
+  bottleneck's 6.25 m cells (docs/model.md: a small gain in lane heading).
 
 Training objective (appendix C.3): L = L_rec + kl_weight * L_KL, both per-scene sums averaged
 over the batch.

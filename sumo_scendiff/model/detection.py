@@ -51,7 +51,7 @@ class DetectionLossConfig:
     stationary_threshold: float = 1.0  # m: max |p_t - p_0| over observed steps below -> stationary
     turn_threshold: float = 0.3  # rad: range of observed yaw(t) - yaw(0) above -> turning
     neg_near_weight: float = 0.2  # unmatched cells within neg_near_distance of a GT box
-    neg_far_weight: float = 0.05  # all other unmatched cells (paper: 0.002; see README "The model")
+    neg_far_weight: float = 0.05  # all other unmatched cells (paper: 0.002; see docs/model.md)
     heading_bin_weight: float = 1.0  # cross-entropy of the MultiBin heading head (if the decoder has one)
     heading_res_weight: float = 1.0  # L1 (radians) on its residuals
     speed_weight: float = 0.0  # L1 (m/s) on the 1 s step lengths |p(t) - p(t-1)| (0: off, the paper)

@@ -75,7 +75,8 @@ class ScenarioDiffusion(nn.Module):
 
     @staticmethod
     def null_condition(cond: dict, guidance: float, scene_guidance: float,
-                       scene_guidance_sigma: float = 0.0) -> tuple[dict, Tensor, Tensor]:
+                       scene_guidance_sigma: float = 0.0, density_guidance: float | None = None
+                       ) -> tuple[dict, Tensor, Tensor]:
         """The condition each example is guided away from, its weight and the noise level below
         which its guidance stops (each (B,)):
 
@@ -85,6 +86,10 @@ class ScenarioDiffusion(nn.Module):
           ``scene_guidance`` -- the global token's "add agents" is followed more closely, only
           while sigma > ``scene_guidance_sigma``: how many agents there are is decided at high
           noise; guiding the fine steps too pushes agents off their lanes.
+
+        Without agent tokens but with a density, the weight is ``density_guidance`` (None: the
+        same), and the density stays in the null: the weight amplifies the global token's "add
+        agents" at the level the density asks for, not the density itself.
 
         Both nulls are conditions training shows the model (``p_map_only``; scenes whose every
         token is kept)."""
@@ -97,6 +102,8 @@ class ScenarioDiffusion(nn.Module):
         # must not also amplify the density the user asked for
         null_glob[:, P_MASK_BINS:] = glob[:, P_MASK_BINS:]
         w = torch.where(has_tokens, torch.tensor(float(guidance)), torch.tensor(float(scene_guidance)))
+        if density_guidance is not None and glob.shape[-1] > P_MASK_BINS:
+            w = torch.where(~has_tokens & (glob[:, -1] > 0), torch.tensor(float(density_guidance)), w)
         sigma_lo = torch.where(has_tokens, torch.tensor(0.0), torch.tensor(float(scene_guidance_sigma)))
         return dict(cond, agent_pad_mask=torch.ones_like(pad), global_token=null_glob), w, sigma_lo
 
@@ -105,7 +112,7 @@ class ScenarioDiffusion(nn.Module):
                steps: int = 10, sampler: Callable = sample_dpmpp_2m,
                generator: Optional[torch.Generator] = None, noise: Optional[Tensor] = None,
                guidance: float = 1.0, scene_guidance: float = 1.0,
-               scene_guidance_sigma: float = 0.0,
+               scene_guidance_sigma: float = 0.0, density_guidance: float | None = None,
                known: Optional[tuple[Tensor, Tensor]] = None) -> Tensor:
         """Integrate the probability-flow ODE from sigma_max to 0 (paper eq. 3); returns z (scaled).
 
@@ -119,7 +126,8 @@ class ScenarioDiffusion(nn.Module):
         cfg = self.cfg.unet
         cond = self.cond(m, agent_tokens, agent_pad_mask, global_token)
         denoiser = self.denoiser
-        null, w, sigma_lo = self.null_condition(cond, guidance, scene_guidance, scene_guidance_sigma)
+        null, w, sigma_lo = self.null_condition(cond, guidance, scene_guidance, scene_guidance_sigma,
+                                                density_guidance)
         if bool((w != 1.0).any()):
             denoiser, cond = guided(self.denoiser, cond, null, w, sigma_lo), None
         if known is not None:

@@ -20,7 +20,7 @@ Token splat (beyond the paper): with ``splat_ch`` > 0, every agent token that ha
 also embedded by its own MLP into ``splat_ch`` channels and added into the one latent pixel its
 position bin falls in (``tokens.token_cells``); the resulting image is concatenated to the input.
 Cross-attention alone must *learn* to route a token to its pixel, which a CPU-sized training
-run does not (README, "The model"); the splat hands that routing to the network, and
+run does not (docs/model.md); the splat hands that routing to the network, and
 cross-attention keeps carrying tokens without a position and the set-level context. The splat
 channels come last in ``conv_in`` so a model trained without them warm-starts with zero weights there
 (:func:`widen_conv_in`).

@@ -35,7 +35,10 @@ def _compressed(src: str) -> str:
 
 
 def bundle(src: str, folder: str) -> str:
-    """Put ``src`` (compressed) into ``folder``; returns its name there."""
+    """Put ``src`` (compressed) into ``folder``; returns its name there (a file already in the
+    folder stays as it is)."""
+    if os.path.dirname(os.path.abspath(src)) == os.path.abspath(folder):
+        return os.path.basename(src)
     packed = _compressed(src)
     name = os.path.basename(src) + ("" if src.endswith(".gz") else ".gz")
     dest = os.path.join(folder, name)

@@ -109,13 +109,18 @@ LONG_NAMES = {"n": "net-file", "r": "route-files", "a": "additional-files", "b":
 INPUTS = ("net-file", "route-files", "additional-files")
 
 
-def write_sumocfg(path: str, options: dict[str, str], state: str | None) -> None:
+def write_sumocfg(path: str, options: dict[str, str], state: str | None,
+                  routes: list[str] | None = None) -> None:
     """scenario.sumocfg that runs in stock SUMO from wherever the folder is copied: the network and
-    the route and additional files travel in the folder (sim.bundle); loads the saved state when given."""
+    the route and additional files travel in the folder (sim.bundle); loads the saved state when given.
+    ``routes``: the route files instead of the options' own."""
     here = os.path.dirname(os.path.abspath(path))
+    options = {LONG_NAMES.get(k, k): v for k, v in options.items()}
+    if routes is not None:
+        options.pop("route-files", None)
+        options = {**options, **({"route-files": ",".join(routes)} if routes else {})}
     lines = ["<configuration>"]
     for name, value in options.items():
-        name = LONG_NAMES.get(name, name)
         if name in INPUTS:
             value = ",".join(bundle(v, here) for v in value.split(","))
         lines.append(f"    <{name} value={quoteattr(value)}/>")

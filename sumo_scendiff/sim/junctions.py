@@ -1,18 +1,25 @@
 """Junction conflicts among generated agents, resolved before they become SUMO vehicles.
 
     conflicts = JunctionConflicts(net)
-    keep, dropped = conflicts.resolve(lanes, boxes, score, fixed=[(lane_id, box), ...])
+    keep, hold = conflicts.resolve(lanes, boxes, speeds, score, fixed=[(lane_id, box, speed), ...])
 
-An agent on a junction's internal lane has passed its stop line: SUMO lets it drive on whatever
-the junction's other links carry. Two agents generated on internal lanes of one junction whose links
-are *foes* (the junction's ``<request foes=...>`` bits, sumolib ``Node.areFoes``: their paths cross
-or merge) both drive on, and if neither has reached the crossing yet they meet there; SUMO checks
-junction collisions geometrically (``--collision.check-junctions``) and counts it. Such a pair is
-resolved by keeping one agent: the more probable (the generator's ``score``), else the one whose
-link has the right of way (``<request response=...>``), else the one further along. A pair where
-one agent has already passed the conflict area (the overlap of the two lanes' outlines lies behind
-its rear bumper) is no conflict and both stay. Host vehicles (``fixed``) are never dropped: an agent
-in conflict with one is.
+An agent on a junction's internal lane has passed its stop line: SUMO lets it drive on, braking for
+a foe only if it can still see and stop for it. A model that does not know the signals generates
+vehicles on *foe* links of one junction at once (the junction's ``<request foes=...>`` bits,
+sumolib ``Node.areFoes``: their paths cross or merge); seeded as they are, they meet where their
+lanes' outlines overlap, and SUMO counts a junction collision (``--collision.check-junctions``) or
+brakes one beyond its decel. For each such pair the times at which each agent would hold the shared
+area are estimated (driving on from its speed at ``ACCEL``); a pair that would hold it together:
+
+* both already in it (noses past its start): only one is seeded: the more probable (the generator's
+  ``score``), else the one whose link has the right of way (``<request response=...>``), else the
+  first;
+* otherwise the one that would reach it later departs standing (first come, first served): SUMO
+  then sees the other as a foe it can wait for, and nobody is dropped.
+
+A pair where one agent has already left the shared area is no conflict. Host vehicles (``fixed``)
+are never dropped or held: an agent in conflict with one waits, or is not seeded if it is in the
+shared area already.
 """
 from __future__ import annotations
 
@@ -21,10 +28,14 @@ import shapely
 
 from ..map.network import Network
 
+ACCEL = 2.6    # m/s^2: SUMO's default passenger car accel, how an agent drives on through a junction
+MARGIN = 0.0   # s: two agents closer in time than this in a shared area conflict
+
 
 class JunctionConflicts:
-    def __init__(self, net: Network):
-        self.net = net
+    def __init__(self, net: Network, margin: float = MARGIN):
+        self.net, self.margin = net, margin
+        self._areas: dict[tuple[str, str], tuple[float, float] | None] = {}
         self.link: dict[str, tuple[str, int]] = {}   # internal lane -> (junction, link index)
         snet = net.sumo_net
         if snet is None:
@@ -69,35 +80,68 @@ class JunctionConflicts:
         resp = self.net.sumo_net.getNode(j)._prohibits.get(a, "")
         return 0 <= len(resp) - b - 1 < len(resp) and resp[len(resp) - b - 1] == "1"
 
-    def _pending(self, lane_a: str, box_a, lane_b: str) -> bool:
-        """Whether the agent with ``box_a`` (x, y, yaw, length, width; world) on ``lane_a`` has not
-        yet left the area where ``lane_a`` and ``lane_b`` overlap behind it."""
-        la, lb = (self.net.lanes[self.net.lane_index[x]] for x in (lane_a, lane_b))
-        area = shapely.intersection(la.polygon, lb.polygon)
-        if area.is_empty:
-            return False       # merging links whose outlines meet only beyond the junction
-        line = shapely.LineString(la.shape)
+    def _area(self, lane_a: str, lane_b: str) -> tuple[float, float] | None:
+        """Where (from, to, metres along ``lane_a``'s centre line) ``lane_a``'s outline overlaps
+        ``lane_b``'s, or None (merging links whose outlines meet only beyond the junction)."""
+        key = (lane_a, lane_b)
+        if key not in self._areas:
+            la, lb = (self.net.lanes[self.net.lane_index[x]] for x in (lane_a, lane_b))
+            area = shapely.intersection(la.polygon, lb.polygon)
+            line = shapely.LineString(la.shape)
+            s = [line.project(shapely.Point(p)) for p in shapely.get_coordinates(area)]
+            self._areas[key] = (min(s), max(s)) if s and not area.is_empty else None
+        return self._areas[key]
+
+    def occupancy(self, lane_a: str, box_a, speed: float, lane_b: str) -> tuple[float, float] | None:
+        """When (seconds from now: enters, leaves) the agent with ``box_a`` (x, y, yaw, length, width;
+        world) on ``lane_a`` is in the area it shares with ``lane_b``, driving on from ``speed`` at
+        ``ACCEL`` (a vehicle on an internal lane has passed its stop line and goes); None if it
+        has left that area already or there is none."""
+        area = self._area(lane_a, lane_b)
+        if area is None:
+            return None
+        lane = self.net.lanes[self.net.lane_index[lane_a]]
+        line = shapely.LineString(lane.shape)
         x, y, yaw, length = (float(v) for v in box_a[:4])
-        rear = line.project(shapely.Point(x - 0.5 * length * np.cos(yaw), y - 0.5 * length * np.sin(yaw)))
-        return rear <= max(line.project(shapely.Point(p)) for p in shapely.get_coordinates(area))
+        c, s = 0.5 * length * np.cos(yaw), 0.5 * length * np.sin(yaw)
+        front, rear = line.project(shapely.Point(x + c, y + s)), line.project(shapely.Point(x - c, y - s))
+        if rear > area[1]:
+            return None
+        v = max(float(speed), 0.0)
 
-    def conflict(self, lane_a: str, box_a, lane_b: str, box_b) -> bool:
-        return (self.foes(lane_a, lane_b) and self._pending(lane_a, box_a, lane_b)
-                and self._pending(lane_b, box_b, lane_a))
+        def time(d: float) -> float:      # d = v t + ACCEL t^2 / 2
+            return 0.0 if d <= 0 else (-v + np.sqrt(v * v + 2.0 * ACCEL * d)) / ACCEL
+        return time(area[0] - front), time(area[1] - rear)
 
-    def resolve(self, lanes: list[str | None], boxes: np.ndarray, score: np.ndarray | None = None,
-                fixed: list[tuple[str, np.ndarray]] = ()) -> tuple[np.ndarray, list[int]]:
-        """Which agents to keep: ``lanes`` the lane id per agent (None: not on the road), ``boxes``
-        (N, 5) world boxes, ``score`` the generator's probability per agent; ``fixed`` host vehicles'
-        (lane id, world box). Returns (keep mask, dropped agent indices)."""
+    def conflict(self, lane_a: str, box_a, v_a: float, lane_b: str, box_b, v_b: float):
+        """Foe links whose shared area the two agents would hold within ``margin`` s of each other:
+        their (enters, leaves) times there, else None."""
+        if not self.foes(lane_a, lane_b):
+            return None
+        a, b = self.occupancy(lane_a, box_a, v_a, lane_b), self.occupancy(lane_b, box_b, v_b, lane_a)
+        if a is None or b is None or not (a[0] < b[1] + self.margin and b[0] < a[1] + self.margin):
+            return None
+        return a, b
+
+    def resolve(self, lanes: list[str | None], boxes: np.ndarray, speeds, score: np.ndarray | None = None,
+                fixed: list[tuple[str, np.ndarray, float]] = ()) -> tuple[np.ndarray, np.ndarray]:
+        """Which agents to keep and which to hold: ``lanes`` the lane id per agent (None: not on the
+        road), ``boxes`` (N, 5) world boxes, ``speeds`` (N,) m/s, ``score`` the generator's probability
+        per agent; ``fixed`` host vehicles' (lane id, world box, speed). Returns (keep, hold) masks:
+        an agent to hold departs standing, before the area it shares with its foe."""
         n = len(lanes)
-        keep = np.ones(n, bool)
+        keep, hold = np.ones(n, bool), np.zeros(n, bool)
         on = [i for i in range(n) if lanes[i] and lanes[i] in self.link]
         if not on:
-            return keep, []
+            return keep, hold
+        v = np.maximum(np.asarray(speeds, np.float64), 0.0)
         for i in on:
-            if any(lane in self.link and self.conflict(lanes[i], boxes[i], lane, box) for lane, box in fixed):
-                keep[i] = False
+            for lane, box, speed in fixed:
+                c = lane in self.link and self.conflict(lanes[i], boxes[i], v[i], lane, box, speed)
+                if c and c[0][0] <= 0.0:
+                    keep[i] = False          # in the area already: it cannot wait for the host
+                elif c:
+                    hold[i], v[i] = True, 0.0
         score = np.zeros(n) if score is None else np.asarray(score, np.float64)
 
         def rank(i: int, j: int) -> bool:    # whether i stays rather than j
@@ -108,16 +152,21 @@ class JunctionConflicts:
                 return yj
             return i < j
         # the most probable first: an agent dropped for a better one cannot drop a third
-        order = sorted(on, key=lambda i: -score[i])
+        order = sorted((i for i in on if keep[i]), key=lambda i: -score[i])
         for a, i in enumerate(order):
-            if not keep[i]:
-                continue
             for j in order[a + 1:]:
-                if keep[j] and self.conflict(lanes[i], boxes[i], lanes[j], boxes[j]):
+                if not (keep[i] and keep[j]):
+                    continue
+                c = self.conflict(lanes[i], boxes[i], v[i], lanes[j], boxes[j], v[j])
+                if c is None:
+                    continue
+                (ti, _), (tj, _) = c
+                if ti <= 0.0 and tj <= 0.0:  # both in the shared area: one must go
                     keep[j if rank(i, j) else i] = False
-                    if not keep[i]:
-                        break
-        return keep, [int(i) for i in np.flatnonzero(~keep)]
+                else:                        # the later one waits before it (first come, first served)
+                    k = j if tj >= ti else i
+                    hold[k], v[k] = True, 0.0
+        return keep, hold & keep
 
 
 __all__ = ["JunctionConflicts"]

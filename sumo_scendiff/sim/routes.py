@@ -24,6 +24,7 @@ visits an edge twice.
 from __future__ import annotations
 
 from collections import Counter
+from itertools import pairwise
 
 import numpy as np
 
@@ -74,7 +75,7 @@ class RouteChooser:
             return False
         snet = self.net.sumo_net
         es = [snet.getEdge(e) for e in edges]
-        return not any(self._reverse(a, b) for a, b in zip(es, es[1:]))
+        return not any(self._reverse(a, b) for a, b in pairwise(es))
 
     def _find(self, a: str, b: str, vtype: str) -> tuple[list[str], float]:
         try:

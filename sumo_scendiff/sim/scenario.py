@@ -51,6 +51,17 @@ def _time(path: str, name: str, value: str) -> float:
         raise ScenarioError(f"{path}: {name}: not a time in seconds ({value!r})") from None
 
 
+def input_flags_problem(net: str | None, config: str | None) -> str | None:
+    """What is wrong with a CLI's -n/-c pair before any file is read (one line), or None."""
+    if not (net or config):
+        return "one of -n/--net-file or -c/--configuration-file is required"
+    for flag, path in (("-n", net), ("-c", config)):
+        if path and path.endswith(".sumocfg") != (flag == "-c"):
+            return f"{flag}: {path}: " + ("a SUMO configuration, not a network (give it with -c)"
+                                          if flag == "-n" else "not a .sumocfg (a network goes to -n)")
+    return None
+
+
 def read_sumocfg(path: str, skip: frozenset[str] = frozenset()) -> dict:
     """The inputs and time window of a ``.sumocfg`` as a dict of SumoScenario fields, paths resolved
     against its folder; a file it names that does not exist is an error naming both. Options named

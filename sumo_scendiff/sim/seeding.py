@@ -15,14 +15,16 @@ SUMO's router to a destination the host's traffic drives to, or the network's fr
 fits the gap to the vehicle ahead in the scene, a departure speed that is its generated speed capped
 at the Krauss safe speed behind that vehicle, then ``vehicle.add`` and ``vehicle.moveToXY``. SUMO
 refusing a vehicle never crashes the host simulation: the agent is reported as refused. Before any
-is added, agents on internal lanes of one junction whose links conflict are resolved to one
-(:mod:`~sumo_scendiff.sim.junctions`; the others are in ``report.conflicts``). After the
+is added, agents on internal lanes of one junction whose links conflict are resolved
+(:mod:`~sumo_scendiff.sim.junctions`): of two already in the area their links share, one is
+seeded (the other is in ``report.conflicts``); of two still before it, the later departs standing
+and waits (in ``report.slowed``). After the
 seeding step, :meth:`Seeder.settle` checks both again against the leader SUMO itself sees.
 
 Generated agents are rarely on a lane's centre line. With SUMO's sublane model
 (``--lateral-resolution``, which :mod:`~sumo_scendiff.sim.sumo` turns on) ``moveToXY`` with
 ``keepRoute=1`` keeps their lateral offset; without it SUMO snaps them to the centre line (most
-generated agents then end up off their pose; README, "Seeding SUMO"), so the Seeder uses ``keepRoute=2``
+generated agents then end up off their pose; docs/evaluation.md, "Seeding SUMO: placement and hand-off"), so the Seeder uses ``keepRoute=2``
 (exact pose, mapped to the nearest lane of its route) in such host simulations.
 """
 from __future__ import annotations
@@ -167,13 +169,14 @@ class Seeder:
             out.append(lane)
         return out
 
-    def resolve(self, scene: Scene, others: np.ndarray) -> tuple[np.ndarray, dict[int, str]]:
-        """Which agents to seed: of agents on conflicting internal lanes of one junction, one
-        (:class:`~sumo_scendiff.sim.junctions.JunctionConflicts`); ``others`` the host's boxes (scene
-        frame), which are never dropped."""
+    def resolve(self, scene: Scene, others: np.ndarray, other_speed=None) -> tuple[np.ndarray, np.ndarray, dict]:
+        """(keep, hold, why dropped) for agents on conflicting internal lanes of one junction
+        (:class:`~sumo_scendiff.sim.junctions.JunctionConflicts`): of two in their shared area one is
+        kept, the later of two still before it departs standing; ``others`` the host's boxes (scene
+        frame), which are never dropped (their speeds: ``other_speed``)."""
         n = len(scene)
         if not self.resolve_junctions or not n:
-            return np.ones(n, bool), {}
+            return np.ones(n, bool), np.zeros(n, bool), {}
         w = scene.window
 
         def world(b):
@@ -185,13 +188,14 @@ class Seeder:
         mine, theirs = world(scene.boxes[:, :5]), world(others)
         lanes = self.junction_lanes(scene, mine)
         if not any(lanes):
-            return np.ones(n, bool), {}
-        fixed = [(ln, b) for ln, b in zip(self.junction_lanes(scene, theirs), theirs) if ln]
+            return np.ones(n, bool), np.zeros(n, bool), {}
+        other_speed = np.zeros(len(theirs)) if other_speed is None else np.asarray(other_speed, np.float64)
+        fixed = [(ln, b, v) for ln, b, v in zip(self.junction_lanes(scene, theirs), theirs, other_speed) if ln]
         score = scene.meta.get("score")
         score = np.asarray(score, np.float64) if score is not None and len(score) == n else None
-        keep, dropped = self.junctions.resolve(lanes, mine, score, fixed)
-        return keep, {i: f"on junction {self.junctions.link[lanes[i]][0]}: its link conflicts with "
-                         f"another vehicle's there" for i in dropped}
+        keep, hold = self.junctions.resolve(lanes, mine, scene.speed[:, T0].astype(np.float64), score, fixed)
+        return keep, hold, {int(i): f"on junction {self.junctions.link[lanes[i]][0]}: in the area its link "
+                                    f"shares with another vehicle's" for i in np.flatnonzero(~keep)}
 
     # ---- vehicle types ------------------------------------------------------------------------
     def vtype(self, vid: str, length: float, width: float, vclass: int, min_gap: float) -> str:
@@ -243,7 +247,8 @@ class Seeder:
         lead, bumper_gap = self.leaders(scene.boxes, other_boxes)
         gaps = self.min_gaps(bumper_gap)
         lead_speed = np.concatenate([scene.speed[:, T0], other_speed]).astype(np.float64)
-        keep, report.conflicts = self.resolve(scene, other_boxes)
+        keep, hold, report.conflicts = self.resolve(scene, other_boxes, other_speed)
+        lead_speed[:len(scene)][hold] = 0.0      # a follower of a held agent departs safe behind it
         self.routes.refresh()
         for i in range(len(scene)):
             if not keep[i]:
@@ -262,6 +267,8 @@ class Seeder:
                 tid = self.vtype(vid, scene.boxes[i, 3], scene.boxes[i, 4], scene.vclass[i], gaps[i])
                 sim.route.add(f"{vid}_route", self.routes.complete(edges, last_lane, tid, self.rng))
                 speed, slowed = max(float(scene.speed[i, T0]), 0.0), None
+                if hold[i]:        # waits for a foe on its junction (sim.junctions)
+                    slowed, speed = (speed, 0.0), 0.0
                 if lead[i] >= 0:
                     safe = krauss_safe_speed(bumper_gap[i] - gaps[i], max(float(lead_speed[lead[i]]), 0.0),
                                              sim.vehicletype.getDecel(tid), sim.vehicletype.getTau(tid))

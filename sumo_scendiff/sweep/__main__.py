@@ -1,8 +1,8 @@
 """Batch token sweeps: many scenarios from one spec file, in parallel, resumable.
 
     python -m sumo_scendiff.sweep --spec scenarios/truck_stopping.toml --out sweeps/truck
-    python -m sumo_scendiff.sweep --spec scenarios/density.toml --out sweeps/density --workers 2
-    python -m sumo_scendiff.sweep --spec scenarios/density.toml --out sweeps/density --resume
+    python -m sumo_scendiff.sweep --spec scenarios/density.json --out sweeps/density --workers 2
+    python -m sumo_scendiff.sweep --spec scenarios/density.json --out sweeps/density --resume
     python -m sumo_scendiff.sweep --spec ... --out ... --engine ray [--ray-address HOST:PORT]
 
 The spec (``docs/sweeps.md``) names networks, locations, token sets and their variants, p_mask
@@ -24,8 +24,9 @@ PROG = "python -m sumo_scendiff.sweep"
 
 
 def get_options(args=None):
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    from ..core.cli import HelpFormatter, description, epilog
+    p = argparse.ArgumentParser(prog=PROG, description=description(__doc__), epilog=epilog(__doc__),
+                                formatter_class=HelpFormatter)
     p.add_argument("--spec", required=True, help="sweep spec (TOML or JSON)")
     p.add_argument("-o", "--out", "--output-dir", dest="out", required=True, help="output directory")
     p.add_argument("--workers", type=int, default=1, help="worker processes (each loads the model once)")

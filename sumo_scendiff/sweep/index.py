@@ -80,8 +80,8 @@ def contact_sheet(out: str, rows: list[dict], tile: int = 480, per_page: int = 2
         level = "" if r.get("density_target_veh_per_km") is None else \
             f"  {r['density_target_veh_per_km']:.0f} veh/km"
         captions.append((f"{r['id']}  {r['network']}  {r['kind']}",
-                         f"{r['token_set']}  p_mask {r['p_mask_used']:.2f}{level}  seed {r['seed']}  "
-                         f"agents {r['generated']}"))
+                         (f"{r['token_set']}  p_mask {r['p_mask_used']:.2f}{level}  seed {r['seed']}  "
+                          f"agents {r['generated']}")))
     for stale in glob.glob(os.path.join(out, "contact_sheet-*.png")):
         os.remove(stale)  # pages of an earlier build that this one may not rewrite
     if not images:
@@ -127,11 +127,11 @@ def stats_plot(out: str, rows: list[dict]) -> str | None:
         at = {}
         for req in {_request(r) for r in ok}:
             at[req] = float(np.mean([r["density_target_veh_per_km"] for r in ok if _request(r) == req]))
-        xof = lambda r: at[_request(r)]  # noqa: E731
+        xof = lambda r: at[_request(r)]
         xlabel = "density target (veh / km of car lane)"
         first = ("density_veh_per_km", "density reached (veh / km)")
     else:
-        xof = lambda r: r["p_mask_used"]  # noqa: E731
+        xof = lambda r: r["p_mask_used"]
         xlabel = "global scene token p_mask"
         first = ("generated", "agents generated")
     panels = (first, ("user_tokens_matched", "user tokens realised"),

@@ -46,6 +46,8 @@ def scenario_target(s: Scenario, net, window, sim=None, checkpoint: str | None =
     target = window_target(net, window, s.density, s.vehicles, sim=sim)
     if target is not None and not has_density:
         what = f"density = {s.density!r}" if s.vehicles is None else f"vehicles = {s.vehicles}"
+        if s.density == "auto":
+            what += f" ({target:.1f} veh/km around the window)"
         raise DensityUnsupported(f"{what}: {checkpoint or 'the shipped model'} has no density condition "
                                  f"(trained before it); leave density/vehicles out of the spec or use a "
                                  f"newer --checkpoint")

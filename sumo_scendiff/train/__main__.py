@@ -137,19 +137,29 @@ def export(o) -> None:
 
 def run_calibrate(o) -> None:
     from ..model import checkpoint as ckpt
-    from .calibrate import calibrate, write_scene_guidance
     if o.scenes < 1:
         o.parser.exit(2, f"{PROG}: error: --scenes must be positive\n")
     if min(o.weights) < 0 or (o.sigma is not None and o.sigma < 0):
         o.parser.exit(2, f"{PROG}: error: --weights and --sigma must be >= 0\n")
     ckpt.load(o.model, "scenario-diffusion")   # a wrong file fails before minutes of sampling
+    from ..generation.generator import ScenarioGenerator
+    density = ScenarioGenerator.load(o.model).has_density
+    _calibrate_guidance(o, key="density_guidance" if density else "scene_guidance")
+
+
+def _calibrate_guidance(o, key: str) -> None:
+    """The weight where map-only generation meets the validation windows' count, stored as the
+    model's scene guidance; a model with the density condition keeps its exported scene guidance
+    for windows without a density and stores this weight for windows given one (the recording's
+    count is the level the density condition was trained around, not a traffic level to default to)."""
+    from .calibrate import calibrate, write_scene_guidance
     c = calibrate(o.model, o.data, scenes=o.scenes, turned=o.turned, weights=o.weights, sigma=o.sigma,
                   steps=o.steps, sampler=o.sampler, seed=o.seed)
     for w, n, _, _ in c.rows:
         print(f"w = {w:g}: {n:.2f} agents per window")
-    sha = write_scene_guidance(o.model, c.weight, o.sigma)
-    print(f"{o.model}: scene guidance {c.weight:g} above sigma {c.sigma:g} (ground truth {c.gt_count:.2f} agents "
-          f"per window, met at w = {c.best:.2f}), sha256 {sha}")
+    sha = write_scene_guidance(o.model, c.weight, o.sigma, key=key)
+    print(f"{o.model}: {key.replace('_', ' ')} {c.weight:g} above sigma {c.sigma:g} (ground truth "
+          f"{c.gt_count:.2f} agents per window, met at w = {c.best:.2f}), sha256 {sha}")
 
 
 def _check(args: list[str]) -> None:

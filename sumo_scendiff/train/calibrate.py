@@ -95,10 +95,11 @@ def calibrate(checkpoint: str | None, data: str, scenes: int = 128, turned: bool
     return out
 
 
-def write_scene_guidance(path: str, weight: float, sigma: float | None = None) -> str:
-    """Store the guidance weight (and, when given, the noise level above which it applies) in the
-    ``scenario-diffusion`` checkpoint at ``path``, atomically; returns the file's new SHA-256."""
-    changes = {"scene_guidance": float(weight)}
+def write_scene_guidance(path: str, weight: float, sigma: float | None = None,
+                         key: str = "scene_guidance") -> str:
+    """Store the guidance weight as ``key`` (and, when given, the noise level above which it applies)
+    in the ``scenario-diffusion`` checkpoint at ``path``, atomically; returns the file's new SHA-256."""
+    changes = {key: float(weight)}
     if sigma is not None:
         changes["scene_guidance_sigma"] = float(sigma)
     return ckpt.update(path, "scenario-diffusion", **changes)

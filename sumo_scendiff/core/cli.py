@@ -1,0 +1,34 @@
+"""What every command-line module shares: help that reads as plain text and shows its defaults."""
+from __future__ import annotations
+
+import argparse
+import re
+
+_ROLES = re.compile(r":(?:mod|func|class|meth|attr|data):`(~?)([\w.]+)`")
+
+
+def plain(text: str) -> str:
+    """reST markup of a docstring as plain text: ``x`` -> x, :mod:`~a.b` -> b, :mod:`a.b` -> a.b."""
+    text = _ROLES.sub(lambda m: m.group(2).rsplit(".", 1)[-1] if m.group(1) else m.group(2), text)
+    return text.replace("``", "")
+
+
+def description(doc: str) -> str:
+    """The docstring's first paragraph (the description)."""
+    return plain(doc.split("\n\n")[0])
+
+
+def epilog(doc: str) -> str:
+    """The docstring after its first paragraph (examples and details), as plain text."""
+    return plain(doc.split("\n\n", 1)[1]) if "\n\n" in doc else ""
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Examples kept as written; a flag's default shown where its help does not already say it."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if "default" in text.lower() or action.default in (None, False, True, argparse.SUPPRESS) \
+                or not action.option_strings:
+            return text
+        return f"{text} (default: %(default)s)" if text else "(default: %(default)s)"

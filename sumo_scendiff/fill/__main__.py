@@ -1,0 +1,226 @@
+"""Fill a whole SUMO network with generated traffic: a filled start for stock SUMO.
+
+    python -m sumo_scendiff.fill -n city.net.xml -o filled/                 # the model's prior
+    python -m sumo_scendiff.fill -n city.net.xml --density 25 -o filled/    # needs a density model
+    python -m sumo_scendiff.fill -c scenario.sumocfg --begin 28800 -o filled/
+    sumo -c filled/scenario.sumocfg        # from the saved state;  filled/start.sumocfg: portable
+
+Overlapping 100 m tiles (--stride apart) cover every car lane (or --area); they are generated in
+four batches of tiles that do not overlap, each tile around the vehicles its earlier neighbours
+own inside it (pinned tokens), and keep the vehicles of their own core cell (docs/fill.md).
+Writes -o DIR (under DIR.partial-<pid> until complete): fill.json, state.xml.gz, scenario.sumocfg,
+start.rou.xml, start.sumocfg, fill.png, and without demand inflow.rou.xml.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import signal
+import sys
+import time
+
+PROG = "python -m sumo_scendiff.fill"
+DEFAULT_WARM_UP = 600.0   # s after the demand's first departure when --begin is not given
+
+
+class FillError(Exception):
+    """A problem with the user's input (exit code 2, one line)."""
+
+
+def get_options(args=None):
+    from ..generation.config import GenerationConfig, SettingError
+    from ..core.cli import HelpFormatter, description, epilog
+    p = argparse.ArgumentParser(prog=PROG, description=description(__doc__), epilog=epilog(__doc__),
+                                formatter_class=HelpFormatter)
+    p.add_argument("-c", "--configuration-file", dest="config", metavar="FILE",
+                   help="a SUMO scenario (.sumocfg); its demand sets how much traffic and continues after the start")
+    p.add_argument("-n", "--net-file", "--net", dest="net", help="SUMO network (.net.xml[.gz])")
+    p.add_argument("-r", "--route-files", "--routes", dest="routes", default=None,
+                   help="demand (comma-separated route files): its vehicles en route at --begin set the "
+                        "density, and it continues after the start")
+    p.add_argument("-a", "--additional-files", dest="additional", default=None,
+                   help="comma-separated additional files (vTypes, TLS programs)")
+    p.add_argument("-b", "--begin", type=float, default=None, metavar="TIME",
+                   help="the time of the filled start (s); with demand default: its first departure + 600")
+    p.add_argument("--area", metavar="X0,Y0,X1,Y1", help="fill only this rectangle (network coordinates)")
+    p.add_argument("--stride", type=float, default=75.0, help="metres between tile centres (default 75)")
+    amount = p.add_mutually_exclusive_group()
+    amount.add_argument("--density", metavar="D", help="vehicles per km of car lane (needs a model with "
+                        "the density condition; --p-mask is the fallback)")
+    amount.add_argument("--edge-data", metavar="FILE", help="SUMO edgeData file: each tile's density at --begin")
+    p.add_argument("--p-mask", type=float, default=1.0, metavar="P",
+                   help="global token of a tile without neighbours (default 1: the model's prior; lower: fewer vehicles)")
+    p.add_argument("-s", "--seed", type=int, default=0)
+    p.add_argument("--step-length", type=float, default=0.5)
+    p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
+    p.add_argument("-o", "--output-dir", dest="out", default="filled")
+    p.add_argument("--force", action="store_true", help="replace an existing -o")
+    p.add_argument("-v", "--verbose", action="store_true")
+    GenerationConfig.add_arguments(p)
+    # bad input is one line naming the flag (argparse would print its usage first)
+    p.error = lambda message: p.exit(2, f"{PROG}: error: {message}\n")
+    o = p.parse_args(args)
+    from ..sim.scenario import input_flags_problem
+    if input_flags_problem(o.net, o.config):
+        p.error(input_flags_problem(o.net, o.config))
+    from ..sim.density import DensityError, parse_density
+    from .tiles import TileError, parse_area
+    try:
+        o.density = parse_density(o.density)
+        o.area = parse_area(o.area)
+    except (DensityError, TileError) as e:
+        p.error(str(e))
+    if o.density == "auto":
+        p.error("--density: 'auto' is not a fill's level; give --edge-data, demand (-c/-r), or a number")
+    if not 0.0 < o.p_mask <= 1.0:
+        p.error(f"--p-mask must be in (0, 1], got {o.p_mask}")
+    if o.step_length <= 0:
+        p.error("--step-length must be > 0")
+    if o.begin is not None and not o.begin >= 0:
+        p.error(f"--begin must be >= 0 seconds, got {o.begin:g}")
+    try:
+        GenerationConfig.from_options(o)
+    except SettingError as e:
+        p.error(str(e))
+    o.parser = p
+    return o
+
+
+def _files(arg: str | None) -> list[str]:
+    return [f for f in (arg or "").split(",") if f]
+
+
+def _amount(o, net, gen, tiles, routes, begin) -> tuple[list | None, bool, dict]:
+    """Per tile the density target, whether the model is given it, and the source for fill.json."""
+    from ..map.edgedata import EdgeData, EdgeDataError
+    from .demand import DemandEstimate
+    name = o.checkpoint or "the shipped model"
+    if (o.density is not None or o.edge_data) and not gen.has_density:
+        flag = "--density" if o.density is not None else "--edge-data"
+        raise FillError(f"{flag}: {name} has no density condition (trained before it); leave it out "
+                        f"for the model's prior, or use --p-mask (lower: fewer vehicles) as the fallback")
+    if o.density is not None:
+        return [o.density] * len(tiles), True, {"kind": "density", "veh_per_km": o.density, "applied": True}
+    if o.edge_data:
+        try:
+            data = EdgeData.read(o.edge_data, net)
+            targets = [data.window_density(net, t.window, begin) for t in tiles]
+        except EdgeDataError as e:
+            raise FillError(f"--edge-data: {e}") from None
+        return targets, True, {"kind": "edge-data", "file": os.path.abspath(o.edge_data), "time": begin,
+                               "applied": True}
+    if routes:
+        est = DemandEstimate.at(net, routes, begin)
+        targets = [est.window_density(net, t.window) for t in tiles]
+        src = {"kind": "demand", "time": begin, "en_route": est.vehicles, "departed": est.departed,
+               "unrouted": est.unrouted, "applied": gen.has_density,
+               "method": "free-flow estimate: each departure up to --begin laid on its route (trips: "
+                         "shortest path) at 0.7 x the speed limits; no simulation"}
+        if not gen.has_density:
+            src["note"] = (f"{name} has no density condition: the demand's density is recorded per tile "
+                           f"(target) but generation uses the model's prior scaled by --p-mask {o.p_mask:g}")
+        return targets, gen.has_density, src
+    return None, False, {"kind": "prior", "p_mask": o.p_mask, "applied": False}
+
+
+def run(o, folder: str) -> dict:
+    from ..core.threads import share_cpu
+    share_cpu()   # before torch: idle OpenMP threads sleep instead of spinning
+    from ..data.demand import DemandError, check_demand
+    from ..generation.generator import GenerationConfig, ScenarioGenerator
+    from ..map.network import Network
+    from ..map.raster import RasterConfig
+    from ..sim.scenario import ScenarioError, scenario_from_files
+    from ..sim.sumo import SimConfig
+    from .output import write_outputs
+    from .plan import fill_network
+    from .tiles import TileError, tile_grid
+
+    progress = sys.stderr.isatty() or o.verbose
+    timing, t = {}, time.perf_counter()
+    try:
+        scen = scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional))
+    except ScenarioError as e:
+        raise FillError(str(e)) from None
+    net = Network.load(scen.net)
+    routes = list(scen.routes)
+    begin = o.begin if o.begin is not None else 0.0
+    if routes:
+        try:
+            first = check_demand(routes, {ln.edge for ln in net.lanes}, scen.additional)
+        except DemandError as e:
+            raise FillError(str(e)) from None
+        if o.begin is None:
+            begin = (scen.begin if scen.begin is not None else first) + DEFAULT_WARM_UP
+    try:
+        tiles = tile_grid(net, o.area, o.stride, RasterConfig().size)
+    except TileError as e:
+        raise FillError(str(e)) from None
+    if not tiles:
+        raise FillError(f"--area: no car lane inside {','.join(f'{v:g}' for v in o.area)} (the network's "
+                        f"car lanes span {','.join(f'{v:.0f}' for v in net.bounds)})")
+    gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig.from_options(o))
+    targets, applied, source = _amount(o, net, gen, tiles, routes, begin)
+    timing["load"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    result = fill_network(net, gen, tiles, seed=o.seed, p_mask=o.p_mask, targets=targets,
+                          use_density=applied, area=o.area, progress=progress)
+    timing["generate"] = time.perf_counter() - t
+    cfg = SimConfig(net=scen.net, additional=scen.additional, step_length=o.step_length, seed=o.seed,
+                    begin=begin)
+    doc = write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing, progress)
+    return doc
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def main(o) -> int:
+    from ..core.outputs import OutputError, claim, clean_stale, partial_path
+    from ..map.network import NetworkError
+    from ..model.checkpoint import CheckpointError
+    from ..sim.sumo import SimError
+    from .seed import InflowError
+    out = os.path.abspath(o.out.rstrip("/") or o.out)
+    on_sigterm = signal.signal(signal.SIGTERM, _interrupt)
+    owner = None
+    try:
+        if os.path.exists(out) and not o.force and (not os.path.isdir(out) or os.listdir(out)):
+            raise FillError(f"-o: {o.out}: exists (choose another output directory or add --force)")
+        os.makedirs(os.path.dirname(out), exist_ok=True)
+        clean_stale(os.path.dirname(out), {os.path.basename(out)})   # what dead runs left half-written
+        with claim(partial_path(out)) as owner:
+            doc = run(o, owner.directory)
+            if os.path.lexists(out):
+                if not o.force and (not os.path.isdir(out) or os.listdir(out)):
+                    raise FillError(f"-o: {o.out}: was written by another run meanwhile")
+                shutil.rmtree(out) if os.path.isdir(out) else os.remove(out)
+            owner.rename(out)   # complete: only now the folder has its name
+    except (FillError, NetworkError, CheckpointError, SimError, OutputError, InflowError) as e:
+        _abandon(owner)
+        o.parser.exit(2, f"{PROG}: error: {e}\n")
+    except KeyboardInterrupt:
+        _abandon(owner)
+        o.parser.exit(130, f"{PROG}: interrupted: nothing written to {o.out}\n")
+    finally:
+        signal.signal(signal.SIGTERM, on_sigterm)
+    s = doc["summary"]
+    print(f"filled {len(doc['tiles'])} tiles: {s['vehicles']} vehicles seeded ({s['placed']} at their pose, "
+          f"{s['refused']} refused), {s['density_veh_per_km']} veh/km of car lane; "
+          f"density source: {doc['density']['kind']}" + ("" if doc["density"]["applied"] else " (not applied)"))
+    print("timing (s): " + ", ".join(f"{k} {v:.1f}" for k, v in doc["timing_s"].items()))
+    print(f"wrote {o.out} (run it: sumo -c {os.path.join(o.out, 'scenario.sumocfg')})")
+    return 0
+
+
+def _abandon(owner) -> None:
+    """An unfinished fill leaves nothing behind that could be taken for one."""
+    if owner is not None and os.path.basename(owner.directory).count(".partial-"):
+        shutil.rmtree(owner.directory, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main(get_options()))

@@ -1,0 +1,125 @@
+"""How much traffic a demand has on the road at time T, without simulating it.
+
+    est = DemandEstimate.at(net, ["city.rou.xml"], begin=28800.0)
+    est.vehicles                       # en route at T: departed, not yet arrived at free flow
+    est.window_density(net, window)    # vehicles per km of car lane, weighted as EdgeData's
+
+Each vehicle, trip and flow departure of the route files up to ``begin`` is laid on its route
+(a trip's: the shortest path by free-flow time, sumolib's Dijkstra, per from/to pair once) and
+moved along it at :data:`TYPICAL_SPEED_FACTOR` of each edge's speed limit; those not yet at their
+end at ``begin`` count on the edge they are on. This is the free-flow estimate the issue allows
+("no full simulation needed"): it misses queues and signals (a congested demand holds more vehicles
+than this counts) and does not read vTypes' own speed factors.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+TYPICAL_SPEED_FACTOR = 0.7   # urban traffic averages well below the limit (signals, turns)
+HORIZON_S = 7200.0           # departures longer ago than this are not followed (none is en route)
+
+
+@dataclass
+class DemandEstimate:
+    begin: float
+    on_edge: dict[str, int]        # edge id -> vehicles on it at ``begin``
+    vehicles: int                  # en route at ``begin``
+    unrouted: int                  # trips with no path between their edges (not counted)
+    departed: int                  # departures up to ``begin`` looked at
+
+    @classmethod
+    def at(cls, net, route_files, begin: float) -> DemandEstimate:
+        from sumolib.xml import parse
+        snet = net.sumo_net
+        named: dict[str, list[str]] = {}
+        paths: dict[tuple[str, str], list[str] | None] = {}
+        on_edge: dict[str, int] = {}
+        counts = {"unrouted": 0, "departed": 0}
+
+        def edges_of(el) -> list[str] | None:
+            if el.hasChild("route"):
+                return el.getChild("route")[0].edges.split()
+            if getattr(el, "route", None):
+                return named.get(el.route)
+            # sumolib names the attribute "from" (a Python keyword) attr_from
+            a, b = getattr(el, "attr_from", None) or getattr(el, "from", None), getattr(el, "to", None)
+            if not (a and b and snet.hasEdge(a) and snet.hasEdge(b)):
+                return None
+            if (a, b) not in paths:
+                path, _ = snet.getShortestPath(snet.getEdge(a), snet.getEdge(b), vClass="passenger")
+                paths[(a, b)] = [e.getID() for e in path] if path else None
+            return paths[(a, b)]
+
+        def lay(edges, depart):
+            counts["departed"] += 1
+            if not edges:
+                counts["unrouted"] += 1
+                return
+            t = begin - depart
+            for e in edges:
+                if not snet.hasEdge(e):
+                    return
+                edge = snet.getEdge(e)
+                t -= edge.getLength() / max(edge.getSpeed() * TYPICAL_SPEED_FACTOR, 0.1)
+                if t < 0:
+                    on_edge[e] = on_edge.get(e, 0) + 1
+                    return
+
+        for path in route_files:       # named routes first: vehicles may refer to them
+            for el in parse(path, "route"):
+                if getattr(el, "id", None) and getattr(el, "edges", None):
+                    named[el.id] = el.edges.split()
+        for path in route_files:       # (one pass per kind: sumolib empties a child it also yields)
+            for el in parse(path, ["vehicle", "trip", "flow"]):
+                for depart in _departures(el, begin):
+                    if begin - depart <= HORIZON_S:
+                        lay(edges_of(el), depart)
+        return cls(begin, on_edge, sum(on_edge.values()), counts["unrouted"], counts["departed"])
+
+    def edge_density(self, net) -> dict[str, float]:
+        """Vehicles per km of lane, per edge with vehicles."""
+        snet = net.sumo_net
+        return {e: n / max(snet.getEdge(e).getLength() * snet.getEdge(e).getLaneNumber() / 1000.0, 1e-3)
+                for e, n in self.on_edge.items()}
+
+    def window_density(self, net, window) -> float | None:
+        """The window's density, its edges weighted by their car-lane length inside it (edges
+        without estimated vehicles count as empty); None where the window has no normal car lane."""
+        dens = self.edge_density(net)
+        idx, km = net.car_lanes_in(window)
+        num = den = 0.0
+        for i, k in zip(idx, km):
+            if net.lanes[i].internal or k <= 0:
+                continue
+            num, den = num + dens.get(net.lanes[i].edge, 0.0) * k, den + k
+        return num / den if den > 0 else None
+
+
+def _departures(el, begin: float) -> list[float]:
+    """The departure times up to ``begin`` of a vehicle, trip or flow element."""
+    def num(name):
+        v = getattr(el, name, None)
+        try:
+            return None if v is None else float(v)
+        except ValueError:      # "triggered", "now", ...: not a timed departure
+            return None
+    if el.name != "flow":
+        d = num("depart")
+        return [d] if d is not None and d <= begin else []
+    start, end = num("begin") or 0.0, num("end")
+    period = num("period")
+    if period is None and num("vehsPerHour"):
+        period = 3600.0 / num("vehsPerHour")
+    if period is None and num("number") and end is not None:
+        period = (end - start) / max(num("number"), 1.0)
+    if period is None and num("probability"):
+        period = 1.0 / num("probability")      # the expected spacing of a random flow
+    if period is None or period <= 0:
+        return []
+    stop = min(begin, end if end is not None else begin)
+    return list(np.arange(start, stop + 1e-9, period)) if stop >= start else []
+
+
+__all__ = ["TYPICAL_SPEED_FACTOR", "DemandEstimate"]

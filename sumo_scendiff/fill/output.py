@@ -1,0 +1,110 @@
+"""The fill's folder: seeded into one SUMO, saved, and described (fill.json, fill.png)."""
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import numpy as np
+
+from ..sim.sumo import close
+from .picture import draw_fill, edge_density
+from ..sim.export import write_sumocfg
+from .seed import seed_fill, write_inflow, write_start_routes
+from .tiles import scene_rows
+
+FORMAT, VERSION = "sumo-scendiff-fill", 1
+
+
+def _agents(result, reports) -> list[dict]:
+    """Per kept agent (fill order): its tile, world pose, size, speed, SUMO id and how it went."""
+    out = []
+    for k in result.order:
+        scene = result.scenes[k]
+        rows, rep = scene_rows(scene), reports.get(k)
+        for a, r in enumerate(rows):
+            vid = rep.ids.get(a) if rep is not None else None
+            if vid is None:
+                status = "conflict" if rep is not None and a in rep.conflicts else "refused"
+                why = (rep.conflicts.get(a) or rep.refused.get(a)) if rep is not None else None
+            else:
+                status, why = ("misplaced" if a in rep.misplaced else "placed"), None
+            row = {"tile": k, "x": round(float(r[0]), 3), "y": round(float(r[1]), 3),
+                   "heading": round(float(r[2]), 4), "length": round(float(r[3]), 3),
+                   "width": round(float(r[4]), 3), "speed": round(float(r[5]), 3),
+                   "vclass": int(scene.vclass[a]), "vehicle": vid, "status": status}
+            if why:
+                row["reason"] = why
+            out.append(row)
+    return out
+
+
+def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing, progress) -> dict:
+    t = time.perf_counter()
+    sim, reports = seed_fill(result, net, cfg, seed=o.seed, quiet=not o.verbose, progress=progress)
+    try:
+        timing["seed"] = time.perf_counter() - t
+        t = time.perf_counter()
+        agents = _agents(result, reports)
+        present = set(sim.vehicle.getIDList())
+        ids = [a["vehicle"] for a in agents if a["vehicle"] in present]
+        sim.simulation.saveState(os.path.join(folder, "state.xml.gz"))
+        exact = write_start_routes(os.path.join(folder, "start.rou.xml"), sim, ids, net, cfg.begin or 0.0)
+        inflow = {"file": None, "reason": "the demand continues (its route files are in the configurations)"}
+        if not routes:
+            inflow = write_inflow(os.path.join(folder, "inflow.rou.xml"), net, len(ids), cfg.begin or 0.0, o.seed)
+        state_time = float(sim.simulation.getTime())
+    finally:
+        close(sim)
+    onward = list(routes) + ([os.path.join(folder, inflow["file"])] if inflow.get("file") else [])
+    options = cfg.options()
+    # SUMO starts a loaded state at the state's own time (one seeding step after --begin)
+    write_sumocfg(os.path.join(folder, "scenario.sumocfg"), {**options, "b": f"{state_time:g}"},
+                  "state.xml.gz", routes=onward)
+    write_sumocfg(os.path.join(folder, "start.sumocfg"), options, None,
+                  routes=[os.path.join(folder, "start.rou.xml")] + onward)
+
+    seeded = [a for a in agents if a["vehicle"] is not None]
+    rows = np.array([[a[k] for k in ("x", "y", "heading", "length", "width", "speed")] for a in seeded]
+                    ).reshape(-1, 6)
+    area_km = float(sum(t.core_km for t in result.tiles))
+    per_tile = {}
+    for a in seeded:
+        per_tile[a["tile"]] = per_tile.get(a["tile"], 0) + 1
+    tiles = []
+    for rec in result.records:
+        tl = rec.tile
+        tiles.append({"index": tl.index, "i": tl.i, "j": tl.j, "colour": tl.colour,
+                      "window": dict(zip(("cx", "cy", "yaw", "size"), tl.window.as_tuple())),
+                      "core": [round(v, 3) for v in tl.core], "car_lane_km": round(tl.core_km, 4),
+                      "pins": rec.pins, "p_mask": rec.p_mask,
+                      "target_veh_per_km": None if rec.target is None else round(float(rec.target), 2),
+                      "generated": rec.generated, "kept": rec.kept, "seeded": per_tile.get(tl.index, 0),
+                      "density_veh_per_km": round(per_tile.get(tl.index, 0) / tl.core_km, 2)})
+    dens = edge_density(net, rows)
+    title = (f"{net.name}: {len(seeded)} vehicles, {len(seeded) / max(area_km, 1e-9):.1f} veh/km of car lane, "
+             f"seed {o.seed}, density: {source['kind']}{'' if source['applied'] else ' (not applied)'}")
+    draw_fill(os.path.join(folder, "fill.png"), net, rows, result.tiles, title)
+    timing["export"] = time.perf_counter() - t
+    doc = {"format": FORMAT, "version": VERSION, "network": os.path.abspath(scen.net),
+           "configuration": scen.config, "routes": [os.path.abspath(r) for r in routes],
+           "begin": cfg.begin or 0.0, "state_time": state_time, "seed": o.seed,
+           "area": list(o.area) if o.area else None, "stride": o.stride, "tile_size": result.tiles[0].window.size,
+           "density": source, "p_mask": o.p_mask, "model_sha256": gen.sha256, "model": gen.config.record(gen),
+           "sumo_options": options, "inflow": inflow,
+           "summary": {"tiles": len(result.tiles), "kept": len(agents), "vehicles": len(seeded),
+                       "placed": sum(a["status"] == "placed" for a in agents),
+                       "misplaced": sum(a["status"] == "misplaced" for a in agents),
+                       "refused": sum(a["status"] in ("refused", "conflict") for a in agents),
+                       "start_exact": sum(exact.values()), "car_lane_km": round(area_km, 3),
+                       "density_veh_per_km": round(len(seeded) / max(area_km, 1e-9), 2),
+                       "edges_with_vehicles": sum(v > 0 for v in dens.values())},
+           "tiles": tiles, "agents": agents,
+           "files": sorted(f for f in os.listdir(folder) if not f.startswith(".")) + ["fill.json"],
+           "timing_s": {k: round(v, 2) for k, v in timing.items()}}
+    with open(os.path.join(folder, "fill.json"), "w") as f:
+        json.dump(doc, f, indent=1)
+    return doc
+
+
+__all__ = ["FORMAT", "VERSION", "write_outputs"]

@@ -1,0 +1,207 @@
+"""Whole-network fill (python -m sumo_scendiff.fill): real model, real SUMO, a small grid network."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+
+import numpy as np
+import pytest
+import shapely
+
+from sumo_scendiff.core.geometry import box_corners
+
+from .conftest import netconvert
+
+pytestmark = pytest.mark.slow   # real runs of the CLIs: the fast tier is -m "not slow"
+
+NET = os.path.join(os.path.dirname(__file__), "..", "networks", "grid3x3_1lane.net.xml")
+NET4 = os.path.join(os.path.dirname(__file__), "..", "networks", "grid4x4_2lane_tls.net.xml")
+
+
+def _fill(out, *extra, net=NET) -> dict:
+    from sumo_scendiff.fill.__main__ import get_options, main
+    assert main(get_options(["-n", net, "-o", str(out), *extra])) == 0
+    with open(os.path.join(out, "fill.json")) as f:
+        return json.load(f)
+
+
+def _fail(capsys, *args) -> str:
+    from sumo_scendiff.fill.__main__ import get_options, main
+    with pytest.raises(SystemExit) as e:
+        main(get_options(list(args)))
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    return err
+
+
+@pytest.fixture(scope="module")
+def filled(tmp_path_factory):
+    out = tmp_path_factory.mktemp("fill") / "filled"
+    return out, _fill(out, "-s", "3")
+
+
+def _boxes(doc):
+    return np.array([[a[k] for k in ("x", "y", "heading", "length", "width")] for a in doc["agents"]
+                     if a["vehicle"]]).reshape(-1, 5)
+
+
+def test_folder_is_complete_and_published(filled):
+    out, doc = filled
+    assert doc["format"] == "sumo-scendiff-fill" and doc["version"] == 1
+    names = set(os.listdir(out))
+    for f in ("fill.json", "state.xml.gz", "scenario.sumocfg", "start.rou.xml", "start.sumocfg", "fill.png",
+              "inflow.rou.xml"):
+        assert f in names
+    assert not any(".partial" in n for n in os.listdir(os.path.dirname(out)))
+    assert ".lock" not in names
+    assert doc["density"]["kind"] == "prior" and doc["summary"]["vehicles"] > 0
+    # every car lane of the network lies in some tile's core
+    assert sum(t["car_lane_km"] for t in doc["tiles"]) > 0
+
+
+def test_no_overlap_and_no_duplicates(filled):
+    _, doc = filled
+    ids = [a["vehicle"] for a in doc["agents"] if a["vehicle"]]
+    assert len(ids) == len(set(ids))
+    b = _boxes(doc)
+    polys = shapely.polygons(box_corners(*b.T))
+    i, j = shapely.STRtree(polys).query(polys, predicate="intersects")
+    pairs = [(p, q) for p, q in zip(i, j) if p < q and shapely.area(shapely.intersection(polys[p], polys[q])) > 1e-3]
+    assert not pairs
+    d = np.linalg.norm(b[:, None, :2] - b[None, :, :2], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    assert d.min() > 1.0
+    # every vehicle in exactly one core: the one of the tile that kept it
+    for a in doc["agents"]:
+        cores = [t["index"] for t in doc["tiles"]
+                 if t["core"][0] <= a["x"] < t["core"][2] and t["core"][1] <= a["y"] < t["core"][3]]
+        assert cores == [a["tile"]]
+
+
+def test_pins_across_tile_borders(tmp_path):
+    """A bigger grid, where later tiles see their neighbours' vehicles: those are pinned, never
+    kept twice, and a tile's own kept agents overlap none of them."""
+    from sumo_scendiff.fill.plan import fill_network
+    from sumo_scendiff.fill.tiles import tile_grid
+    from sumo_scendiff.generation.generator import ScenarioGenerator
+    from sumo_scendiff.map.network import Network
+    net = Network.load(NET4)
+    tiles = tile_grid(net, area=(0.0, 0.0, 300.0, 300.0))
+    res = fill_network(net, ScenarioGenerator.load(), tiles, seed=0)
+    assert sum(r.pins for r in res.records) > 0
+    rows = res.accepted.rows
+    polys = shapely.polygons(box_corners(*rows[:, :5].T))
+    i, j = shapely.STRtree(polys).query(polys, predicate="intersects")
+    assert not [(p, q) for p, q in zip(i, j)
+                if p < q and shapely.area(shapely.intersection(polys[p], polys[q])) > 1e-3]
+
+
+def test_same_seed_same_fill(filled, tmp_path):
+    _, doc = filled
+    again = _fill(tmp_path / "again", "-s", "3")
+    for d in (doc, again):
+        d.pop("timing_s")
+    assert again == doc
+    other = _fill(tmp_path / "other", "-s", "4")
+    assert [a["x"] for a in other["agents"]] != [a["x"] for a in doc["agents"]]
+
+
+@pytest.mark.parametrize("cfg", ["scenario.sumocfg", "start.sumocfg"])
+def test_stock_sumo_runs_the_fill(filled, cfg, tmp_path):
+    from sumo_scendiff.core.tools import sumo_binary
+    out, doc = filled
+    summary = tmp_path / "summary.xml"
+    # from a copy elsewhere: the folder carries its inputs
+    copy = tmp_path / "copy"
+    subprocess.run(["cp", "-r", str(out), str(copy)], check=True)
+    run = subprocess.run([sumo_binary(), "-c", str(copy / cfg), "--end", f"{doc['begin'] + 10:g}",
+                          "--summary-output", str(summary)], check=False, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    assert "Error" not in run.stderr
+    steps = [line for line in summary.read_text().splitlines() if "<step " in line]
+    first = steps[0]
+    running = int(first.split('running="')[1].split('"')[0])
+    assert running >= doc["summary"]["vehicles"] - 1       # the fill is on the road from the start
+    assert all('collisions="0"' in s for s in steps[:4])
+
+
+def test_start_routes_name_every_seeded_vehicle(filled):
+    out, doc = filled
+    text = (out / "start.rou.xml").read_text()
+    for a in doc["agents"]:
+        if a["vehicle"]:
+            assert f'id="{a["vehicle"]}"' in text
+
+
+def test_no_car_lane(tmp_path, capsys):
+    net = netconvert('<node id="a" x="0" y="0"/><node id="b" x="200" y="0"/>',
+                     '<edge id="ab" from="a" to="b" numLanes="1" allow="pedestrian"/>',
+                     str(tmp_path / "walk.net.xml"))
+    err = _fail(capsys, "-n", net, "-o", str(tmp_path / "o"))
+    assert "walk.net.xml" in err and "passenger car" in err
+    assert not os.path.exists(tmp_path / "o")
+
+
+def test_area_without_road(tmp_path, capsys):
+    err = _fail(capsys, "-n", NET, "--area", "5000,5000,5200,5200", "-o", str(tmp_path / "o"))
+    assert "--area" in err and "no car lane" in err
+    assert not os.listdir(tmp_path)
+
+
+def test_existing_output_needs_force(filled, capsys):
+    out, _ = filled
+    err = _fail(capsys, "-n", NET, "-o", str(out))
+    assert "-o" in err and "--force" in err
+
+
+@pytest.mark.parametrize("bad", [["--density", "-1"], ["--area", "1,2,3"], ["--p-mask", "0"],
+                                 ["--stride", "200"], ["--begin", "-5"]])
+def test_bad_values(tmp_path, capsys, bad):
+    _fail(capsys, "-n", NET, "-o", str(tmp_path / "o"), *bad)
+
+
+def test_density_needs_the_condition(tmp_path, capsys):
+    from sumo_scendiff.generation.generator import ScenarioGenerator
+    if ScenarioGenerator.load().has_density:
+        pytest.skip("the shipped model has the density condition")
+    err = _fail(capsys, "-n", NET, "-o", str(tmp_path / "o"), "--density", "25")
+    assert "--density" in err and "density condition" in err and "--p-mask" in err
+
+
+def test_demand_estimate(tmp_path):
+    """Vehicles departed before T and still on their route at free flow count; those arrived or
+    not yet departed do not."""
+    from sumo_scendiff.fill.demand import DemandEstimate
+    from sumo_scendiff.map.network import Network
+    net = Network.load(NET)
+    edges = [e.getID() for e in net.sumo_net.getEdges() if e.getFromNode().getID() != e.getToNode().getID()]
+    e = edges[0]
+    routes = tmp_path / "d.rou.xml"
+    routes.write_text(f'<routes><vehicle id="a" depart="95"><route edges="{e}"/></vehicle>'
+                      f'<vehicle id="b" depart="0"><route edges="{e}"/></vehicle>'
+                      f'<vehicle id="c" depart="200"><route edges="{e}"/></vehicle></routes>')
+    est = DemandEstimate.at(net, [str(routes)], begin=100.0)
+    assert est.on_edge == {e: 1} and est.departed == 2
+
+
+def test_fill_with_demand(tmp_path):
+    """-r: the demand's level at --begin is the density source (recorded; applied only with a
+    density model), no inflow is drawn, and the demand continues in both configurations."""
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.map.network import Network
+    snet = Network.load(NET).sumo_net
+    edges = sorted(e.getID() for e in snet.getEdges())
+    demand = tmp_path / "demand.rou.xml"
+    demand.write_text(f'<routes><flow id="f" begin="0" end="600" period="4" from="{edges[0]}" '
+                      f'to="{edges[-1]}"/></routes>')
+    doc = _fill(tmp_path / "o", "-r", str(demand), "--begin", "120")
+    src = doc["density"]
+    assert src["kind"] == "demand" and src["time"] == 120 and src["en_route"] > 0
+    assert doc["inflow"]["file"] is None and not os.path.exists(tmp_path / "o" / "inflow.rou.xml")
+    for cfg in ("scenario.sumocfg", "start.sumocfg"):
+        assert "demand.rou.xml.gz" in (tmp_path / "o" / cfg).read_text()
+        run = subprocess.run([sumo_binary(), "-c", str(tmp_path / "o" / cfg), "--end", "130"],
+                             check=False, capture_output=True, text=True, timeout=60)
+        assert run.returncode == 0 and "Error" not in run.stderr, run.stderr
