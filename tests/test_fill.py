@@ -163,11 +163,26 @@ def test_bad_values(tmp_path, capsys, bad):
 
 
 def test_density_needs_the_condition(tmp_path, capsys):
-    from sumo_scendiff.generation.generator import ScenarioGenerator
-    if ScenarioGenerator.load().has_density:
-        pytest.skip("the shipped model has the density condition")
-    err = _fail(capsys, "-n", NET, "-o", str(tmp_path / "o"), "--density", "25")
+    """A model without the density condition refuses --density in one line (round 15's layout:
+    the shipped model with its global token cut back to p_mask's 10 inputs)."""
+    from sumo_scendiff.generation.generator import DEFAULT_CHECKPOINT
+    from sumo_scendiff.model import checkpoint as ckpt
+    ck = ckpt.load(DEFAULT_CHECKPOINT, "scenario-diffusion")
+    ck["diffusion_config"]["unet"]["global_dim"] = 10
+    for key in ("denoiser.net.global_emb.weight", "denoiser.net.global_mlp.0.weight"):
+        ck["diffusion"][key] = ck["diffusion"][key][:, :10].clone()
+    old = str(tmp_path / "old.pt")
+    ckpt.save(old, "scenario-diffusion", **{k: v for k, v in ck.items() if k not in ("format", "version", "kind")})
+    err = _fail(capsys, "-n", NET, "-o", str(tmp_path / "o"), "--density", "25", "--checkpoint", old)
     assert "--density" in err and "density condition" in err and "--p-mask" in err
+
+
+def test_the_fill_follows_the_density_asked(tmp_path):
+    """With the shipped model's density condition the fill's level follows --density."""
+    low = _fill(tmp_path / "low", "--density", "8", net=NET4)
+    high = _fill(tmp_path / "high", "--density", "40", net=NET4)
+    assert low["density"]["applied"] and high["density"]["applied"]
+    assert len(high["agents"]) > 2 * len(low["agents"])
 
 
 def test_demand_estimate(tmp_path):

@@ -165,8 +165,8 @@ def test_readme_commands_use_flags_their_parsers_know():
 
 
 def test_readme_inline_flags_exist():
-    """Every flag the README names in inline code (the knob table) is one of `run`'s or `sweep`'s
-    (or SUMO's own options)."""
+    """Every flag the README names in inline code (the knob table) is one of `run`'s, `fill`'s or
+    `sweep`'s (or SUMO's own options)."""
     prose = re.sub(r"```.*?```", "", README.read_text(), flags=re.S)
     spans = re.findall(r"`([^`]+)`", prose)
     flags = set()
@@ -176,7 +176,7 @@ def test_readme_inline_flags_exist():
         for w in re.findall(r"(?<![\w-])(--?[A-Za-z][\w.-]*)", s):
             if w.startswith("--") or re.fullmatch(r"-[a-zA-Z]", w):
                 flags.add(w)
-    known = help_text("run", None) + help_text("sweep", None)
+    known = help_text("run", None) + help_text("sweep", None) + help_text("fill", None)
     pending = set().union(*PENDING.values())
     missing = sorted(f for f in flags if f not in SUMO_OPTIONS and f not in pending and not knows(known, f))
     assert not missing, f"README names flags no parser knows: {missing}"
