@@ -233,8 +233,9 @@ def autoencoder_and_diffusion(tmp_path, cross_net, **model) -> tuple[list, objec
 
 def test_calibrate_writes_the_guidance_weight_into_the_model(tmp_path, cross_net):
     """train calibrate: map-only generation at each weight, the weight where the agents per window
-    meet the ground truth's (to one decimal) rewritten into the exported file; bad data: exit 2, the
-    file untouched."""
+    meet the ground truth's (to one decimal) rewritten into the exported file — for a model with the
+    density condition (the default architecture) as the weight of windows given a density, the
+    exported scene guidance kept; bad data: exit 2, the file untouched."""
     from sumo_scendiff.model import checkpoint as ckpt
     from sumo_scendiff.train.calibrate import calibrate
     _, src = autoencoder_and_diffusion(tmp_path, cross_net)
@@ -242,14 +243,16 @@ def test_calibrate_writes_the_guidance_weight_into_the_model(tmp_path, cross_net
     train("export", "--autoencoder", src, "--diffusion", tmp_path / "d" / "last.pt", "-o", model,
           "--scene-guidance-sigma", 1)
     exported = ckpt.sha256(model)
+    exported_guidance = ckpt.load(model, "scenario-diffusion")["scene_guidance"]
     options = ["--data", tmp_path / "data", "--scenes", 2, "--weights", 1, 2, 3, "--steps", 2, "--turned"]
     res = train("calibrate", "--model", model, *options)
     ck = ckpt.load(model, "scenario-diffusion")
     # the same calibration in-process (the sampling does not depend on the stored weight)
     expected = calibrate(model, str(tmp_path / "data"), scenes=2, weights=(1, 2, 3), steps=2, turned=True)
-    assert ck["scene_guidance"] == expected.weight == round(ck["scene_guidance"], 1)
-    assert 1 <= ck["scene_guidance"] <= 3 and ck["scene_guidance_sigma"] == 1.0
-    assert f"scene guidance {expected.weight:g} above sigma 1" in res.stdout
+    assert ck["density_guidance"] == expected.weight == round(ck["density_guidance"], 1)
+    assert 1 <= ck["density_guidance"] <= 3 and ck["scene_guidance_sigma"] == 1.0
+    assert ck["scene_guidance"] == exported_guidance
+    assert f"density guidance {expected.weight:g} above sigma 1" in res.stdout
     assert ckpt.sha256(model) != exported and not os.path.exists(model + ".partial")
     train("calibrate", "--model", model, *options, "--sigma", 0.5)
     assert ckpt.load(model, "scenario-diffusion")["scene_guidance_sigma"] == 0.5
