@@ -85,7 +85,7 @@ def main(o) -> None:
     cfg = gen.diffusion.cfg.unet
     z = torch.randn(o.batch, cfg.c_z, cfg.res, cfg.res)
     cond = gen.diffusion.cond(torch.zeros(o.batch, gen.diffusion.cfg.C_m, 128, 128), torch.zeros(o.batch, 0, 170),
-                              torch.zeros(o.batch, 0, dtype=torch.bool), torch.zeros(o.batch, 10))
+                              torch.zeros(o.batch, 0, dtype=torch.bool), torch.zeros(o.batch, cfg.global_dim))
     with torch.no_grad():
         unet(z, 1.0, **cond)
         t = time.perf_counter()
