@@ -97,6 +97,8 @@ def get_options(args=None):
                         "and write; lets a change to the seeder be measured on the very same scenes")
     p.add_argument("--no-junction-rule", dest="junction_rule", action="store_false",
                    help="seed agents on conflicting junction links as generated (sim.junctions off)")
+    p.add_argument("--no-signals", dest="signals", action="store_false",
+                   help="generate without the traffic lights' states at T (the model's 'unknown')")
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("-o", "--output", default=None, metavar="FILE", help="also write the tables here")
     return p.parse_args(args)
@@ -167,7 +169,7 @@ def cached_scenes(path: str | None, name: str, windows: list, o, scenes: list | 
     import pickle
     if not path:
         return None
-    key = (name, o.checkpoint, o.seed, o.scene_guidance, o.scene_guidance_sigma, o.lane_snap, tuple((round(w.cx, 3), round(w.cy, 3), round(w.yaw, 4), w.size) for w in windows))
+    key = (name, o.checkpoint, o.seed, getattr(o, "signals", True), o.scene_guidance, o.scene_guidance_sigma, o.lane_snap, tuple((round(w.cx, 3), round(w.cy, 3), round(w.yaw, 4), w.size) for w in windows))
     cache = {}
     if os.path.exists(path):
         with open(path, "rb") as f:
@@ -200,12 +202,6 @@ def bench_net(path: str, gen, o, explicit: bool) -> dict | None:
         return None
     locs = auto_windows(net, o.windows, seed=o.seed)
     windows = [loc.window for loc in locs]
-    t = time.perf_counter()
-    scenes = cached_scenes(o.scenes, net.name, windows, o)
-    if scenes is None:
-        scenes = gen().generate(net, windows, seed=o.seed)    # map-only: no tokens, p_mask = 1
-        cached_scenes(o.scenes, net.name, windows, o, scenes)
-    t_gen = time.perf_counter() - t
     # SUMO's steps after a loadState depend on where its objects lie in memory (see the module
     # docstring): a fresh interpreter without torch or BLAS threads, with a fixed hash seed, without
     # address space randomisation, fixed file names and stdout / stderr, given only this net's inputs,
@@ -220,9 +216,17 @@ def bench_net(path: str, gen, o, explicit: bool) -> dict | None:
         shutil.rmtree(io, ignore_errors=True)
         os.makedirs(io)
         src, dst, log = (os.path.join(io, n) for n in ("in.pkl", "out.pkl", "err.txt"))
+        dem = demand(net, o, io)
+        t = time.perf_counter()
+        scenes = cached_scenes(o.scenes, net.name, windows, o)
+        if scenes is None:   # map-only (no tokens, p_mask = 1), with the lights as they are at T
+            lights = host_lights(path, dem, o, net, windows) if o.signals else None
+            scenes = gen().generate(net, windows, seed=o.seed, signals=lights)
+            cached_scenes(o.scenes, net.name, windows, o, scenes)
+        t_gen = time.perf_counter() - t
         with open(src, "wb") as f:
             pickle.dump({"path": os.path.abspath(path), "windows": windows, "scenes": scenes, "opts": opts,
-                         "demand": demand(net, o, io), "dir": io}, f)
+                         "demand": dem, "dir": io}, f)
         # only the variables a worker needs: without address space randomisation the environment's
         # size moves the stack and with it SUMO's memory layout (measured: one more variable of 3 kB
         # changed Lane-uniform's teleports on cologne1)
@@ -246,6 +250,27 @@ def bench_net(path: str, gen, o, explicit: bool) -> dict | None:
     return r
 
 
+def sim_config(path: str, dem: tuple, o):
+    """The SUMO configuration of a net's warm-up and rollouts (``dem`` from :func:`demand`)."""
+    from sumo_scendiff.sim.sumo import SimConfig
+    routes, begin, extra, _ = dem
+    return SimConfig(net=path, routes=(routes,), step_length=o.step_length, seed=o.seed, begin=begin,
+                     extra=tuple(["--ignore-route-errors", "true"] + extra))
+
+
+def host_lights(path: str, dem: tuple, o, net, windows: list) -> list[dict]:
+    """Each window's traffic-light states at T: the warm-up run here once more (warm-ups from scratch
+    repeat exactly, see the docstring), so the model sees the lights the rollouts start with."""
+    from sumo_scendiff.sim.lights import light_states
+    from sumo_scendiff.sim.sumo import close, start
+    sim = start(sim_config(path, dem, o))
+    try:
+        sim.simulationStep(dem[1] + o.warmup)
+        return [light_states(sim, net.lights_in(w)) for w in windows]
+    finally:
+        close(sim)
+
+
 def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -> dict:
     """The SUMO part of one network (runs in the child process); ``dem`` from :func:`demand`,
     ``work`` the directory for the saved state."""
@@ -255,14 +280,13 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
     from sumo_scendiff.map.network import Network
     from sumo_scendiff.sim.cosim import CoSimulation, Existing
     from sumo_scendiff.sim.rollout import rollout
-    from sumo_scendiff.sim.sumo import SimConfig, close, start
+    from sumo_scendiff.sim.sumo import close, start
 
     net = Network.load(path)
     lane = LaneUniform(net, seed=o.seed)
     lu_scenes = [lane.generate(w, index=i) for i, w in enumerate(windows)]
-    routes, begin, extra, label = dem
-    cfg = SimConfig(net=path, routes=(routes,), step_length=o.step_length, seed=o.seed, begin=begin,
-                    extra=tuple(["--ignore-route-errors", "true"] + extra))
+    begin, label = dem[1], dem[3]
+    cfg = sim_config(path, dem, o)
     base = os.path.join(work, "state.xml")
     sim = start(cfg)
     try:

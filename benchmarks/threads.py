@@ -1,6 +1,6 @@
-"""Benchmark: how much a busy CPU slows `run`'s generate phase, with OpenMP's threads spinning
-(``OMP_WAIT_POLICY=ACTIVE``, what torch did before every entry point called ``core.threads.share_cpu``)
-and sleeping (the default now).
+"""Benchmark: how much a busy CPU slows `run`'s generate phase: all cores' threads spinning
+(``OMP_WAIT_POLICY=ACTIVE``, torch's own behaviour), all cores' threads sleeping, and the default
+(``core.threads.share_cpu``: threads for the cores free when the run starts, sleeping when idle).
 
     python benchmarks/threads.py [--repeats 3] [--neighbours 2]
 
@@ -8,7 +8,7 @@ Each setting runs ``python -m sumo_scendiff.run -n networks/city.net.xml --rollo
 beside ``--neighbours`` torch processes (matrix products on 2 threads each, as another training or
 generation job would be) and reads the generate phase from run.json. With two neighbours on a
 2-core machine a fair share is about a third of the CPU, so a ratio near 3 is what sharing costs;
-far above it is spinning threads fighting. The table gives the median of ``--repeats`` runs.
+far above it is threads waiting for a descheduled partner. The table gives the median of ``--repeats`` runs.
 """
 from __future__ import annotations
 
@@ -20,6 +20,9 @@ import subprocess
 import sys
 import tempfile
 import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from sumo_scendiff.core.threads import available_cores  # noqa: E402
 
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 NEIGHBOUR = ("import torch\ntorch.set_num_threads(2)\na = torch.randn(384, 384)\n"
@@ -34,12 +37,9 @@ def get_options(args=None):
     return p.parse_args(args)
 
 
-def generate_seconds(policy: str | None, scenes: int) -> float:
-    env = dict(os.environ)
-    env.pop("OMP_NUM_THREADS", None)
-    env.pop("OMP_WAIT_POLICY", None)
-    if policy:
-        env["OMP_WAIT_POLICY"] = policy
+def generate_seconds(setting: dict, scenes: int) -> float:
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "OMP_NUM_THREADS")}
+    env.update(setting)
     with tempfile.TemporaryDirectory() as out:
         res = subprocess.run([sys.executable, "-m", "sumo_scendiff.run", "-n", os.path.join(ROOT, "networks",
                              "city.net.xml"), "--rollout", "0", "--scenes", str(scenes), "-o", out],
@@ -51,7 +51,11 @@ def generate_seconds(policy: str | None, scenes: int) -> float:
 
 
 def main(o) -> None:
-    settings = [("threads spin (OMP_WAIT_POLICY=ACTIVE)", "ACTIVE"), ("threads sleep (default)", None)]
+    cores = str(available_cores())
+    settings = [(f"{cores} threads spinning (torch's own default)", {"OMP_WAIT_POLICY": "ACTIVE",
+                                                                     "OMP_NUM_THREADS": cores}),
+                (f"{cores} threads sleeping (OMP_WAIT_POLICY=PASSIVE)", {"OMP_NUM_THREADS": cores}),
+                ("threads for the cores free now (default)", {})]
     idle = {name: [] for name, _ in settings}
     busy = {name: [] for name, _ in settings}
     for _ in range(o.repeats):              # settings take turns: the machine drifts within minutes

@@ -214,7 +214,7 @@ def _windows(o, net, sim, cosim):
 
 def run(o) -> dict:
     from .core.threads import share_cpu
-    share_cpu()   # before torch is imported: idle OpenMP threads sleep instead of spinning
+    threads = share_cpu()   # before torch is imported: threads for the cores free now, sleeping when idle
     import numpy as np
 
     from .core.outputs import partial_path
@@ -224,6 +224,7 @@ def run(o) -> dict:
     from .generation.token_resolve import resolve_tokens
     from .map.network import Network
     from .map.raster import render_map
+    from .sim.lights import light_states
     from .sim.scenario import ScenarioError, scenario_from_files
     from .sim.session import Session
     from .sim.sumo import SimConfig
@@ -264,7 +265,9 @@ def run(o) -> dict:
         timing["load"] = time.perf_counter() - t
 
         t = time.perf_counter()
-        maps = np.stack([render_map(net, w, gen.raster) for w in windows])
+        # the lights as the simulation shows them now: the scene agrees with the signals it meets
+        lights = [light_states(session.sim, net.lights_in(w)) for w in windows]
+        maps = np.stack([render_map(net, w, gen.raster, signals=s) for w, s in zip(windows, lights)])
         timing["raster"] = time.perf_counter() - t
 
         t = time.perf_counter()
@@ -279,7 +282,7 @@ def run(o) -> dict:
         p_mask = [o.p_mask if o.p_mask is not None else spec.p_mask if spec else 0.5 if tk else 1.0
                   for tk in tokens]
         scenes = gen.generate(net, windows, tokens=tokens, p_mask=p_mask, seed=o.seed, maps=maps,
-                              progress=progress,
+                              progress=progress, signals=lights,
                               density=targets if any(d is not None for d in targets) else None)
         timing["generate"] = time.perf_counter() - t
 
@@ -304,7 +307,7 @@ def run(o) -> dict:
     finally:
         session.close()
     summary = {"network": scen.net, "configuration": scen.config, "output_dir": os.path.abspath(o.out),
-               "model_sha256": gen.sha256, "seed": o.seed,
+               "model_sha256": gen.sha256, "seed": o.seed, "threads": threads,
                "scenes": results, "timing_s": {k: round(v, 3) for k, v in timing.items()}}
     tmp = partial_path(os.path.join(o.out, "run.json"))
     with open(tmp, "w") as f:

@@ -11,7 +11,8 @@ from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencod
 from sumo_scendiff.model.blocks import Downsample, ResnetBlock, Upsample
 from sumo_scendiff.model.detection import C_Y, decode_boxes, threshold_boxes
 
-TINY = AutoencoderConfig(enc_channels=(4, 8, 8, 8), dec_channels=(16, 16, 16), C_map=4)
+# C_m pinned: the map channels added later would only change the initial weights' random draws
+TINY = AutoencoderConfig(enc_channels=(4, 8, 8, 8), dec_channels=(16, 16, 16), C_map=4, C_m=19)
 
 
 def rasterise(boxes: np.ndarray, traj: np.ndarray, size: float = 100.0, hw: int = 128) -> np.ndarray:

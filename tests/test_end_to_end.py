@@ -151,7 +151,7 @@ def test_init_from_warm_starts_a_wider_unet(tmp_path, cross_net):
     w0, w1 = (n.denoiser.net.conv_in.weight for n in nets)
     assert torch.equal(w1[:, : w0.shape[1]], w0) and w1.shape[1] == w0.shape[1] + 16
     assert not w1[:, w0.shape[1]:].any()
-    assert (nets[0].cfg.C_m, nets[1].cfg.C_m) == (11, 19)
+    assert (nets[0].cfg.C_m, nets[1].cfg.C_m) == (11, 21)
     e0, e1 = (n.E_m.conv_in.weight for n in nets)
     assert torch.equal(e1[:, :11], e0) and not e1[:, 11:].any()
     g = torch.Generator().manual_seed(0)
@@ -300,7 +300,7 @@ def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, cross_net):
 
 
 def test_decoder_fine_tune_adds_map_skips_map_channels_and_a_heading_head(tmp_path, cross_net):
-    """--freeze-encoder with '{"map_skips": true, "C_m": 19, "heading_bins": 8}' from a model that
+    """--freeze-encoder with '{"map_skips": true, "C_m": 21, "heading_bins": 8}' from a model that
     read the first 11 map channels (before the lane-direction histogram) and had no heading head:
     the new skip projections, map-channel weights and head channels start at zero, so at learning
     rate 0 the decoder still computes its source's 19 outputs; the 11-channel diffusion model trained
@@ -316,7 +316,7 @@ def test_decoder_fine_tune_adds_map_skips_map_channels_and_a_heading_head(tmp_pa
           "--lr", 0.0, "--model-config", json.dumps({"map_skips": True, "C_m": len(MAP_CHANNELS), "heading_bins": 8}))
     a, b = (ckpt.load(str(p), "autoencoder-train") for p in (src, tmp_path / "dec" / "last.pt"))
     assert b["model_config"]["map_skips"] and not a["model_config"].get("map_skips")
-    assert (a["model_config"]["C_m"], b["model_config"]["C_m"]) == (11, len(MAP_CHANNELS)) == (11, 19)
+    assert (a["model_config"]["C_m"], b["model_config"]["C_m"]) == (11, len(MAP_CHANNELS)) == (11, 21)
     w_a, w_b = a["state"]["D_down.conv_in.weight"], b["state"]["D_down.conv_in.weight"]
     assert torch.equal(w_b[:, :11], w_a) and not w_b[:, 11:].any()
     head = ("D_up.conv_out.weight", "D_up.conv_out.bias")
@@ -336,7 +336,7 @@ def test_decoder_fine_tune_adds_map_skips_map_channels_and_a_heading_head(tmp_pa
     train("export", "--autoencoder", tmp_path / "dec" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
           "-o", out)
     gen = ScenarioGenerator.load(str(out), GenerationConfig(steps=2))
-    assert gen.ae.cfg.map_skips and gen.ae.cfg.heading_bins == 8 and (gen.ae.cfg.C_m, gen.diffusion.cfg.C_m) == (19, 11)
+    assert gen.ae.cfg.map_skips and gen.ae.cfg.heading_bins == 8 and (gen.ae.cfg.C_m, gen.diffusion.cfg.C_m) == (21, 11)
     assert len(gen.generate(Network.load(cross_net), [Window(0.0, 0.0, 0.0)], seed=0)) == 1
 
 

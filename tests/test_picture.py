@@ -149,3 +149,23 @@ def test_north_arrow_points_to_world_north(net, world_aligned, direction):
     head = np.argwhere(np.all(badge == 40, axis=-1))[:, ::-1] + [600 - 2 * r - 16, 0]
     offset = head.mean(axis=0) - centre
     assert len(head) > 20 and offset @ np.array(direction) > 0.3 * r
+
+
+def test_traffic_lights_colour_their_approaches_and_join_the_legend(net):
+    from sumo_scendiff.map.picture import LIGHTS
+    scene = _scene(Window(0.0, 0.0, 0.0), [])
+    n = len(net.signal_links)
+    east_green = "".join("G" if net.lanes[ln.lane].id == "wc_0" else "r"
+                         for ln in sorted(net.signal_links, key=lambda ln: ln.index))
+    assert len(east_green) == n
+    plain = draw_scene(net, scene, 600)
+    scene.meta["signals"] = {"c": east_green}
+    lit = draw_scene(net, scene, 600)
+    for name in ("green light", "red light"):
+        tint, line = LIGHTS[name][1], LIGHTS[name][0]
+        assert len(_pixels_of(lit, tint)) > 200 and len(_pixels_of(plain, tint)) == 0, name
+        assert len(_pixels_of(lit, line)) > 10, f"{name}: the stop line in the light's colour"
+    # the legend names both (its swatches are in the bottom-left quarter)
+    corner = lit[450:, :150]
+    assert len(_pixels_of(corner, LIGHTS["green light"][1])) and len(_pixels_of(corner, LIGHTS["red light"][1]))
+    assert not len(_pixels_of(lit, LIGHTS["amber light"][1]))

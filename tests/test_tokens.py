@@ -177,8 +177,10 @@ def test_partial_tokens():
     feats, pres = features_from_scene(*_scene())
     rng = np.random.default_rng(2)
     for _ in range(50):
-        tok, g, p = partial_tokens(feats, pres, rng)
+        tok, g, p, placed = partial_tokens(feats, pres, rng)
         assert tok.shape[1] == 170 and tok.shape[0] <= 3 and g.argmax() == min(int(p * 10), 9)
+        # the agents marked placed are exactly the tokens that give a position
+        assert placed.sum() == tok[:, PRESENCE_SLICE][:, FEATURES.index("x")].sum()
         # never resurrects a feature absent in the scene (h2f: 1 agent, final_speed: 2 agents)
         bits = tok[:, PRESENCE_SLICE]
         assert bits[:, FEATURES.index("heading_to_final")].sum() <= 1
@@ -246,3 +248,30 @@ def test_global_token_rejects_non_numbers(bad):
     from sumo_scendiff.tokens.encoding import TokenError, global_token
     with pytest.raises(TokenError, match="p_mask"):
         global_token(bad)
+
+
+def test_token_cells_weigh_the_latent_cells_under_positioned_tokens():
+    import torch
+
+    from sumo_scendiff.model.edm import EDMLoss
+    from sumo_scendiff.train.loop import token_cells
+    # window centre -> the middle cells; a corner -> the corner cell (row 0 is the window's +y edge)
+    cells = token_cells(np.array([[0.1, 0.1], [-49.0, 49.0], [49.0, -49.0]]), 16)
+    assert cells.sum() == 3 and cells[0, 0] and cells[15, 15] and cells[7:9, 7:9].any()
+    # a uniform weight is the plain loss; a weight on one cell moves the loss towards that cell's error
+    torch.manual_seed(0)
+    z0 = torch.randn(2, 4, 16, 16)
+
+    def denoiser(z, sigma, **_):
+        out = torch.zeros_like(z)
+        out[:, :, 3, 5] = 10.0   # one cell very wrong
+        return out
+    loss = EDMLoss()
+    sigma = torch.tensor([1.0, 1.0])
+    gen = [torch.Generator().manual_seed(1) for _ in range(3)]
+    plain = loss(denoiser, z0, sigma=sigma, generator=gen[0])
+    uniform = loss(denoiser, z0, sigma=sigma, generator=gen[1], weight=torch.full((2, 1, 16, 16), 3.0))
+    w = torch.ones(2, 1, 16, 16)
+    w[:, :, 3, 5] = 5.0
+    weighted = loss(denoiser, z0, sigma=sigma, generator=gen[2], weight=w)
+    assert torch.allclose(plain, uniform) and (weighted > plain * 1.5).all()

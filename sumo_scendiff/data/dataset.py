@@ -26,11 +26,14 @@ class SceneDataset(Dataset):
     """
 
     def __init__(self, root: str | list[str], nets: list[str] | None = None, rotate: bool = True,
-                 seed: int = 0, raster=None, max_agents: int = 256):
+                 seed: int = 0, raster=None, max_agents: int = 256, p_no_signals: float = 0.0):
         self.store = SceneStore(root, nets)
         self.rotate, self.seed, self.epoch = rotate, seed, 0
         self.raster = raster or RasterConfig()
         self.max_agents = max_agents
+        # scenes shown with their traffic lights unknown, so that one model serves hosts that give
+        # the states and callers that cannot
+        self.p_no_signals = p_no_signals
         self._nets: dict[str, object] = {}
 
     def __len__(self):
@@ -57,8 +60,12 @@ class SceneDataset(Dataset):
         if len(scene) > self.max_agents:  # keep the agents nearest the centre
             keep = np.argsort(np.hypot(scene.boxes[:, 0], scene.boxes[:, 1]))[: self.max_agents]
             scene = scene.select(np.sort(keep))
+        signals = scene.meta.get("signals") or None
+        if signals and self.p_no_signals > 0 and \
+                np.random.default_rng((self.seed, self.epoch, idx, 1)).random() < self.p_no_signals:
+            signals = None
         return {"density": density,
-            "map": render_map(net, scene.window, self.raster),
+            "map": render_map(net, scene.window, self.raster, signals=signals),
             "agents": render_agents(scene.boxes, scene.traj, scene.traj_mask, self.raster),
             "boxes": scene.boxes, "traj": scene.traj, "traj_mask": scene.traj_mask,
             "speed": scene.speed, "vclass": scene.vclass, "index": idx, "window": scene.window,

@@ -33,9 +33,10 @@ KIND_ROAD, KIND_EGO = 0, 1  # window centred on a random road point / on a vehic
 # speed. Recorded as such, a window could be centred on it, with every teleporting vehicle stacked
 # at (-2^30, -2^30) (3 % of the windows of data/val_organic before this check)
 INVALID = -1073741824.0
-# bumped when what a recording holds changes (2: vehicles off the road left out); part of the key of
-# the evaluation's cached ground truth, so that a cache recorded before is recorded again
-RECORDER_VERSION = 2
+# bumped when what a recording holds changes (2: vehicles off the road left out; 3: traffic-light
+# states); part of the key of the evaluation's cached ground truth, so that a cache recorded before is
+# recorded again
+RECORDER_VERSION = 3
 
 DENSITY = (15.0, 400.0)  # veh/h/km of lane: from nearly empty streets to congestion
 
@@ -57,11 +58,15 @@ class EpisodeSpec:
 
 
 class _Tracker:
-    """Vehicle states of the last five 1-s steps: {id: (cx, cy, yaw, speed, length, width, vclass)}."""
+    """Vehicle states of the last five 1-s steps: {id: (cx, cy, yaw, speed, length, width, vclass)},
+    and the traffic lights' states at each: {tls id: state string}."""
 
-    def __init__(self, traci):
+    def __init__(self, traci, net: Network | None = None):
         self.traci = traci
+        self.net = net
         self.steps: deque[dict] = deque(maxlen=len(TIMES))
+        self.lights: deque[dict] = deque(maxlen=len(TIMES))
+        self.light_ids = list(traci.trafficlight.getIDList()) if net is not None else []
         self.types: dict[str, tuple[float, float, int]] = {}
         self.vtype_of: dict[str, str] = {}
 
@@ -96,14 +101,27 @@ class _Tracker:
             cx, cy, yaw = sumo_to_pose(x, y, r[ang], length)
             state[vid] = (float(cx), float(cy), float(yaw), float(r[spd]), length, width, vcls)
         self.steps.append(state)
+        self.lights.append({i: t.trafficlight.getRedYellowGreenState(i) for i in self.light_ids})
+
+    def signals(self, window: Window) -> dict[str, str]:
+        """States at t = 0 of the lights controlling a link within reach of ``window`` turned by any
+        angle (its circumscribed square)."""
+        if self.net is None or not self.lights:
+            return {}
+        reach = Window(window.cx, window.cy, 0.0, window.size * np.sqrt(2.0))
+        now = self.lights[T0] if len(self.lights) > T0 else self.lights[-1]
+        return {i: now[i] for i in self.net.lights_in(reach) if i in now}
 
     def scene(self, window: Window, net_name: str, time: float, disc: bool = False) -> Scene:
         """Vehicles whose centre lies in ``window`` at the middle step (t = 0); with ``disc``, within
         the window's circumscribed circle (inside the window turned by any angle about its centre)."""
         now = self.steps[T0]
         ids = list(now)
+        signals = self.signals(window)
         if not ids:
-            return Scene.empty(window, net=net_name, time=time)
+            scene = Scene.empty(window, net=net_name, time=time)
+            scene.meta["signals"] = signals
+            return scene
         local = window.world_to_scene(np.array([now[i][:2] for i in ids]))
         if disc:
             inside = np.hypot(local[:, 0], local[:, 1]) <= window.size / np.sqrt(2.0)
@@ -124,7 +142,7 @@ class _Tracker:
         sizes = np.array([now[v][4:6] for v in ids]).reshape(n, 2)
         vclass = np.array([now[v][6] for v in ids], dtype=np.int8)
         boxes = np.concatenate([traj[:, T0], sizes], axis=1)
-        return Scene(window, boxes, traj, mask, speed, vclass, net_name, time)
+        return Scene(window, boxes, traj, mask, speed, vclass, net_name, time, {"signals": signals})
 
 
 def _sumo_cmd(net: Network, routes: str, vtypes: str | None, spec: EpisodeSpec) -> list[str]:
@@ -164,7 +182,7 @@ def record_episode(net: Network, spec: EpisodeSpec, progress=None) -> list[Scene
     rng = np.random.default_rng(spec.seed)
     scenes: list[Scene] = []
     with _simulation(net, spec) as traci:
-        tracker = _Tracker(traci)
+        tracker = _Tracker(traci, net)
         t_end = spec.begin + spec.warmup + spec.duration
         next_sample = spec.begin + spec.warmup
         while len(scenes) < spec.scenes:
@@ -196,7 +214,7 @@ def record_at(net: Network, spec: EpisodeSpec, requests: list[tuple[float, Windo
     out: list[Scene | None] = [None] * len(requests)
     end = max((t for t, _ in requests), default=0.0)
     with _simulation(net, spec, extra_seconds=max(0.0, end - spec.begin - spec.warmup - spec.duration)) as traci:
-        tracker = _Tracker(traci)
+        tracker = _Tracker(traci, net)
         k = 0
         while k < len(want):
             traci.simulationStep()

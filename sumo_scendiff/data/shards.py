@@ -18,6 +18,7 @@ import numpy as np
 from ..core.files import file_sha256
 from ..core.geometry import Window
 from ..core.scene import Scene, crop_to_window
+from ..map.signals import decode_states, encode_states
 
 MANIFEST = "manifest.json"
 FORMAT_VERSION = 1
@@ -42,7 +43,8 @@ def write_shard(path: str, scenes: list[Scene], net_index: int) -> dict:
         time=np.array([s.time for s in scenes]), net=np.full(len(scenes), net_index, np.int32),
         kind=np.array([s.meta.get("kind", 0) for s in scenes], np.int8),
         boxes=cat("boxes", (0, 5)), traj=cat("traj", (0, 5, 3)), traj_mask=cat("traj_mask", (0, 5)),
-        speed=cat("speed", (0, 5)), vclass=cat("vclass", (0,)))
+        speed=cat("speed", (0, 5)), vclass=cat("vclass", (0,)),
+        signals=np.array([encode_states(s.meta.get("signals") or {}) for s in scenes], dtype=str))
     os.replace(tmp, path)
     return {"file": os.path.basename(path), "scenes": len(scenes), "agents": int(counts.sum()),
             "net": net_index}
@@ -76,12 +78,17 @@ class Shard:
     traj_mask: np.ndarray
     speed: np.ndarray
     vclass: np.ndarray
+    signals: np.ndarray = None   # per scene: traffic-light states at t = 0 (map.signals.encode_states)
 
     @classmethod
     def load(cls, path: str) -> "Shard":
         try:
             with np.load(path) as z:
-                return cls(**{k: z[k] for k in cls.__dataclass_fields__})
+                fields = {k: z[k] for k in cls.__dataclass_fields__ if k in z.files or k != "signals"}
+            shard = cls(**fields)
+            if shard.signals is None:   # recorded before traffic lights were: states unknown
+                shard.signals = np.full(len(shard.window), "", dtype=str)
+            return shard
         except Exception as e:  # zipfile / KeyError / ValueError: all a damaged shard
             raise DataError(f"{path}: unreadable shard ({type(e).__name__}: {e})") from None
 
@@ -92,7 +99,7 @@ class Shard:
         a, b = self.offsets[i], self.offsets[i + 1]
         return Scene(Window(*self.window[i]), self.boxes[a:b], self.traj[a:b], self.traj_mask[a:b],
                      self.speed[a:b], self.vclass[a:b], net_name, float(self.time[i]),
-                     {"kind": int(self.kind[i])})
+                     {"kind": int(self.kind[i]), "signals": decode_states(str(self.signals[i]))})
 
 
 def read_manifest(root: str) -> dict:

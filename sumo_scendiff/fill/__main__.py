@@ -132,6 +132,7 @@ def run(o, folder: str) -> dict:
     from ..map.network import Network
     from ..map.raster import RasterConfig
     from ..sim.scenario import ScenarioError, scenario_from_files
+    from ..sim.lights import initial_light_states
     from ..sim.sumo import SimConfig
     from .output import write_outputs
     from .plan import fill_network
@@ -164,12 +165,16 @@ def run(o, folder: str) -> dict:
     targets, applied, source = _amount(o, net, gen, tiles, routes, begin)
     timing["load"] = time.perf_counter() - t
 
-    t = time.perf_counter()
-    result = fill_network(net, gen, tiles, seed=o.seed, p_mask=o.p_mask, targets=targets,
-                          use_density=applied, area=o.area, progress=progress)
-    timing["generate"] = time.perf_counter() - t
     cfg = SimConfig(net=scen.net, additional=scen.additional, step_length=o.step_length, seed=o.seed,
                     begin=begin)
+    t = time.perf_counter()
+    # the lights as SUMO's programs show them at the start: the fill agrees with them
+    signals = initial_light_states(cfg) if net.signal_links else None
+    timing["lights"] = time.perf_counter() - t
+    t = time.perf_counter()
+    result = fill_network(net, gen, tiles, seed=o.seed, p_mask=o.p_mask, targets=targets,
+                          use_density=applied, area=o.area, progress=progress, signals=signals)
+    timing["generate"] = time.perf_counter() - t
     doc = write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing, progress)
     return doc
 

@@ -47,8 +47,10 @@ def tile_seed(seed: int, index: int) -> int:
 
 def fill_network(net, gen, tiles: list[Tile], seed: int = 0, p_mask: float = 1.0,
                  targets: list[float | None] | None = None, use_density: bool = False,
-                 area: tuple | None = None, progress: bool = False) -> FillResult:
-    """Generate every tile; ``targets`` per tile (veh/km), given to the model with ``use_density``."""
+                 area: tuple | None = None, progress: bool = False,
+                 signals: dict[str, str] | None = None) -> FillResult:
+    """Generate every tile; ``targets`` per tile (veh/km), given to the model with ``use_density``;
+    ``signals``: the traffic lights' states at the fill's time (``sim.lights.initial_light_states``)."""
     from tqdm import tqdm
     accepted = Accepted()
     records = [TileRecord(t, target=None if targets is None else targets[t.index]) for t in tiles]
@@ -72,7 +74,7 @@ def fill_network(net, gen, tiles: list[Tile], seed: int = 0, p_mask: float = 1.0
             part = batch[s:s + step]
             out += gen.generate(net, [t.window for t in part], tokens=tokens[s:s + step], p_mask=pm[s:s + step],
                                 noise_seeds=[tile_seed(seed, t.index) for t in part],
-                                density=None if density is None else density[s:s + step])
+                                density=None if density is None else density[s:s + step], signals=signals)
             bar.update(len(part))
         # the batch's tiles do not overlap: each is checked against the earlier colours only, then
         # added, in index order

@@ -231,7 +231,7 @@ class ScenarioGenerator:
     def generate(self, net, windows: Sequence[Window], tokens=None, p_mask=1.0, seed: int = 0,
                  config: GenerationConfig | None = None, progress: bool = False,
                  maps: np.ndarray | None = None, noise_seeds: Sequence[int] | None = None,
-                 density=None) -> list[Scene]:
+                 density=None, signals=None) -> list[Scene]:
         """Scenes for ``windows`` on ``net``.
 
         ``tokens``: per window, agent tokens as a list of feature dicts (any subset of
@@ -249,6 +249,10 @@ class ScenarioGenerator:
         ``density``: per window (or one for all) the vehicles per km of car lane the scene should
         hold, tokens' vehicles included; None or NaN: the model's own prior (needs a checkpoint with
         the density condition, :attr:`has_density`).
+        ``signals``: the traffic lights' states at the scene's time (tls id -> SUMO state string),
+        one dict for all windows or one per window (``sim.lights.light_states``); None: unknown.
+        Each scene keeps its window's in ``meta["signals"]``; given ``maps``, render those with the
+        same states. A model that predates the signal channels ignores them.
         """
         cfg = config or self.config
         n = len(windows)
@@ -265,12 +269,16 @@ class ScenarioGenerator:
             raise ValueError(f"{len(noise_seeds)} noise seeds for {n} windows")
         keys = [[int(s)] for s in noise_seeds] if noise_seeds is not None else [[seed, i] for i in range(n)]
         seeds = [int(np.random.SeedSequence(k).generate_state(1)[0]) for k in keys]
+        sig = list(signals) if isinstance(signals, (list, tuple)) else signals
+        if isinstance(sig, list) and len(sig) != n:
+            raise ValueError(f"{len(sig)} signal states for {n} windows")
         out: list[Scene] = []
         from tqdm import tqdm
         for s in tqdm(range(0, n, cfg.batch_size), disable=not progress, desc="generating"):
             sl = slice(s, min(n, s + cfg.batch_size))
-            m = maps[sl] if maps is not None else np.stack([render_map(net, w, self.raster)
-                                                             for w in windows[sl]])
+            m = maps[sl] if maps is not None else np.stack([
+                render_map(net, w, self.raster, signals=sig[k] if isinstance(sig, list) else sig)
+                for k, w in enumerate(windows[sl], start=s)])
             prob, boxes, traj = self._batch(m, toks[sl], pm[sl], seeds[sl], cfg,
                                             tokens[sl] if tokens is not None else None,
                                             net=net, windows=windows[sl],
@@ -279,6 +287,10 @@ class ScenarioGenerator:
                 out.append(self._scene(w, prob[k], boxes[k], traj[k], cfg, net, toks[s + k],
                                        pinned_poses(tokens[s + k]) if tokens is not None else None,
                                        tokens[s + k] if tokens is not None else None))
+                if sig is not None:   # the lights this scene was drawn for, in scene.json and its picture
+                    lights = sig[s + k] if isinstance(sig, list) else sig
+                    ids = set(net.lights_in(w))
+                    out[-1].meta["signals"] = {i: v for i, v in (lights or {}).items() if i in ids}
         return out
 
 

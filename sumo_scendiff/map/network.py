@@ -214,6 +214,30 @@ class Network:
         gc.freeze()
         return network
 
+    @cached_property
+    def signal_links(self) -> list:
+        """Every traffic-light-controlled link (:class:`~.signals.SignalLink`), read once."""
+        from .signals import signal_links
+        return signal_links(self) if self.sumo_net is not None else []
+
+    @cached_property
+    def _signal_links_by_lane(self) -> dict[int, list[int]]:
+        out: dict[int, list[int]] = {}
+        for k, link in enumerate(self.signal_links):
+            out.setdefault(link.lane, []).append(k)
+            if link.via >= 0:
+                out.setdefault(link.via, []).append(k)
+        return out
+
+    def signal_links_in(self, window) -> list[int]:
+        """Indices into :attr:`signal_links` of the links whose incoming or via lane the window touches."""
+        by_lane = self._signal_links_by_lane
+        return sorted({k for i in self.lanes_in(window).tolist() for k in by_lane.get(i, ())})
+
+    def lights_in(self, window) -> list[str]:
+        """Ids of the traffic lights controlling a link the window touches."""
+        return sorted({self.signal_links[k].tls for k in self.signal_links_in(window)})
+
     # ---- window queries -------------------------------------------------------------------
     def lanes_in(self, window) -> np.ndarray:
         """Indices of lanes whose polygon intersects the (rotated) window's bounding box."""

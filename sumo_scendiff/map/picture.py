@@ -28,6 +28,9 @@ KINDS = ("generated", "kept", "token")
 KIND_COLOURS = {"generated": (60, 200, 60), "kept": (170, 70, 130), "token": (0, 150, 255)}
 KIND_LABELS = {"generated": "generated", "kept": "kept (already in SUMO)", "token": "realises a token"}
 TOKEN = (0, 150, 255)
+# traffic lights (BGR): the approach tinted, the stop line in the light's colour
+LIGHTS = {"green light": ((60, 170, 60), (140, 175, 140)), "amber light": ((0, 170, 240), (130, 165, 185)),
+          "red light": ((50, 50, 210), (140, 140, 190))}
 EGO = (20, 20, 20)
 SCALE_BAR = (0, 0, 0)        # pure black: nothing else in a picture is drawn in it
 SCALE_STEPS = (1, 2, 5, 10, 20, 50, 100, 200, 500)
@@ -38,18 +41,40 @@ def _outline(colour) -> tuple[int, int, int]:
     return tuple(int(c * 0.35) for c in colour)
 
 
-def map_background(net, window, cfg: RasterConfig) -> np.ndarray:
-    """Grey drivable area, darker junctions, light sidewalks, white lane centre lines, red stop lines."""
-    m = render_map(net, window, cfg)
+def light_classes(m: np.ndarray) -> dict[str, np.ndarray]:
+    """Per :data:`LIGHTS` name, the pixels of a map raster ``m`` whose signal channels show it
+    (outside junctions: the approaches)."""
+    ch = {name: m[i] for i, name in enumerate(MAP_CHANNELS)}
+    road = ch["junction"] <= 0
+    go, stop = ch["signal_go"], ch["signal_stop"]
+    return {"green light": road & (go > 0) & (stop <= 0), "amber light": road & (stop > 0) & (stop < 1),
+            "red light": road & (stop >= 1)}
+
+
+def map_background(net, window, cfg: RasterConfig, signals: dict[str, str] | None = None) -> np.ndarray:
+    """Grey drivable area, darker junctions, light sidewalks, white lane centre lines, dark stop
+    lines; with ``signals`` (tls id -> state) each controlled approach tinted and its stop line
+    coloured as its light shows."""
+    return _background(net, window, cfg, signals)[0]
+
+
+def _background(net, window, cfg: RasterConfig, signals: dict[str, str] | None):
+    """:func:`map_background` and the names of the lights it shows."""
+    m = render_map(net, window, cfg, signals=signals)
     ch = {name: m[i] for i, name in enumerate(MAP_CHANNELS)}
     img = np.full(cfg.shape + (3,), 245, np.uint8)
     img[ch["sidewalk"] > 0] = (225, 225, 225)
     img[ch["crossing"] > 0] = (200, 200, 200)
     img[ch["drivable"] > 0] = (150, 150, 150)
     img[ch["junction"] > 0] = (130, 130, 130)
+    lights = light_classes(m) if signals else {}
+    for name, px in lights.items():
+        img[px] = LIGHTS[name][1]
     img[ch["centerline"] > 0] = (235, 235, 235)
-    img[ch["stop_line"] > 0] = (60, 60, 220)
-    return img
+    img[ch["stop_line"] > 0] = (70, 70, 70)
+    for name, px in lights.items():
+        img[px & (ch["stop_line"] > 0)] = LIGHTS[name][0]
+    return img, [name for name, px in lights.items() if px.any()]
 
 
 def picture_view(window: Window, world_aligned: bool = True) -> Window:
@@ -144,12 +169,15 @@ def _ego(img, cv: _Canvas, ego) -> None:
     _text(img, "ego", (c[0] + (r >> _SHIFT) + 2, c[1] - (r >> _SHIFT)), 0.45 * cv.u, EGO, 1)
 
 
-def _legend(img, cv: _Canvas, kinds: Sequence[str], token_ring: bool, ego: bool) -> None:
-    """Bottom left: trajectory colours, one swatch per kind of vehicle, the token ring, the ego."""
+def _legend(img, cv: _Canvas, kinds: Sequence[str], token_ring: bool, ego: bool,
+            lights: Sequence[str] = ()) -> None:
+    """Bottom left: trajectory colours, one swatch per kind of vehicle, the token ring, the ego,
+    the traffic lights shown."""
     u, fs = cv.u, 0.4 * cv.u
     line, sw = round(17 * u), round(22 * u)
-    rows = ["traj"] + list(kinds) + (["ring"] if token_ring else []) + (["ego"] if ego else [])
-    labels = {"traj": "past -2 s .. future +2 s", "ring": "asked token", "ego": "ego", **KIND_LABELS}
+    rows = ["traj"] + list(kinds) + (["ring"] if token_ring else []) + (["ego"] if ego else []) + list(lights)
+    labels = {"traj": "past -2 s .. future +2 s", "ring": "asked token", "ego": "ego", **KIND_LABELS,
+              **{k: k for k in LIGHTS}}
     width = sw + 12 + max(cv2.getTextSize(labels[r], _FONT, fs, 1)[0][0] for r in rows) + 6
     h = img.shape[0]
     x0, y0 = 4, h - 4 - line * len(rows) - 6
@@ -161,6 +189,10 @@ def _legend(img, cv: _Canvas, kinds: Sequence[str], token_ring: bool, ego: bool)
             for j in range(4):
                 c = tuple(int(v) for v in PAST + (FUTURE - PAST) * (j / 3))
                 cv2.line(img, (xs + j * sw // 4, cy), (xs + (j + 1) * sw // 4, cy), c, max(1, int(2 * u)), cv2.LINE_AA)
+        elif r in LIGHTS:
+            hh = max(2, line // 4)
+            cv2.rectangle(img, (xs, cy - hh), (xs + sw, cy + hh), LIGHTS[r][1], -1)
+            cv2.rectangle(img, (xs + sw - 4, cy - hh - 1), (xs + sw, cy + hh + 1), LIGHTS[r][0], -1)
         elif r in KIND_COLOURS:
             hh = max(2, line // 4)
             cv2.rectangle(img, (xs, cy - hh), (xs + sw, cy + hh), KIND_COLOURS[r], -1)
@@ -225,10 +257,12 @@ def draw_scene(net, scene, pixels: int = 600, token_xy: np.ndarray | None = None
     ``kept``: (M, 5) scene-frame boxes of vehicles already in the simulation (drawn as "kept",
     without trajectories); ``token_xy``: scene-frame token positions, circled; ``ego``: the ego's
     scene-frame position (x, y, ...), or an agent index, ringed. ``legend=False`` leaves out the
-    legend, scale bar and north arrow (for small side-by-side tiles)."""
+    legend, scale bar and north arrow (for small side-by-side tiles). The traffic lights the scene
+    was generated with (``scene.meta["signals"]``) colour their approaches."""
     window = scene.window
     cv = _Canvas(window, picture_view(window, world_aligned), pixels)
-    img = map_background(net, cv.view, cv.cfg)
+    signals = scene.meta.get("signals") or None
+    img, shown_lights = _background(net, cv.view, cv.cfg, signals)
     if world_aligned:
         _window_outline(img, cv)
     kinds = ["generated"] * len(scene) if kinds is None else list(kinds)
@@ -247,7 +281,7 @@ def draw_scene(net, scene, pixels: int = 600, token_xy: np.ndarray | None = None
         _ego(img, cv, scene.boxes[int(ego), :2] if np.ndim(ego) == 0 else ego)
     if legend:
         shown = [k for k in KINDS if k == "generated" or k in kinds or (k == "kept" and len(kept))]
-        _legend(img, cv, shown, token_xy is not None and len(token_xy) > 0, ego is not None)
+        _legend(img, cv, shown, token_xy is not None and len(token_xy) > 0, ego is not None, shown_lights)
         _scale_bar(img, cv)
         _north_arrow(img, cv)
     if title:

@@ -22,9 +22,10 @@ from ..core.geometry import Window, box_corners, metres_to_pixels
 # others, crossing lanes inside a junction each keep their direction here.
 LANE_DIR_BINS = 8
 # Append-only: a model built for C_m channels reads the first C_m (older checkpoints: 11).
+LANE_DIR_CHANNELS = tuple(f"lane_dir{k * 360 // LANE_DIR_BINS:03d}" for k in range(LANE_DIR_BINS))
 MAP_CHANNELS = ("drivable", "centerline", "lane_cos", "lane_sin", "lane_boundary", "junction",
-                "stop_line", "tls", "sidewalk", "crossing", "speed_limit") + tuple(
-    f"lane_dir{k * 360 // LANE_DIR_BINS:03d}" for k in range(LANE_DIR_BINS))
+                "stop_line", "tls", "sidewalk", "crossing", "speed_limit") + LANE_DIR_CHANNELS + (
+    "signal_go", "signal_stop")   # traffic-light states at t = 0 (map/signals.py); 0 where unknown
 # Agent channels, paper appendix A: box fill, cos/sin of heading, then (mask, dx, dy) per delta.
 DELTA_STEPS = (-2, -1, 1, 2)
 AGENT_CHANNELS = ("occupancy", "cos", "sin") + tuple(
@@ -85,14 +86,42 @@ def _draw_direction_histogram(ch: dict, segments: list, rel_yaw: np.ndarray, thi
         seg, side = np.nonzero((bins == k) & (weights > 0))
         w = weights[seg, side]
         order = np.argsort(w, kind="stable")
-        img = ch[MAP_CHANNELS[-LANE_DIR_BINS + k]]
+        img = ch[LANE_DIR_CHANNELS[k]]
         for i, value in zip(seg[order].tolist(), w[order].tolist()):
             a, b = segments[i]
             cv2.line(img, a, b, value, thick[i], cv2.LINE_8, _SHIFT)
 
 
-def render_map(net, window: Window, cfg: RasterConfig = RasterConfig()) -> np.ndarray:
-    """The map image m of ``window``: channels :data:`MAP_CHANNELS`, float32 in [-1, 1]."""
+def _draw_signals(ch: dict, net, window: Window, states: dict[str, str], cfg: RasterConfig) -> None:
+    """Each controlled link's go/stop value on its via lane and its incoming lane's approach."""
+    from .signals import approach, link_values
+    idx = net.signal_links_in(window)
+    if not idx or not states:
+        return
+    links = [net.signal_links[k] for k in idx]
+    go, stop = link_values(links, states)
+    lines = [approach(net.lanes[ln.lane].shape) for ln in links]
+    vias = [net.lanes[ln.via].ring if ln.via >= 0 else None for ln in links]
+    pix = _px_many(window, lines + [v for v in vias if v is not None], cfg)
+    line_pix, via_pix = pix[: len(links)], iter(pix[len(links):])
+    via_pix = [next(via_pix) if v is not None else None for v in vias]
+    for name, values in (("signal_go", go), ("signal_stop", stop)):
+        img = ch[name]
+        for k in np.argsort(values, kind="stable"):   # weakest first: the stronger state wins overlaps
+            if values[k] <= 0:
+                continue
+            width = max(int(round(net.lanes[links[k].lane].width / cfg.metres_per_pixel)), 1)
+            cv2.polylines(img, [line_pix[k]], False, float(values[k]), width, cv2.LINE_8, _SHIFT)
+            if via_pix[k] is not None:
+                cv2.fillPoly(img, [via_pix[k]], float(values[k]), cv2.LINE_8, _SHIFT)
+
+
+def render_map(net, window: Window, cfg: RasterConfig = RasterConfig(),
+               signals: dict[str, str] | None = None) -> np.ndarray:
+    """The map image m of ``window``: channels :data:`MAP_CHANNELS`, float32 in [-1, 1].
+
+    ``signals``: traffic-light states (tls id -> SUMO state string) at the scene's t = 0; without
+    them the signal channels are 0, which the model reads as "unknown"."""
     h, w = cfg.shape
     ch = {name: np.zeros((h, w), np.float32) for name in MAP_CHANNELS}
     lanes = [net.lanes[i] for i in net.lanes_in(window)]
@@ -135,6 +164,8 @@ def render_map(net, window: Window, cfg: RasterConfig = RasterConfig()) -> np.nd
     for a, b in pix[len(car):]:
         cv2.line(ch["stop_line"], tuple(a.tolist()), tuple(b.tolist()), 1.0, 2, cv2.LINE_8, _SHIFT)
     ch["centerline"], ch["lane_cos"], ch["lane_sin"] = centre[..., 0], centre[..., 1], centre[..., 2]
+    if signals:
+        _draw_signals(ch, net, window, signals, cfg)
     return np.stack([ch[name] for name in MAP_CHANNELS])
 
 

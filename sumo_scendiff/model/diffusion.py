@@ -68,10 +68,11 @@ class ScenarioDiffusion(nn.Module):
                 "agent_pad_mask": agent_pad_mask, "global_token": global_token}
 
     def loss(self, z0: Tensor, m: Tensor, agent_tokens: Tensor, agent_pad_mask: Tensor,
-             global_token: Tensor, generator: Optional[torch.Generator] = None) -> Tensor:
-        """Mean EDM loss (paper eq. 1) over the batch."""
+             global_token: Tensor, generator: Optional[torch.Generator] = None,
+             weight: Optional[Tensor] = None) -> Tensor:
+        """Mean EDM loss (paper eq. 1) over the batch; ``weight`` (B, 1, R, R) weighs latent cells."""
         cond = self.cond(m, agent_tokens, agent_pad_mask, global_token)
-        return self.edm_loss(self.denoiser, z0, cond=cond, generator=generator).mean()
+        return self.edm_loss(self.denoiser, z0, cond=cond, generator=generator, weight=weight).mean()
 
     @staticmethod
     def null_condition(cond: dict, guidance: float, scene_guidance: float,

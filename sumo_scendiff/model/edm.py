@@ -119,7 +119,9 @@ class EDMLoss:
 
     def __call__(self, denoiser: Denoiser, z0: Tensor, *, cond: Optional[dict] = None,
                  generator: Optional[torch.Generator] = None,
-                 sigma: Optional[Tensor] = None) -> Tensor:
+                 sigma: Optional[Tensor] = None, weight: Optional[Tensor] = None) -> Tensor:
+        """``weight``: optional per-element weights broadcastable to ``z0`` (e.g. (B, 1, R, R)); the
+        squared error is their weighted mean, so each example's loss keeps its scale."""
         b = z0.shape[0]
         if sigma is None:
             sigma = self.sample_sigma(b, device=z0.device, dtype=z0.dtype, generator=generator)
@@ -127,7 +129,12 @@ class EDMLoss:
         eps = torch.randn(z0.shape, device=z0.device, dtype=z0.dtype, generator=generator)
         sb = sigma.reshape(-1, *([1] * (z0.ndim - 1)))
         d = denoiser(z0 + sb * eps, sigma, **(cond or {}))
-        err = (d - z0).pow(2).flatten(1).mean(1)
+        sq = (d - z0).pow(2)
+        if weight is None:
+            err = sq.flatten(1).mean(1)
+        else:
+            w = weight.expand_as(sq)
+            err = (w * sq).flatten(1).sum(1) / w.flatten(1).sum(1)
         return loss_weight(sigma, self.sigma_data) * err
 
 

@@ -42,6 +42,7 @@ from ..core.scene import Scene
 from ..generation.token_check import heading_warnings
 from ..map.network import Network
 from .density import window_target
+from .lights import light_states
 from .seeding import Seeder, SeedReport
 
 EXISTING_MARGIN = 10.0   # m beyond the window where existing vehicles still block generated ones
@@ -168,7 +169,8 @@ class CoSimulation:
         s = self.seed + self.count if seed is None else seed
         target = window_target(self.net, window, density, vehicles, sim=self.sim)
         scene = self.generator.generate(self.net, [window], tokens=[all_tokens], p_mask=p, seed=s,
-                                        density=None if target is None else [target])[0]
+                                        density=None if target is None else [target],
+                                        signals=light_states(self.sim, self.net.lights_in(window)))[0]
         return self.place(scene, all_tokens, source, ex, seed=s, p_mask=p)
 
     def ego_window(self, ego: str, ahead_m: float = 0.0, size: float = 100.0) -> Window:

@@ -58,6 +58,8 @@ def scene_document(seeding, net, sim, info: dict) -> dict:
             "tokens": [{**t, "source": s, "pinned": pin and is_pinnable(t)}
                        for t, s in zip(seeding.tokens, seeding.token_source)],
             "dropped_on_existing": seeding.dropped,
+            # the traffic lights the scene was generated with (tls id -> SUMO state string)
+            "signals": seeding.scene.meta.get("signals", {}),
             "counts": {"generated": len(seeding.scene), "placed": seeding.report.placed,
                        "refused": len(seeding.report.refused),
                        "misplaced": len(seeding.report.misplaced)},

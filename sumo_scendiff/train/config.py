@@ -24,6 +24,10 @@ class TrainConfig:
     ema_rampup: float = 0.05      # ... but at most this fraction of the steps so far (EDM's rule)
     p_keep_all_tokens: float = 0.4  # diffusion: P(p_mask = 0), every agent a token (sec. 4.3.1)
     p_map_only: float = 0.0       # diffusion: P(p_mask = 1), the map alone; else p_mask ~ Beta(2, 1)
+    # diffusion: the denoising error of the latent cells under an agent kept as a positioned token
+    # counts 1 + this many times (the rest of a scene dominates the mean otherwise)
+    token_loss_weight: float = 0.0
+    p_no_signals: float = 0.0     # scenes shown with their traffic lights unknown (a model without a host)
     seed: int = 0
     workers: int = 0              # DataLoader worker processes (rendering is ~2 % of a step)
     rotate: bool = True           # rotation augmentation of the training windows

@@ -20,8 +20,10 @@ import torch.distributed as dist
 from torch import nn
 from torch.utils.data import DataLoader, DistributedSampler, RandomSampler
 
+from ..core.geometry import metres_to_pixels
 from ..data.dataset import SceneDataset, collate_scenes
 from ..data.shards import DataError, read_manifest
+from ..map.raster import RasterConfig
 from ..model import checkpoint as ckpt
 from ..tokens.encoding import GLOBAL_TOKEN_DIM, features_from_scene, pad_tokens
 from ..tokens.masking import TokenMaskConfig, partial_tokens
@@ -63,22 +65,41 @@ class _LossModule(nn.Module):
         return self.step_loss(self.model, batch, step)
 
 
+def token_cells(xy: np.ndarray, res: int, raster: RasterConfig = RasterConfig()) -> np.ndarray:
+    """(res, res) bool: the latent cells holding the scene-frame centres ``xy`` (K, 2)."""
+    out = np.zeros((res, res), bool)
+    if len(xy):
+        col_row = np.round(metres_to_pixels(xy, raster.size, raster.shape)).astype(np.int64)
+        col_row = np.clip(col_row * res // raster.pixels, 0, res - 1)
+        out[col_row[:, 1], col_row[:, 0]] = True
+    return out
+
+
 def conditioning(batch: dict, seed: int, step: int, device,
-                 mask_cfg: TokenMaskConfig = TokenMaskConfig(), global_dim: int = GLOBAL_TOKEN_DIM) -> tuple:
+                 mask_cfg: TokenMaskConfig = TokenMaskConfig(), global_dim: int = GLOBAL_TOKEN_DIM,
+                 token_loss_weight: float = 0.0, res: int = 16) -> tuple:
     """Partial tokenisation of a batch (paper sec. 4.3.1): agent tokens, padding mask, global token
-    (with the window's density for a model that takes it, ``global_dim``)."""
-    toks, globs = [], []
+    (with the window's density for a model that takes it, ``global_dim``), and the loss weight of
+    each latent cell ((B, 1, res, res): 1 + ``token_loss_weight`` under an agent kept as a
+    positioned token; None when that weight is 0)."""
+    toks, globs, cells = [], [], []
     for i in range(batch["boxes"].shape[0]):
         v = batch["valid"][i].cpu().numpy()
         arrays = [batch[k][i].cpu().numpy()[v] for k in ("boxes", "traj", "traj_mask", "speed")]
         feats, present = features_from_scene(*arrays)
         rng = np.random.default_rng([seed, step, int(batch["index"][i]), rank()])
         density = float(batch["density"][i]) if "density" in batch else None
-        tok, glob, _ = partial_tokens(feats, present, rng, mask_cfg, density=density, global_dim=global_dim)
+        tok, glob, _, placed = partial_tokens(feats, present, rng, mask_cfg, density=density,
+                                              global_dim=global_dim)
         toks.append(tok)
         globs.append(glob)
+        cells.append(token_cells(arrays[0][placed, :2], res))
     tokens, pad = pad_tokens(toks)
-    return tokens.to(device), pad.to(device), torch.as_tensor(np.stack(globs), device=device)
+    weight = None
+    if token_loss_weight > 0:
+        weight = torch.as_tensor(1.0 + token_loss_weight * np.stack(cells)[:, None], dtype=torch.float32,
+                                 device=device)
+    return tokens.to(device), pad.to(device), torch.as_tensor(np.stack(globs), device=device), weight
 
 
 def _to(batch: dict, dev) -> dict:
@@ -126,7 +147,7 @@ class Loop:
             manifests = [read_manifest(d) for d in o.data]
             self.data_manifest = {"scenes": sum(m["scenes"] for m in manifests),
                                   "nets": [n["name"] for m in manifests for n in m["nets"]]}
-            self.train_set = SceneDataset(o.data, rotate=cfg.rotate, seed=cfg.seed)
+            self.train_set = SceneDataset(o.data, rotate=cfg.rotate, seed=cfg.seed, p_no_signals=cfg.p_no_signals)
             self.val_set = SceneDataset(o.val, rotate=True, seed=12345) if o.val else None
         except DataError as e:
             o.parser.exit(2, f"{o.parser.prog}: error: {e}\n")

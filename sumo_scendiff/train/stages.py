@@ -122,9 +122,11 @@ def train_diffusion(o) -> None:
             raise RuntimeError("latent scale not set")
         with torch.no_grad():
             z0 = ae.encode(batch["agents"])[0] * scale["value"]
-        tokens, pad, glob = conditioning(batch, seed=cfg.seed, step=step, device=z0.device,
-                                         mask_cfg=mask_cfg, global_dim=model.cfg.unet.global_dim)
-        loss = module.loss(z0, batch["map"], tokens, pad, glob)
+        tokens, pad, glob, weight = conditioning(
+            batch, seed=cfg.seed, step=step, device=z0.device, mask_cfg=mask_cfg,
+            global_dim=model.cfg.unet.global_dim, token_loss_weight=cfg.token_loss_weight,
+            res=model.cfg.unet.res)
+        loss = module.loss(z0, batch["map"], tokens, pad, glob, weight=weight)
         return loss, {"edm": float(loss.detach())}
 
     extra = {"model_config": ckpt.config_to_dict(model.cfg),

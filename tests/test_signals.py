@@ -1,0 +1,72 @@
+"""Traffic-light states: read from the network's links, recorded per scene, drawn as map channels."""
+import numpy as np
+
+from sumo_scendiff.core.geometry import Window, metres_to_pixels
+from sumo_scendiff.core.scene import Scene
+from sumo_scendiff.map.network import Network
+from sumo_scendiff.map.raster import MAP_CHANNELS, render_map
+from sumo_scendiff.map.signals import approach, decode_states, encode_states
+
+GO, STOP = MAP_CHANNELS.index("signal_go"), MAP_CHANNELS.index("signal_stop")
+
+
+def _value(m, channel, xy):
+    col, row = np.round(metres_to_pixels(np.array(xy, float), 100.0, (128, 128))).astype(int)
+    return m[channel, row, col]
+
+
+def test_links_of_a_signalised_crossing(cross_net):
+    net = Network.load(cross_net)
+    links = net.signal_links
+    assert {ln.tls for ln in links} == {"c"}
+    assert sorted(ln.index for ln in links) == list(range(len(links)))
+    assert all(not net.lanes[ln.lane].internal and net.lanes[ln.via].internal for ln in links)
+    assert net.lights_in(Window(0.0, 0.0, 0.0, 100.0)) == ["c"]
+    assert net.lights_in(Window(180.0, 150.0, 0.0, 20.0)) == []
+
+
+def test_states_are_drawn_on_approach_and_junction_and_unknown_is_zero(cross_net):
+    net = Network.load(cross_net)
+    w = Window(0.0, 0.0, 0.0, 100.0)
+    n = len(net.signal_links)
+    # the eastbound approach (lane wc_0, y < 0 in right-hand traffic) green, everything else red
+    state = "".join("G" if net.lanes[ln.lane].id == "wc_0" else "r"
+                    for ln in sorted(net.signal_links, key=lambda ln: ln.index))
+    assert len(state) == n
+    plain = render_map(net, w)
+    lit = render_map(net, w, signals={"c": state})
+    assert (plain[[GO, STOP]] == 0).all()
+    others = [i for i in range(len(MAP_CHANNELS)) if i not in (GO, STOP)]
+    assert np.array_equal(plain[others], lit[others])   # the static map does not change
+    east = approach(net.lanes[net.lane_index["wc_0"]].shape)
+    mid = east.mean(0)                                    # window centred on the origin, yaw 0
+    assert _value(lit, GO, mid) == 1.0 and _value(lit, STOP, mid) == 0.0
+    west = approach(net.lanes[net.lane_index["ec_0"]].shape).mean(0)
+    assert _value(lit, STOP, west) == 1.0 and _value(lit, GO, west) == 0.0
+    # amber is half a stop; a light the window does not show is ignored
+    amber = render_map(net, w, signals={"c": "y" * n, "elsewhere": "G"})
+    assert _value(amber, STOP, west) == 0.5 and amber[GO].max() == 0.0
+
+
+def test_recorded_scenes_carry_the_light_states_through_a_shard(cross_net, tmp_path):
+    from sumo_scendiff.data.dataset import SceneDataset
+    from sumo_scendiff.data.record import EpisodeSpec, record_episode
+    from sumo_scendiff.data.shards import Shard, write_manifest, write_shard
+    net = Network.load(cross_net)
+    scenes = record_episode(net, EpisodeSpec(seed=3, scenes=6, density=800.0, warmup=20.0, duration=120.0,
+                                             sample_every=20.0, windows_per_sample=1, p_ego=0.0))
+    assert scenes
+    n = len(net.signal_links)
+    states = [s.meta["signals"] for s in scenes]
+    assert all(set(st) == {"c"} and len(st["c"]) == n for st in states)
+    assert len({st["c"] for st in states}) > 1   # the light changes between scenes 20 s apart
+    centre = Scene.empty(Window(0.0, 0.0, 0.0, 100.0), net="cross", time=0.0)
+    centre.meta["signals"] = states[0]      # a window on the junction, for the dataset below
+    entry = write_shard(str(tmp_path / "shard-000-0000.npz"), scenes + [centre], 0)
+    shard = Shard.load(str(tmp_path / entry["file"]))
+    assert [shard.scene(i).meta["signals"] for i in range(len(shard))] == states + [states[0]]
+    assert decode_states(encode_states(states[0])) == states[0] and decode_states("") == {}
+    write_manifest(str(tmp_path), [{"name": "cross", "path": cross_net, "sha256": ""}], [entry])
+    seen = SceneDataset(str(tmp_path), rotate=False)[len(scenes)]["map"]
+    hidden = SceneDataset(str(tmp_path), rotate=False, p_no_signals=1.0)[len(scenes)]["map"]
+    assert seen[[GO, STOP]].sum() > 0 and hidden[[GO, STOP]].sum() == 0
