@@ -1,6 +1,6 @@
-"""Benchmark: how much a busy CPU slows `run`'s generate phase: all cores' threads spinning
-(``OMP_WAIT_POLICY=ACTIVE``, torch's own behaviour), all cores' threads sleeping, and the default
-(``core.threads.share_cpu``: threads for the cores free when the run starts, sleeping when idle).
+"""Benchmark: how much a busy CPU slows `run`'s generate phase: a thread per core spinning
+(``OMP_WAIT_POLICY=ACTIVE``, torch's own behaviour), a thread per core sleeping, and the default
+(``core.threads``: one thread, ``GENERATION_THREADS``).
 
     python benchmarks/threads.py [--repeats 3] [--neighbours 2]
 
@@ -55,7 +55,7 @@ def main(o) -> None:
     settings = [(f"{cores} threads spinning (torch's own default)", {"OMP_WAIT_POLICY": "ACTIVE",
                                                                      "OMP_NUM_THREADS": cores}),
                 (f"{cores} threads sleeping (OMP_WAIT_POLICY=PASSIVE)", {"OMP_NUM_THREADS": cores}),
-                ("threads for the cores free now (default)", {})]
+                ("one thread (default)", {})]
     idle = {name: [] for name, _ in settings}
     busy = {name: [] for name, _ in settings}
     for _ in range(o.repeats):              # settings take turns: the machine drifts within minutes

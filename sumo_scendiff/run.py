@@ -213,8 +213,8 @@ def _windows(o, net, sim, cosim):
 
 
 def run(o) -> dict:
-    from .core.threads import share_cpu
-    threads = share_cpu()   # before torch is imported: threads for the cores free now, sleeping when idle
+    from .core.threads import GENERATION_THREADS, share_cpu
+    threads = share_cpu(default=GENERATION_THREADS)   # before torch is imported (core/threads.py: why one)
     import numpy as np
 
     from .core.outputs import partial_path

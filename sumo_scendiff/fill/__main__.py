@@ -125,8 +125,8 @@ def _amount(o, net, gen, tiles, routes, begin) -> tuple[list | None, bool, dict]
 
 
 def run(o, folder: str) -> dict:
-    from ..core.threads import share_cpu
-    share_cpu()   # before torch: idle OpenMP threads sleep instead of spinning
+    from ..core.threads import GENERATION_THREADS, share_cpu
+    share_cpu(default=GENERATION_THREADS)   # before torch is imported (core/threads.py: why one)
     from ..data.demand import DemandError, check_demand
     from ..generation.generator import GenerationConfig, ScenarioGenerator
     from ..map.network import Network

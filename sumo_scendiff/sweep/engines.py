@@ -12,6 +12,7 @@ import os
 from itertools import groupby
 
 from ..core.procs import die_with_parent
+from ..core.threads import GENERATION_THREADS
 from .spec import Scenario, Spec
 
 TASK_SIZE = 8   # scenarios per task: the model call batches them; small enough to balance workers
@@ -46,7 +47,9 @@ def tasks(scenarios: list[Scenario], todo: set[str] | None = None, size: int = T
 
 
 def _threads(workers: int) -> int:
-    return max(1, (os.cpu_count() or 1) // max(workers, 1))
+    """Torch threads per worker: one, whatever the worker count (core/threads.py), so that the same
+    seed gives the same scenes with 1 or N workers; parallelism is the workers'."""
+    return GENERATION_THREADS
 
 
 _WORKER = None

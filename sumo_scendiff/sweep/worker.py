@@ -57,8 +57,8 @@ def scenario_target(s: Scenario, net, window, sim=None, checkpoint: str | None =
 class Worker:
     def __init__(self, spec: Spec, out: str, checkpoint: str | None = None, threads: int | None = None,
                  generator=None):
-        from ..core.threads import share_cpu
-        share_cpu(threads)   # before torch is imported: idle threads sleep instead of spinning
+        from ..core.threads import GENERATION_THREADS, share_cpu
+        share_cpu(threads, default=GENERATION_THREADS)   # before torch is imported (core/threads.py: why one)
         from ..generation.generator import ScenarioGenerator
         self.spec, self.out, self.checkpoint = spec, out, checkpoint
         # ``generator``: an already loaded one (tests); else the checkpoint's
