@@ -177,10 +177,8 @@ def test_partial_tokens():
     feats, pres = features_from_scene(*_scene())
     rng = np.random.default_rng(2)
     for _ in range(50):
-        tok, g, p, placed = partial_tokens(feats, pres, rng)
+        tok, g, p = partial_tokens(feats, pres, rng)
         assert tok.shape[1] == 170 and tok.shape[0] <= 3 and g.argmax() == min(int(p * 10), 9)
-        # the agents marked placed are exactly the tokens that give a position
-        assert placed.sum() == tok[:, PRESENCE_SLICE][:, FEATURES.index("x")].sum()
         # never resurrects a feature absent in the scene (h2f: 1 agent, final_speed: 2 agents)
         bits = tok[:, PRESENCE_SLICE]
         assert bits[:, FEATURES.index("heading_to_final")].sum() <= 1
@@ -254,10 +252,17 @@ def test_token_cells_weigh_the_latent_cells_under_positioned_tokens():
     import torch
 
     from sumo_scendiff.model.edm import EDMLoss
-    from sumo_scendiff.train.loop import token_cells
-    # window centre -> the middle cells; a corner -> the corner cell (row 0 is the window's +y edge)
-    cells = token_cells(np.array([[0.1, 0.1], [-49.0, 49.0], [49.0, -49.0]]), 16)
-    assert cells.sum() == 3 and cells[0, 0] and cells[15, 15] and cells[7:9, 7:9].any()
+    from sumo_scendiff.tokens.encoding import encode_agent_tokens, pad_tokens
+    from sumo_scendiff.train.loop import token_loss_weights
+    # window centre -> a middle cell; corners -> the corner cells (row 0 is the window's +y edge); a
+    # token without a position weighs nothing
+    xy = np.array([[0.1, 0.1], [-49.0, 49.0], [49.0, -49.0], [20.0, 20.0]])
+    tok = encode_agent_tokens({"x": xy[:, 0], "y": xy[:, 1], "speed": np.ones(4)},
+                              {"x": np.array([1, 1, 1, 0], bool), "y": np.array([1, 1, 1, 0], bool),
+                               "speed": np.ones(4, bool)})
+    tokens, pad = pad_tokens([tok])
+    w = token_loss_weights(tokens, pad, 16, 4.0)[0, 0]
+    assert (w == 5.0).sum() == 3 and w[0, 0] == 5.0 and w[15, 15] == 5.0 and w[7:9, 7:9].max() == 5.0
     # a uniform weight is the plain loss; a weight on one cell moves the loss towards that cell's error
     torch.manual_seed(0)
     z0 = torch.randn(2, 4, 16, 16)

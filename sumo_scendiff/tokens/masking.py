@@ -2,7 +2,7 @@
 recorded scene become tokens, and which of their features, for one training example.
 
     p_mask, keep = sample_token_mask(n_agents, rng)              # agents kept as tokens
-    tokens, glob, p_mask, keep = partial_tokens(features, present, rng)  # one example's conditioning
+    tokens, glob, p_mask = partial_tokens(features, present, rng) # one example's conditioning
 
 The rules and their rationale are in :mod:`~sumo_scendiff.tokens.encoding` (module docstring); encoding
 is there too.
@@ -66,13 +66,12 @@ def sample_feature_dropout(n_tokens: int, rng: np.random.Generator,
 def partial_tokens(features: Mapping[str, np.ndarray], present: Mapping[str, np.ndarray],
                    rng: np.random.Generator, cfg: TokenMaskConfig = TokenMaskConfig(),
                    density: float | None = None, global_dim: int = GLOBAL_TOKEN_DIM
-                   ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray, float]:
     """One training example's conditioning: token masking, then feature dropout, then encoding.
     ``density``: the window's vehicles per km of car lane, given to a model with the density
     condition (``global_dim``) unless dropped (``p_drop_density``).
 
-    Returns ``(agent_tokens (K, 170), global_token (global_dim,), p_mask, placed)`` for the K kept
-    agents; ``placed`` (N,) bool marks the agents kept as a token that gives their position.
+    Returns ``(agent_tokens (K, 170), global_token (global_dim,), p_mask)`` for the K kept agents.
     """
     n = len(next(iter(features.values()))) if features else 0
     p_mask, keep = sample_token_mask(n, rng, cfg)
@@ -81,7 +80,4 @@ def partial_tokens(features: Mapping[str, np.ndarray], present: Mapping[str, np.
     pres = {k: np.asarray(present.get(k, np.ones(n, bool)))[keep] & fk[k] for k in features}
     if global_dim == P_MASK_BINS or density is None or rng.random() < cfg.p_drop_density:
         density = None
-    placed = np.zeros(n, bool)
-    if n:
-        placed[np.flatnonzero(keep)[pres["x"]]] = True
-    return encode_agent_tokens(feats, pres), global_token(p_mask, density, dim=global_dim), p_mask, placed
+    return encode_agent_tokens(feats, pres), global_token(p_mask, density, dim=global_dim), p_mask

@@ -20,12 +20,10 @@ import torch.distributed as dist
 from torch import nn
 from torch.utils.data import DataLoader, DistributedSampler, RandomSampler
 
-from ..core.geometry import metres_to_pixels
 from ..data.dataset import SceneDataset, collate_scenes
 from ..data.shards import DataError, read_manifest
-from ..map.raster import RasterConfig
 from ..model import checkpoint as ckpt
-from ..tokens.encoding import GLOBAL_TOKEN_DIM, features_from_scene, pad_tokens
+from ..tokens.encoding import GLOBAL_TOKEN_DIM, features_from_scene, pad_tokens, token_cells
 from ..tokens.masking import TokenMaskConfig, partial_tokens
 
 VAL_STEP = 1_000_000_000  # "step" given to step_loss in validation: its token masks never repeat training's
@@ -65,14 +63,14 @@ class _LossModule(nn.Module):
         return self.step_loss(self.model, batch, step)
 
 
-def token_cells(xy: np.ndarray, res: int, raster: RasterConfig = RasterConfig()) -> np.ndarray:
-    """(res, res) bool: the latent cells holding the scene-frame centres ``xy`` (K, 2)."""
-    out = np.zeros((res, res), bool)
-    if len(xy):
-        col_row = np.round(metres_to_pixels(xy, raster.size, raster.shape)).astype(np.int64)
-        col_row = np.clip(col_row * res // raster.pixels, 0, res - 1)
-        out[col_row[:, 1], col_row[:, 0]] = True
-    return out
+def token_loss_weights(tokens: torch.Tensor, pad: torch.Tensor, res: int, extra: float) -> torch.Tensor:
+    """(B, 1, res, res): 1, and 1 + ``extra`` in the latent cells of the positioned tokens (the cells
+    the UNet's token splat writes them into, ``tokens.encoding.token_cells``)."""
+    cell, placed = token_cells(tokens, pad, res)
+    w = torch.ones(tokens.shape[0], res * res, dtype=torch.float32, device=tokens.device)
+    rows = torch.arange(tokens.shape[0], device=tokens.device)[:, None].expand_as(cell)
+    w[rows[placed], cell[placed]] = 1.0 + extra
+    return w.view(-1, 1, res, res)
 
 
 def conditioning(batch: dict, seed: int, step: int, device,
@@ -82,24 +80,20 @@ def conditioning(batch: dict, seed: int, step: int, device,
     (with the window's density for a model that takes it, ``global_dim``), and the loss weight of
     each latent cell ((B, 1, res, res): 1 + ``token_loss_weight`` under an agent kept as a
     positioned token; None when that weight is 0)."""
-    toks, globs, cells = [], [], []
+    toks, globs = [], []
     for i in range(batch["boxes"].shape[0]):
         v = batch["valid"][i].cpu().numpy()
         arrays = [batch[k][i].cpu().numpy()[v] for k in ("boxes", "traj", "traj_mask", "speed")]
         feats, present = features_from_scene(*arrays)
         rng = np.random.default_rng([seed, step, int(batch["index"][i]), rank()])
         density = float(batch["density"][i]) if "density" in batch else None
-        tok, glob, _, placed = partial_tokens(feats, present, rng, mask_cfg, density=density,
-                                              global_dim=global_dim)
+        tok, glob, _ = partial_tokens(feats, present, rng, mask_cfg, density=density, global_dim=global_dim)
         toks.append(tok)
         globs.append(glob)
-        cells.append(token_cells(arrays[0][placed, :2], res))
     tokens, pad = pad_tokens(toks)
-    weight = None
-    if token_loss_weight > 0:
-        weight = torch.as_tensor(1.0 + token_loss_weight * np.stack(cells)[:, None], dtype=torch.float32,
-                                 device=device)
-    return tokens.to(device), pad.to(device), torch.as_tensor(np.stack(globs), device=device), weight
+    tokens, pad = tokens.to(device), pad.to(device)
+    weight = token_loss_weights(tokens, pad, res, token_loss_weight) if token_loss_weight > 0 else None
+    return tokens, pad, torch.as_tensor(np.stack(globs), device=device), weight
 
 
 def _to(batch: dict, dev) -> dict:
