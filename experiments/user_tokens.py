@@ -116,11 +116,12 @@ def main(o) -> int:
         gts = [store.scene(i) for i in range(min(o.windows, len(store)))]
         for kind in KINDS:
             rng = np.random.default_rng([o.seed, list(KINDS).index(kind)])
-            pairs = [(g.window, t) for g in gts for t in [tokens_of(g, kind, rng)] if t]
+            pairs = [(g, t) for g in gts for t in [tokens_of(g, kind, rng)] if t]
             if not pairs:
                 continue
-            windows, toks = [w for w, _ in pairs], [t for _, t in pairs]
-            res = [score(gen.generate(net, windows, tokens=toks, p_mask=o.p_mask, seed=o.seed,
+            windows, toks = [g.window for g, _ in pairs], [t for _, t in pairs]
+            lights = [g.meta.get("signals") or None for g, _ in pairs]   # the recorded moment's lights
+            res = [score(gen.generate(net, windows, tokens=toks, p_mask=o.p_mask, seed=o.seed, signals=lights,
                                       config=replace(gen.config, deliver_tokens=d)), toks) for d in (True, False)]
             fmt = (lambda k, p: " / ".join(f"{r[k]:.{p}f}" for r in res))
             lines.append(f"| {net.name} | {kind} | {res[0]['tokens']} | {fmt('match', 2)} | {fmt('speed', 2)} | "

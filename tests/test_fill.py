@@ -2,8 +2,10 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -108,6 +110,38 @@ def test_same_seed_same_fill(filled, tmp_path):
     assert [a["x"] for a in other["agents"]] != [a["x"] for a in doc["agents"]]
 
 
+def _without_run_facts(doc: dict) -> dict:
+    """fill.json without what may differ between two runs of one fill: timings and the workers."""
+    return {k: v for k, v in doc.items() if k not in ("timing_s", "workers")}
+
+
+def test_two_workers_give_the_same_fill(filled, tmp_path):
+    """--workers 2 (two spawned processes, each loading the model) writes the fill one process does,
+    agents byte for byte, and records the workers it used."""
+    _, doc = filled
+    two = _fill(tmp_path / "two", "-s", "3", "--workers", "2")
+    assert two["workers"]["count"] == 2 and doc["workers"]["count"] == 1
+    assert json.dumps(two["agents"]) == json.dumps(doc["agents"])
+    assert _without_run_facts(two) == _without_run_facts(doc)
+
+
+def test_tasks_depend_on_the_colour_alone():
+    """A colour's model calls: about eight, at most TILES_PER_TASK tiles, every tile once, in order."""
+    from sumo_scendiff.fill.plan import TILES_PER_TASK, tasks_of
+    for n in (1, 3, 8, 9, 20, 100, 1000):
+        groups = tasks_of(list(range(n)))
+        assert [t for g in groups for t in g] == list(range(n))
+        assert max(map(len, groups)) <= TILES_PER_TASK and len(groups) <= max(8, math.ceil(n / TILES_PER_TASK))
+
+
+def test_ray_workers_give_the_same_fill(filled, tmp_path):
+    pytest.importorskip("ray")
+    _, doc = filled
+    ray = _fill(tmp_path / "ray", "-s", "3", "--workers", "2", "--ray-address", "local")
+    assert ray["workers"]["engine"] == "ray" and ray["workers"]["count"] == 2
+    assert _without_run_facts(ray) == _without_run_facts(doc)
+
+
 @pytest.mark.parametrize("cfg", ["scenario.sumocfg", "start.sumocfg"])
 def test_stock_sumo_runs_the_fill(filled, cfg, tmp_path):
     from sumo_scendiff.core.tools import sumo_binary
@@ -160,6 +194,19 @@ def test_existing_output_needs_force(filled, capsys):
                                  ["--stride", "200"], ["--begin", "-5"]])
 def test_bad_values(tmp_path, capsys, bad):
     _fail(capsys, "-n", NET, "-o", str(tmp_path / "o"), *bad)
+
+
+@pytest.mark.parametrize("n", ["0", "-2"])
+def test_workers_must_be_positive(tmp_path, capsys, n):
+    err = _fail(capsys, "-n", NET, "-o", str(tmp_path / "o"), "--workers", n)
+    assert "--workers" in err and not os.path.exists(tmp_path / "o")
+
+
+def test_ray_address_without_ray(tmp_path, capsys, monkeypatch):
+    """Without Ray, --ray-address stops in one line naming the flag, as the sweep's --engine ray."""
+    monkeypatch.setitem(sys.modules, "ray", None)     # import ray raises ImportError
+    err = _fail(capsys, "-n", NET, "-o", str(tmp_path / "o"), "--ray-address", "127.0.0.1:6379")
+    assert "--ray-address" in err and "needs Ray" in err
 
 
 def test_density_needs_the_condition(tmp_path, capsys):

@@ -130,13 +130,22 @@ def methods_for(net: Network, pool: SceneStore, models: dict, seed: int):
            ("Lane-uniform", lambda gts: [lane.generate(g.window, index=i) for i, g in enumerate(gts)]),
            ("Lane-uniform (true count)",
             lambda gts: [lane.generate(g.window, n=len(g), index=i) for i, g in enumerate(gts)])]
-    for name, gen in models.items():  # map-only generation: no agent tokens, p_mask = 1
-        out.append((name, lambda gts, gen=gen: gen.generate(net, [g.window for g in gts], seed=seed)))
+    # map-only generation (no agent tokens, p_mask = 1) with the traffic lights of the recorded moment,
+    # as a host simulation gives them
+    for name, gen in models.items():
+        out.append((name, lambda gts, gen=gen: gen.generate(net, [g.window for g in gts], seed=seed,
+                                                            signals=lights_of(gts))))
     for name, gen in models.items():  # told each window's true count, as `run --vehicles N` is
         if gen.has_density:
             out.append((f"{name} (true count)", lambda gts, gen=gen: gen.generate(
-                net, [g.window for g in gts], seed=seed, density=[true_density(net, g) for g in gts])))
+                net, [g.window for g in gts], seed=seed, density=[true_density(net, g) for g in gts],
+                signals=lights_of(gts))))
     return out
+
+
+def lights_of(scenes) -> list[dict | None]:
+    """The traffic lights' states each recorded scene holds (None where its recording has none)."""
+    return [s.meta.get("signals") or None for s in scenes]
 
 
 def true_density(net: Network, scene) -> float:

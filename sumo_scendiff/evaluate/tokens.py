@@ -43,7 +43,7 @@ def _run(generator, net, gts, keeps, features, p_mask, seed, config=None, bar=No
     """One generation run over every window (a step of ``bar``, a tqdm, when given)."""
     tokens = [token_dicts(g, k, features) for g, k in zip(gts, keeps)]
     gen = generator.generate(net, [g.window for g in gts], tokens=tokens, p_mask=p_mask, seed=seed,
-                             config=config)
+                             config=config, signals=[g.meta.get("signals") or None for g in gts])
     if bar is not None:
         bar.update(1)
     return gen, [g.select(k) for g, k in zip(gts, keeps)]

@@ -3,6 +3,7 @@
     python -m sumo_scendiff.fill -n city.net.xml -o filled/                 # the model's prior
     python -m sumo_scendiff.fill -n city.net.xml --density 25 -o filled/    # needs a density model
     python -m sumo_scendiff.fill -c scenario.sumocfg --begin 28800 -o filled/
+    python -m sumo_scendiff.fill -n city.net.xml --workers 2 -o filled/    # the same fill, 2 processes
     sumo -c filled/scenario.sumocfg        # from the saved state;  filled/start.sumocfg: portable
 
 Overlapping 100 m tiles (--stride apart) cover every car lane (or --area); they are generated in
@@ -29,8 +30,8 @@ class FillError(Exception):
 
 
 def get_options(args=None):
-    from ..generation.config import GenerationConfig, SettingError
     from ..core.cli import HelpFormatter, description, epilog
+    from ..generation.config import GenerationConfig, SettingError
     p = argparse.ArgumentParser(prog=PROG, description=description(__doc__), epilog=epilog(__doc__),
                                 formatter_class=HelpFormatter)
     p.add_argument("-c", "--configuration-file", dest="config", metavar="FILE",
@@ -54,6 +55,12 @@ def get_options(args=None):
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("--step-length", type=float, default=0.5)
     p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="processes generating a colour's tiles side by side, each loading the model once "
+                        "(default 1: this one); the same seed gives the same fill with any number")
+    p.add_argument("--ray-address", default=None, metavar="ADDR",
+                   help="generate on --workers Ray actors of the cluster at ADDR (HOST:PORT, auto; local: "
+                        "a new local instance); they read the network and checkpoint at the same paths")
     p.add_argument("-o", "--output-dir", dest="out", default="filled")
     p.add_argument("--force", action="store_true", help="replace an existing -o")
     p.add_argument("-v", "--verbose", action="store_true")
@@ -75,6 +82,14 @@ def get_options(args=None):
         p.error("--density: 'auto' is not a fill's level; give --edge-data, demand (-c/-r), or a number")
     if not 0.0 < o.p_mask <= 1.0:
         p.error(f"--p-mask must be in (0, 1], got {o.p_mask}")
+    if o.workers < 1:
+        p.error(f"--workers must be >= 1, got {o.workers}")
+    if o.ray_address is not None:
+        from ..core.pool import EngineError, import_ray
+        try:
+            import_ray("--ray-address")
+        except EngineError as e:
+            p.error(str(e))
     if o.step_length <= 0:
         p.error("--step-length must be > 0")
     if o.begin is not None and not o.begin >= 0:
@@ -131,12 +146,13 @@ def run(o, folder: str) -> dict:
     from ..generation.generator import GenerationConfig, ScenarioGenerator
     from ..map.network import Network
     from ..map.raster import RasterConfig
-    from ..sim.scenario import ScenarioError, scenario_from_files
     from ..sim.lights import initial_light_states
+    from ..sim.scenario import ScenarioError, scenario_from_files
     from ..sim.sumo import SimConfig
     from .output import write_outputs
     from .plan import fill_network
     from .tiles import TileError, tile_grid
+    from .workers import tile_engine
 
     progress = sys.stderr.isatty() or o.verbose
     timing, t = {}, time.perf_counter()
@@ -162,20 +178,27 @@ def run(o, folder: str) -> dict:
         raise FillError(f"--area: no car lane inside {','.join(f'{v:g}' for v in o.area)} (the network's "
                         f"car lanes span {','.join(f'{v:.0f}' for v in net.bounds)})")
     gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig.from_options(o))
-    targets, applied, source = _amount(o, net, gen, tiles, routes, begin)
-    timing["load"] = time.perf_counter() - t
+    # started here, the workers load their model while this process prepares the rest
+    with tile_engine(net, gen, o.workers, o.ray_address, o.checkpoint) as engine:
+        targets, applied, source = _amount(o, net, gen, tiles, routes, begin)
+        timing["load"] = time.perf_counter() - t
 
-    cfg = SimConfig(net=scen.net, additional=scen.additional, step_length=o.step_length, seed=o.seed,
-                    begin=begin)
-    t = time.perf_counter()
-    # the lights as SUMO's programs show them at the start: the fill agrees with them
-    signals = initial_light_states(cfg) if net.signal_links else None
-    timing["lights"] = time.perf_counter() - t
-    t = time.perf_counter()
-    result = fill_network(net, gen, tiles, seed=o.seed, p_mask=o.p_mask, targets=targets,
-                          use_density=applied, area=o.area, progress=progress, signals=signals)
-    timing["generate"] = time.perf_counter() - t
-    doc = write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing, progress)
+        cfg = SimConfig(net=scen.net, additional=scen.additional, step_length=o.step_length, seed=o.seed,
+                        begin=begin)
+        t = time.perf_counter()
+        # the lights as SUMO's programs show them at the start: the fill agrees with them
+        signals = initial_light_states(cfg) if net.signal_links else None
+        timing["lights"] = time.perf_counter() - t
+        t = time.perf_counter()
+        result = fill_network(net, gen, tiles, seed=o.seed, p_mask=o.p_mask, targets=targets,
+                              use_density=applied, area=o.area, progress=progress, signals=signals,
+                              engine=engine)
+        timing["generate"] = time.perf_counter() - t
+    workers = {"count": o.workers, "engine": "ray" if o.ray_address is not None else "local",
+               "ray_address": o.ray_address,
+               "note": "the fill does not depend on the workers: each tile's noise is its own and the "
+                       "model calls are cut from the plan alone"}
+    doc = write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing, progress, workers)
     return doc
 
 
@@ -185,6 +208,7 @@ def _interrupt(signum, frame):
 
 def main(o) -> int:
     from ..core.outputs import OutputError, claim, clean_stale, partial_path
+    from ..core.pool import EngineError
     from ..map.network import NetworkError
     from ..model.checkpoint import CheckpointError
     from ..sim.sumo import SimError
@@ -204,7 +228,7 @@ def main(o) -> int:
                     raise FillError(f"-o: {o.out}: was written by another run meanwhile")
                 shutil.rmtree(out) if os.path.isdir(out) else os.remove(out)
             owner.rename(out)   # complete: only now the folder has its name
-    except (FillError, NetworkError, CheckpointError, SimError, OutputError, InflowError) as e:
+    except (FillError, NetworkError, CheckpointError, SimError, OutputError, InflowError, EngineError) as e:
         _abandon(owner)
         o.parser.exit(2, f"{PROG}: error: {e}\n")
     except KeyboardInterrupt:
@@ -216,7 +240,8 @@ def main(o) -> int:
     print(f"filled {len(doc['tiles'])} tiles: {s['vehicles']} vehicles seeded ({s['placed']} at their pose, "
           f"{s['refused']} refused), {s['density_veh_per_km']} veh/km of car lane; "
           f"density source: {doc['density']['kind']}" + ("" if doc["density"]["applied"] else " (not applied)"))
-    print("timing (s): " + ", ".join(f"{k} {v:.1f}" for k, v in doc["timing_s"].items()))
+    print("timing (s): " + ", ".join(f"{k} {v:.1f}" for k, v in doc["timing_s"].items())
+          + (f" ({o.workers} workers)" if o.workers > 1 else ""))
     print(f"wrote {o.out} (run it: sumo -c {os.path.join(o.out, 'scenario.sumocfg')})")
     return 0
 

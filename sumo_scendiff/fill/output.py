@@ -7,9 +7,9 @@ import time
 
 import numpy as np
 
+from ..sim.export import write_sumocfg
 from ..sim.sumo import close
 from .picture import draw_fill, edge_density
-from ..sim.export import write_sumocfg
 from .seed import seed_fill, write_inflow, write_start_routes
 from .tiles import scene_rows
 
@@ -39,7 +39,8 @@ def _agents(result, reports) -> list[dict]:
     return out
 
 
-def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing, progress) -> dict:
+def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing, progress,
+                  workers: dict | None = None) -> dict:
     t = time.perf_counter()
     sim, reports = seed_fill(result, net, cfg, seed=o.seed, quiet=not o.verbose, progress=progress)
     try:
@@ -101,7 +102,7 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
                        "edges_with_vehicles": sum(v > 0 for v in dens.values())},
            "tiles": tiles, "agents": agents,
            "files": sorted(f for f in os.listdir(folder) if not f.startswith(".")) + ["fill.json"],
-           "timing_s": {k: round(v, 2) for k, v in timing.items()}}
+           "workers": workers, "timing_s": {k: round(v, 2) for k, v in timing.items()}}
     with open(os.path.join(folder, "fill.json"), "w") as f:
         json.dump(doc, f, indent=1)
     return doc

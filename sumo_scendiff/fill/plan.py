@@ -1,22 +1,27 @@
 """The fill of a whole network: every tile generated, colour by colour, around its neighbours.
 
     result = fill_network(net, gen, tiles, seed=0)          # default: the model's prior
+    with tile_engine(net, gen, workers=2) as engine:        # the same fill on two worker processes
+        result = fill_network(net, gen, tiles, seed=0, engine=engine)
     result.scenes[k]              # tile k's kept agents (its window's frame), what the Seeder seeds
     result.accepted.rows          # every kept vehicle, world frame
 
-Tile k starts from the noise of seed (seed, k) alone (``generate``'s ``noise_seeds``) and the batches
-are fixed (colour, then index), so a seed gives one fill whatever else changes around it. The global
+Tile k starts from the noise of seed (seed, k) alone (``generate``'s ``noise_seeds``), the batches
+are fixed (colour, then index), and so are the model calls they are cut into (:func:`tasks_of`), so a
+seed gives one fill whatever else changes around it, the number of workers included. The global
 token of a tile is the share of its window its pins do not describe (:func:`~.tiles.known_share`),
 times the user's ``p_mask`` (1: the model's prior).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .tiles import Accepted, Tile, colours, keep_core, known_share, pins_for, scene_rows
 
+TILES_PER_TASK = 8  # tiles per model call at most: a worker's share of a colour, and the bar's step
 MIN_P_MASK = 0.05    # a global token of 0 asks for the pins alone: keep the model adding the core's traffic
 
 
@@ -45,13 +50,27 @@ def tile_seed(seed: int, index: int) -> int:
     return int(np.random.SeedSequence([int(seed), int(index)]).generate_state(1)[0])
 
 
+def tasks_of(batch: list[Tile]) -> list[list[Tile]]:
+    """A colour's tiles cut into model calls: about eight groups (so that workers share the load), at
+    most ``TILES_PER_TASK`` tiles each. The cut depends on the colour alone, never on the worker
+    count: a model call's float sums may depend on what else is in its batch (tokens are padded to
+    the longest set, guidance runs for the batch), and the same seed must
+    give the same fill on one worker or many."""
+    size = max(1, min(TILES_PER_TASK, math.ceil(len(batch) / 8)))
+    return [batch[s:s + size] for s in range(0, len(batch), size)]
+
+
 def fill_network(net, gen, tiles: list[Tile], seed: int = 0, p_mask: float = 1.0,
                  targets: list[float | None] | None = None, use_density: bool = False,
                  area: tuple | None = None, progress: bool = False,
-                 signals: dict[str, str] | None = None) -> FillResult:
+                 signals: dict[str, str] | None = None, engine=None) -> FillResult:
     """Generate every tile; ``targets`` per tile (veh/km), given to the model with ``use_density``;
-    ``signals``: the traffic lights' states at the fill's time (``sim.lights.initial_light_states``)."""
+    ``signals``: the traffic lights' states at the fill's time (``sim.lights.initial_light_states``);
+    ``engine``: where the model calls run (:func:`~.workers.tile_engine`; default: ``gen`` here)."""
     from tqdm import tqdm
+
+    from .workers import tile_engine
+    engine = engine or tile_engine(net, gen)   # ``gen`` in this process: nothing to close
     accepted = Accepted()
     records = [TileRecord(t, target=None if targets is None else targets[t.index]) for t in tiles]
     scenes: list = [None] * len(tiles)
@@ -59,29 +78,27 @@ def fill_network(net, gen, tiles: list[Tile], seed: int = 0, p_mask: float = 1.0
     order: list[int] = []
     bar = tqdm(total=len(tiles), desc="tiles", unit=" tile", disable=not progress)
     for batch in colours(tiles):
-        tokens, pm = [], []
+        pins = {}
         for t in batch:
-            pins, idx = pins_for(t, accepted)
+            tokens, idx = pins_for(t, accepted)
             rec = records[t.index]
-            rec.pins, rec.pin_ids = len(pins), idx
+            rec.pins, rec.pin_ids = len(tokens), idx
             rec.p_mask = round(max(p_mask * (1.0 - known_share(net, t, owned)), MIN_P_MASK), 4)
-            tokens.append(pins)
-            pm.append(rec.p_mask)
-        density = [records[t.index].target for t in batch] if use_density else None
-        out = []
-        step = gen.config.batch_size    # one model call at a time, so the bar moves per call
-        for s in range(0, len(batch), step):
-            part = batch[s:s + step]
-            out += gen.generate(net, [t.window for t in part], tokens=tokens[s:s + step], p_mask=pm[s:s + step],
-                                noise_seeds=[tile_seed(seed, t.index) for t in part],
-                                density=None if density is None else density[s:s + step], signals=signals)
+            pins[t.index] = tokens
+        groups = tasks_of(batch)
+        tasks = [([t.window for t in g], [pins[t.index] for t in g], [records[t.index].p_mask for t in g],
+                  [tile_seed(seed, t.index) for t in g],
+                  [records[t.index].target for t in g] if use_density else None, signals) for g in groups]
+        out: dict[int, object] = {}
+        for k, part in engine.map_unordered(tasks):
+            out.update({t.index: scene for t, scene in zip(groups[k], part)})
             bar.update(len(part))
         # the batch's tiles do not overlap: each is checked against the earlier colours only, then
-        # added, in index order
-        for t, scene in zip(batch, out):
-            keep = keep_core(t, scene, accepted, area)
-            sub = scene.select(keep)
-            records[t.index].generated, records[t.index].kept = len(scene), len(sub)
+        # added, in index order (whichever worker finished first)
+        for t in batch:
+            keep = keep_core(t, out[t.index], accepted, area)
+            sub = out[t.index].select(keep)
+            records[t.index].generated, records[t.index].kept = len(out[t.index]), len(sub)
             scenes[t.index] = sub
             order.append(t.index)
         for t in batch:
@@ -91,4 +108,4 @@ def fill_network(net, gen, tiles: list[Tile], seed: int = 0, p_mask: float = 1.0
     return FillResult(tiles, records, scenes, accepted, order)
 
 
-__all__ = ["FillResult", "TileRecord", "fill_network", "tile_seed"]
+__all__ = ["FillResult", "TileRecord", "fill_network", "tasks_of", "tile_seed"]

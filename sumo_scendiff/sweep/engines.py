@@ -3,23 +3,19 @@
 Every engine hands whole tasks (scenarios sharing a network and sampler settings, see
 :func:`tasks`) to workers that each load the model once; progress is counted in scenarios as tasks
 finish. Workers of the local pool die with their parent (Linux ``PR_SET_PDEATHSIG``), so a sweep
-killed with SIGKILL leaves no orphan writing into the output directory.
+killed with SIGKILL leaves no orphan writing into the output directory. The pools are
+``core.pool``'s, shared with the whole-network fill.
 """
 from __future__ import annotations
 
 import math
-import os
 from itertools import groupby
 
-from ..core.procs import die_with_parent
+from ..core.pool import EngineError, LocalPool, RayPool
 from ..core.threads import GENERATION_THREADS
 from .spec import Scenario, Spec
 
 TASK_SIZE = 8   # scenarios per task: the model call batches them; small enough to balance workers
-
-
-class EngineError(RuntimeError):
-    """The engine cannot run (Ray missing, cluster unreachable): one line."""
 
 
 Task = tuple[list[Scenario], frozenset]   # (scenarios generated in one batch, ids done before)
@@ -52,23 +48,9 @@ def _threads(workers: int) -> int:
     return GENERATION_THREADS
 
 
-_WORKER = None
-
-
-def _init(spec: Spec, out: str, checkpoint: str | None, threads: int, parent: int) -> None:
-    global _WORKER
-    die_with_parent(parent)
-    from .worker import Worker
-    _WORKER = Worker(spec, out, checkpoint, threads=threads)
-
-
-def _run(task: Task) -> list[str]:
-    return _WORKER.run(*task)
-
-
 def run_local(all_tasks, spec: Spec, out: str, workers: int, checkpoint=None, bar=None) -> None:
+    from .worker import Worker
     if workers <= 1:
-        from .worker import Worker
         w = Worker(spec, out, checkpoint)
         try:
             for t in all_tasks:
@@ -78,38 +60,20 @@ def run_local(all_tasks, spec: Spec, out: str, workers: int, checkpoint=None, ba
         finally:
             w.close()
         return
-    import multiprocessing as mp
-    ctx = mp.get_context("spawn")
-    with ctx.Pool(workers, initializer=_init, initargs=(spec, out, checkpoint, _threads(workers), os.getpid())) as pool:
-        for done in pool.imap_unordered(_run, all_tasks):
+    with LocalPool(Worker, (spec, out, checkpoint), {"threads": _threads(workers)}, workers) as pool:
+        for _, done in pool.map_unordered(all_tasks):
             if bar is not None:
                 bar.update(len(done))
 
 
 def run_ray(all_tasks, spec: Spec, out: str, workers: int, checkpoint=None, bar=None,
             address: str | None = None) -> None:
-    try:
-        import ray
-        from ray.util import ActorPool
-    except ImportError:
-        raise EngineError("--engine ray needs Ray: pip install 'sumo-scendiff[ray]'") from None
     from .worker import Worker
-    started = not ray.is_initialized()
-    if started:
-        try:
-            kw = {"address": address} if address else {"num_cpus": workers}
-            ray.init(include_dashboard=False, logging_level="ERROR", log_to_driver=False, **kw)
-        except Exception as e:  # ConnectionError, ...: a cluster that is not there
-            raise EngineError(f"Ray: cannot start or reach {address or 'a local instance'} "
-                              f"({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
-    try:
-        actor = ray.remote(num_cpus=1)(Worker)
-        actors = [actor.remote(spec, out, checkpoint, threads=1) for _ in range(workers)]
-        pool = ActorPool(actors)
-        for done in pool.map_unordered(lambda a, t: a.run.remote(*t), all_tasks):
+    with RayPool(Worker, (spec, out, checkpoint), {"threads": 1}, workers, address,
+                 flag="--engine ray") as pool:
+        for _, done in pool.map_unordered(all_tasks):
             if bar is not None:
                 bar.update(len(done))
-        ray.get([a.close.remote() for a in actors])
-    finally:
-        if started:
-            ray.shutdown()
+
+
+__all__ = ["EngineError", "TASK_SIZE", "run_local", "run_ray", "tasks"]

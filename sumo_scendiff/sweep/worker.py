@@ -115,6 +115,7 @@ class Worker:
         from ..data.demand import DemandError
         from ..map.locations import LocationError
         from ..map.network import NetworkError
+        from ..sim.lights import light_states
         from ..sim.sumo import SimError
         from ..tokens.file import TokenFileError
         bad = (NetworkError, LocationError, TokenFileError, SimError, DemandError, OSError)
@@ -140,7 +141,8 @@ class Worker:
                 # after existing(): the session's simulation is at the seeding time
                 target = scenario_target(s, session.net, window, session.sim if entry.routes else None,
                                          self.checkpoint, self.generator.has_density)
-                ready.append((s, window, kind, tokens, sources, existing, p_mask, target))
+                lights = light_states(session.sim, session.net.lights_in(window))   # as the scene meets them
+                ready.append((s, window, kind, tokens, sources, existing, p_mask, target, lights))
             except bad + (DensityUnsupported,) as e:
                 if s.id not in done:
                     write_failure(self.out, s, str(e))
@@ -150,8 +152,9 @@ class Worker:
             scenes = self.generator.generate(session.net, [r[1] for r in ready], tokens=[r[3] for r in ready],
                                              p_mask=[r[6] for r in ready], config=cfg,
                                              noise_seeds=[noise_seed(r[0]) for r in ready],
-                                             density=targets if any(d is not None for d in targets) else None)
-            for (s, window, kind, tokens, sources, existing, p_mask, target), scene in zip(ready, scenes):
+                                             density=targets if any(d is not None for d in targets) else None,
+                                             signals=[r[8] for r in ready])
+            for (s, window, kind, tokens, sources, existing, p_mask, target, _), scene in zip(ready, scenes):
                 if s.id in done:
                     continue
                 info = {"scene": s.id, "location": kind, "sweep": {**s.params(), "kind": kind,
