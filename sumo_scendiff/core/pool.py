@@ -88,8 +88,13 @@ class LocalPool:
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
-        self.pool.terminate()   # every result is in (or nobody wants it): nothing left to finish
+    def __exit__(self, exc_type, *exc):
+        if exc_type is None:
+            # workers that exit on their own release what they registered with the parent's resource
+            # tracker (tqdm's lock): terminated ones leave "leaked semaphore" warnings on stderr
+            self.pool.close()
+        else:
+            self.pool.terminate()   # nobody wants the results
         self.pool.join()
         return False
 
