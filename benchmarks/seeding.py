@@ -96,8 +96,8 @@ def get_options(args=None):
                         "and write; lets a change to the seeder be measured on the very same scenes")
     p.add_argument("--no-junction-rule", dest="junction_rule", action="store_false",
                    help="seed agents on conflicting junction links as generated (sim.junctions off)")
-    p.add_argument("--no-signals", dest="signals", action="store_false",
-                   help="generate without the traffic lights' states at T (the model's 'unknown')")
+    p.add_argument("--signals", action="store_true",
+                   help="generate with the traffic lights' states at T (run's --signals)")
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("-o", "--output", default=None, metavar="FILE", help="also write the tables here")
     return p.parse_args(args)
@@ -168,7 +168,7 @@ def cached_scenes(path: str | None, name: str, windows: list, o, scenes: list | 
     import pickle
     if not path:
         return None
-    key = (name, o.checkpoint, o.seed, getattr(o, "signals", True), o.scene_guidance, o.scene_guidance_sigma, o.lane_snap, tuple((round(w.cx, 3), round(w.cy, 3), round(w.yaw, 4), w.size) for w in windows))
+    key = (name, o.checkpoint, o.seed, getattr(o, "signals", False), o.scene_guidance, o.scene_guidance_sigma, o.lane_snap, tuple((round(w.cx, 3), round(w.cy, 3), round(w.yaw, 4), w.size) for w in windows))
     cache = {}
     if os.path.exists(path):
         with open(path, "rb") as f:
@@ -354,7 +354,7 @@ def main(o) -> int:
         if not loaded:
             loaded.append(ScenarioGenerator.load(o.checkpoint, GenerationConfig(
                 scene_guidance=o.scene_guidance, scene_guidance_sigma=o.scene_guidance_sigma,
-                lane_snap=o.lane_snap)))
+                lane_snap=o.lane_snap, signals=o.signals)))
         return loaded[0]
     results = []
     for path in (o.nets or default_nets()):

@@ -266,7 +266,7 @@ def run(o) -> dict:
 
         t = time.perf_counter()
         # the lights as the simulation shows them now: the scene agrees with the signals it meets
-        lights = [light_states(session.sim, net.lights_in(w)) for w in windows]
+        lights = [light_states(session.sim, net.lights_in(w)) if gen.config.signals else None for w in windows]
         maps = np.stack([render_map(net, w, gen.raster, signals=s) for w, s in zip(windows, lights)])
         timing["raster"] = time.perf_counter() - t
 

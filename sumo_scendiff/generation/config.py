@@ -69,6 +69,10 @@ class GenerationConfig:
         True, "vehicles on a junction keep the decoder's own heading (default: the heading of the "
         "network's lane through them that the heading head finds most probable, lane_heading.py)",
         kind=bool, flag="--no-lane-headings")
+    signals: bool = _setting(
+        False, "the model sees each traffic light's state at the seeding moment, from the simulation "
+        "(map/signals.py: queues at red, flows through green); off by default: on the hand-off "
+        "benchmark the lights gave no fewer collisions (docs/evaluation.md)", kind=bool, flag="--signals")
     lane_snap: bool = _setting(
         True, "vehicles keep their decoded pose (default: a pose within 3 m of an agreeing car lane "
         "moves onto its centre line and takes its heading, as SUMO's traffic drives; a vehicle on no "
@@ -95,8 +99,9 @@ class GenerationConfig:
             m = f.metadata
             if "help" not in m:
                 continue
-            if m["kind"] is bool:   # on by default: the flag turns it off
-                group.add_argument(cls.flag(f.name), dest=f.name, action="store_false", help=m["help"])
+            if m["kind"] is bool:   # the flag turns the default around
+                group.add_argument(cls.flag(f.name), dest=f.name, help=m["help"],
+                                   action="store_false" if f.default else "store_true")
                 continue
             shown = "" if f.default is None else " (default: %(default)s)"
             group.add_argument(cls.flag(f.name), dest=f.name, type=m["kind"], default=f.default,
@@ -168,4 +173,4 @@ class GenerationConfig:
                 "lane_headings": self.lane_headings, "lane_snap": self.lane_snap, "guidance": self.guidance,
                 "scene_guidance": generator.scene_guidance_for(self),
                 "scene_guidance_sigma": generator.scene_guidance_sigma_for(self),
-                "deliver_tokens": self.deliver_tokens}
+                "deliver_tokens": self.deliver_tokens, "signals": self.signals}

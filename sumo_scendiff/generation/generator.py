@@ -252,7 +252,7 @@ class ScenarioGenerator:
         ``signals``: the traffic lights' states at the scene's time (tls id -> SUMO state string),
         one dict for all windows or one per window (``sim.lights.light_states``); None: unknown.
         Each scene keeps its window's in ``meta["signals"]``; given ``maps``, render those with the
-        same states. A model that predates the signal channels ignores them.
+        same states. Used with ``config.signals`` only; a model that predates the channels ignores them.
         """
         cfg = config or self.config
         n = len(windows)
@@ -269,7 +269,7 @@ class ScenarioGenerator:
             raise ValueError(f"{len(noise_seeds)} noise seeds for {n} windows")
         keys = [[int(s)] for s in noise_seeds] if noise_seeds is not None else [[seed, i] for i in range(n)]
         seeds = [int(np.random.SeedSequence(k).generate_state(1)[0]) for k in keys]
-        sig = list(signals) if isinstance(signals, (list, tuple)) else signals
+        sig = (list(signals) if isinstance(signals, (list, tuple)) else signals) if cfg.signals else None
         if isinstance(sig, list) and len(sig) != n:
             raise ValueError(f"{len(sig)} signal states for {n} windows")
         out: list[Scene] = []

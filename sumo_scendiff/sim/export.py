@@ -68,8 +68,10 @@ def scene_document(seeding, net, sim, info: dict) -> dict:
 
 def _vehicle_xml(sim, vid: str, net) -> tuple[str, str, str, bool]:
     """(vType, route, vehicle) XML for a present vehicle departing where it stands now, and
-    whether that is exact (a vehicle cannot depart inside a junction: those start at the end of
-    the lane leading into it)."""
+    whether that is exact. A vehicle cannot depart inside a junction: one there starts on the edge it
+    is entering, its rear at the edge's start (where it is a moment later; behind, at the stop line it
+    has passed, a queue may stand), and with SUMO's insertion checks, so that it waits rather than
+    departs into a vehicle."""
     tid = sim.vehicle.getTypeID(vid)
     vt = sim.vehicletype
     vtype = (f'    <vType id={quoteattr(tid)} vClass="{vt.getVehicleClass(tid)}" length="{vt.getLength(tid):.3f}" '
@@ -80,13 +82,17 @@ def _vehicle_xml(sim, vid: str, net) -> tuple[str, str, str, bool]:
     if exact:
         pos, lane_index = sim.vehicle.getLanePosition(vid), sim.vehicle.getLaneIndex(vid)
         lat = sim.vehicle.getLateralLanePosition(vid)
+    elif len(edges) > 1:
+        edges = edges[1:]
+        nxt = net.sumo_net.getEdge(edges[0])
+        pos, lane_index, lat = min(vt.getLength(tid), nxt.getLength() - 0.1), "best", 0.0
     else:
         first = net.sumo_net.getEdge(edges[0])
         pos, lane_index, lat = first.getLength() - 0.1, "best", 0.0
     route = f'    <route id={quoteattr(vid + "_replay")} edges="{" ".join(edges)}"/>'
     veh = (f'    <vehicle id={quoteattr(vid)} type={quoteattr(tid)} route={quoteattr(vid + "_replay")} '
            f'depart="0" departLane="{lane_index}" departPos="{pos:.3f}" departPosLat="{lat:.3f}" '
-           f'departSpeed="{sim.vehicle.getSpeed(vid):.3f}" insertionChecks="none"/>')
+           f'departSpeed="{sim.vehicle.getSpeed(vid):.3f}"' + (' insertionChecks="none"/>' if exact else '/>'))
     return vtype, route, veh, exact
 
 
