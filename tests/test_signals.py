@@ -70,3 +70,16 @@ def test_recorded_scenes_carry_the_light_states_through_a_shard(cross_net, tmp_p
     seen = SceneDataset(str(tmp_path), rotate=False)[len(scenes)]["map"]
     hidden = SceneDataset(str(tmp_path), rotate=False, p_no_signals=1.0)[len(scenes)]["map"]
     assert seen[[GO, STOP]].sum() > 0 and hidden[[GO, STOP]].sum() == 0
+
+
+def test_the_generator_takes_the_lights_only_when_asked(cross_net):
+    from sumo_scendiff.generation.generator import GenerationConfig, ScenarioGenerator
+    net = Network.load(cross_net)
+    state = "G" * len(net.signal_links)
+    w = [Window(0.0, 0.0, 0.0, 100.0)]
+    off = ScenarioGenerator.load(None, GenerationConfig(steps=2)).generate(net, w, signals={"c": state})[0]
+    on = ScenarioGenerator.load(None, GenerationConfig(steps=2, signals=True)).generate(
+        net, w, signals={"c": state, "elsewhere": "r"})[0]
+    assert "signals" not in off.meta
+    assert on.meta["signals"] == {"c": state}   # the window's lights, as scene.json records them
+    assert GenerationConfig(signals=True).record(ScenarioGenerator.load(None))["signals"] is True
