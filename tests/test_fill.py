@@ -59,8 +59,71 @@ def test_folder_is_complete_and_published(filled):
     assert not any(".partial" in n for n in os.listdir(os.path.dirname(out)))
     assert ".lock" not in names
     assert doc["density"]["kind"] == "prior" and doc["summary"]["vehicles"] > 0
+    assert doc["inflow"]["file"] == "inflow.rou.xml" and doc["inflow"]["rate"]["probe"]["mean_speed_ms"] > 0
     # every car lane of the network lies in some tile's core
     assert sum(t["car_lane_km"] for t in doc["tiles"]) > 0
+
+
+def test_inflow_rate_from_the_filled_network(filled):
+    """fill.json records how the inflow's rate was found: the probe's measured speed (standing vehicles
+    included, so below the free-flow speed of a network with junctions), the trip time from it, and the
+    period Little's law gives; the probe's replacements are the file's first departures."""
+    out, doc = filled
+    inflow = doc["inflow"]
+    rate, probe = inflow["rate"], inflow["rate"]["probe"]
+    assert probe["seconds"] > 0 and 0 < probe["mean_speed_ms"] < 13.9
+    assert rate["measured_speed_ms"] == probe["mean_speed_ms"]
+    assert rate["measured_trip_s"] == pytest.approx(rate["route_m"] / probe["mean_speed_ms"], abs=0.2)
+    assert inflow["trip_s"] == max(rate["measured_trip_s"], rate["free_flow_trip_s"])
+    assert inflow["period_s"] == pytest.approx(inflow["trip_s"] / doc["summary"]["vehicles"], abs=2e-3)
+    text = (out / "inflow.rou.xml").read_text()
+    assert text.count("<vehicle ") == inflow["probe_departures"] == probe["replaced"]
+    trips = [float(t.split('depart="')[1].split('"')[0]) for t in text.split("<trip ")[1:]]
+    assert trips and min(trips) >= inflow["steady_from"] > doc["state_time"]
+
+
+def test_inflow_period_follows_the_measured_speed(tmp_path):
+    """Half the free-flow speed: twice the trip time, twice the period; a measured speed faster than
+    free flow does not shorten it (the slower of the two)."""
+    from sumo_scendiff.fill import seed as fs
+    from sumo_scendiff.map.network import Network
+    net = Network.load(NET4)
+    sample = fs.inflow_sample(net, 0.0, 0)
+    free_speed = fs.route_metres(net, sample) / fs.trip_seconds(net, sample)   # m/s over the routes at free flow
+    free = fs.write_inflow(str(tmp_path / "free.rou.xml"), net, 100, 0.0, 0, sample=sample)
+    half = fs.write_inflow(str(tmp_path / "half.rou.xml"), net, 100, 0.0, 0, speed=free_speed / 2, sample=sample)
+    fast = fs.write_inflow(str(tmp_path / "fast.rou.xml"), net, 100, 0.0, 0, speed=free_speed * 2, sample=sample)
+    assert free["rate"]["trip_s_from"] == "free flow" and half["rate"]["trip_s_from"] == "measured"
+    assert half["period_s"] == pytest.approx(2 * free["period_s"], rel=0.01)
+    assert fast["period_s"] == free["period_s"]
+    n = [(tmp_path / f"{k}.rou.xml").read_text().count("<trip ") for k in ("free", "half")]
+    assert n[1] == pytest.approx(n[0] / 2, rel=0.05)
+
+
+def test_probe_keeps_the_filled_number(filled):
+    """The probe on a filled network (its saved state in SUMO, no inflow): vehicles that leave are
+    replaced by the sample's trips, so the count stays near the filled one, and the speed it measures
+    is that of a moving network with stops, below the limits."""
+    from sumo_scendiff.fill.seed import inflow_sample, probe_speed
+    from sumo_scendiff.map.network import Network
+    from sumo_scendiff.sim.sumo import SimConfig, close, start
+    out, doc = filled
+    net = Network.load(NET)
+    sample = inflow_sample(net, 0.0, 0)
+    sim = start(SimConfig(net=NET, begin=doc["state_time"], extra=("--load-state", str(out / "state.xml.gz"))))
+    try:
+        n0 = sim.vehicle.getIDCount()
+        probe = probe_speed(sim, sample, seconds=30.0, settle=30.0)
+        assert abs(sim.vehicle.getIDCount() + len(sim.simulation.getPendingVehicles()) - n0) <= 1
+    finally:
+        close(sim)
+    rec = probe.record
+    assert n0 == doc["summary"]["vehicles"] and rec["settle_s"] == rec["seconds"] == 30.0
+    assert 0.5 < rec["mean_speed_ms"] < 13.9 and rec["vehicles_mean"] >= 0.8 * n0
+    assert rec["replaced"] == len(probe.departures) > 0       # the 3x3 grid has no fringe: they leave
+    times = [t for t, _ in probe.departures]
+    assert times == sorted(times) and doc["state_time"] < times[0] and times[-1] <= probe.until
+    assert all(r in sample for _, r in probe.departures)
 
 
 def test_no_overlap_and_no_duplicates(filled):
@@ -156,8 +219,10 @@ def test_stock_sumo_runs_the_fill(filled, cfg, tmp_path):
     assert "Error" not in run.stderr
     steps = [line for line in summary.read_text().splitlines() if "<step " in line]
     first = steps[0]
-    running = int(first.split('running="')[1].split('"')[0])
-    assert running >= doc["summary"]["vehicles"] - 1       # the fill is on the road from the start
+    running, arrived = (int(first.split(f'{k}="')[1].split('"')[0]) for k in ("running", "arrived"))
+    # the fill is on the road from the start; one seeded at the very end of an edge leaving the
+    # network has arrived by the end of the first step
+    assert running + arrived >= doc["summary"]["vehicles"] - 1
     assert all('collisions="0"' in s for s in steps[:4])
 
 

@@ -10,7 +10,13 @@ import numpy as np
 from ..sim.export import write_sumocfg
 from ..sim.sumo import close
 from .picture import draw_fill, edge_density
-from .seed import seed_fill, write_inflow, write_start_routes
+from .seed import (
+    inflow_sample,
+    probe_speed,
+    seed_fill,
+    write_inflow,
+    write_start_routes,
+)
 from .tiles import scene_rows
 
 FORMAT, VERSION = "sumo-scendiff-fill", 1
@@ -51,10 +57,19 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
         ids = [a["vehicle"] for a in agents if a["vehicle"] in present]
         sim.simulation.saveState(os.path.join(folder, "state.xml.gz"))
         exact = write_start_routes(os.path.join(folder, "start.rou.xml"), sim, ids, net, cfg.begin or 0.0)
+        state_time = float(sim.simulation.getTime())
         inflow = {"file": None, "reason": "the demand continues (its route files are in the configurations)"}
         if not routes:
-            inflow = write_inflow(os.path.join(folder, "inflow.rou.xml"), net, len(ids), cfg.begin or 0.0, o.seed)
-        state_time = float(sim.simulation.getTime())
+            # the state and start routes are written: now drive the filled network on, with the
+            # inflow's own trips replacing those that leave, to see how fast it flows when held
+            # (seed.probe_speed); those replacements are the inflow's first departures
+            t_probe = time.perf_counter()
+            sample = inflow_sample(net, cfg.begin or 0.0, o.seed)
+            probe = probe_speed(sim, sample) if ids and sample else None
+            inflow = write_inflow(os.path.join(folder, "inflow.rou.xml"), net, len(ids), cfg.begin or 0.0,
+                                  o.seed, sample=sample, probe=probe)
+            timing["inflow"] = time.perf_counter() - t_probe
+            t += timing["inflow"]       # export: the rest
     finally:
         close(sim)
     onward = list(routes) + ([os.path.join(folder, inflow["file"])] if inflow.get("file") else [])

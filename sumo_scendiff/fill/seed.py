@@ -18,6 +18,7 @@ import re
 import subprocess
 import sys
 import tempfile
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -27,6 +28,19 @@ from ..sim.sumo import start
 from .demand import TYPICAL_SPEED_FACTOR
 
 INFLOW_SECONDS = 3600.0     # how long the continuing inflow runs after the start
+SAMPLE_TRIPS = 200          # random trips: their mean route gives the trip time; the probe's replacements
+# The probe (probe_speed) drives the filled network on, keeping its number of vehicles, for
+# SETTLE_SECONDS unmeasured, then measures its mean speed for PROBE_SECONDS. Both are one cycle of
+# netconvert's default signal programs (90 s; grid4x4_2lane_tls's too): the speed swings with the
+# phases (on that grid between 2 and 7 m/s within a cycle), so a window of whole cycles sees every
+# approach's green and red once. The first cycle is not measured: in it the generated start turns into
+# SUMO's own queues (and on a closed grid nine in ten seeded vehicles reach their route's end and are
+# replaced), and it flows faster than the held network: on that grid a fill of 457 vehicles (30 veh/km)
+# ran at 4.2 m/s in the first cycle, a rate that grew to gridlock (80 veh/km) within 30 min, and at
+# 2.8 m/s in the second. Measuring two cycles instead of one cost time and changed little (3.38 against
+# 3.46 m/s on a fill of 430 vehicles there).
+SETTLE_SECONDS = 90.0
+PROBE_SECONDS = 90.0
 
 
 class InflowError(RuntimeError):
@@ -93,13 +107,14 @@ def fringe_sources(net) -> list[str]:
     return sorted(out)
 
 
-def _random_trips(net_file: str, path: str, begin: float, period: float, seed: int, fringe: bool) -> list[list[str]]:
+def _random_trips(net_file: str, path: str, begin: float, period: float, seed: int, fringe: bool,
+                  end: float | None = None) -> list[list[str]]:
     """Run randomTrips.py (validated by duarouter: every trip has a route) into ``path``; returns
     the routes it found. Its intermediate files stay in a temporary folder."""
     from ..core.tools import sumo_home, sumo_tool
     args = [sys.executable, sumo_tool("randomTrips.py"), "-n", os.path.abspath(net_file),
             "-o", os.path.abspath(path), "-r", "routes.rou.xml", "-b", f"{begin:g}",
-            "-e", f"{begin + INFLOW_SECONDS:g}", "-p", f"{period:.3f}", "--seed", str(seed),
+            "-e", f"{begin + INFLOW_SECONDS if end is None else end:g}", "-p", f"{period:.3f}", "--seed", str(seed),
             "--prefix", "inflow", "--vehicle-class", "passenger", "--edge-permission", "passenger",
             "--validate"] + (["--fringe-factor", "max"] if fringe else [])
     with tempfile.TemporaryDirectory(prefix="scendiff-inflow-") as work:
@@ -123,24 +138,144 @@ def trip_seconds(net, routes: list[list[str]]) -> float:
     return float(np.mean(times)) if times else 0.0
 
 
-def write_inflow(path: str, net, vehicles: int, begin: float, seed: int) -> dict:
+def route_metres(net, routes: list[list[str]]) -> float:
+    """The mean length of the routes, junctions (internal lanes) included: the distance a trip drives."""
+    from sumolib.route import getLength
+    snet = net.sumo_net
+    lengths = [getLength(snet, [e for e in r if snet.hasEdge(e)]) for r in routes]
+    return float(np.mean(lengths)) if lengths else 0.0
+
+
+def inflow_sample(net, begin: float, seed: int) -> list[list[str]]:
+    """The routes of the first :data:`SAMPLE_TRIPS` random trips the inflow is drawn from (fringe or
+    anywhere, as :func:`write_inflow`), validated by duarouter; [] if randomTrips.py finds none."""
+    with tempfile.TemporaryDirectory(prefix="scendiff-sample-") as work:
+        return _random_trips(net.path, os.path.join(work, "sample.rou.xml"), begin,
+                             INFLOW_SECONDS / SAMPLE_TRIPS, seed, bool(fringe_sources(net)))
+
+
+@dataclass
+class Probe:
+    """What :func:`probe_speed` saw: ``record`` for fill.json (the speed in ``mean_speed_ms``), the
+    replacements it made (``departures``: time, route), and the simulation time it ended at."""
+    record: dict
+    departures: list = field(default_factory=list)
+    until: float = 0.0
+
+    @property
+    def speed(self) -> float | None:
+        return self.record.get("mean_speed_ms")
+
+
+def probe_speed(sim, routes: list[list[str]], seconds: float = PROBE_SECONDS, settle: float = SETTLE_SECONDS,
+                prefix: str = "probe") -> Probe:
+    """Drive the (filled) simulation ``sim`` on for ``settle`` + ``seconds`` and measure, over the last
+    ``seconds``, the network's space-mean speed: the sum of every present vehicle's speed over the steps
+    / the vehicle-steps, standing vehicles included (Little's law needs the real mean: stops at red and
+    in queues count).
+
+    The number of vehicles is kept: each vehicle that arrives is replaced at once by the next of
+    ``routes`` (the inflow's own trips, departing as they will: speed 0 at the start of the first
+    edge). Without that the probe would measure an emptying network, faster than the held one (on a
+    closed grid the seeded vehicles' routes end within seconds). Those replacements are the inflow's
+    first departures (:func:`write_inflow`). Changes ``sim``: call it after the state and start routes
+    are written."""
+    dt = float(sim.simulation.getDeltaT())
+    n_settle, n_probe = int(round(settle / dt)), max(int(round(seconds / dt)), 1)
+    known = set(sim.route.getIDList())
+    sums = {"settle": [0.0, 0], "probe": [0.0, 0]}     # speed sum, vehicle-steps
+    counts, departures = [], []
+    for step in range(n_settle + n_probe):
+        sim.simulationStep()
+        now = float(sim.simulation.getTime())
+        for _gone in sim.simulation.getArrivedIDList():
+            if not routes:
+                break
+            k = len(departures)
+            rid = f"{prefix}.r{k % len(routes)}"
+            if rid not in known:
+                sim.route.add(rid, routes[k % len(routes)])
+                known.add(rid)
+            sim.vehicle.add(f"{prefix}.{k}", rid, typeID="DEFAULT_VEHTYPE", depart="now")
+            departures.append((now, routes[k % len(routes)]))
+        ids = sim.vehicle.getIDList()
+        acc = sums["settle" if step < n_settle else "probe"]
+        acc[0] += sum(sim.vehicle.getSpeed(v) for v in ids)
+        acc[1] += len(ids)
+        if step >= n_settle:
+            counts.append(len(ids))
+
+    def mean(key):
+        total, n = sums[key]
+        return round(total / n, 3) if n else None
+    record = {"settle_s": round(n_settle * dt, 3), "seconds": round(n_probe * dt, 3),
+              "mean_speed_ms": mean("probe"), "settle_speed_ms": mean("settle"),
+              "vehicles_mean": round(float(np.mean(counts)), 1), "vehicles_min": int(min(counts)),
+              "replaced": len(departures), "waiting_to_enter": len(sim.simulation.getPendingVehicles())}
+    return Probe(record, departures, float(sim.simulation.getTime()))
+
+
+def _prepend_departures(path: str, departures: list) -> None:
+    """Write ``departures`` (time, route) as vehicles into the randomTrips.py file ``path``, before its
+    trips (which start after them: SUMO reads a route file's departures in order), of its vType."""
+    from xml.sax.saxutils import quoteattr
+    with open(path) as f:
+        text = f.read()
+    vtype = re.search(r'<vType id="([^"]+)"', text)
+    typ = f' type="{vtype.group(1)}"' if vtype else ""
+    rows = "".join(f'    <vehicle id="inflow_probe{i}" depart="{t:.2f}"{typ}><route edges={quoteattr(" ".join(r))}/>'
+                   f'</vehicle>\n' for i, (t, r) in enumerate(departures))
+    cut = min(i for i in (text.find("    <trip "), text.find("<trip "), text.rfind("</routes>")) if i >= 0)
+    with open(path, "w") as f:
+        f.write(text[:cut] + rows + text[cut:])
+
+
+def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: float | None = None,
+                 sample: list[list[str]] | None = None, probe: Probe | None = None) -> dict:
     """inflow.rou.xml: randomTrips.py trips from the fringe (or anywhere, for a network without
     one) at the rate that holds ``vehicles`` on the network: in a steady state as many enter as
-    leave, ``vehicles / trip time`` per second (Little's law). The trip time is measured on a first
-    sample of the same random trips (their routes at free flow), then the file is drawn at that rate."""
+    leave, ``vehicles / trip time`` per second (Little's law).
+
+    The trip time is the mean route length of a first sample of the same random trips (``sample``,
+    else drawn here: :func:`inflow_sample`) over ``speed`` (m/s; default the ``probe``'s), the
+    filled network's measured mean speed, but never shorter than those routes at free flow (0.7 x
+    the speed limits: a rate too high feeds itself, more vehicles, slower trips, gridlock). Without
+    a speed the free-flow time alone. With a ``probe`` its replacements are the file's first
+    departures (they kept the filled number while the seeded vehicles left) and the trips at the
+    rate follow from its end."""
     if vehicles <= 0:
         return {"file": None, "reason": "no vehicles to hold"}
     sources = fringe_sources(net)
-    sample = _random_trips(net.path, path, begin, INFLOW_SECONDS / 200.0, seed, bool(sources))
-    trip_s = trip_seconds(net, sample)
-    if trip_s <= 0:
-        os.remove(path)
+    if sample is None:
+        sample = inflow_sample(net, begin, seed)
+    free_s, metres = trip_seconds(net, sample), route_metres(net, sample)
+    if free_s <= 0 or metres <= 0:
         return {"file": None, "reason": "randomTrips.py found no route"}
+    if speed is None and probe is not None:
+        speed = probe.speed
+    measured_s = metres / speed if speed else None
+    trip_s = max(free_s, measured_s or 0.0)
     period = max(trip_s / vehicles, 0.1)
-    _random_trips(net.path, path, begin, period, seed, bool(sources))
-    return {"file": os.path.basename(path), "period_s": round(period, 3), "trip_s": round(trip_s, 1),
-            "from": "fringe" if sources else "anywhere (the network has no fringe)",
-            "fringe_sources": len(sources), "seconds": INFLOW_SECONDS}
+    steady = max(begin, probe.until) if probe is not None else begin
+    _random_trips(net.path, path, steady, period, seed, bool(sources), end=begin + INFLOW_SECONDS)
+    if probe is not None and probe.departures:
+        _prepend_departures(path, probe.departures)
+    rate = {"vehicles": vehicles, "sample_trips": len(sample), "route_m": round(metres, 1),
+            "free_flow_trip_s": round(free_s, 1),
+            "measured_speed_ms": None if speed is None else round(speed, 3),
+            "measured_trip_s": None if measured_s is None else round(measured_s, 1),
+            "trip_s_from": "measured" if measured_s is not None and measured_s >= free_s else "free flow",
+            "method": "period = trip_s / vehicles (Little's law); trip_s = the slower of route_m / the "
+                      "filled network's measured mean speed and the routes at 0.7 x the speed limits"}
+    out = {"file": os.path.basename(path), "period_s": round(period, 3), "trip_s": round(trip_s, 1),
+           "from": "fringe" if sources else "anywhere (the network has no fringe)",
+           "fringe_sources": len(sources), "seconds": INFLOW_SECONDS, "rate": rate}
+    if probe is not None:
+        rate["probe"] = probe.record
+        out["probe_departures"] = len(probe.departures)
+        out["steady_from"] = round(steady, 3)
+    return out
 
 
-__all__ = ["InflowError", "fringe_sources", "seed_fill", "trip_seconds", "write_inflow", "write_start_routes"]
+__all__ = ["PROBE_SECONDS", "SETTLE_SECONDS", "InflowError", "Probe", "fringe_sources", "inflow_sample", "probe_speed",
+           "route_metres", "seed_fill", "trip_seconds", "write_inflow", "write_start_routes"]
