@@ -22,12 +22,13 @@ from sumo_scendiff.generation.config import (
 FLAGS = ["--steps", "3", "--sampler", "heun", "--threshold", "0.5", "--guidance", "1.5",
          "--scene-guidance", "2.0", "--scene-guidance-sigma", "0.7", "--no-pin-tokens",
          "--no-pin-calibration", "--no-pin-speeds", "--no-lane-headings", "--no-lane-snap",
-         "--no-deliver-tokens"]
+         "--no-deliver-tokens", "--signals"]
 CHANGED = GenerationConfig(steps=3, sampler="heun", threshold=0.5, guidance=1.5, scene_guidance=2.0,
                            scene_guidance_sigma=0.7, pin_tokens=False, pin_calibration=False,
-                           pin_speeds=False, lane_headings=False, lane_snap=False, deliver_tokens=False)
+                           pin_speeds=False, lane_headings=False, lane_snap=False, deliver_tokens=False,
+                           signals=True)
 RECORD_KEYS = ["sha256", "sampler", "steps", "threshold", "pin_tokens", "pin_speeds", "lane_headings",
-               "lane_snap", "guidance", "scene_guidance", "scene_guidance_sigma", "deliver_tokens"]
+               "lane_snap", "guidance", "scene_guidance", "scene_guidance_sigma", "deliver_tokens", "signals"]
 
 
 def _parser() -> argparse.ArgumentParser:
