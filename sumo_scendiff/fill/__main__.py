@@ -186,8 +186,8 @@ def run(o, folder: str) -> dict:
         cfg = SimConfig(net=scen.net, additional=scen.additional, step_length=o.step_length, seed=o.seed,
                         begin=begin)
         t = time.perf_counter()
-        # the lights as SUMO's programs show them at the start: the fill agrees with them
-        signals = initial_light_states(cfg) if net.signal_links else None
+        # with --signals, the lights as SUMO's programs show them at the start: the fill agrees with them
+        signals = initial_light_states(cfg) if net.signal_links and gen.config.signals else None
         timing["lights"] = time.perf_counter() - t
         t = time.perf_counter()
         result = fill_network(net, gen, tiles, seed=o.seed, p_mask=o.p_mask, targets=targets,
