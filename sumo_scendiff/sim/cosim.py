@@ -170,7 +170,8 @@ class CoSimulation:
         target = window_target(self.net, window, density, vehicles, sim=self.sim)
         scene = self.generator.generate(self.net, [window], tokens=[all_tokens], p_mask=p, seed=s,
                                         density=None if target is None else [target],
-                                        signals=light_states(self.sim, self.net.lights_in(window)))[0]
+                                        signals=light_states(self.sim, self.net.lights_in(window))
+                                        if self.generator.config.signals else None)[0]
         return self.place(scene, all_tokens, source, ex, seed=s, p_mask=p)
 
     def ego_window(self, ego: str, ahead_m: float = 0.0, size: float = 100.0) -> Window:

@@ -141,7 +141,8 @@ class Worker:
                 # after existing(): the session's simulation is at the seeding time
                 target = scenario_target(s, session.net, window, session.sim if entry.routes else None,
                                          self.checkpoint, self.generator.has_density)
-                lights = light_states(session.sim, session.net.lights_in(window))   # as the scene meets them
+                lights = light_states(session.sim, session.net.lights_in(window)) \
+                    if first.generation.signals else None   # as the scene meets them
                 ready.append((s, window, kind, tokens, sources, existing, p_mask, target, lights))
             except bad + (DensityUnsupported,) as e:
                 if s.id not in done:
