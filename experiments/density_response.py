@@ -4,10 +4,12 @@
 
 For every network (the held-out generated networks and the real cities of ../shared/nets by
 default), ``--windows`` windows on car lanes (seeded), each generated at every requested density
-(vehicles per km of car lane in the window, the ``--density`` of ``run``) without tokens. Reported
-per network and request: the median generated density, the median relative error
-|generated - requested| / requested, and whether the medians rise with the request; the PNG plots
-requested against generated per network with the identity line.
+(vehicles per km of car lane in the window, the ``--density`` of ``run``) without tokens, twice: as
+the model draws it with the density as a condition only (``--no-match-density``, no infill), and as
+delivered at the defaults (the requested count kept, infill where the model drew too few:
+generation/infill.py). Reported per network and request: the median generated density, the median
+relative error |generated - requested| / requested, and whether the medians rise with the request;
+the PNG plots requested against generated per network with the identity line, one panel per mode.
 """
 from __future__ import annotations
 
@@ -43,13 +45,19 @@ def get_options(args=None):
     return p.parse_args(args)
 
 
-def measure(gen, net, windows, requests, seed) -> dict[float, np.ndarray]:
+MODES = {"model": {"match_density": False, "infill_passes": 0}, "delivered": {}}
+
+
+def measure(gen, net, windows, requests, seed, mode: dict) -> dict[float, np.ndarray]:
+    from dataclasses import replace
+
     from sumo_scendiff.map.raster import render_map
     km = np.array([net.car_lane_km(w) for w in windows])
     maps = np.stack([render_map(net, w, gen.raster) for w in windows])
+    cfg = replace(gen.config, **mode)
     out = {}
     for d in requests:
-        scenes = gen.generate(net, windows, p_mask=1.0, seed=seed, maps=maps, density=d)
+        scenes = gen.generate(net, windows, p_mask=1.0, seed=seed, maps=maps, density=d, config=cfg)
         out[d] = np.array([len(s) for s in scenes]) / km
     return out
 
@@ -65,40 +73,54 @@ def main(o) -> int:
     gen = ScenarioGenerator.load(o.checkpoint)
     if not gen.has_density:
         sys.exit(f"{o.checkpoint or 'the shipped model'}: no density condition (trained before it)")
-    rows, curves = [], {}
+    rows, curves, errors = [], {m: {} for m in MODES}, {m: [] for m in MODES}
     for path in tqdm(o.nets or default_nets(), desc="networks"):
         net = Network.load(path)
         rng = np.random.default_rng(o.seed)
         xy, yaw = net.random_road_points(4 * o.windows, rng)
         wins = [w for w in (Window(float(x), float(y), float(h)) for (x, y), h in zip(xy, yaw))
                 if net.car_lane_km(w) > 0.05][: o.windows]
-        res = measure(gen, net, wins, o.density, o.seed)
-        med = [float(np.median(res[d])) for d in o.density]
-        err = [float(np.median(np.abs(res[d] - d) / d)) for d in o.density]
-        curves[net.name] = med
-        rows.append({"network": net.name, "windows": len(wins), "generated_median": med, "rel_error_median": err,
-                     "monotone": bool(np.all(np.diff(med) > 0))})
-    head = " | ".join(f"{d:g}" for d in o.density)
-    print(f"| network | windows | generated veh/km at requested {head} | median rel. error | monotone |")
-    print("|---|---|---|---|---|")
-    for r in rows:
-        print(f"| {r['network']} | {r['windows']} | " + " / ".join(f"{v:.1f}" for v in r["generated_median"])
-              + f" | {np.median(r['rel_error_median']):.2f} | {'yes' if r['monotone'] else 'no'} |")
-    allerr = np.median([e for r in rows for e in r["rel_error_median"]])
-    print(f"\nover all networks and requests: median relative error {allerr:.3f}; "
-          f"monotone on {sum(r['monotone'] for r in rows)} of {len(rows)} networks")
+        row = {"network": net.name, "windows": len(wins)}
+        for mode, settings in MODES.items():
+            res = measure(gen, net, wins, o.density, o.seed, settings)
+            med = [float(np.median(res[d])) for d in o.density]
+            err = [np.abs(res[d] - d) / d for d in o.density]
+            errors[mode] += [e for es in err for e in es]
+            curves[mode][net.name] = med
+            row[mode] = {"generated_median": med, "rel_error_median": [float(np.median(e)) for e in err],
+                         "monotone": bool(np.all(np.diff(med) > 0))}
+        rows.append(row)
+    head = " / ".join(f"{d:g}" for d in o.density)
+    for mode in MODES:
+        print(f"\n{mode}: generated veh/km (median over windows) at requested {head}\n")
+        print("| network | windows | generated | median rel. error | monotone |")
+        print("|---|---|---|---|---|")
+        for r in rows:
+            m = r[mode]
+            print(f"| {r['network']} | {r['windows']} | " + " / ".join(f"{v:.1f}" for v in m["generated_median"])
+                  + f" | {np.median(m['rel_error_median']):.2f} | {'yes' if m['monotone'] else 'no'} |")
+        per = np.median([e for r in rows for e in r[mode]["rel_error_median"]])
+        print(f"\n{mode}: median relative error {np.median(errors[mode]):.3f} over all windows and requests "
+              f"({per:.3f} over the networks' per-request medians); monotone on "
+              f"{sum(r[mode]['monotone'] for r in rows)} of {len(rows)} networks; per request: "
+              + ", ".join(f"{d:g}: {np.median([r[mode]['rel_error_median'][i] for r in rows]):.2f}"
+                          for i, d in enumerate(o.density)))
     if o.out:
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
-        fig, ax = plt.subplots(figsize=(6.5, 5.5))
-        for name, med in curves.items():
-            ax.plot(o.density, med, marker="o", label=name)
-        ax.plot(o.density, o.density, "k--", lw=1, label="requested")
-        ax.set(xscale="log", yscale="log", xlabel="requested density (vehicles per km of car lane)",
-               ylabel="generated density (median over windows)",
-               title="Density response (no tokens)")
-        ax.legend(fontsize=7, ncol=2)
+        fig, axes = plt.subplots(1, len(MODES), figsize=(12, 5.5), sharey=True)
+        titles = {"model": "the model's own (density as a condition only)",
+                  "delivered": "delivered (count kept, infill)"}
+        for ax, mode in zip(axes, MODES):
+            for name, med in curves[mode].items():
+                ax.plot(o.density, med, marker="o", label=name)
+            ax.plot(o.density, o.density, "k--", lw=1, label="requested")
+            ax.set(xscale="log", yscale="log", xlabel="requested density (vehicles per km of car lane)",
+                   title=titles[mode])
+        axes[0].set_ylabel("generated density (median over windows)")
+        axes[-1].legend(fontsize=7, ncol=2)
+        fig.suptitle("Density response, no tokens")
         fig.tight_layout()
         fig.savefig(o.out, dpi=120)
     if o.json:

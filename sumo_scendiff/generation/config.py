@@ -73,6 +73,15 @@ class GenerationConfig:
         False, "the model sees each traffic light's state at the seeding moment, from the simulation "
         "(map/signals.py: queues at red, flows through green); off by default: on the hand-off "
         "benchmark the lights gave no fewer collisions (docs/evaluation.md)", kind=bool, flag="--signals")
+    match_density: bool = _setting(
+        True, "a requested density (--density/--vehicles) is a condition only: the scene holds the "
+        "vehicles the model draws above --threshold (default: the window holds the requested count, "
+        "round(density x car-lane km), the most probable boxes kept down to --density-floor)",
+        kind=bool, flag="--no-match-density")
+    density_floor: float = _setting(0.05, "lowest box probability a requested density may keep to "
+                                    "reach its count", kind=float, above=0.0, maximum=1.0)
+    infill_passes: int = _setting(2, "drawings again, with the vehicles so far pinned, of a window short of "
+                                  "its requested count (generation/infill.py; 0: none)", kind=int, minimum=0)
     lane_snap: bool = _setting(
         True, "vehicles keep their decoded pose (default: a pose within 3 m of an agreeing car lane "
         "moves onto its centre line and takes its heading, as SUMO's traffic drives; a vehicle on no "
@@ -173,4 +182,6 @@ class GenerationConfig:
                 "lane_headings": self.lane_headings, "lane_snap": self.lane_snap, "guidance": self.guidance,
                 "scene_guidance": generator.scene_guidance_for(self),
                 "scene_guidance_sigma": generator.scene_guidance_sigma_for(self),
-                "deliver_tokens": self.deliver_tokens, "signals": self.signals}
+                "deliver_tokens": self.deliver_tokens, "signals": self.signals,
+                "match_density": self.match_density, "density_floor": self.density_floor,
+                "infill_passes": self.infill_passes}

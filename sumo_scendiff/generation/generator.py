@@ -11,13 +11,17 @@ boxes above ``threshold`` -> overlapping boxes removed (most probable kept) -> p
 turned to the tokens' headings and paced to their speeds (pinning.turn_to_pins, pace_to_pins), the agents
 of positioned partial tokens given what those tokens give (deliver.py) -> poses snapped onto
 lane centre lines (lane_snap.py; agents on no lane removed unless a token asked for them, overlaps
-removed again) -> partial tokens no agent matched placed on their lanes (deliver.place_rows) -> scene-frame
-:class:`~sumo_scendiff.core.scene.Scene` with speeds from the trajectory.
+removed again) -> with a requested density, the window's count round(density x car-lane km) kept: the
+most probable boxes down to ``density_floor`` (trim_to_count), and where the model drew fewer, the
+paper's infill with the scene so far pinned (infill.py) -> partial tokens no agent matched placed on
+their lanes (deliver.place_rows) -> scene-frame :class:`~sumo_scendiff.core.scene.Scene` with speeds
+from the trajectory.
 """
 from __future__ import annotations
 
 import os
-from typing import Sequence
+from dataclasses import replace
+from typing import Mapping, Sequence
 
 import numpy as np
 import shapely
@@ -39,9 +43,10 @@ from ..tokens.encoding import (
     token_positions,
 )
 from .config import GenerationConfig
+from .deliver import apply_rows, delivered_rows, match_rows, pace_rows, place_rows
+from .infill import add_new_agents, scene_tokens
 from .lane_heading import junction_yaw
 from .lane_snap import snap_to_lanes
-from .deliver import apply_rows, delivered_rows, match_rows, pace_rows, place_rows
 from .pinning import match_pins, pace_to_pins, pinned_latent, pinned_poses, turn_to_pins
 from .token_resolve import resolve_tokens
 
@@ -81,6 +86,16 @@ def select_boxes(window: Window, prob: np.ndarray, boxes: np.ndarray, threshold:
     keep = keep[window.contains(boxes[keep, :2])]
     keep = keep[remove_overlaps(boxes[keep], prob[keep])]
     return keep[np.argsort(-prob[keep], kind="stable")]
+
+
+def trim_to_count(prob: np.ndarray, mine: np.ndarray, count: int) -> np.ndarray:
+    """Positions (ascending, so an order by probability is kept) of the agents a scene keeps to
+    hold ``count`` vehicles: every agent a token asked for (``~mine``), then the model's own most
+    probable up to the count."""
+    others = np.flatnonzero(mine)
+    others = others[np.argsort(-prob[others], kind="stable")]
+    room = max(0, count - int((~mine).sum()))
+    return np.sort(np.concatenate([np.flatnonzero(~mine), others[:room]]))
 
 
 class ScenarioGenerator:
@@ -164,8 +179,10 @@ class ScenarioGenerator:
 
     def _scene(self, window: Window, prob, boxes, traj, cfg: GenerationConfig, net,
                tokens: np.ndarray | None = None, pins: np.ndarray | None = None,
-               given: Sequence | None = None) -> Scene:
-        keep = select_boxes(window, prob, boxes, cfg.threshold)
+               given: Sequence | None = None, count: int | None = None, floor: bool = False) -> Scene:
+        # a requested count reaches below the threshold for boxes, and trims the most probable to it
+        keep = select_boxes(window, prob, boxes, min(cfg.threshold, cfg.density_floor)
+                            if count is not None or floor else cfg.threshold)
         boxes, traj = boxes[keep], traj[keep]
         turned = np.zeros(len(keep), bool)
         if cfg.pin_tokens and pins is not None and len(pins):
@@ -205,6 +222,13 @@ class ScenarioGenerator:
                 traj, _ = pace_to_pins(boxes, traj, pins, ASKED_RADIUS, turn=False)
             if len(rows):
                 traj = pace_rows(traj, paced)
+        if count is not None:
+            mine = owner < 0
+            if cfg.pin_tokens and pins is not None and len(pins):
+                mine[[a for a, _ in match_pins(boxes, pins, ASKED_RADIUS)]] = False
+            unplaced = len(rows) - int((owner >= 0).sum())     # tokens place_rows will still place
+            ok = trim_to_count(prob[keep], mine, count - unplaced)
+            keep, boxes, traj, owner, paced = keep[ok], boxes[ok], traj[ok], owner[ok], paced[ok]
         score = np.round(prob[keep], 4).tolist()
         cell = keep.tolist()
         warnings: list[str] = []
@@ -283,15 +307,52 @@ class ScenarioGenerator:
                                             tokens[sl] if tokens is not None else None,
                                             net=net, windows=windows[sl],
                                             density=None if dens is None else dens[sl])
-            for k, w in enumerate(windows[sl]):
-                out.append(self._scene(w, prob[k], boxes[k], traj[k], cfg, net, toks[s + k],
-                                       pinned_poses(tokens[s + k]) if tokens is not None else None,
-                                       tokens[s + k] if tokens is not None else None))
+            for k, w in enumerate(windows[sl], start=s):
+                out.append(self._scene(w, prob[k - s], boxes[k - s], traj[k - s], cfg, net, toks[k],
+                                       pinned_poses(tokens[k]) if tokens is not None else None,
+                                       tokens[k] if tokens is not None else None,
+                                       count=self._count(net, w, dens[k] if dens is not None else None, cfg)))
                 if sig is not None:   # the lights this scene was drawn for, in scene.json and its picture
-                    lights = sig[s + k] if isinstance(sig, list) else sig
+                    lights = sig[k] if isinstance(sig, list) else sig
                     ids = set(net.lights_in(w))
                     out[-1].meta["signals"] = {i: v for i, v in (lights or {}).items() if i in ids}
+        counts = [self._count(net, w, dens[k] if dens is not None else None, cfg) for k, w in enumerate(windows)]
+        for p in range(1, cfg.infill_passes + 1):
+            short = [k for k, c in enumerate(counts) if c is not None and len(out[k]) < c]
+            for s in range(0, len(short), cfg.batch_size):
+                self._infill(net, windows, short[s:s + cfg.batch_size], out, counts, tokens, toks, pm,
+                             seeds, dens, sig, cfg, p)
         return out
+
+    def _infill(self, net, windows, ks, out, counts, tokens, toks, pm, seeds, dens, sig, cfg, p):
+        """One infill pass (generation/infill.py) over the windows ``ks`` short of their counts:
+        drawn again with the scene so far pinned, from noise of their own (seed, pass)."""
+        extra = [scene_tokens(out[k]) for k in ks]
+        dicts = [[t for t in (tokens[k] if tokens is not None and tokens[k] is not None else ())
+                  if isinstance(t, Mapping)] + e for k, e in zip(ks, extra)]
+        toks2 = [np.concatenate([toks[k], agent_tokens_from_dicts(e)]) if e else toks[k] for k, e in zip(ks, extra)]
+        maps = np.stack([render_map(net, windows[k], self.raster, signals=sig[k] if isinstance(sig, list) else sig)
+                         for k in ks])
+        # the global token says which share of the scene the tokens describe (the paper's p_mask)
+        pm2 = np.array([min(pm[k], 1.0 - len(out[k]) / counts[k]) for k in ks])
+        seeds2 = [int(np.random.SeedSequence([seeds[k], p]).generate_state(1)[0]) for k in ks]
+        # the pinned agents are context only (the first scene keeps its own): no pin calibration
+        prob, boxes, traj = self._batch(maps, toks2, pm2, seeds2, replace(cfg, pin_calibration=False), dicts, net=net,
+                                        windows=[windows[k] for k in ks], density=dens[ks])
+        for i, k in enumerate(ks):
+            # every candidate down to the floor: the first scene's redrawn agents are not new
+            second = self._scene(windows[k], prob[i], boxes[i], traj[i], cfg, net, toks2[i],
+                                 pinned_poses(dicts[i]), floor=True)
+            taken = np.concatenate([out[k].boxes[:, :2], token_positions(toks[k]).reshape(-1, 2)])
+            out[k] = add_new_agents(out[k], second, counts[k], taken, ASKED_RADIUS)
+
+
+    @staticmethod
+    def _count(net, window: Window, density: float | None, cfg: GenerationConfig) -> int | None:
+        """The vehicles a window holds at a requested density (None: no request, or not matched)."""
+        if density is None or not np.isfinite(density) or not cfg.match_density or net is None:
+            return None
+        return int(np.round(density * net.car_lane_km(window)))
 
 
 def _encode(t) -> np.ndarray:

@@ -1,0 +1,61 @@
+"""Reaching a requested vehicle count the first drawing fell short of, by the paper's infill.
+
+A scene asked for N vehicles (``--density``/``--vehicles``) keeps the model's N most probable boxes
+(``generator.trim_to_count``). Where the model drew fewer, the window is drawn again with every agent
+of the first scene as a pinned token (the paper's Sec. 4.2 infill, as the whole-network fill pins a
+tile's neighbours): the model adds traffic that fits around the vehicles already there. The first
+scene is kept as it is; only the second drawing's new agents -- clear of every vehicle of the first
+and of every token -- are added, most probable first, up to the count.
+"""
+from __future__ import annotations
+
+import numpy as np
+import shapely
+
+from ..core.geometry import T0, box_corners
+from ..core.scene import Scene
+
+
+def scene_tokens(scene: Scene) -> list[dict]:
+    """A scene's agents as pinnable token dicts (scene frame: pose, size, speed at t = 0)."""
+    return [{"x": float(b[0]), "y": float(b[1]), "heading": float(b[2]), "length": float(b[3]),
+             "width": float(b[4]), "speed": float(v)} for b, v in zip(scene.boxes, scene.speed[:, T0])]
+
+
+def _polygons(boxes: np.ndarray) -> np.ndarray:
+    b = np.asarray(boxes, np.float64).reshape(-1, 5)
+    return shapely.polygons(box_corners(b[:, 0], b[:, 1], b[:, 2], b[:, 3], b[:, 4])) if len(b) \
+        else np.zeros(0, dtype=object)
+
+
+def add_new_agents(first: Scene, second: Scene, count: int, taken: np.ndarray, radius: float) -> Scene:
+    """``first`` with the agents of ``second`` that are new -- centre farther than ``radius`` m from
+    every point of ``taken`` (the first scene's agents and the tokens' positions, (K, 2)) and box
+    clear of the first scene's boxes -- most probable first, until it holds ``count`` agents."""
+    room = count - len(first)
+    if room <= 0 or not len(second):
+        return first
+    ok = np.ones(len(second), bool)
+    if len(taken):
+        ok &= (np.linalg.norm(second.boxes[:, None, :2] - np.asarray(taken)[None, :, :2], axis=-1)
+               > radius).all(1)
+    if len(first) and ok.any():
+        tree = shapely.STRtree(_polygons(first.boxes))
+        a, _ = tree.query(_polygons(second.boxes), predicate="intersects")
+        ok[np.unique(a)] = False
+    score = np.asarray(second.meta.get("score", np.ones(len(second))), np.float64)
+    new = np.flatnonzero(ok)
+    new = np.sort(new[np.argsort(-score[new], kind="stable")][:room])
+    if not len(new):
+        return first
+    extra = second.select(new)
+    meta = dict(first.meta)
+    for key in ("score", "cell"):
+        meta[key] = list(first.meta.get(key, [])) + list(extra.meta.get(key, []))
+    if "delivers" in first.meta:
+        meta["delivers"] = list(first.meta["delivers"]) + [None] * len(extra)
+    meta["infilled"] = int(first.meta.get("infilled", 0)) + len(extra)
+    return Scene(first.window, np.concatenate([first.boxes, extra.boxes]),
+                 np.concatenate([first.traj, extra.traj]), np.concatenate([first.traj_mask, extra.traj_mask]),
+                 np.concatenate([first.speed, extra.speed]), np.concatenate([first.vclass, extra.vclass]),
+                 first.net, first.time, meta)
