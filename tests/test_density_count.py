@@ -21,6 +21,13 @@ def test_trim_keeps_the_tokens_then_the_most_probable():
     assert trim_to_count(prob, mine, 9).tolist() == [0, 1, 2, 3, 4]
 
 
+def test_trim_counts_only_the_agents_in_the_area():
+    prob = np.array([0.9, 0.3, 0.95, 0.1, 0.6])
+    mine = np.ones(5, bool)
+    counted = np.array([True, True, False, True, True])      # agent 2 outside: kept, not counted
+    assert trim_to_count(prob, mine, 2, counted).tolist() == [0, 2, 4]
+
+
 def _scene(boxes, score) -> Scene:
     n = len(boxes)
     return Scene(Window(0.0, 0.0, 0.0), np.asarray(boxes, np.float32).reshape(n, 5),
@@ -38,6 +45,9 @@ def test_infill_adds_only_new_clear_agents_most_probable_first():
     assert out.boxes[:, 0].tolist() == [0, 20, 40]
     assert out.meta["score"] == [0.9, 0.5, 0.8] and out.meta["infilled"] == 2
     assert add_new_agents(first, second, 1, first.boxes[:, :2], 2.0) is first
+    # counted in an area (world frame; the window is at the origin): only agents there are added
+    out = add_new_agents(first, second, 3, first.boxes[:, :2], 2.0, area=(-50.0, -50.0, 30.0, 50.0))
+    assert out.boxes[:, 0].tolist() == [0, 20, -30]
     assert scene_tokens(first) == [{"x": 0.0, "y": 0.0, "heading": 0.0, "length": 4.5, "width": pytest.approx(1.8), "speed": 5.0}]
 
 

@@ -88,7 +88,8 @@ def fill_network(net, gen, tiles: list[Tile], seed: int = 0, p_mask: float = 1.0
         groups = tasks_of(batch)
         tasks = [([t.window for t in g], [pins[t.index] for t in g], [records[t.index].p_mask for t in g],
                   [tile_seed(seed, t.index) for t in g],
-                  [records[t.index].target for t in g] if use_density else None, signals) for g in groups]
+                  [records[t.index].target for t in g] if use_density else None, signals,
+                  [t.core for t in g]) for g in groups]
         out: dict[int, object] = {}
         for k, part in engine.map_unordered(tasks):
             out.update({t.index: scene for t, scene in zip(groups[k], part)})

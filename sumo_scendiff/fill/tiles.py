@@ -70,9 +70,7 @@ def car_bounds(net) -> tuple:
 
 def lane_km_in(net, region) -> float:
     """Kilometres of car lane inside a shapely region."""
-    idx = net.lane_tree.query(region, predicate="intersects")
-    idx = idx[np.isin(idx, net.car_lane_ids)]
-    return float(shapely.length(shapely.intersection(net.lines[idx], region)).sum()) / 1000.0
+    return net.car_lane_km_in(region)
 
 
 def tile_grid(net, area: tuple | None = None, stride: float = 75.0, size: float = 100.0) -> list[Tile]:

@@ -32,9 +32,10 @@ class TileWorker:
             net = Network.load(net_path)
         self.net, self.gen = net, generator
 
-    def run(self, windows, tokens, p_mask, noise_seeds, density=None, signals=None) -> list:
+    def run(self, windows, tokens, p_mask, noise_seeds, density=None, signals=None, cores=None) -> list:
+        # a tile's density is kept as a count in its core: the overlap belongs to its neighbours
         return self.gen.generate(self.net, windows, tokens=tokens, p_mask=p_mask, noise_seeds=noise_seeds,
-                                 density=density, signals=signals)
+                                 density=density, signals=signals, count_areas=cores)
 
 
 def tile_engine(net, gen, workers: int = 1, ray_address: str | None = None, checkpoint: str | None = None):

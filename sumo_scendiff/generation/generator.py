@@ -44,7 +44,7 @@ from ..tokens.encoding import (
 )
 from .config import GenerationConfig
 from .deliver import apply_rows, delivered_rows, match_rows, pace_rows, place_rows
-from .infill import add_new_agents, scene_tokens
+from .infill import add_new_agents, area_mask, in_area, scene_tokens
 from .lane_heading import junction_yaw
 from .lane_snap import snap_to_lanes
 from .pinning import match_pins, pace_to_pins, pinned_latent, pinned_poses, turn_to_pins
@@ -88,14 +88,17 @@ def select_boxes(window: Window, prob: np.ndarray, boxes: np.ndarray, threshold:
     return keep[np.argsort(-prob[keep], kind="stable")]
 
 
-def trim_to_count(prob: np.ndarray, mine: np.ndarray, count: int) -> np.ndarray:
+def trim_to_count(prob: np.ndarray, mine: np.ndarray, count: int, counted: np.ndarray | None = None
+                  ) -> np.ndarray:
     """Positions (ascending, so an order by probability is kept) of the agents a scene keeps to
     hold ``count`` vehicles: every agent a token asked for (``~mine``), then the model's own most
-    probable up to the count."""
-    others = np.flatnonzero(mine)
+    probable up to the count. With ``counted``, only those agents count (and are trimmed); the
+    others are all kept."""
+    counted = np.ones(len(prob), bool) if counted is None else np.asarray(counted, bool)
+    others = np.flatnonzero(mine & counted)
     others = others[np.argsort(-prob[others], kind="stable")]
-    room = max(0, count - int((~mine).sum()))
-    return np.sort(np.concatenate([np.flatnonzero(~mine), others[:room]]))
+    room = max(0, count - int((~mine & counted).sum()))
+    return np.sort(np.concatenate([np.flatnonzero(~mine | ~counted), others[:room]]))
 
 
 class ScenarioGenerator:
@@ -179,7 +182,8 @@ class ScenarioGenerator:
 
     def _scene(self, window: Window, prob, boxes, traj, cfg: GenerationConfig, net,
                tokens: np.ndarray | None = None, pins: np.ndarray | None = None,
-               given: Sequence | None = None, count: int | None = None, floor: bool = False) -> Scene:
+               given: Sequence | None = None, count: int | None = None, floor: bool = False,
+               area: tuple | None = None) -> Scene:
         # a requested count reaches below the threshold for boxes, and trims the most probable to it
         keep = select_boxes(window, prob, boxes, min(cfg.threshold, cfg.density_floor)
                             if count is not None or floor else cfg.threshold)
@@ -227,7 +231,7 @@ class ScenarioGenerator:
             if cfg.pin_tokens and pins is not None and len(pins):
                 mine[[a for a, _ in match_pins(boxes, pins, ASKED_RADIUS)]] = False
             unplaced = len(rows) - int((owner >= 0).sum())     # tokens place_rows will still place
-            ok = trim_to_count(prob[keep], mine, count - unplaced)
+            ok = trim_to_count(prob[keep], mine, count - unplaced, area_mask(window, boxes, area))
             keep, boxes, traj, owner, paced = keep[ok], boxes[ok], traj[ok], owner[ok], paced[ok]
         score = np.round(prob[keep], 4).tolist()
         cell = keep.tolist()
@@ -255,7 +259,7 @@ class ScenarioGenerator:
     def generate(self, net, windows: Sequence[Window], tokens=None, p_mask=1.0, seed: int = 0,
                  config: GenerationConfig | None = None, progress: bool = False,
                  maps: np.ndarray | None = None, noise_seeds: Sequence[int] | None = None,
-                 density=None, signals=None) -> list[Scene]:
+                 density=None, signals=None, count_areas: Sequence | None = None) -> list[Scene]:
         """Scenes for ``windows`` on ``net``.
 
         ``tokens``: per window, agent tokens as a list of feature dicts (any subset of
@@ -272,7 +276,10 @@ class ScenarioGenerator:
         else is in the batch: the same seed with other tokens gives the variant of the same scene).
         ``density``: per window (or one for all) the vehicles per km of car lane the scene should
         hold, tokens' vehicles included; None or NaN: the model's own prior (needs a checkpoint with
-        the density condition, :attr:`has_density`).
+        the density condition, :attr:`has_density`). Kept as a count (``config.match_density``):
+        round(density x car-lane km). ``count_areas``: per window a world rectangle (x0, y0, x1, y1)
+        or None, where that count is kept (the fill's tile cores); agents outside it are drawn as
+        context and not counted.
         ``signals``: the traffic lights' states at the scene's time (tls id -> SUMO state string),
         one dict for all windows or one per window (``sim.lights.light_states``); None: unknown.
         Each scene keeps its window's in ``meta["signals"]``; given ``maps``, render those with the
@@ -296,6 +303,11 @@ class ScenarioGenerator:
         sig = (list(signals) if isinstance(signals, (list, tuple)) else signals) if cfg.signals else None
         if isinstance(sig, list) and len(sig) != n:
             raise ValueError(f"{len(sig)} signal states for {n} windows")
+        areas = list(count_areas) if count_areas is not None else [None] * n
+        if len(areas) != n:
+            raise ValueError(f"{len(areas)} count areas for {n} windows")
+        counts = [self._count(net, w, dens[k] if dens is not None else None, cfg, areas[k])
+                  for k, w in enumerate(windows)]
         out: list[Scene] = []
         from tqdm import tqdm
         for s in tqdm(range(0, n, cfg.batch_size), disable=not progress, desc="generating"):
@@ -311,20 +323,19 @@ class ScenarioGenerator:
                 out.append(self._scene(w, prob[k - s], boxes[k - s], traj[k - s], cfg, net, toks[k],
                                        pinned_poses(tokens[k]) if tokens is not None else None,
                                        tokens[k] if tokens is not None else None,
-                                       count=self._count(net, w, dens[k] if dens is not None else None, cfg)))
+                                       count=counts[k], area=areas[k]))
                 if sig is not None:   # the lights this scene was drawn for, in scene.json and its picture
                     lights = sig[k] if isinstance(sig, list) else sig
                     ids = set(net.lights_in(w))
                     out[-1].meta["signals"] = {i: v for i, v in (lights or {}).items() if i in ids}
-        counts = [self._count(net, w, dens[k] if dens is not None else None, cfg) for k, w in enumerate(windows)]
         for p in range(1, cfg.infill_passes + 1):
-            short = [k for k, c in enumerate(counts) if c is not None and len(out[k]) < c]
+            short = [k for k, c in enumerate(counts) if c is not None and in_area(out[k], areas[k]).sum() < c]
             for s in range(0, len(short), cfg.batch_size):
-                self._infill(net, windows, short[s:s + cfg.batch_size], out, counts, tokens, toks, pm,
+                self._infill(net, windows, short[s:s + cfg.batch_size], out, counts, areas, tokens, toks,
                              seeds, dens, sig, cfg, p)
         return out
 
-    def _infill(self, net, windows, ks, out, counts, tokens, toks, pm, seeds, dens, sig, cfg, p):
+    def _infill(self, net, windows, ks, out, counts, areas, tokens, toks, seeds, dens, sig, cfg, p):
         """One infill pass (generation/infill.py) over the windows ``ks`` short of their counts:
         drawn again with the scene so far pinned, from noise of their own (seed, pass)."""
         extra = [scene_tokens(out[k]) for k in ks]
@@ -333,8 +344,9 @@ class ScenarioGenerator:
         toks2 = [np.concatenate([toks[k], agent_tokens_from_dicts(e)]) if e else toks[k] for k, e in zip(ks, extra)]
         maps = np.stack([render_map(net, windows[k], self.raster, signals=sig[k] if isinstance(sig, list) else sig)
                          for k in ks])
-        # the global token says which share of the scene the tokens describe (the paper's p_mask)
-        pm2 = np.array([min(pm[k], 1.0 - len(out[k]) / counts[k]) for k in ks])
+        # p_mask 1, "add what belongs here": the count is kept by trimming, and a lower p_mask
+        # (the share the pins describe) under the tokens' guidance pushes towards adding nothing
+        pm2 = np.ones(len(ks))
         seeds2 = [int(np.random.SeedSequence([seeds[k], p]).generate_state(1)[0]) for k in ks]
         # the pinned agents are context only (the first scene keeps its own): no pin calibration
         prob, boxes, traj = self._batch(maps, toks2, pm2, seeds2, replace(cfg, pin_calibration=False), dicts, net=net,
@@ -344,15 +356,19 @@ class ScenarioGenerator:
             second = self._scene(windows[k], prob[i], boxes[i], traj[i], cfg, net, toks2[i],
                                  pinned_poses(dicts[i]), floor=True)
             taken = np.concatenate([out[k].boxes[:, :2], token_positions(toks[k]).reshape(-1, 2)])
-            out[k] = add_new_agents(out[k], second, counts[k], taken, ASKED_RADIUS)
-
+            out[k] = add_new_agents(out[k], second, counts[k], taken, ASKED_RADIUS, areas[k])
 
     @staticmethod
-    def _count(net, window: Window, density: float | None, cfg: GenerationConfig) -> int | None:
-        """The vehicles a window holds at a requested density (None: no request, or not matched)."""
+    def _count(net, window: Window, density: float | None, cfg: GenerationConfig,
+               area: tuple | None = None) -> int | None:
+        """The vehicles a window (or its ``area``) holds at a requested density (None: no request,
+        or not matched)."""
         if density is None or not np.isfinite(density) or not cfg.match_density or net is None:
             return None
-        return int(np.round(density * net.car_lane_km(window)))
+        if area is None:
+            return int(np.round(density * net.car_lane_km(window)))
+        region = shapely.intersection(shapely.box(*area), shapely.box(*window.world_bounds()))
+        return int(np.round(density * net.car_lane_km_in(region)))
 
 
 def _encode(t) -> np.ndarray:

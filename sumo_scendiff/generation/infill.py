@@ -3,7 +3,10 @@
 A scene asked for N vehicles (``--density``/``--vehicles``) keeps the model's N most probable boxes
 (``generator.trim_to_count``). Where the model drew fewer, the window is drawn again with every agent
 of the first scene as a pinned token (the paper's Sec. 4.2 infill, as the whole-network fill pins a
-tile's neighbours): the model adds traffic that fits around the vehicles already there. The first
+tile's neighbours), its global token at p_mask 1 ("add what belongs here": the count is kept by
+trimming; a p_mask naming the share the pins describe is, under the tokens' classifier-free guidance,
+a push towards adding nothing, and added a vehicle or two a pass): the model adds traffic that fits
+around the vehicles already there. The first
 scene is kept as it is; only the second drawing's new agents -- clear of every vehicle of the first
 and of every token -- are added, most probable first, up to the count.
 """
@@ -28,14 +31,31 @@ def _polygons(boxes: np.ndarray) -> np.ndarray:
         else np.zeros(0, dtype=object)
 
 
-def add_new_agents(first: Scene, second: Scene, count: int, taken: np.ndarray, radius: float) -> Scene:
+def area_mask(window, boxes: np.ndarray, area: tuple | None) -> np.ndarray:
+    """Which boxes (scene frame of ``window``) count towards a requested count: centre inside
+    ``area`` (a world rectangle x0, y0, x1, y1; None: the whole window, every box)."""
+    if area is None or not len(boxes):
+        return np.ones(len(boxes), bool)
+    x0, y0, x1, y1 = area
+    xy = window.scene_to_world(np.asarray(boxes, np.float64)[:, :2]).reshape(-1, 2)
+    return (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)
+
+
+def in_area(scene: Scene, area: tuple | None) -> np.ndarray:
+    """:func:`area_mask` of a scene's agents."""
+    return area_mask(scene.window, scene.boxes, area)
+
+
+def add_new_agents(first: Scene, second: Scene, count: int, taken: np.ndarray, radius: float,
+                   area: tuple | None = None) -> Scene:
     """``first`` with the agents of ``second`` that are new -- centre farther than ``radius`` m from
     every point of ``taken`` (the first scene's agents and the tokens' positions, (K, 2)) and box
-    clear of the first scene's boxes -- most probable first, until it holds ``count`` agents."""
-    room = count - len(first)
+    clear of the first scene's boxes -- most probable first, until it holds ``count`` agents in
+    ``area`` (:func:`in_area`; only agents there are added)."""
+    room = count - int(in_area(first, area).sum())
     if room <= 0 or not len(second):
         return first
-    ok = np.ones(len(second), bool)
+    ok = in_area(second, area)
     if len(taken):
         ok &= (np.linalg.norm(second.boxes[:, None, :2] - np.asarray(taken)[None, :, :2], axis=-1)
                > radius).all(1)

@@ -267,6 +267,12 @@ class Network:
         in vehicles per km of car lane."""
         return float(self.car_lanes_in(window)[1].sum())
 
+    def car_lane_km_in(self, region) -> float:
+        """Kilometres of car lane inside a shapely region (junction-internal lanes included)."""
+        idx = self.lane_tree.query(region, predicate="intersects")
+        idx = idx[np.isin(idx, self.car_lane_ids)]
+        return float(shapely.length(shapely.intersection(self.lines[idx], region)).sum()) / 1000.0
+
     # ---- point queries --------------------------------------------------------------------
     def on_drivable(self, points) -> np.ndarray:
         """Bool array: which world points (..., 2) lie on a car lane or a junction area."""
