@@ -335,3 +335,18 @@ def test_fill_with_demand(tmp_path):
         run = subprocess.run([sumo_binary(), "-c", str(tmp_path / "o" / cfg), "--end", "130"],
                              check=False, capture_output=True, text=True, timeout=60)
         assert run.returncode == 0 and "Error" not in run.stderr, run.stderr
+
+
+def test_signal_delays_of_the_demand_estimate(tmp_path):
+    """A light's program gives each link its green share (amber half) and Webster's uniform delay;
+    an additional file's program replaces the network's, as in SUMO."""
+    from sumo_scendiff.fill.demand import green_shares
+    a = tmp_path / "a.add.xml"
+    a.write_text('<additional><tlLogic id="J" type="static" programID="1" offset="0">'
+                 '<phase duration="30" state="Gr"/><phase duration="4" state="yr"/>'
+                 '<phase duration="26" state="rG"/></tlLogic></additional>')
+    cycle, green = green_shares([str(a)])["J"]
+    assert cycle == 60 and green == pytest.approx([32 / 60, 26 / 60])
+    b = tmp_path / "b.add.xml"
+    b.write_text(a.read_text().replace('duration="26"', 'duration="56"'))
+    assert green_shares([str(a), str(b)])["J"][0] == 90

@@ -106,7 +106,7 @@ def _files(arg: str | None) -> list[str]:
     return [f for f in (arg or "").split(",") if f]
 
 
-def _amount(o, net, gen, tiles, routes, begin) -> tuple[list | None, bool, dict]:
+def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | None, bool, dict]:
     """Per tile the density target, whether the model is given it, and the source for fill.json."""
     from ..map.edgedata import EdgeData, EdgeDataError
     from .demand import DemandEstimate
@@ -126,12 +126,13 @@ def _amount(o, net, gen, tiles, routes, begin) -> tuple[list | None, bool, dict]
         return targets, True, {"kind": "edge-data", "file": os.path.abspath(o.edge_data), "time": begin,
                                "applied": True}
     if routes:
-        est = DemandEstimate.at(net, routes, begin)
+        est = DemandEstimate.at(net, routes, begin, additional=additional)
         targets = [est.window_density(net, t.window) for t in tiles]
         src = {"kind": "demand", "time": begin, "en_route": est.vehicles, "departed": est.departed,
                "unrouted": est.unrouted, "applied": gen.has_density,
-               "method": "free-flow estimate: each departure up to --begin laid on its route (trips: "
-                         "shortest path) at 0.7 x the speed limits; no simulation"}
+               "method": "each departure up to --begin laid on its route (trips: shortest path) at "
+                         "0.7 x the speed limits, waiting at each traffic light for its mean (Webster "
+                         "uniform) delay; no simulation"}
         if not gen.has_density:
             src["note"] = (f"{name} has no density condition: the demand's density is recorded per tile "
                            f"(target) but generation uses the model's prior scaled by --p-mask {o.p_mask:g}")
@@ -180,7 +181,7 @@ def run(o, folder: str) -> dict:
     gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig.from_options(o))
     # started here, the workers load their model while this process prepares the rest
     with tile_engine(net, gen, o.workers, o.ray_address, o.checkpoint) as engine:
-        targets, applied, source = _amount(o, net, gen, tiles, routes, begin)
+        targets, applied, source = _amount(o, net, gen, tiles, routes, begin, scen.additional)
         timing["load"] = time.perf_counter() - t
 
         cfg = SimConfig(net=scen.net, additional=scen.additional, step_length=o.step_length, seed=o.seed,

@@ -6,10 +6,13 @@
 
 Each vehicle, trip and flow departure of the route files up to ``begin`` is laid on its route
 (a trip's: the shortest path by free-flow time, sumolib's Dijkstra, per from/to pair once) and
-moved along it at :data:`TYPICAL_SPEED_FACTOR` of each edge's speed limit; those not yet at their
-end at ``begin`` count on the edge they are on. This is the free-flow estimate the issue allows
-("no full simulation needed"): it misses queues and signals (a congested demand holds more vehicles
-than this counts) and does not read vTypes' own speed factors.
+moved along it at :data:`TYPICAL_SPEED_FACTOR` of each edge's speed limit, waiting at the end of an
+edge whose link to the next one a traffic light controls for that link's mean signal delay
+(Webster's uniform delay at low saturation, C (1 - g/C)^2 / 2, from the light's program: the
+network's, or an additional file's); those not yet at their end at ``begin`` count on the edge they
+are on (a vehicle waiting at a red light on the edge it waits on). No simulation, as the issue
+allows; it misses the queues of saturated links (Webster's other terms: a congested demand holds
+more vehicles than this counts) and vTypes' own speed factors.
 """
 from __future__ import annotations
 
@@ -30,9 +33,10 @@ class DemandEstimate:
     departed: int                  # departures up to ``begin`` looked at
 
     @classmethod
-    def at(cls, net, route_files, begin: float) -> DemandEstimate:
+    def at(cls, net, route_files, begin: float, additional=()) -> DemandEstimate:
         from sumolib.xml import parse
         snet = net.sumo_net
+        delay = signal_delays(net, additional)
         named: dict[str, list[str]] = {}
         paths: dict[tuple[str, str], list[str] | None] = {}
         on_edge: dict[str, int] = {}
@@ -58,11 +62,12 @@ class DemandEstimate:
                 counts["unrouted"] += 1
                 return
             t = begin - depart
-            for e in edges:
+            for e, nxt in zip(edges, edges[1:] + [None]):
                 if not snet.hasEdge(e):
                     return
                 edge = snet.getEdge(e)
                 t -= edge.getLength() / max(edge.getSpeed() * TYPICAL_SPEED_FACTOR, 0.1)
+                t -= delay.get((e, nxt), 0.0)
                 if t < 0:
                     on_edge[e] = on_edge.get(e, 0) + 1
                     return
@@ -97,6 +102,50 @@ class DemandEstimate:
         return num / den if den > 0 else None
 
 
+def green_shares(paths) -> dict[str, tuple[float, np.ndarray]]:
+    """Per traffic light, (cycle s, green share of each link index) of its program in ``paths``
+    (the network, then additional files: a later file's program of a light replaces an earlier
+    one, as SUMO loads them; of several programs in one file, the first). Green: ``G``/``g``/``s``,
+    amber counted half."""
+    from sumolib.xml import parse
+    out: dict[str, tuple[float, np.ndarray]] = {}
+    for path in paths:
+        seen: set[str] = set()
+        for tl in parse(path, "tlLogic"):
+            if tl.id in seen or not tl.hasChild("phase"):
+                continue
+            seen.add(tl.id)
+            phases = [(float(ph.duration), ph.state) for ph in tl.getChild("phase")]
+            cycle = sum(d for d, _ in phases)
+            if cycle <= 0:
+                continue
+            n = max(len(st) for _, st in phases)
+            green = np.zeros(n)
+            for d, st in phases:
+                green[: len(st)] += d * np.array([1.0 if c in "Ggs" else 0.5 if c in "yY" else 0.0 for c in st])
+            out[tl.id] = (cycle, green / cycle)
+    return out
+
+
+def signal_delays(net, additional=()) -> dict[tuple[str, str], float]:
+    """Mean delay (s) at the stop line of each signalised (edge, next edge) pair: Webster's uniform
+    delay at low saturation, C (1 - g/C)^2 / 2, averaged over the pair's lane-to-lane links."""
+    if net.sumo_net is None or not getattr(net, "path", None):
+        return {}
+    shares = green_shares([net.path, *additional])
+    sums: dict[tuple[str, str], list[float]] = {}
+    for edge in net.sumo_net.getEdges(withInternal=False):
+        for lane in edge.getLanes():
+            for conn in lane.getOutgoing():
+                tls, idx = conn.getTLSID(), conn.getTLLinkIndex()
+                if not tls or idx < 0 or tls not in shares or idx >= len(shares[tls][1]):
+                    continue
+                cycle, green = shares[tls]
+                d = 0.5 * cycle * (1.0 - green[idx]) ** 2
+                sums.setdefault((edge.getID(), conn.getTo().getID()), []).append(d)
+    return {k: float(np.mean(v)) for k, v in sums.items()}
+
+
 def _departures(el, begin: float) -> list[float]:
     """The departure times up to ``begin`` of a vehicle, trip or flow element."""
     def num(name):
@@ -122,4 +171,4 @@ def _departures(el, begin: float) -> list[float]:
     return list(np.arange(start, stop + 1e-9, period)) if stop >= start else []
 
 
-__all__ = ["TYPICAL_SPEED_FACTOR", "DemandEstimate"]
+__all__ = ["TYPICAL_SPEED_FACTOR", "DemandEstimate", "green_shares", "signal_delays"]
