@@ -43,24 +43,38 @@ def test_vehicles_become_a_density_over_the_windows_car_lanes(diagonal_net):
     assert window_target(net, Window(2000.0, 0.0, 0.0), vehicles=3) is None   # no car lane there
 
 
-def test_the_hosts_own_level_around_a_window(cross_net, tmp_path):
+def test_the_hosts_own_level_around_a_window(tmp_path):
+    """``auto`` with a host: the density around the window per class of road. A main road (priority
+    10) carries a flow, the side road across it (priority 1) none: a window on the side street gets
+    the side street's level, 0, not the crossing's; a window on the main road its level, vehicles on
+    its lanes around over their km."""
     import libsumo
+    import shapely
 
+    from .conftest import netconvert
     from sumo_scendiff.core.tools import sumo_binary
-    net = Network.load(cross_net)
+    nodes = ('<node id="c" x="0" y="0" type="priority"/><node id="w" x="-300" y="0"/><node id="e" x="300" y="0"/>'
+             '<node id="s" x="0" y="-300"/><node id="n" x="0" y="300"/>')
+    edges = "".join(f'<edge id="{a}{b}" from="{a}" to="{b}" numLanes="1" speed="13.89" priority="{p}"/>'
+                    for a, b, p in (("w", "c", 10), ("c", "w", 10), ("e", "c", 10), ("c", "e", 10),
+                                    ("s", "c", 1), ("c", "s", 1), ("n", "c", 1), ("c", "n", 1)))
+    path = netconvert(nodes, edges, str(tmp_path / "two.net.xml"))
+    net = Network.load(path)
     rou = tmp_path / "r.rou.xml"
     rou.write_text('<routes><flow id="f" begin="0" end="200" period="3" from="wc" to="ce"/></routes>')
-    libsumo.start([sumo_binary(), "-n", cross_net, "-r", str(rou), "--no-step-log", "true"])
+    libsumo.start([sumo_binary(), "-n", path, "-r", str(rou), "--no-step-log", "true"])
     try:
         for _ in range(90):
             libsumo.simulationStep()
-        w = Window(0.0, 0.0, 0.0)
-        d = host_density(libsumo, net, w, radius=150.0)
-        import shapely
-        circle = shapely.Point(0, 0).buffer(150.0)
-        n = sum(shapely.Point(*libsumo.vehicle.getPosition(v)).within(circle) for v in libsumo.vehicle.getIDList())
-        km = sum(shapely.length(shapely.intersection(net.lines[i], circle)) for i in net.car_lane_ids) / 1000
-        assert n > 5 and d == pytest.approx(n / km, rel=0.05)
+        side = host_density(libsumo, net, Window(0.0, 120.0, 1.5708), radius=200.0)
+        main = host_density(libsumo, net, Window(-120.0, 0.0, 0.0), radius=200.0)
+        circle = shapely.Point(-120.0, 0).buffer(200.0)
+        lanes = [i for i in net.car_lane_ids if net.lanes[i].edge in ("wc", "cw", "ec", "ce")]
+        n = sum(libsumo.vehicle.getLaneID(v) in {net.lanes[i].id for i in lanes}
+                and shapely.Point(*libsumo.vehicle.getPosition(v)).within(circle) for v in libsumo.vehicle.getIDList())
+        km = sum(shapely.length(shapely.intersection(net.lines[i], circle)) for i in lanes) / 1000
+        assert n > 5 and main == pytest.approx(n / km, rel=1e-6)
+        assert side == 0.0
     finally:
         libsumo.close()
 

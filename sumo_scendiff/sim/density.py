@@ -2,8 +2,8 @@
 condition), from what the user said: a number, a vehicle count, or ``auto``.
 
 ``auto`` reads the surroundings: with a host simulation, the density of its own traffic on the car
-lanes within :data:`AUTO_RADIUS` of the window (so an emptied or sparse window is filled to the
-level around it, and a full one gets only what is missing: the vehicles already in the window are
+lanes within :data:`AUTO_RADIUS` of the window, per class of road (so an emptied or sparse window is
+filled to the level of the same kind of road around it, and a full one gets only what is missing: the vehicles already in the window are
 tokens and count towards the target); with an edgeData file, that file's density of the window's
 edges at the seeding time; otherwise the model's own prior (None).
 """
@@ -46,22 +46,52 @@ def parse_vehicles(text: str | None, flag: str = "--vehicles") -> int | None:
     return int(v)
 
 
+def road_class(net, lane: int):
+    """The class of road a lane belongs to, for :func:`host_density`: its edge's priority (netconvert
+    ranks road types by it: a main road above a residential street); None for junction lanes."""
+    ln = net.lanes[lane]
+    if ln.internal or net.sumo_net is None or not net.sumo_net.hasEdge(ln.edge):
+        return None
+    return net.sumo_net.getEdge(ln.edge).getPriority()
+
+
 def host_density(sim, net, window, radius: float = AUTO_RADIUS) -> float | None:
     """Vehicles per km of car lane of the host simulation's own traffic within ``radius`` m of the
-    window's centre (None where no car lane is that close)."""
+    window's centre (None where no car lane is that close), per class of road: each class's density
+    around the window (:func:`road_class`: a main road's queue says little about the side streets
+    beside it) weighted by that class's car-lane km inside the window. Junction lanes belong to no
+    class (left out of both); a window with no classed lane, or whose classes have no lane around,
+    falls back to the plain density of every car lane around."""
     circle = shapely.Point(window.cx, window.cy).buffer(radius)
     idx = net.lane_tree.query(circle, predicate="intersects")
     idx = idx[np.isin(idx, net.car_lane_ids)]
-    km = float(shapely.length(shapely.intersection(net.lines[idx], circle)).sum()) / 1000.0
+    km_each = shapely.length(shapely.intersection(net.lines[idx], circle)) / 1000.0
+    km = float(km_each.sum())
     if km <= 0:
         return None
-    lanes = {net.lanes[i].id for i in idx}
-    n = 0
+    lane_of = {net.lanes[i].id: i for i in idx}
+    per_lane: dict[int, int] = {}
     for vid in sim.vehicle.getIDList():
-        if sim.vehicle.getLaneID(vid) in lanes:
+        i = lane_of.get(sim.vehicle.getLaneID(vid))
+        if i is not None:
             x, y = sim.vehicle.getPosition(vid)
-            n += (x - window.cx) ** 2 + (y - window.cy) ** 2 <= radius ** 2
-    return n / km
+            if (x - window.cx) ** 2 + (y - window.cy) ** 2 <= radius ** 2:
+                per_lane[i] = per_lane.get(i, 0) + 1
+    plain = sum(per_lane.values()) / km
+    around: dict = {}
+    for i, k in zip(idx.tolist(), km_each.tolist()):
+        c = road_class(net, i)
+        if c is not None:
+            n, kk = around.get(c, (0, 0.0))
+            around[c] = (n + per_lane.get(i, 0), kk + k)
+    inside: dict = {}
+    for i, k in zip(*net.car_lanes_in(window)):
+        c = road_class(net, int(i))
+        if c is not None and k > 0:
+            inside[c] = inside.get(c, 0.0) + float(k)
+    if not inside or any(around.get(c, (0, 0.0))[1] <= 0 for c in inside):
+        return plain
+    return sum(around[c][0] / around[c][1] * k for c, k in inside.items()) / sum(inside.values())
 
 
 def window_target(net, window, density=None, vehicles=None, sim=None, edge_data=None,
