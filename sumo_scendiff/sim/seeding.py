@@ -331,12 +331,13 @@ class Seeder:
         (A turn's lower speed limit needs nothing: SUMO slows for it braking at most ``decel``,
         measured with SUMO 1.28.)
 
-        Vehicles on a junction's internal lanes are left as they are (their next link is that of the
-        following junction)."""
+        A vehicle on a junction's internal lane on a red movement: :meth:`red_stops`."""
         sim = self.sim
         lane = sim.vehicle.getLaneID(vid)
-        if not lane or lane.startswith(":"):
+        if not lane:
             return []
+        if lane.startswith(":"):
+            return self.red_stops(vid, lane)
         d = float(sim.lane.getLength(lane) - sim.vehicle.getLanePosition(vid))
         out = []
         for k, link in enumerate(sim.vehicle.getNextLinks(vid)[:links]):
@@ -353,6 +354,37 @@ class Seeder:
                 out.append((inner, 0.0))      # the turn's waiting point inside the junction
                 break
             d = inner + float(sim.lane.getLength(to))
+        return out
+
+    def _link_state(self, lane_id: str) -> str:
+        """The signal character (``G g r y m M s =`` ...) now of the link an internal lane belongs to."""
+        inc, first = self.junctions.entry[lane_id]
+        try:
+            for link in self.sim.lane.getLinks(inc):
+                if link[4] == first:
+                    return str(link[5])
+        except Exception:   # a host that cannot say: no stop
+            pass
+        return "?"
+
+    def red_stops(self, vid: str, lane: str) -> list[tuple[float, float]]:
+        """A vehicle inside a junction on a movement whose light is red now (the model, without the
+        lights, puts some there): the start of each area its lane shares with a link that has green
+        (``G g``) is a standing leader, if it is still ahead of the vehicle's front -- SUMO makes it
+        yield to that stream and otherwise brakes it beyond its decel at hand-off."""
+        if lane not in self.junctions.entry or self._link_state(lane) not in "rR":
+            return []
+        j = self.junctions.link[lane][0]
+        front = float(self.sim.vehicle.getLanePosition(vid))
+        out = []
+        for other, (jo, _) in self.junctions.link.items():
+            if jo != j or other == lane or self.junctions.entry[other][1] != other:
+                continue
+            if not self.junctions.foes(lane, other) or self._link_state(other) not in "Gg":
+                continue
+            area = self.junctions._area(lane, other)
+            if area is not None and area[0] - front > 0.0:
+                out.append((area[0] - front, 0.0))
         return out
 
     def settle(self, report: SeedReport, reach: float = 100.0) -> SeedReport:
