@@ -29,6 +29,12 @@ Rollout rates are per 100 agents; "x SUMO" columns are the method's rate over SU
 are split per net by where and with whom (on a junction, with a host vehicle, a host vehicle ran into
 the agent, in the first 10 s), beside the teleports.
 
+Beside them, every collision of the whole simulation per 100 vehicles present (the host's own
+junction collisions too), per net and method: the yardstick for a window's few agents. ``--events
+FILE`` writes every collision, teleport and early hard braking of SUMO's and the model's rollouts
+in detail (both parties, their links' signal and right of way, their last steps, how the agents
+were seeded; ``sim.events``), and the host-only collisions, as a pickle.
+
 ``--scenes FILE`` keeps the generated scenes (per net, windows and generation options) in a pickle:
 a later run with the same options reads them instead of generating, so a change to the seeder is
 measured on the very same scenes (and no model needs to load).
@@ -98,6 +104,9 @@ def get_options(args=None):
                    help="seed agents on conflicting junction links as generated (sim.junctions off)")
     p.add_argument("--signals", action="store_true",
                    help="generate with the traffic lights' states at T (run's --signals)")
+    p.add_argument("--events", default=None, metavar="FILE",
+                   help="write every collision / teleport of SUMO's and the model's rollouts in detail "
+                        "(pickle; sim.events)")
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("-o", "--output", default=None, metavar="FILE", help="also write the tables here")
     return p.parse_args(args)
@@ -207,6 +216,7 @@ def bench_net(path: str, gen, o, explicit: bool) -> dict | None:
     # runs the same way whatever else the command does.
     import fcntl
     opts = {k: getattr(o, k) for k in ("warmup", "rollout", "density", "step_length", "seed", "junction_rule")}
+    opts["events"] = bool(getattr(o, "events", None))
     top = os.path.join(tempfile.gettempdir(), f"scendiff-bench-seeding-{os.getuid()}")
     os.makedirs(top, exist_ok=True)
     with open(os.path.join(top, "lock"), "w") as lock:
@@ -299,6 +309,7 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
     res = {m: {"stats": [], "generated": 0, "dropped": 0, "refused": Counter(), "absent": 0,
                "off_pose": 0, "placed": 0, "slowed": 0, "fitted": 0, "junction": 0} for m in METHODS}
     t = time.perf_counter()
+    events = []
     for k, w in enumerate(windows):
         for name, scene in zip(METHODS, (None, scenes[k], lu_scenes[k])):
             # a fresh SUMO at the base state for every rollout, as run's Session does: each starts
@@ -309,9 +320,18 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
                 cosim = CoSimulation(sim, net, None, seed=o.seed)
                 cosim.seeder.resolve_junctions = getattr(o, "junction_rule", True)
                 ex = cosim.existing(w)
+                tracer = None
+                if getattr(o, "events", False) and name != "Lane-uniform":
+                    from sumo_scendiff.sim.events import EventTracer
+                    tracer = EventTracer(sim, net, [], label={"net": net.name, "window": k, "method": name})
                 if scene is None:                          # (a) SUMO's own traffic in the window
                     sim.simulationStep()
-                    res[name]["stats"].append(rollout(sim, ex.token_ids(), o.rollout))
+                    if tracer is not None:
+                        tracer.agents = set(ex.token_ids())
+                    res[name]["stats"].append(rollout(sim, ex.token_ids(), o.rollout, tracer=tracer))
+                    if tracer is not None:
+                        events += tracer.events + [{"kind": "host-host", "t": x[0], "lane": x[3], "ids": x[1:3],
+                                                    **tracer.label} for x in tracer.others]
                     continue
                 for vid in ex.token_ids():                 # (b), (c): the window emptied, then seeded
                     sim.vehicle.remove(vid)
@@ -331,12 +351,23 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
                 r["slowed"] += len(rep.slowed)
                 r["fitted"] += len(rep.gap_fitted)
                 r["junction"] += len(getattr(rep, "conflicts", ()))
-                r["stats"].append(rollout(sim, seeding.agent_ids, o.rollout))
+                if tracer is not None:
+                    from sumo_scendiff.sim.events import seed_info
+                    tracer.agents = set(seeding.agent_ids)
+                    tracer.seeded = seed_info(sim, rep, seeding.scene)
+                    for d in tracer.seeded.values():
+                        if d.get("internal"):
+                            d["own_link"] = tracer.link_of(d["lane"])
+                r["stats"].append(rollout(sim, seeding.agent_ids, o.rollout, tracer=tracer))
+                if tracer is not None:
+                    events += tracer.events + [{"kind": "host-host", "t": x[0], "lane": x[3], "ids": x[1:3],
+                                                **tracer.label} for x in tracer.others]
+                    events.append({"kind": "seeded", "seeded": tracer.seeded, **tracer.label})
             finally:
                 close(sim)
         print(k + 1, flush=True)                           # progress, for the parent's bar
     t_windows = time.perf_counter() - t
-    return {"demand": label, "on_road": on_road, "methods": res,
+    return {"demand": label, "on_road": on_road, "methods": res, "events": events,
             "seconds": {"warmup": t_warm, "windows": t_windows}}
 
 
@@ -362,6 +393,10 @@ def main(o) -> int:
         if r is not None:
             results.append(r)
             print(f"{r['net']}: {r['seconds']['total']:.0f} s", file=sys.stderr)
+    if getattr(o, "events", None):
+        import pickle
+        with open(o.events, "wb") as f:
+            pickle.dump([e for r in results for e in r.get("events", [])], f)
     text = tables(results, o, command) + f"\n\nTotal wall time {time.perf_counter() - t:.0f} s.\n"
     from report import emit
     emit(text, o.output, "Seeding benchmark")

@@ -110,4 +110,15 @@ def tables(results: list[dict], o, command: str) -> str:
             lines.append(f"| {label if k == 0 else ''} | {name} | {sum(s.collisions for s in stats)} | "
                          + " | ".join(str(sum(getattr(s, key) for s in stats)) for key, _ in kinds)
                          + f" | {sum(s.teleports for s in stats)} |")
+    lines += ["", "The whole simulation, every vehicle (the host's own collisions too; the SUMO runs of one net all "
+              "drive the same state, so their mean is one 60-s sample of it): collisions per 100 vehicles "
+              "present during a rollout, mean over its runs:", "",
+              "| network | " + " | ".join(METHODS) + " |", "|---|" + "---|" * len(METHODS)]
+    for label, methods in groups:
+        cells = []
+        for name in METHODS:
+            runs = [s for s in methods[name]["stats"] if getattr(s, "network_vehicles", 0)]
+            rate = (sum(100.0 * s.network_collisions / s.network_vehicles for s in runs) / len(runs)) if runs else float("nan")
+            cells.append(_f(rate))
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)

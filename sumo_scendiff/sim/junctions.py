@@ -37,6 +37,7 @@ class JunctionConflicts:
         self.net, self.margin = net, margin
         self._areas: dict[tuple[str, str], tuple[float, float] | None] = {}
         self.link: dict[str, tuple[str, int]] = {}   # internal lane -> (junction, link index)
+        self.entry: dict[str, tuple[str, str]] = {}  # internal lane -> (incoming lane, first internal lane)
         snet = net.sumo_net
         if snet is None:
             return
@@ -56,8 +57,10 @@ class JunctionConflicts:
                     k += 1
             for c, k in index.items():
                 lane_id, seen = c.getViaLaneID(), 0
+                first = lane_id
                 while lane_id and seen < 8:      # a connection's chain of internal lanes (internal junctions)
                     self.link[lane_id] = (node.getID(), k)
+                    self.entry[lane_id] = (c.getFromLane().getID(), first)
                     lane = snet.getLane(lane_id)
                     lane_id = next((x.getViaLaneID() or x.getToLane().getID() for x in lane.getOutgoing()
                                     if (x.getViaLaneID() or x.getToLane().getID()).startswith(":")), "")

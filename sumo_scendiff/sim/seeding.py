@@ -43,6 +43,8 @@ POS_TOLERANCE, YAW_TOLERANCE = 0.5, 0.1   # m, rad: "present where it was genera
 GAP_EDGES = 3          # at most this many edges between two generated poses' edges are filled in
 DEFAULT_MIN_GAP = 2.5
 MIN_GAP_MARGIN = 0.2   # m: a seeded vehicle's minGap stays this much below its bumper gap
+FOE_VISIBILITY = 4.5   # m: netconvert's default foe visibility distance of a link without priority
+LINKS_AHEAD = 2        # links (a turn's entry and its internal junction) settle looks at
 
 
 @dataclass
@@ -86,6 +88,7 @@ class Seeder:
         self.routes = RouteChooser(sim, net, exclude_prefix=prefix.split(".")[0])
         self.junctions = JunctionConflicts(net)
         self.resolve_junctions = True
+        self.junction_stops = True               # settle: the junction ahead as a leader (link_stops)
 
     # ---- network helpers --------------------------------------------------------------------
     def _internal_links(self) -> dict[str, tuple[str, str]]:
@@ -314,10 +317,80 @@ class Seeder:
         self.sim.vehicletype.setMinGap(tid, new)
         report.gap_fitted[i] = (report.gap_fitted.get(i, (old,))[0], new)
 
+    def link_stops(self, vid: str, reach: float = 100.0, links: int = LINKS_AHEAD) -> list[tuple[float, float]]:
+        """The junctions ahead as SUMO's junction model sees them, as (gap, speed) "leaders" for the
+        Krauss safe speed (``vehicle.getNextLinks``: one entry link per junction):
+
+        * a link the vehicle must be able to stop at -- the next one closed (``isOpen`` false: red, or
+          a foe it has to yield to), a red one, or one without priority (``g m s w =``) while farther than
+          the foe visibility distance (SUMO approaches those ready to stop and looks at its foes only
+          from there) -- is a standing leader at its stop line;
+        * a turn that waits inside the junction (an entry without priority whose internal lane ends at
+          an internal junction: the left turn's waiting point) a standing leader at that point.
+
+        (A turn's lower speed limit needs nothing: SUMO slows for it braking at most ``decel``,
+        measured with SUMO 1.28.)
+
+        A vehicle on a junction's internal lane on a red movement: :meth:`red_stops`."""
+        sim = self.sim
+        lane = sim.vehicle.getLaneID(vid)
+        if not lane:
+            return []
+        if lane.startswith(":"):
+            return self.red_stops(vid, lane)
+        d = float(sim.lane.getLength(lane) - sim.vehicle.getLanePosition(vid))
+        out = []
+        for k, link in enumerate(sim.vehicle.getNextLinks(vid)[:links]):
+            if d > reach:
+                break
+            to, prio, opened, _foe, via, state = link[:6]
+            if (k == 0 and not opened) or state in "rR" or (not prio and state in "gmsw=" and d > FOE_VISIBILITY):
+                out.append((d, 0.0))
+                break
+            if not via:
+                break
+            inner = d + float(sim.lane.getLength(via))
+            if not prio and any(str(x[0]).startswith(":") and not x[1] for x in sim.lane.getLinks(via)):
+                out.append((inner, 0.0))      # the turn's waiting point inside the junction
+                break
+            d = inner + float(sim.lane.getLength(to))
+        return out
+
+    def _link_state(self, lane_id: str) -> str:
+        """The signal character (``G g r y m M s =`` ...) now of the link an internal lane belongs to."""
+        inc, first = self.junctions.entry[lane_id]
+        try:
+            for link in self.sim.lane.getLinks(inc):
+                if link[4] == first:
+                    return str(link[5])
+        except Exception:   # a host that cannot say: no stop
+            pass
+        return "?"
+
+    def red_stops(self, vid: str, lane: str) -> list[tuple[float, float]]:
+        """A vehicle inside a junction on a movement whose light is red now (the model, without the
+        lights, puts some there): the start of each area its lane shares with a link that has green
+        (``G g``) is a standing leader, if it is still ahead of the vehicle's front -- SUMO makes it
+        yield to that stream and otherwise brakes it beyond its decel at hand-off."""
+        if lane not in self.junctions.entry or self._link_state(lane) not in "rR":
+            return []
+        j = self.junctions.link[lane][0]
+        front = float(self.sim.vehicle.getLanePosition(vid))
+        out = []
+        for other, (jo, _) in self.junctions.link.items():
+            if jo != j or other == lane or self.junctions.entry[other][1] != other:
+                continue
+            if not self.junctions.foes(lane, other) or self._link_state(other) not in "Gg":
+                continue
+            area = self.junctions._area(lane, other)
+            if area is not None and area[0] - front > 0.0:
+                out.append((area[0] - front, 0.0))
+        return out
+
     def settle(self, report: SeedReport, reach: float = 100.0) -> SeedReport:
         """After the seeding step, against the leaders as SUMO sees them (any vehicle within ``reach``
         m along its route, across junctions and sublanes, which the scene's own leaders at :meth:`seed`
-        time miss; or a red light): a seeded vehicle closer to its leader than its minGap gets a minGap
+        time miss; a red light; a link it must be ready to stop at, :meth:`link_stops`): a seeded vehicle closer to its leader than its minGap gets a minGap
         that fits (:meth:`fit_min_gap`); one faster than the Krauss safe speed behind it is slowed to
         that speed (``setPreviousSpeed``: the speed it ends the seeding step with). Repeats until no
         vehicle changes, since slowing a leader can make its follower too fast."""
@@ -333,6 +406,8 @@ class Seeder:
                 stops = [(float(lead[1]), float(sim.vehicle.getSpeed(lead[0])))] if lead and lead[0] else []
                 stops += [(float(d), 0.0) for _, _, d, state in sim.vehicle.getNextTLS(vid)[:1]
                           if state in "rR" and d < reach]        # a red light: a standing leader
+                if self.junction_stops:
+                    stops += self.link_stops(vid, reach)
                 if not stops:
                     continue
                 speed = float(sim.vehicle.getSpeed(vid))
