@@ -1,4 +1,8 @@
-"""Classify the seeding benchmark's collision events (--events pickle): issue 31."""
+"""Classify the seeding benchmark's collision events (--events pickle) by movement, link right of way
+and who hit whom.
+
+    python experiments/handoff_classify.py ev_8.pkl [ev_16.pkl ...]
+"""
 import pickle
 import sys
 from collections import Counter, defaultdict

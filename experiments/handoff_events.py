@@ -1,4 +1,7 @@
-"""Print every collision / teleport of the seeding benchmark's --events pickle (issue 31)."""
+"""Print every collision / teleport / early hard braking of the seeding benchmark's --events pickle.
+
+    python benchmarks/seeding.py --windows 8 --events ev.pkl; python experiments/handoff_events.py ev.pkl [method]
+"""
 import pickle
 import sys
 from collections import Counter
