@@ -11,9 +11,6 @@ from ..sim.export import write_sumocfg
 from ..sim.sumo import close
 from .picture import draw_fill, edge_density
 from .seed import (
-    INFLOW_SECONDS,
-    PROBE_SECONDS,
-    SETTLE_SECONDS,
     inflow_sample,
     probe_speed,
     seed_fill,
@@ -68,9 +65,7 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
             # (seed.probe_speed); those replacements are the inflow's first departures
             t_probe = time.perf_counter()
             sample = inflow_sample(net, cfg.begin or 0.0, o.seed)
-            # held closed-loop for the whole inflow: no open-loop rate holds a network near capacity
-            probe = probe_speed(sim, sample, hold=INFLOW_SECONDS - SETTLE_SECONDS - PROBE_SECONDS) \
-                if ids and sample else None
+            probe = probe_speed(sim, sample) if ids and sample else None
             inflow = write_inflow(os.path.join(folder, "inflow.rou.xml"), net, len(ids), cfg.begin or 0.0,
                                   o.seed, sample=sample, probe=probe)
             timing["inflow"] = time.perf_counter() - t_probe

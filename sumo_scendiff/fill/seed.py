@@ -28,7 +28,7 @@ from ..sim.sumo import start
 from .demand import TYPICAL_SPEED_FACTOR
 
 INFLOW_SECONDS = 3600.0     # how long the continuing inflow runs after the start
-SAMPLE_TRIPS = 1000         # random trips: their mean route gives the trip time; the probe's replacements
+SAMPLE_TRIPS = 200          # random trips: their mean route gives the trip time; the probe's replacements
 # The probe (probe_speed) drives the filled network on, keeping its number of vehicles, for
 # SETTLE_SECONDS unmeasured, then measures its mean speed for PROBE_SECONDS. Both are one cycle of
 # netconvert's default signal programs (90 s; grid4x4_2lane_tls's too): the speed swings with the
@@ -168,7 +168,7 @@ class Probe:
 
 
 def probe_speed(sim, routes: list[list[str]], seconds: float = PROBE_SECONDS, settle: float = SETTLE_SECONDS,
-                prefix: str = "probe", hold: float = 0.0) -> Probe:
+                prefix: str = "probe") -> Probe:
     """Drive the (filled) simulation ``sim`` on for ``settle`` + ``seconds`` and measure, over the last
     ``seconds``, the network's space-mean speed: the sum of every present vehicle's speed over the steps
     / the vehicle-steps, standing vehicles included (Little's law needs the real mean: stops at red and
@@ -178,16 +178,14 @@ def probe_speed(sim, routes: list[list[str]], seconds: float = PROBE_SECONDS, se
     ``routes`` (the inflow's own trips, departing as they will: speed 0 at the start of the first
     edge). Without that the probe would measure an emptying network, faster than the held one (on a
     closed grid the seeded vehicles' routes end within seconds). Those replacements are the inflow's
-    first departures (:func:`write_inflow`). With ``hold`` it goes on replacing, unmeasured, that many
-    seconds more: the whole inflow, closed-loop. Changes ``sim``: call it after the state and start
-    routes are written."""
+    first departures (:func:`write_inflow`). Changes ``sim``: call it after the state and start routes
+    are written."""
     dt = float(sim.simulation.getDeltaT())
     n_settle, n_probe = int(round(settle / dt)), max(int(round(seconds / dt)), 1)
-    n_hold = int(round(hold / dt))
     known = set(sim.route.getIDList())
     sums = {"settle": [0.0, 0], "probe": [0.0, 0]}     # speed sum, vehicle-steps
     counts, departures = [], []
-    for step in range(n_settle + n_probe + n_hold):
+    for step in range(n_settle + n_probe):
         sim.simulationStep()
         now = float(sim.simulation.getTime())
         for _gone in sim.simulation.getArrivedIDList():
@@ -200,8 +198,6 @@ def probe_speed(sim, routes: list[list[str]], seconds: float = PROBE_SECONDS, se
                 known.add(rid)
             sim.vehicle.add(f"{prefix}.{k}", rid, typeID="DEFAULT_VEHTYPE", depart="now")
             departures.append((now, routes[k % len(routes)]))
-        if step >= n_settle + n_probe:
-            continue
         ids = sim.vehicle.getIDList()
         acc = sums["settle" if step < n_settle else "probe"]
         acc[0] += sum(sim.vehicle.getSpeed(v) for v in ids)
@@ -215,35 +211,23 @@ def probe_speed(sim, routes: list[list[str]], seconds: float = PROBE_SECONDS, se
     record = {"settle_s": round(n_settle * dt, 3), "seconds": round(n_probe * dt, 3),
               "mean_speed_ms": mean("probe"), "settle_speed_ms": mean("settle"),
               "vehicles_mean": round(float(np.mean(counts)), 1), "vehicles_min": int(min(counts)),
-              "replaced": len(departures), "waiting_to_enter": len(sim.simulation.getPendingVehicles()),
-              "held_s": round(n_hold * dt, 3), "vehicles_at_end": sim.vehicle.getIDCount()}
+              "replaced": len(departures), "waiting_to_enter": len(sim.simulation.getPendingVehicles())}
     return Probe(record, departures, float(sim.simulation.getTime()))
-
-
-def _vehicle_rows(departures: list, typ: str = "") -> str:
-    from xml.sax.saxutils import quoteattr
-    return "".join(f'    <vehicle id="inflow_probe{i}" depart="{t:.2f}"{typ}><route edges={quoteattr(" ".join(r))}/>'
-                   f'</vehicle>\n' for i, (t, r) in enumerate(departures))
 
 
 def _prepend_departures(path: str, departures: list) -> None:
     """Write ``departures`` (time, route) as vehicles into the randomTrips.py file ``path``, before its
     trips (which start after them: SUMO reads a route file's departures in order), of its vType."""
+    from xml.sax.saxutils import quoteattr
     with open(path) as f:
         text = f.read()
     vtype = re.search(r'<vType id="([^"]+)"', text)
-    rows = _vehicle_rows(departures, f' type="{vtype.group(1)}"' if vtype else "")
+    typ = f' type="{vtype.group(1)}"' if vtype else ""
+    rows = "".join(f'    <vehicle id="inflow_probe{i}" depart="{t:.2f}"{typ}><route edges={quoteattr(" ".join(r))}/>'
+                   f'</vehicle>\n' for i, (t, r) in enumerate(departures))
     cut = min(i for i in (text.find("    <trip "), text.find("<trip "), text.rfind("</routes>")) if i >= 0)
     with open(path, "w") as f:
         f.write(text[:cut] + rows + text[cut:])
-
-
-def _write_departures(path: str, departures: list) -> None:
-    """A route file of ``departures`` (time, route) alone, of SUMO's default vType (as the probe added them)."""
-    with open(path, "w") as f:
-        f.write('<?xml version="1.0" encoding="UTF-8"?>\n<!-- sumo-scendiff fill: the closed-loop inflow, '
-                'every vehicle that left the filled network replaced at once by a random trip -->\n'
-                '<routes>\n' + _vehicle_rows(departures) + '</routes>\n')
 
 
 def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: float | None = None,
@@ -273,13 +257,9 @@ def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: 
     trip_s = max(free_s, measured_s or 0.0)
     period = max(trip_s / vehicles, 0.1)
     steady = max(begin, probe.until) if probe is not None else begin
-    closed = probe is not None and steady >= begin + INFLOW_SECONDS - 1e-6
-    if closed:
-        _write_departures(path, probe.departures)
-    else:
-        _random_trips(net.path, path, steady, period, seed, bool(sources), end=begin + INFLOW_SECONDS)
-        if probe is not None and probe.departures:
-            _prepend_departures(path, probe.departures)
+    _random_trips(net.path, path, steady, period, seed, bool(sources), end=begin + INFLOW_SECONDS)
+    if probe is not None and probe.departures:
+        _prepend_departures(path, probe.departures)
     rate = {"vehicles": vehicles, "sample_trips": len(sample), "route_m": round(metres, 1),
             "free_flow_trip_s": round(free_s, 1),
             "measured_speed_ms": None if speed is None else round(speed, 3),
@@ -287,12 +267,7 @@ def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: 
             "trip_s_from": "measured" if measured_s is not None and measured_s >= free_s else "free flow",
             "method": "period = trip_s / vehicles (Little's law); trip_s = the slower of route_m / the "
                       "filled network's measured mean speed and the routes at 0.7 x the speed limits"}
-    out = {"file": os.path.basename(path), "closed_loop": closed,
-           "method": "closed loop: the filled network driven on for the whole inflow, each vehicle that "
-                     "leaves replaced at once by the next random trip; those departures are the file"
-                     if closed else "open loop: random trips at period_s (Little's law) after the probe's "
-                     "replacements",
-           "period_s": round(period, 3), "trip_s": round(trip_s, 1),
+    out = {"file": os.path.basename(path), "period_s": round(period, 3), "trip_s": round(trip_s, 1),
            "from": "fringe" if sources else "anywhere (the network has no fringe)",
            "fringe_sources": len(sources), "seconds": INFLOW_SECONDS, "rate": rate}
     if probe is not None:
@@ -302,5 +277,5 @@ def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: 
     return out
 
 
-__all__ = ["INFLOW_SECONDS", "PROBE_SECONDS", "SETTLE_SECONDS", "InflowError", "Probe", "fringe_sources", "inflow_sample", "probe_speed",
+__all__ = ["PROBE_SECONDS", "SETTLE_SECONDS", "InflowError", "Probe", "fringe_sources", "inflow_sample", "probe_speed",
            "route_metres", "seed_fill", "trip_seconds", "write_inflow", "write_start_routes"]
