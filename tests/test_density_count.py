@@ -66,7 +66,7 @@ def test_a_requested_density_is_the_windows_vehicle_count(city, gen):
     rng = np.random.default_rng(3)
     xy, yaw = city.random_road_points(24, rng)
     wins = [w for w in (Window(float(x), float(y), float(h)) for (x, y), h in zip(xy, yaw))
-            if city.car_lane_km(w) > 0.3][:4]
+            if city.car_lane_km(w) > 0.3][:3]
     want = [int(np.round(20.0 * city.car_lane_km(w))) for w in wins]
     scenes = gen.generate(city, wins, seed=0, density=20.0)
     got = [len(s) for s in scenes]
@@ -85,7 +85,7 @@ def test_a_requested_density_is_the_windows_vehicle_count(city, gen):
     # the same seed, the same scenes, infill included, in batches of any size (to the generator's
     # mm rounding: a value on a rounding edge may land a mm either side, and two agents of equal
     # probability change places)
-    small = gen.generate(city, wins, seed=0, density=20.0, config=replace(gen.config, batch_size=1))
+    small = gen.generate(city, wins[:2], seed=0, density=20.0, config=replace(gen.config, batch_size=1))
     for a, b in zip(small, scenes):
         a, b = (s.boxes[np.lexsort(np.round(s.boxes[:, :2], 1).T)] for s in (a, b))
         np.testing.assert_allclose(a[:, [0, 1, 3, 4]], b[:, [0, 1, 3, 4]], atol=1.5e-3)
