@@ -319,12 +319,13 @@ def run(o) -> dict:
 def print_summary(summary: dict) -> None:
     rows = summary["scenes"]
     rolled = any(r.get("seconds", 0) > 0 for r in rows)
-    print(f"{'scene':10} {'where':11} {'kept':>5} {'generated':>9} {'placed':>6} {'refused':>7} {'veh/km':>6} "
+    wide = max([11] + [len(str(r["location"])) for r in rows])
+    print(f"{'scene':10} {'where':{wide}} {'kept':>5} {'generated':>9} {'placed':>6} {'refused':>7} {'veh/km':>6} "
           f"{'misplaced':>9} {'collisions':>10} {'teleports':>9} {'e-brakes':>8} {'speed':>6}")
     for r in rows:
         density = "–" if r.get("density_veh_per_km") is None else f"{r['density_veh_per_km']:.0f}"
         speed = f"{r['mean_speed']:6.1f}" if rolled else f"{'–':>6}"
-        print(f"{r['scene']:10} {r['location']:11} {r['existing_vehicles']:5d} {r['generated']:9d} "
+        print(f"{r['scene']:10} {r['location']:{wide}} {r['existing_vehicles']:5d} {r['generated']:9d} "
               f"{r['placed']:6d} {r['refused']:7d} {density:>6} {r['misplaced']:9d} {r['collisions']:10d} "
               f"{r['teleports']:9d} {r['emergency_brakes']:8d} {speed}")
     gen = sum(r["generated"] for r in rows)
