@@ -27,8 +27,9 @@ import shapely
 from ..core.geometry import T0, TIMES, Window, box_corners, wrap_angle
 from ..core.matching import assign
 from ..core.scene import speeds_from_traj
+from ..tokens.encoding import MIN_DISPLACEMENT
 from ..tokens.features import is_pinnable
-from .lane_snap import SNAP_MAX_ANGLE, SNAP_RADIUS, walk_lanes
+from .lane_snap import GIVEN_MAX_ANGLE, SNAP_MAX_ANGLE, SNAP_RADIUS, walk_lanes
 from .pinning import _arc, _distance, retime
 
 log = logging.getLogger(__name__)
@@ -70,28 +71,45 @@ def match_rows(boxes: np.ndarray, rows: np.ndarray, radius: float, taken: np.nda
 
 def _speeds(traj: np.ndarray, row: np.ndarray) -> tuple[float, float]:
     """The (speed, final speed) an agent is paced to: the token's where it gives them; else the
-    drawn one, a drawn change of speed kept when only the speed is given (as pace_to_pins)."""
+    drawn one, a drawn change of speed kept when only the speed is given (as pace_to_pins). A token
+    giving ``heading_to_final`` says the vehicle moves (it is defined only for a displacement of at
+    least MIN_DISPLACEMENT in 2 s, tokens/encoding.py): a drawn final speed that would leave it
+    standing is raised to cover that distance."""
     v = speeds_from_traj(traj[None], np.ones((1, len(TIMES)), bool))[0]
     v0, v2 = row[6], row[7]
     if not np.isfinite(v0):
         v0 = float(v[T0])
     if not np.isfinite(v2):
         v2 = max(v0 + float(v[-1] - v[T0]), 0.0) if np.isfinite(row[6]) else float(v[-1])
+        if np.isfinite(row[8]):
+            v2 = _moving(float(v0), float(v2))
     return float(v0), float(v2)
+
+
+def _moving(v0: float, v2: float) -> float:
+    """The least final speed >= ``v2`` whose 2 s from ``v0`` cover MIN_DISPLACEMENT: a token giving
+    ``heading_to_final`` says the vehicle moves (tokens/encoding.py)."""
+    t = np.asarray(TIMES)
+    while _distance(v0, (v2 - v0) / 2.0, t)[-1] < MIN_DISPLACEMENT:   # distance grows with v2
+        v2 += 0.1
+    return v2
 
 
 def apply_rows(boxes: np.ndarray, traj: np.ndarray, rows: np.ndarray, pairs: list[tuple[int, int]]
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Each matched agent takes its token's heading (turned rigidly about its pose), size, and
-    speeds along its drawn path, its future turned by the token's ``heading_to_final``. Returns new
-    boxes and traj, which agents' heading a token gave (N,) and the (N, 2) speeds they were paced to
-    (NaN: not paced), for :func:`pace_rows` after lane snap."""
+    """Each matched agent takes its token's position (its drawn path moved rigidly there), heading
+    (turned rigidly about its pose), size, and speeds along its drawn path, its future turned by the
+    token's ``heading_to_final``. Returns new boxes and traj, which agents' heading a token gave (N,)
+    and the (N, 3) speed, final speed and heading_to_final they were paced to (NaN: not paced / not
+    given), for :func:`pace_rows` after lane snap."""
     boxes, traj = np.array(boxes, np.float64), np.array(traj, np.float64)
     turned = np.zeros(len(boxes), bool)
-    speeds = np.full((len(boxes), 2), np.nan)
+    speeds = np.full((len(boxes), 3), np.nan)
     t = np.asarray(TIMES)
     for a, r in pairs:
         row = rows[r]
+        # the token's position: the user said where (the model drew it within the match radius)
+        traj[a, :, :2] += row[1:3] - traj[a, T0, :2]
         if np.isfinite(row[3]):
             delta = float(wrap_angle(row[3] - traj[a, T0, 2]))
             c, s = np.cos(delta), np.sin(delta)
@@ -108,20 +126,50 @@ def apply_rows(boxes: np.ndarray, traj: np.ndarray, rows: np.ndarray, pairs: lis
             if np.isfinite(row[8]):
                 x, y, h = traj[a, T0]
                 traj[a, t > 0] = _arc(x, y, h, s, float(row[8]), t)[t > 0]
-            speeds[a] = v0, v2
+            speeds[a] = v0, v2, row[8]
         boxes[a, :3] = traj[a, T0]
     return boxes, traj, turned, speeds
 
 
-def pace_rows(traj: np.ndarray, speeds: np.ndarray) -> np.ndarray:
+def _on_lanes(net, window: Window, poses: np.ndarray) -> bool:
+    """Whether every scene-frame pose (K, 3) has a car lane within lane snap's radius that agrees
+    with its heading (lane snap's angle): a vehicle can drive there."""
+    m = net.match_poses(window.scene_to_world(poses[:, :2]), window.yaw_to_world(poses[:, 2]),
+                        radius=SNAP_RADIUS, max_angle=SNAP_MAX_ANGLE)
+    return bool((m.lane >= 0).all())
+
+
+def pace_rows(traj: np.ndarray, speeds: np.ndarray, window: Window | None = None, net=None,
+              owner: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
     """The paced agents (``speeds`` not NaN) re-timed again along their path at those speeds: lane
-    snap moved their poses onto the lanes, and so their steps."""
+    snap moved their poses onto the lanes, and so their steps. An agent whose token gives
+    ``heading_to_final`` (``speeds[:, 2]``) drives the token's turn from its pose now (the arc of
+    :func:`~.pinning.pace_to_pins`): lane snap puts the centre on a lane's centre line, but a turning
+    vehicle's centre cuts inside the curve its front follows, so the snapped path's +2 s direction
+    is not the turn asked. Where that arc leaves the car lanes (``net`` given: a +1 or +2 s pose on
+    no lane along it), no lane turns so: the snapped path is kept, and a warning line names the
+    token (``owner``: per agent, its token's index). Returns the new traj and the warning lines."""
     traj = np.array(traj, np.float64)
     t = np.asarray(TIMES)
+    lines: list[str] = []
+    speeds = np.asarray(speeds, np.float64)
+    speeds = speeds.reshape(len(traj), speeds.shape[-1] if speeds.ndim == 2 else 2)
     for a in np.flatnonzero(np.isfinite(speeds[:, 0])):
-        v0, v2 = speeds[a]
-        traj[a] = retime(traj[a], _distance(v0, (v2 - v0) / 2.0, t))
-    return traj
+        v0, v2 = speeds[a, :2]
+        s = _distance(v0, (v2 - v0) / 2.0, t)
+        traj[a] = retime(traj[a], s)
+        if speeds.shape[1] > 2 and np.isfinite(speeds[a, 2]):
+            x, y, h = traj[a, T0]
+            arc = _arc(x, y, h, s, float(speeds[a, 2]), t)
+            if net is None or window is None or _on_lanes(net, window, arc[t > 0]):
+                traj[a, t > 0] = arc[t > 0]
+            else:
+                i = int(owner[a]) if owner is not None else a
+                lines.append(f"token {i} at ({x:.1f}, {y:.1f}) m (window frame): heading_to_final "
+                             f"{speeds[a, 2]:+.2f} rad: no car lane turns so: the vehicle follows its lane")
+    for line in lines:
+        log.warning(line)
+    return traj, lines
 
 
 def lane_trajectory(net, lane: int, pos: float, v0: float, v2: float, turn: float = np.nan
@@ -169,15 +217,27 @@ def place_rows(boxes: np.ndarray, traj: np.ndarray, owner: np.ndarray, rows: np.
         yaw = None if not np.isfinite(row[3]) else float(window.yaw_to_world(row[3]))
         m = net.match_poses(xy[None], None if yaw is None else [yaw], radius=SNAP_RADIUS,
                             max_angle=SNAP_MAX_ANGLE)
+        stated = False      # the pose now is the token's: no lane runs along its heading (lane_snap's exact)
+        if yaw is not None and m.lane[0] >= 0 and m.heading_diff[0] > GIVEN_MAX_ANGLE:
+            strict = net.match_poses(xy[None], [yaw], radius=SNAP_RADIUS, max_angle=GIVEN_MAX_ANGLE)
+            m, stated = (strict, False) if strict.lane[0] >= 0 else (m, True)
         if m.lane[0] < 0:
             lines.append(f"{where}: on no car lane within {SNAP_RADIUS:g} m"
                          f"{'' if yaw is None else ' that runs along its heading'}: not placed")
             continue
         lane, pos = int(m.lane[0]), float(m.pos[0])
         v0 = row[6] if np.isfinite(row[6]) else float(net.lanes[lane].speed)
-        v2 = row[7] if np.isfinite(row[7]) else v0
+        v2 = row[7] if np.isfinite(row[7]) else (_moving(float(v0), float(v0)) if np.isfinite(row[8]) else v0)
         world = lane_trajectory(net, lane, pos, float(v0), float(v2), float(row[8]))
         tr = np.c_[window.world_to_scene(world[:, :2]), window.yaw_to_scene(world[:, 2])]
+        if stated:
+            tr[T0] = row[1:4]
+        if np.isfinite(row[8]):
+            # the token's turn from the pose now, where the lanes let a vehicle drive it (pace_rows)
+            t = np.asarray(TIMES)
+            arc = _arc(*tr[T0], _distance(float(v0), (float(v2) - float(v0)) / 2.0, t), float(row[8]), t)
+            if _on_lanes(net, window, arc[t > 0]):
+                tr[t > 0] = arc[t > 0]
         size = row[4:6] if np.isfinite(row[4]) else np.array([CAR_LENGTH, CAR_WIDTH])
         box = np.r_[tr[T0], size]
         mine = shapely.polygons(box_corners(*box[:, None]))[0]
