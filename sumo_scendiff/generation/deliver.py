@@ -100,11 +100,11 @@ def apply_rows(boxes: np.ndarray, traj: np.ndarray, rows: np.ndarray, pairs: lis
     """Each matched agent takes its token's position (its drawn path moved rigidly there), heading
     (turned rigidly about its pose), size, and speeds along its drawn path, its future turned by the
     token's ``heading_to_final``. Returns new boxes and traj, which agents' heading a token gave (N,)
-    and the (N, 3) speed, final speed and heading_to_final they were paced to (NaN: not paced / not
-    given), for :func:`pace_rows` after lane snap."""
+    and the (N, 4) speed, final speed, heading_to_final (NaN: not given) they were paced to (NaN:
+    not paced) and whether the token gave that final speed (1), for :func:`pace_rows` after lane snap."""
     boxes, traj = np.array(boxes, np.float64), np.array(traj, np.float64)
     turned = np.zeros(len(boxes), bool)
-    speeds = np.full((len(boxes), 3), np.nan)
+    speeds = np.full((len(boxes), 4), np.nan)
     t = np.asarray(TIMES)
     for a, r in pairs:
         row = rows[r]
@@ -126,7 +126,7 @@ def apply_rows(boxes: np.ndarray, traj: np.ndarray, rows: np.ndarray, pairs: lis
             if np.isfinite(row[8]):
                 x, y, h = traj[a, T0]
                 traj[a, t > 0] = _arc(x, y, h, s, float(row[8]), t)[t > 0]
-            speeds[a] = v0, v2, row[8]
+            speeds[a] = v0, v2, row[8], float(np.isfinite(row[7]))
         boxes[a, :3] = traj[a, T0]
     return boxes, traj, turned, speeds
 
@@ -139,16 +139,81 @@ def _on_lanes(net, window: Window, poses: np.ndarray) -> bool:
     return bool((m.lane >= 0).all())
 
 
+TURN_TOLERANCE = 0.1   # rad: a path along the lanes whose +2 s direction is this close delivers the turn
+
+
+def _scene_pose(net, window: Window, lane: int, pos: float) -> np.ndarray:
+    xy, h = net.lane_pose(lane, pos)
+    return np.r_[window.world_to_scene(np.asarray(xy, np.float64)[None])[0], window.yaw_to_scene(h)]
+
+
+def _direction(pose: np.ndarray, end: np.ndarray) -> float:
+    d = end[:2] - pose[:2]
+    return float(wrap_angle(np.arctan2(d[1], d[0]) - pose[2]))
+
+
+def turn_path(net, window: Window | None, pose: np.ndarray, v0: float, v2: float, alpha: float,
+              free: bool) -> tuple[np.ndarray, float] | None:
+    """The (T, 3) poses and final speed of a vehicle at scene-frame ``pose`` now, moving from ``v0``
+    to ``v2`` m/s, whose +2 s displacement leaves at ``alpha`` to its heading (the token's
+    ``heading_to_final``), on the car lanes (``net`` None: the arc, unchecked). In this order:
+
+    1. the token's arc (:func:`~.pinning._arc`), every +1/+2 s pose within lane snap's radius of a
+       lane along it;
+    2. along the lane graph from the lane at ``pose``: the branch whose +2 s point lies within
+       :data:`TURN_TOLERANCE` of that direction (a vehicle turning with the road: its heading at +2 s
+       the lane's, not the arc's);
+    3. a change of lanes: straight along that direction, the heading kept (SUMO, without the sublane
+       model, moves a vehicle sideways by a lane's width in one step), ending within 1 m of the
+       centre line of another lane along the heading.
+
+    2 and 3 with a final speed the token does not give (``free``) also at lower final speeds, the
+    highest that fits first (a vehicle slows into a turn). None where no path fits."""
+    t = np.asarray(TIMES)
+    s = _distance(v0, (v2 - v0) / 2.0, t)
+    arc = _arc(*pose, s, alpha, t)
+    if net is None or window is None or _on_lanes(net, window, arc[t > 0]):
+        return arc, v2
+    world = window.scene_to_world(np.asarray(pose, np.float64)[None, :2])
+    here = net.match_poses(world, [window.yaw_to_world(pose[2])], radius=SNAP_RADIUS, max_angle=SNAP_MAX_ANGLE)
+    if here.lane[0] < 0:
+        return None
+    lane0, pos0 = int(here.lane[0]), float(here.pos[0])
+    finals = [v2] + (list(np.arange(v2 - 0.5, 0.0, -0.5)) + [0.0] if free else [])
+    for v in finals:
+        v = _moving(v0, float(v))
+        s = _distance(v0, (v - v0) / 2.0, t)
+        ends = [_scene_pose(net, window, ln, p) for ln, p in walk_lanes(net, lane0, pos0, float(s[-1]))]
+        err = [abs(wrap_angle(_direction(pose, e) - alpha)) for e in ends]
+        if ends and min(err) <= TURN_TOLERANCE:
+            end = ends[int(np.argmin(err))]
+            path = np.array(pose, np.float64)[None].repeat(len(t), 0)
+            for k in np.flatnonzero(t > 0):
+                cands = [_scene_pose(net, window, ln, p) for ln, p in walk_lanes(net, lane0, pos0, float(s[k]))]
+                path[k] = min(cands, key=lambda c: np.linalg.norm(c[:2] - end[:2]))
+            path[-1] = end
+            return path, v
+        chord = np.array([pose[0] + s[-1] * np.cos(pose[2] + alpha), pose[1] + s[-1] * np.sin(pose[2] + alpha)])
+        m = net.match_poses(window.scene_to_world(chord[None]), [window.yaw_to_world(pose[2])],
+                            radius=1.0, max_angle=GIVEN_MAX_ANGLE)
+        if m.lane[0] >= 0 and int(m.lane[0]) != lane0:
+            d = np.where(t > 0, pose[2] + alpha, pose[2])
+            path = np.stack([pose[0] + s * np.cos(d), pose[1] + s * np.sin(d), np.full(len(t), pose[2])], 1)
+            return path, v
+    return None
+
+
 def pace_rows(traj: np.ndarray, speeds: np.ndarray, window: Window | None = None, net=None,
               owner: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
     """The paced agents (``speeds`` not NaN) re-timed again along their path at those speeds: lane
     snap moved their poses onto the lanes, and so their steps. An agent whose token gives
-    ``heading_to_final`` (``speeds[:, 2]``) drives the token's turn from its pose now (the arc of
-    :func:`~.pinning.pace_to_pins`): lane snap puts the centre on a lane's centre line, but a turning
-    vehicle's centre cuts inside the curve its front follows, so the snapped path's +2 s direction
-    is not the turn asked. Where that arc leaves the car lanes (``net`` given: a +1 or +2 s pose on
-    no lane along it), no lane turns so: the snapped path is kept, and a warning line names the
-    token (``owner``: per agent, its token's index). Returns the new traj and the warning lines."""
+    ``heading_to_final`` (``speeds[:, 2]``) drives the token's turn from its pose now
+    (:func:`turn_path`: the arc of :func:`~.pinning.pace_to_pins`, else a change of lanes; ``speeds[:,
+    3]`` 1 where the token gives the final speed, else it may be lower): lane snap puts the centre
+    on a lane's centre line, but a turning vehicle's centre cuts inside the curve its front follows,
+    so the snapped path's +2 s direction is not the turn asked. Where no such path stays on the car
+    lanes, no lane turns so: the snapped path is kept, and a warning line names the token
+    (``owner``: per agent, its token's index). Returns the new traj and the warning lines."""
     traj = np.array(traj, np.float64)
     t = np.asarray(TIMES)
     lines: list[str] = []
@@ -156,14 +221,16 @@ def pace_rows(traj: np.ndarray, speeds: np.ndarray, window: Window | None = None
     speeds = speeds.reshape(len(traj), speeds.shape[-1] if speeds.ndim == 2 else 2)
     for a in np.flatnonzero(np.isfinite(speeds[:, 0])):
         v0, v2 = speeds[a, :2]
-        s = _distance(v0, (v2 - v0) / 2.0, t)
-        traj[a] = retime(traj[a], s)
+        traj[a] = retime(traj[a], _distance(v0, (v2 - v0) / 2.0, t))
         if speeds.shape[1] > 2 and np.isfinite(speeds[a, 2]):
-            x, y, h = traj[a, T0]
-            arc = _arc(x, y, h, s, float(speeds[a, 2]), t)
-            if net is None or window is None or _on_lanes(net, window, arc[t > 0]):
-                traj[a, t > 0] = arc[t > 0]
+            free = speeds.shape[1] > 3 and speeds[a, 3] != 1.0
+            found = turn_path(net, window, traj[a, T0].copy(), float(v0), float(v2), float(speeds[a, 2]), free)
+            if found is not None:
+                path, v = found
+                traj[a] = retime(traj[a], _distance(v0, (v - v0) / 2.0, t))
+                traj[a, t > 0] = path[t > 0]
             else:
+                x, y = traj[a, T0, :2]
                 i = int(owner[a]) if owner is not None else a
                 lines.append(f"token {i} at ({x:.1f}, {y:.1f}) m (window frame): heading_to_final "
                              f"{speeds[a, 2]:+.2f} rad: no car lane turns so: the vehicle follows its lane")
@@ -228,16 +295,26 @@ def place_rows(boxes: np.ndarray, traj: np.ndarray, owner: np.ndarray, rows: np.
         lane, pos = int(m.lane[0]), float(m.pos[0])
         v0 = row[6] if np.isfinite(row[6]) else float(net.lanes[lane].speed)
         v2 = row[7] if np.isfinite(row[7]) else (_moving(float(v0), float(v0)) if np.isfinite(row[8]) else v0)
-        world = lane_trajectory(net, lane, pos, float(v0), float(v2), float(row[8]))
-        tr = np.c_[window.world_to_scene(world[:, :2]), window.yaw_to_scene(world[:, 2])]
-        if stated:
-            tr[T0] = row[1:4]
+
+        def on_lane(v2: float) -> np.ndarray:
+            world = lane_trajectory(net, lane, pos, float(v0), v2, float(row[8]))
+            tr = np.c_[window.world_to_scene(world[:, :2]), window.yaw_to_scene(world[:, 2])]
+            if stated:
+                tr[T0] = row[1:4]
+            return tr
+        tr = on_lane(float(v2))
         if np.isfinite(row[8]):
             # the token's turn from the pose now, where the lanes let a vehicle drive it (pace_rows)
             t = np.asarray(TIMES)
-            arc = _arc(*tr[T0], _distance(float(v0), (float(v2) - float(v0)) / 2.0, t), float(row[8]), t)
-            if _on_lanes(net, window, arc[t > 0]):
-                tr[t > 0] = arc[t > 0]
+            found = turn_path(net, window, tr[T0].copy(), float(v0), float(v2), float(row[8]),
+                              free=not np.isfinite(row[7]))
+            if found is None:
+                lines.append(f"{where}: heading_to_final {row[8]:+.2f} rad: no car lane turns so: "
+                             f"the vehicle follows its lane")
+            else:
+                if found[1] != v2:
+                    tr = on_lane(found[1])     # slower into the turn: the past at that deceleration
+                tr[t > 0] = found[0][t > 0]
         size = row[4:6] if np.isfinite(row[4]) else np.array([CAR_LENGTH, CAR_WIDTH])
         box = np.r_[tr[T0], size]
         mine = shapely.polygons(box_corners(*box[:, None]))[0]

@@ -192,7 +192,7 @@ class ScenarioGenerator:
         # the positioned tokens not pinned: their agents take what they give (deliver.py)
         rows = delivered_rows(given) if cfg.deliver_tokens else np.zeros((0, 9))
         owner = np.full(len(keep), -1, np.int64)       # per agent: the delivered token's index
-        paced = np.full((len(keep), 3), np.nan)          # per agent: its token's speeds and turn
+        paced = np.full((len(keep), 4), np.nan)          # per agent: its token's speeds and turn
         warnings: list[str] = []
         if len(rows):
             pinned = np.zeros(len(keep), bool)
