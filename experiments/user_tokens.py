@@ -76,7 +76,7 @@ def heading_to_final(traj: np.ndarray) -> float:
 def score(scenes, tokens) -> dict:
     n = matched = 0
     warned = sum(len({line.split(" at ")[0] for line in s.meta.get("token_warnings", ())}) for s in scenes)
-    speed, final, turn = [], [], []
+    speed, final, turn, signed, signed_final = [], [], [], [], []
     for s, toks in zip(scenes, tokens):
         n += len(toks)
         tb = np.array([[t["x"], t["y"], t.get("heading", np.nan)] for t in toks]).reshape(-1, 3)
@@ -84,16 +84,33 @@ def score(scenes, tokens) -> dict:
         matched += len(gi)
         for g, k in zip(gi, ti):
             t = toks[k]
-            speed.append(abs(float(s.speed[g, T0]) - t["speed"]))
+            signed.append(float(s.speed[g, T0]) - t["speed"])
+            speed.append(abs(signed[-1]))
             if "final_speed" in t:
-                final.append(abs(float(s.speed[g, -1]) - t["final_speed"]))
+                signed_final.append(float(s.speed[g, -1]) - t["final_speed"])
+                final.append(abs(signed_final[-1]))
             if "heading_to_final" in t:
                 h = heading_to_final(s.traj[g].astype(np.float64))
                 turn.append(np.sign(h) == np.sign(t["heading_to_final"])
                             and abs(h - t["heading_to_final"]) <= TURN_AGREE)
+    return summary({"n": n, "matched": matched, "speed": speed, "final": final, "turn": turn, "warned": warned,
+                    "signed": signed, "signed_final": signed_final})
+
+
+def summary(raw: dict) -> dict:
+    """The table's figures of :func:`score`'s raw counts and errors (``raw`` kept, to pool cities)."""
     mean = (lambda v: float(np.mean(v)) if v else float("nan"))
-    return {"tokens": n, "match": matched / max(n, 1), "speed": mean(speed), "final": mean(final),
-            "turn": mean(turn), "warned": warned}
+    return {"tokens": raw["n"], "match": raw["matched"] / max(raw["n"], 1), "speed": mean(raw["speed"]),
+            "final": mean(raw["final"]), "turn": mean(raw["turn"]), "warned": raw["warned"], "raw": raw,
+            "bias": mean(raw["signed"]), "final_bias": mean(raw["signed_final"])}
+
+
+def pooled(results: list[dict]) -> dict:
+    """One :func:`summary` of several cities' results."""
+    lists = ("speed", "final", "turn", "signed", "signed_final")
+    raw = {k: sum((r["raw"][k] for r in results), [] if k in lists else 0)
+           for k in ("n", "matched", "warned") + lists}
+    return summary(raw)
 
 
 def get_options(args=None):
@@ -106,6 +123,10 @@ def get_options(args=None):
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("--cache", default=os.path.join(ROOT, ".cache", "eval"))
     p.add_argument("--checkpoint", default=None)
+    p.add_argument("--guidance", type=float, default=None, help="token guidance weight (default: generate's)")
+    p.add_argument("--steps", type=int, default=None, help="ODE steps (default: generate's)")
+    p.add_argument("--sampler", default=None, help="ODE solver (default: generate's)")
+    p.add_argument("--drawn-only", action="store_true", help="only the model's own drawing (no delivery)")
     p.add_argument("-o", "--output", default=None, help="also write the table here (markdown)")
     return p.parse_args(args)
 
@@ -129,10 +150,20 @@ def cities_with_demand() -> list[str]:
     return out
 
 
+def row(city: str, kind: str, res: list[dict]) -> str:
+    fmt = (lambda k, p: "–" if all(np.isnan(r[k]) for r in res) else " / ".join(f"{r[k]:.{p}f}" for r in res))
+    return (f"| {city} | {kind} | {res[0]['tokens']} | {fmt('match', 2)} | {fmt('speed', 2)} | "
+            f"{fmt('final', 2)} | {fmt('turn', 2)} | {res[0]['warned'] if len(res) > 1 else '–'} |")
+
+
 def main(o) -> int:
     gen = ScenarioGenerator.load(o.checkpoint)
-    lines = ["| city | tokens | n | match (delivered / drawn) | speed MAE m/s | final speed MAE m/s | turn agreement "
-             "| warned |", "|---|---|---|---|---|---|---|---|"]
+    base = replace(gen.config, **{k: getattr(o, k) for k in ("guidance", "steps", "sampler")
+                                  if getattr(o, k) is not None}).validate()
+    modes = (False,) if o.drawn_only else (True, False)
+    every: dict[str, list[list[dict]]] = {}
+    lines = [("| city | tokens | n | match (delivered / drawn) | speed MAE m/s | final speed MAE m/s | turn agreement "
+              "| warned |"), "|---|---|---|---|---|---|---|---|"]
     for city in o.cities or cities_with_demand():
         net = network_of(city)
         store = SceneStore(record_cached([net.path], [find_demand(net)], o.windows, o.seed, o.cache,
@@ -146,11 +177,16 @@ def main(o) -> int:
             windows, toks = [g.window for g, _ in pairs], [t for _, t in pairs]
             lights = [g.meta.get("signals") or None for g, _ in pairs]   # the recorded moment's lights
             res = [score(gen.generate(net, windows, tokens=toks, p_mask=o.p_mask, seed=o.seed, signals=lights,
-                                      config=replace(gen.config, deliver_tokens=d)), toks) for d in (True, False)]
-            fmt = (lambda k, p: "–" if all(np.isnan(r[k]) for r in res) else " / ".join(f"{r[k]:.{p}f}" for r in res))
-            lines.append(f"| {net.name} | {kind} | {res[0]['tokens']} | {fmt('match', 2)} | {fmt('speed', 2)} | "
-                         f"{fmt('final', 2)} | {fmt('turn', 2)} | {res[0]['warned']} |")
+                                      config=replace(base, deliver_tokens=d)), toks) for d in modes]
+            every.setdefault(kind, []).append(res)
+            lines.append(row(net.name, kind, res))
             print(lines[-1], file=sys.stderr)
+    for kind, res in every.items():      # every city's tokens together
+        res = [pooled([r[m] for r in res]) for m in range(len(modes))]
+        lines.append(row("**all**", kind, res))
+        bias = (lambda k, res=res: " / ".join(f"{r[k]:+.2f}" for r in res))
+        print(f"{kind}: mean signed error of the speed {bias('bias')}, of the final speed {bias('final_bias')} m/s",
+              file=sys.stderr)
     text = "\n".join(lines) + "\n"
     print(text)
     if o.output:

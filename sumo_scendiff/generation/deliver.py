@@ -2,19 +2,22 @@
 
     rows = delivered_rows(tokens)                               # (D, 10): the positioned partial tokens
     pairs = match_rows(boxes, rows, radius, taken)              # generated agent <-> token
-    boxes, traj, v = apply_rows(boxes, traj, rows, pairs)       # before lane snap
-    traj = pace_rows(traj, rows, pairs, v)                      # again after it
-    boxes, traj, owner, lines = place_rows(boxes, traj, owner, rows, window, net)  # the unmatched
+    boxes, traj, turned, v = apply_rows(boxes, traj, rows, pairs)   # before lane snap
+    traj, lines = pace_rows(traj, v, window, net, owner)        # again after it (and the turn)
+    boxes, traj, owner, gone, lines = place_rows(boxes, traj, owner, rows, window, net)  # the unmatched
 
 A pinned token (pose, size and speed: :mod:`.pinning`) is drawn into the latent. A partial one is a
 condition only, and the model follows it loosely: asked for 12 m/s it draws the typical speed, and
 it never draws a stop (docs/tokens.md, "Delivered tokens"). So the generated agent matched one-to-one
 to a positioned partial token (centre within the pins' radius, :func:`~sumo_scendiff.core.matching.assign`)
-takes what the token gives: its heading (turned rigidly, as :func:`~.pinning.turn_to_pins`), its
-length and width, and its speed and final speed along the path the model drew, turned by its
-``heading_to_final`` (:func:`~.pinning.pace_to_pins`' re-timing); what the token does not give stays
-the model's. A positioned token no generated agent matches is placed by :func:`place_rows` on the car
-lane at its position, unless it lies on no car lane (a warning line, never a silent drop).
+takes what the token gives: its position, its heading (turned rigidly, as
+:func:`~.pinning.turn_to_pins`; lane snap keeps a stated pose no lane runs along,
+``lane_snap.snap_to_lanes``' ``exact``), its length and width, and its speed and final speed along
+the path the model drew (:func:`~.pinning.pace_to_pins`' re-timing), its future the token's turn
+(:func:`turn_path`: the arc, else along the lane graph, else a change of lanes; a warning line where
+no lane turns so); what the token does not give stays the model's. A positioned token no generated
+agent matches is placed by :func:`place_rows` on the car lane at its position, unless it lies on no
+car lane (a warning line, never a silent drop).
 """
 from __future__ import annotations
 
@@ -262,6 +265,17 @@ def lane_trajectory(net, lane: int, pos: float, v0: float, v2: float, turn: floa
     return out
 
 
+def _placed(net, window: Window, lane: int, pos: float, v0: float, v2: float, row: np.ndarray,
+            stated: bool) -> np.ndarray:
+    """(T, 3) scene-frame poses of a placed token's vehicle along the lane graph (:func:`lane_trajectory`),
+    its pose now the token's own where ``stated``."""
+    world = lane_trajectory(net, lane, pos, v0, v2, float(row[8]))
+    tr = np.c_[window.world_to_scene(world[:, :2]), window.yaw_to_scene(world[:, 2])]
+    if stated:
+        tr[T0] = row[1:4]
+    return tr
+
+
 def place_rows(boxes: np.ndarray, traj: np.ndarray, owner: np.ndarray, rows: np.ndarray,
                window: Window, net) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int], list[str]]:
     """Place the rows no generated agent matched: on the car lane at the token's position (within
@@ -295,14 +309,7 @@ def place_rows(boxes: np.ndarray, traj: np.ndarray, owner: np.ndarray, rows: np.
         lane, pos = int(m.lane[0]), float(m.pos[0])
         v0 = row[6] if np.isfinite(row[6]) else float(net.lanes[lane].speed)
         v2 = row[7] if np.isfinite(row[7]) else (_moving(float(v0), float(v0)) if np.isfinite(row[8]) else v0)
-
-        def on_lane(v2: float) -> np.ndarray:
-            world = lane_trajectory(net, lane, pos, float(v0), v2, float(row[8]))
-            tr = np.c_[window.world_to_scene(world[:, :2]), window.yaw_to_scene(world[:, 2])]
-            if stated:
-                tr[T0] = row[1:4]
-            return tr
-        tr = on_lane(float(v2))
+        tr = _placed(net, window, lane, pos, float(v0), float(v2), row, stated)
         if np.isfinite(row[8]):
             # the token's turn from the pose now, where the lanes let a vehicle drive it (pace_rows)
             t = np.asarray(TIMES)
@@ -312,8 +319,8 @@ def place_rows(boxes: np.ndarray, traj: np.ndarray, owner: np.ndarray, rows: np.
                 lines.append(f"{where}: heading_to_final {row[8]:+.2f} rad: no car lane turns so: "
                              f"the vehicle follows its lane")
             else:
-                if found[1] != v2:
-                    tr = on_lane(found[1])     # slower into the turn: the past at that deceleration
+                if found[1] != v2:             # slower into the turn: the past at that deceleration
+                    tr = _placed(net, window, lane, pos, float(v0), found[1], row, stated)
                 tr[t > 0] = found[0][t > 0]
         size = row[4:6] if np.isfinite(row[4]) else np.array([CAR_LENGTH, CAR_WIDTH])
         box = np.r_[tr[T0], size]
