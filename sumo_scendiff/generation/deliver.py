@@ -206,6 +206,21 @@ def turn_path(net, window: Window | None, pose: np.ndarray, v0: float, v2: float
     return None
 
 
+def _straight_past(traj: np.ndarray, v0: float, v2: float) -> None:
+    """Where the drawn past bends so sharply that its steps no longer give the speed now (a past the
+    model drew from another direction than the token's heading, snapped onto that lane: the step
+    from t = -1 to 0 cuts the corner), the past becomes straight behind the pose now along its
+    heading at the token's speeds (as a pinned token's, :func:`~.pinning.token_trajectories`). In place."""
+    t = np.asarray(TIMES)
+    v = speeds_from_traj(traj[None], np.ones((1, len(t)), bool))[0]
+    if abs(float(v[T0]) - v0) <= 0.05:
+        return
+    s = _distance(v0, (v2 - v0) / 2.0, t)
+    x, y, h = traj[T0]
+    past = t < 0
+    traj[past] = np.stack([x + s[past] * np.cos(h), y + s[past] * np.sin(h), np.full(past.sum(), h)], 1)
+
+
 def pace_rows(traj: np.ndarray, speeds: np.ndarray, window: Window | None = None, net=None,
               owner: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
     """The paced agents (``speeds`` not NaN) re-timed again along their path at those speeds: lane
@@ -225,11 +240,13 @@ def pace_rows(traj: np.ndarray, speeds: np.ndarray, window: Window | None = None
     for a in np.flatnonzero(np.isfinite(speeds[:, 0])):
         v0, v2 = speeds[a, :2]
         traj[a] = retime(traj[a], _distance(v0, (v2 - v0) / 2.0, t))
+        final = float(v2)
         if speeds.shape[1] > 2 and np.isfinite(speeds[a, 2]):
             free = speeds.shape[1] > 3 and speeds[a, 3] != 1.0
             found = turn_path(net, window, traj[a, T0].copy(), float(v0), float(v2), float(speeds[a, 2]), free)
             if found is not None:
                 path, v = found
+                final = float(v)
                 traj[a] = retime(traj[a], _distance(v0, (v - v0) / 2.0, t))
                 traj[a, t > 0] = path[t > 0]
             else:
@@ -237,6 +254,7 @@ def pace_rows(traj: np.ndarray, speeds: np.ndarray, window: Window | None = None
                 i = int(owner[a]) if owner is not None else a
                 lines.append(f"token {i} at ({x:.1f}, {y:.1f}) m (window frame): heading_to_final "
                              f"{speeds[a, 2]:+.2f} rad: no car lane turns so: the vehicle follows its lane")
+        _straight_past(traj[a], float(v0), final)
     for line in lines:
         log.warning(line)
     return traj, lines
