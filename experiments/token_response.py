@@ -17,7 +17,9 @@ generated vehicle nearest the probe's position (within 2.2 m) is read: its speed
 
 A model can only follow a speed its latent carries, so the autoencoder gets the same question: the
 probe is re-rendered with its trajectory scaled about its current position (speed x 0.2 and x 1.5),
-encoded and decoded (D(mu(E(x)), m)), and the decoded speed at the probe is read.
+encoded and decoded (D(mu(E(x)), m)), and the decoded speed at the probe is read; likewise its
+future alone scaled (final speed), and its future redrawn as the arc that turns by
+``heading_to_final`` -0.5 / +0.5 rad at its own distances (pinning.token_trajectories' arc).
 """
 from __future__ import annotations
 
@@ -25,8 +27,13 @@ import argparse
 import os
 
 import numpy as np
-import torch
 from report import add_model_options, emit, load_models
+
+from sumo_scendiff.core.threads import share_cpu
+
+share_cpu(default=1)   # before torch is imported: one thread, the machine is shared
+
+import torch
 
 from sumo_scendiff.core.geometry import T0, TIMES, Window, wrap_angle
 from sumo_scendiff.data.dataset import SceneDataset, collate_scenes
@@ -35,7 +42,7 @@ from sumo_scendiff.generation.generator import (
     select_boxes,
     speeds_from_traj,
 )
-from sumo_scendiff.generation.pinning import pinned_latent
+from sumo_scendiff.generation.pinning import _arc, pinned_latent
 from sumo_scendiff.map.raster import render_agents
 from sumo_scendiff.model.detection import decode_boxes
 from sumo_scendiff.tokens.encoding import (
@@ -59,6 +66,10 @@ def get_options(args=None):
     p.add_argument("--data", default=os.path.join(ROOT, "data", "val_dense"))
     p.add_argument("--scenes", type=int, default=96)
     p.add_argument("--guidance", type=float, default=None, help="token guidance (default: generate's)")
+    p.add_argument("--steps", type=int, default=None, help="ODE steps (default: generate's)")
+    p.add_argument("--sampler", default=None, help="ODE solver (default: generate's)")
+    p.add_argument("--p-mask", type=float, default=0.0,
+                   help="the global token's p_mask (default 0: every agent is a token)")
     p.add_argument("--no-pin-tokens", dest="pin_tokens", action="store_false",
                    help="tokens as conditions only (the paper), not pinned in the latent")
     p.add_argument("-s", "--seed", type=int, default=0)
@@ -88,7 +99,7 @@ def read(traj: np.ndarray, box: np.ndarray) -> dict[str, float]:
             "heading_to_final": float(wrap_angle(np.arctan2(d[1], d[0]) - box[2]))}
 
 
-def generate(gen, batch, picked, override: tuple[str, float] | None, cfg, seed: int) -> list:
+def generate(gen, batch, picked, override: tuple[str, float] | None, cfg, seed: int, p_mask: float = 0.0) -> list:
     """Per window, the probed quantities of the vehicle generated at the probe (None if none)."""
     toks, dicts = [], []
     for s, j in picked:
@@ -103,7 +114,7 @@ def generate(gen, batch, picked, override: tuple[str, float] | None, cfg, seed: 
         dicts.append(feature_dicts(feats, pres))
     tok, pad = pad_tokens(toks)
     n = len(picked)
-    glob = torch.from_numpy(global_token(np.zeros(n), dim=gen.diffusion.cfg.unet.global_dim).reshape(n, -1))
+    glob = torch.from_numpy(global_token(np.full(n, p_mask), dim=gen.diffusion.cfg.unet.global_dim).reshape(n, -1))
     with torch.no_grad():
         known = pinned_latent(gen.ae, dicts, gen.latent_scale) if cfg.pin_tokens else None
         z = gen.diffusion.sample(batch["map"], tok, pad, glob, steps=cfg.steps, sampler=cfg.solver(),
@@ -124,58 +135,138 @@ def at_probes(dec, picked, threshold: float) -> list:
     return out
 
 
-def autoencoder_row(ae, ds, picked, threshold: float) -> str:
-    """The autoencoder's speed response: the probe re-rendered at 0.2 / 1.5 times its speed."""
-    got, asked = {}, {}
-    for scale in (0.2, 1.5):
-        xs = []
-        for s, j in picked:
-            traj, tm = np.asarray(s["traj"]).copy(), np.asarray(s["traj_mask"])
-            c = traj[j, T0, :2].copy()
-            traj[j, :, :2] = c + scale * (traj[j, :, :2] - c)
-            xs.append(render_agents(np.asarray(s["boxes"]), traj, tm, ds.raster))
-        m = torch.from_numpy(np.stack([np.asarray(s["map"]) for s, _ in picked]))
-        with torch.no_grad():
-            got[scale] = at_probes(decode_boxes(ae.decode(ae.encode(torch.from_numpy(np.stack(xs)))[0], m)),
+def _future_scaled(traj: np.ndarray, j: int, scale: float) -> np.ndarray:
+    """The probe's future (t > 0) displacement from t = 0 scaled: its final speed x ``scale``."""
+    t = np.asarray(TIMES)
+    c = traj[j, T0, :2].copy()
+    traj[j, t > 0, :2] = c + scale * (traj[j, t > 0, :2] - c)
+    return traj
+
+
+def _all_scaled(traj: np.ndarray, j: int, scale: float) -> np.ndarray:
+    c = traj[j, T0, :2].copy()
+    traj[j, :, :2] = c + scale * (traj[j, :, :2] - c)
+    return traj
+
+
+def _turned(traj: np.ndarray, j: int, alpha: float) -> np.ndarray:
+    """The probe's future redrawn as the arc from its pose now whose chord leaves at ``alpha``, at
+    its own distances along its path."""
+    t = np.asarray(TIMES)
+    steps = np.linalg.norm(np.diff(traj[j, :, :2], axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(steps)])
+    s = s - s[T0]
+    traj[j, t > 0] = _arc(*traj[j, T0], s, alpha, t)[t > 0]
+    return traj
+
+
+# feature -> (how the probe is redrawn, low and high value, and what is asked at each)
+AE_PROBES = {
+    "speed": (_all_scaled, 0.2, 1.5, lambda s, j, v: v * float(np.asarray(s["speed"])[j, T0]), "speed now, m/s"),
+    "final_speed": (_future_scaled, 0.2, 1.5, lambda s, j, v: v * float(np.asarray(s["speed"])[j, -1]),
+                    "speed at +2 s, m/s"),
+    "heading_to_final": (_turned, -0.5, 0.5, lambda s, j, v: v, "+2 s direction, rad"),
+}
+
+
+def autoencoder_rows(ae, ds, picked, threshold: float) -> list[str]:
+    """The autoencoder's response: the probe re-rendered with its speed, final speed or turn changed
+    (:data:`AE_PROBES`), encoded and decoded, and read at the probe."""
+    rows = []
+    m = torch.from_numpy(np.stack([np.asarray(s["map"]) for s, _ in picked]))
+    for name, (redraw, lo, hi, asked_of, what) in AE_PROBES.items():
+        got, asked = {}, {}
+        for v in (lo, hi):
+            xs = []
+            for s, j in picked:
+                traj = redraw(np.asarray(s["traj"], np.float64).copy(), j, v)
+                xs.append(render_agents(np.asarray(s["boxes"]), traj.astype(np.float32), np.asarray(s["traj_mask"]),
+                                        ds.raster))
+            with torch.no_grad():
+                got[v] = at_probes(decode_boxes(ae.decode(ae.encode(torch.from_numpy(np.stack(xs)))[0], m)),
                                    picked, threshold)
-        asked[scale] = [scale * float(np.asarray(s["speed"])[j, T0]) for s, j in picked]
-    both = [k for k in range(len(picked)) if got[0.2][k] and got[1.5][k]]
-    a_lo, a_hi = (float(np.mean([asked[sc][k] for k in both])) for sc in (0.2, 1.5))
-    g_lo, g_hi = (float(np.mean([got[sc][k]["speed"] for k in both])) for sc in (0.2, 1.5))
-    return (f"| autoencoder D(mu(E(x)), m), probe re-rendered | speed now, m/s | – | {a_lo:.2f} → {g_lo:.2f} | "
-            f"{a_hi:.2f} → {g_hi:.2f} | {(g_hi - g_lo) / (a_hi - a_lo):.2f} | {len(both)} / {len(picked)} |")
+            asked[v] = [asked_of(s, j, v) for s, j in picked]
+        both = [k for k in range(len(picked)) if got[lo][k] and got[hi][k]]
+        a_lo, a_hi = (float(np.mean([asked[v][k] for k in both])) for v in (lo, hi))
+        g_lo, g_hi = (float(np.mean([got[v][k][name] for k in both])) for v in (lo, hi))
+        rows.append(f"| autoencoder D(mu(E(x)), m), probe re-rendered | {what} | – | {a_lo:.2f} → {g_lo:.2f} | "
+                    f"{a_hi:.2f} → {g_hi:.2f} | {(g_hi - g_lo) / (a_hi - a_lo):.2f} | {len(both)} / {len(picked)} |")
+    return rows
+
+
+def turning_row(ae, ds, n: int, seed: int, threshold: float) -> str:
+    """Can the latent carry a turn at all? Recorded agents that turn (|heading_to_final| >= 0.1 rad,
+    moving >= 0.5 m in 2 s) in ``n`` held-out windows, each window encoded and decoded as recorded:
+    the decoded vehicle at each such agent (within 2.2 m) is read, and its +2 s direction compared
+    with the recorded one (least-squares slope through the origin; share turning the same way within
+    0.2 rad, user_tokens.py's turn agreement)."""
+    rec, dec = [], []
+    order = np.random.default_rng(seed).permutation(len(ds))
+    batch: list = []
+    for i in order:
+        s = ds[int(i)]
+        feats, pres = features_from_scene(*(np.asarray(s[k]) for k in ("boxes", "traj", "traj_mask", "speed")))
+        turning = np.flatnonzero(pres["heading_to_final"] & (np.abs(feats["heading_to_final"]) >= 0.1))
+        batch += [((s, int(j)), float(feats["heading_to_final"][j])) for j in turning]
+        if len({id(b[0][0]) for b in batch}) >= n:
+            break
+    scenes = {id(p[0]): p[0] for p, _ in batch}
+    ids = list(scenes)
+    m = torch.from_numpy(np.stack([np.asarray(scenes[k]["map"]) for k in ids]))
+    x = torch.from_numpy(np.stack([render_agents(np.asarray(scenes[k]["boxes"]), np.asarray(scenes[k]["traj"]),
+                                                 np.asarray(scenes[k]["traj_mask"]), ds.raster) for k in ids]))
+    with torch.no_grad():
+        d = decode_boxes(ae.decode(ae.encode(x)[0], m))
+    for (sc, j), h in batch:
+        k = ids.index(id(sc))
+        got = at_probes(_Index(d, k), [(sc, j)], threshold)[0]
+        if got:
+            rec.append(h)
+            dec.append(got["heading_to_final"])
+    rec, dec = np.array(rec), np.array(dec)
+    slope = float((rec * dec).sum() / (rec * rec).sum())
+    agree = float(np.mean((np.sign(dec) == np.sign(rec)) & (np.abs(dec - rec) <= 0.2)))
+    return (f"| autoencoder D(mu(E(x)), m), recorded turning agents | +2 s direction, rad | mean |asked| "
+            f"{np.abs(rec).mean():.2f} / decoded {np.abs(dec).mean():.2f} | – | – | slope {slope:.2f}, turn agreement "
+            f"{agree:.2f} | {len(rec)} agents / {len(ids)} windows |")
+
+
+class _Index:
+    """One window of a batched decoding, as at_probes reads it."""
+    def __init__(self, d, k: int):
+        self.prob, self.boxes, self.traj = d.prob[k:k + 1], d.boxes[k:k + 1], d.traj[k:k + 1]
 
 
 def main(o) -> None:
-    torch.set_num_threads(2)
     gen, ae, name, sha = load_models(o.checkpoint, o.autoencoder)
-    cfg = GenerationConfig(pin_tokens=o.pin_tokens,
-                           **({"guidance": o.guidance} if o.guidance is not None else {}))
+    cfg = GenerationConfig(pin_tokens=o.pin_tokens, **{k: getattr(o, k) for k in ("guidance", "steps", "sampler")
+                                                       if getattr(o, k) is not None}).validate()
     ds = SceneDataset(o.data, rotate=False)
     picked = probes(ds, o.scenes, o.seed)
     lines = [f"checkpoint `{name}` (sha256 {sha[:12]}…), {len(picked)} windows of "
              f"`{os.path.relpath(o.data, ROOT)}` with a moving probe agent, every agent a full token, "
              f"{cfg.steps} steps of {cfg.solver().__name__}, token guidance {cfg.guidance:g}, tokens "
-             f"{'pinned' if cfg.pin_tokens else 'conditions only'}", "",
+             f"{'pinned' if cfg.pin_tokens else 'conditions only'}, p_mask {o.p_mask:g}", "",
              "| feature | read from the generated vehicle | as recorded: asked / generated | asked low → generated "
              "| asked high → generated | response (1 = follows, 0 = ignores) | probes found |",
              "|---|---|---|---|---|---|---|"]
     if gen is not None:
-        lines += diffusion_rows(gen, picked, cfg, o.seed)
-    lines.append(autoencoder_row(ae, ds, picked, cfg.threshold))
+        lines += diffusion_rows(gen, picked, cfg, o.seed, o.p_mask)
+    lines += autoencoder_rows(ae, ds, picked, cfg.threshold)
+    lines.append(turning_row(ae, ds, o.scenes, o.seed, cfg.threshold))
     emit("\n".join(lines) + "\n", o.output, "Token feature response on held-out scenes")
 
 
-def diffusion_rows(gen, picked, cfg, seed: int) -> list[str]:
+def diffusion_rows(gen, picked, cfg, seed: int, p_mask: float = 0.0) -> list[str]:
     """One row per feature of PROBES: the diffusion model's response to a counterfactual token."""
     batch = collate_scenes([s for s, _ in picked])
     asked = [features_from_scene(*(np.asarray(s[k]) for k in ("boxes", "traj", "traj_mask", "speed")))[0]
              for s, _ in picked]
-    base = generate(gen, batch, picked, None, cfg, seed)
+    base = generate(gen, batch, picked, None, cfg, seed, p_mask)
     rows = []
     for name, (lo, hi, what) in PROBES.items():
-        low = generate(gen, batch, picked, (name, lo), cfg, seed)
-        high = generate(gen, batch, picked, (name, hi), cfg, seed)
+        low = generate(gen, batch, picked, (name, lo), cfg, seed, p_mask)
+        high = generate(gen, batch, picked, (name, hi), cfg, seed, p_mask)
         both = [k for k in range(len(picked)) if low[k] and high[k]]
         rec = [k for k in range(len(picked)) if base[k]]
         g_lo, g_hi = (float(np.mean([r[k][name] for k in both])) for r in (low, high))

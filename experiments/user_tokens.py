@@ -1,8 +1,9 @@
 """Partial tokens as a user writes them: is what the token gives what the scene gets?
 
-    python experiments/user_tokens.py [--cities resco_cologne3 resco_ingolstadt7] [--windows 10] [-o FILE]
+    python experiments/user_tokens.py [--cities resco_cologne3 ...] [--windows 10] [-o FILE]
 
-Per real city in /work/shared/nets, SUMO's own traffic on its own demand (.rou.xml) is recorded by
+Per real city in /work/shared/nets (default: every folder whose network has its own demand,
+``data.demand.find_demand``), SUMO's own traffic on its own demand (.rou.xml) is recorded by
 the evaluation cache (``evaluate.__main__.record_cached``, the same recordings ``evaluate`` uses). In
 each recorded window one to three of SUMO's vehicles become partial tokens of one kind at a time:
 
@@ -14,7 +15,9 @@ The scene is generated at p_mask 0.5 with delivery on (the default: generation/d
 (the model's own drawing, ``deliver_tokens=False``), and the generated agents are matched one-to-one to
 the tokens (Hungarian on position within 2.2 m, heading within 0.2 rad where the token gives one).
 Reported: match rate, |speed - asked| at t = 0, |speed at +2 s - asked final speed|, and for turn
-tokens the share whose generated +2 s direction turns the same way within 0.2 rad of the token's.
+tokens the share whose generated +2 s direction turns the same way within 0.2 rad of the token's;
+and how many tokens the delivered scenes name in a warning (``meta["token_warnings"]``: a token
+that could not be placed, or a turn no lane makes).
 """
 from __future__ import annotations
 
@@ -24,6 +27,10 @@ import sys
 from dataclasses import replace
 
 import numpy as np
+
+from sumo_scendiff.core.threads import share_cpu
+
+share_cpu(default=1)   # before torch is imported: one thread, the machine is shared
 
 from sumo_scendiff.core.geometry import T0, wrap_angle
 from sumo_scendiff.core.matching import match_agents
@@ -68,7 +75,8 @@ def heading_to_final(traj: np.ndarray) -> float:
 
 def score(scenes, tokens) -> dict:
     n = matched = 0
-    speed, final, turn = [], [], []
+    warned = sum(len({line.split(" at ")[0] for line in s.meta.get("token_warnings", ())}) for s in scenes)
+    speed, final, turn, signed, signed_final = [], [], [], [], []
     for s, toks in zip(scenes, tokens):
         n += len(toks)
         tb = np.array([[t["x"], t["y"], t.get("heading", np.nan)] for t in toks]).reshape(-1, 3)
@@ -76,41 +84,88 @@ def score(scenes, tokens) -> dict:
         matched += len(gi)
         for g, k in zip(gi, ti):
             t = toks[k]
-            speed.append(abs(float(s.speed[g, T0]) - t["speed"]))
+            signed.append(float(s.speed[g, T0]) - t["speed"])
+            speed.append(abs(signed[-1]))
             if "final_speed" in t:
-                final.append(abs(float(s.speed[g, -1]) - t["final_speed"]))
+                signed_final.append(float(s.speed[g, -1]) - t["final_speed"])
+                final.append(abs(signed_final[-1]))
             if "heading_to_final" in t:
                 h = heading_to_final(s.traj[g].astype(np.float64))
                 turn.append(np.sign(h) == np.sign(t["heading_to_final"])
                             and abs(h - t["heading_to_final"]) <= TURN_AGREE)
+    return summary({"n": n, "matched": matched, "speed": speed, "final": final, "turn": turn, "warned": warned,
+                    "signed": signed, "signed_final": signed_final})
+
+
+def summary(raw: dict) -> dict:
+    """The table's figures of :func:`score`'s raw counts and errors (``raw`` kept, to pool cities)."""
     mean = (lambda v: float(np.mean(v)) if v else float("nan"))
-    return {"tokens": n, "match": matched / max(n, 1), "speed": mean(speed), "final": mean(final),
-            "turn": mean(turn)}
+    return {"tokens": raw["n"], "match": raw["matched"] / max(raw["n"], 1), "speed": mean(raw["speed"]),
+            "final": mean(raw["final"]), "turn": mean(raw["turn"]), "warned": raw["warned"], "raw": raw,
+            "bias": mean(raw["signed"]), "final_bias": mean(raw["signed_final"])}
+
+
+def pooled(results: list[dict]) -> dict:
+    """One :func:`summary` of several cities' results."""
+    lists = ("speed", "final", "turn", "signed", "signed_final")
+    raw = {k: sum((r["raw"][k] for r in results), [] if k in lists else 0)
+           for k in ("n", "matched", "warned") + lists}
+    return summary(raw)
 
 
 def get_options(args=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--cities", nargs="+", default=["resco_cologne3", "resco_ingolstadt7"],
-                   help="folders of /work/shared/nets holding a .net.xml and its .rou.xml")
+    p.add_argument("--cities", nargs="+", default=None,
+                   help="folders of /work/shared/nets holding a network and its .rou.xml (default: "
+                        "every one whose network has demand)")
     p.add_argument("--windows", type=int, default=10, help="recorded windows per city")
     p.add_argument("--p-mask", type=float, default=0.5)
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("--cache", default=os.path.join(ROOT, ".cache", "eval"))
     p.add_argument("--checkpoint", default=None)
+    p.add_argument("--guidance", type=float, default=None, help="token guidance weight (default: generate's)")
+    p.add_argument("--steps", type=int, default=None, help="ODE steps (default: generate's)")
+    p.add_argument("--sampler", default=None, help="ODE solver (default: generate's)")
+    p.add_argument("--drawn-only", action="store_true", help="only the model's own drawing (no delivery)")
     p.add_argument("-o", "--output", default=None, help="also write the table here (markdown)")
     return p.parse_args(args)
 
 
+def network_of(city: str) -> Network:
+    folder = os.path.join(SHARED_NETS, city)
+    nets = [f for f in sorted(os.listdir(folder)) if f.endswith((".net.xml", ".net.xml.gz"))]
+    if not nets:
+        sys.exit(f"user_tokens.py: {folder}: no .net.xml")
+    return Network.load(os.path.join(folder, nets[0]))
+
+
+def cities_with_demand() -> list[str]:
+    """The folders of /work/shared/nets whose network has a demand file of its own."""
+    out = []
+    for city in sorted(os.listdir(SHARED_NETS)):
+        folder = os.path.join(SHARED_NETS, city)
+        if os.path.isdir(folder) and any(f.endswith(".rou.xml") for f in os.listdir(folder)) \
+                and find_demand(network_of(city)) is not None:
+            out.append(city)
+    return out
+
+
+def row(city: str, kind: str, res: list[dict]) -> str:
+    fmt = (lambda k, p: "–" if all(np.isnan(r[k]) for r in res) else " / ".join(f"{r[k]:.{p}f}" for r in res))
+    return (f"| {city} | {kind} | {res[0]['tokens']} | {fmt('match', 2)} | {fmt('speed', 2)} | "
+            f"{fmt('final', 2)} | {fmt('turn', 2)} | {res[0]['warned'] if len(res) > 1 else '–'} |")
+
+
 def main(o) -> int:
     gen = ScenarioGenerator.load(o.checkpoint)
-    lines = ["| city | tokens | n | match (delivered / drawn) | speed MAE m/s | final speed MAE m/s | turn agreement |",
-             "|---|---|---|---|---|---|---|"]
-    for city in o.cities:
-        folder = os.path.join(SHARED_NETS, city)
-        nets = [f for f in sorted(os.listdir(folder)) if f.endswith(".net.xml")]
-        if not nets:
-            sys.exit(f"user_tokens.py: {folder}: no .net.xml")
-        net = Network.load(os.path.join(folder, nets[0]))
+    base = replace(gen.config, **{k: getattr(o, k) for k in ("guidance", "steps", "sampler")
+                                  if getattr(o, k) is not None}).validate()
+    modes = (False,) if o.drawn_only else (True, False)
+    every: dict[str, list[list[dict]]] = {}
+    lines = [("| city | tokens | n | match (delivered / drawn) | speed MAE m/s | final speed MAE m/s | turn agreement "
+              "| warned |"), "|---|---|---|---|---|---|---|---|"]
+    for city in o.cities or cities_with_demand():
+        net = network_of(city)
         store = SceneStore(record_cached([net.path], [find_demand(net)], o.windows, o.seed, o.cache,
                                          f"gt-{net.name}"))
         gts = [store.scene(i) for i in range(min(o.windows, len(store)))]
@@ -122,11 +177,16 @@ def main(o) -> int:
             windows, toks = [g.window for g, _ in pairs], [t for _, t in pairs]
             lights = [g.meta.get("signals") or None for g, _ in pairs]   # the recorded moment's lights
             res = [score(gen.generate(net, windows, tokens=toks, p_mask=o.p_mask, seed=o.seed, signals=lights,
-                                      config=replace(gen.config, deliver_tokens=d)), toks) for d in (True, False)]
-            fmt = (lambda k, p: " / ".join(f"{r[k]:.{p}f}" for r in res))
-            lines.append(f"| {net.name} | {kind} | {res[0]['tokens']} | {fmt('match', 2)} | {fmt('speed', 2)} | "
-                         f"{fmt('final', 2)} | {fmt('turn', 2)} |")
+                                      config=replace(base, deliver_tokens=d)), toks) for d in modes]
+            every.setdefault(kind, []).append(res)
+            lines.append(row(net.name, kind, res))
             print(lines[-1], file=sys.stderr)
+    for kind, res in every.items():      # every city's tokens together
+        res = [pooled([r[m] for r in res]) for m in range(len(modes))]
+        lines.append(row("**all**", kind, res))
+        bias = (lambda k, res=res: " / ".join(f"{r[k]:+.2f}" for r in res))
+        print(f"{kind}: mean signed error of the speed {bias('bias')}, of the final speed {bias('final_bias')} m/s",
+              file=sys.stderr)
     text = "\n".join(lines) + "\n"
     print(text)
     if o.output:

@@ -161,3 +161,53 @@ def test_a_stopping_token_stands_in_sumo_after_the_replayed_future(city, gen):
         finally:
             sim.close()
     assert speeds[0] < 0.5 and speeds[1] > 0.5
+
+
+def heading_to_final(traj) -> float:
+    d = traj[-1, :2] - traj[T0, :2]
+    return float(np.arctan2(d[1], d[0]) - traj[T0, 2])
+
+
+def test_a_stated_pose_no_lane_runs_along_is_kept_as_stated(city, gen):
+    """A vehicle half through a turn (its centre off every lane's centre line, its heading between
+    the lanes'): the token's position and heading are what the scene gets, not the nearest lane's.
+    A heading a lane follows still puts the vehicle on that lane's centre line."""
+    w = road_window(city)
+    askew = {"x": 0.0, "y": 0.8, "heading": 0.5, "speed": 8.0}
+    along = {"x": 0.0, "y": 0.8, "heading": 0.1, "speed": 8.0}
+    for tok in (askew, along):
+        s = gen.generate(city, [w], tokens=[[tok]], p_mask=0.5, seed=0)[0]
+        k = delivered(s)
+        assert s.speed[k, T0] == pytest.approx(8.0, abs=0.3)
+        if tok is askew:
+            assert s.boxes[k, :3].tolist() == pytest.approx([0.0, 0.8, 0.5], abs=2e-3)
+        else:
+            assert abs(s.boxes[k, 1]) < 0.05 and abs(s.boxes[k, 2]) < 0.01   # on the lane, its heading
+
+
+def test_a_turn_token_is_driven_where_the_lanes_let_it_and_named_where_not(city, gen):
+    w = road_window(city)
+    gentle = {"x": 0.0, "y": 0.0, "heading": 0.0, "speed": 8.0, "heading_to_final": 0.05}
+    s = gen.generate(city, [w], tokens=[[gentle]], p_mask=0.5, seed=0)[0]
+    k = delivered(s)
+    assert heading_to_final(s.traj[k].astype(float)) == pytest.approx(0.05, abs=0.01)
+    assert "token_warnings" not in s.meta
+    # a sharp left off a straight road: no lane turns so, the vehicle keeps to its lane, and says so
+    sharp = dict(gentle, heading_to_final=0.6)
+    s = gen.generate(city, [w], tokens=[[sharp]], p_mask=0.5, seed=0)[0]
+    k = delivered(s)
+    assert abs(heading_to_final(s.traj[k].astype(float))) < 0.1
+    assert any("heading_to_final +0.60 rad: no car lane turns so" in line for line in s.meta["token_warnings"])
+
+
+def test_a_placed_turn_token_at_a_standstill_moves(city, gen):
+    """heading_to_final is defined only for a vehicle that moves (>= 0.5 m in 2 s): a token giving
+    it with speed 0 and no final speed is a vehicle starting off, placed or matched."""
+    w = road_window(city)
+    tok = {"x": 10.0, "y": 0.0, "heading": 0.0, "speed": 0.0, "heading_to_final": 0.0}
+    for threshold in (1.0, gen.config.threshold):      # placed (nothing generated), or matched
+        s = gen.generate(city, [w], tokens=[[tok]], p_mask=0.5, seed=0,
+                         config=replace(gen.config, threshold=threshold))[0]
+        k = delivered(s)
+        assert s.speed[k, T0] == pytest.approx(0.0, abs=0.05)
+        assert np.hypot(*(s.traj[k, -1, :2] - s.traj[k, T0, :2])) >= 0.5

@@ -2,19 +2,22 @@
 
     rows = delivered_rows(tokens)                               # (D, 10): the positioned partial tokens
     pairs = match_rows(boxes, rows, radius, taken)              # generated agent <-> token
-    boxes, traj, v = apply_rows(boxes, traj, rows, pairs)       # before lane snap
-    traj = pace_rows(traj, rows, pairs, v)                      # again after it
-    boxes, traj, owner, lines = place_rows(boxes, traj, owner, rows, window, net)  # the unmatched
+    boxes, traj, turned, v = apply_rows(boxes, traj, rows, pairs)   # before lane snap
+    traj, lines = pace_rows(traj, v, window, net, owner)        # again after it (and the turn)
+    boxes, traj, owner, gone, lines = place_rows(boxes, traj, owner, rows, window, net)  # the unmatched
 
 A pinned token (pose, size and speed: :mod:`.pinning`) is drawn into the latent. A partial one is a
 condition only, and the model follows it loosely: asked for 12 m/s it draws the typical speed, and
 it never draws a stop (docs/tokens.md, "Delivered tokens"). So the generated agent matched one-to-one
 to a positioned partial token (centre within the pins' radius, :func:`~sumo_scendiff.core.matching.assign`)
-takes what the token gives: its heading (turned rigidly, as :func:`~.pinning.turn_to_pins`), its
-length and width, and its speed and final speed along the path the model drew, turned by its
-``heading_to_final`` (:func:`~.pinning.pace_to_pins`' re-timing); what the token does not give stays
-the model's. A positioned token no generated agent matches is placed by :func:`place_rows` on the car
-lane at its position, unless it lies on no car lane (a warning line, never a silent drop).
+takes what the token gives: its position, its heading (turned rigidly, as
+:func:`~.pinning.turn_to_pins`; lane snap keeps a stated pose no lane runs along,
+``lane_snap.snap_to_lanes``' ``exact``), its length and width, and its speed and final speed along
+the path the model drew (:func:`~.pinning.pace_to_pins`' re-timing), its future the token's turn
+(:func:`turn_path`: the arc, else along the lane graph, else a change of lanes; a warning line where
+no lane turns so); what the token does not give stays the model's. A positioned token no generated
+agent matches is placed by :func:`place_rows` on the car lane at its position, unless it lies on no
+car lane (a warning line, never a silent drop).
 """
 from __future__ import annotations
 
@@ -27,8 +30,9 @@ import shapely
 from ..core.geometry import T0, TIMES, Window, box_corners, wrap_angle
 from ..core.matching import assign
 from ..core.scene import speeds_from_traj
+from ..tokens.encoding import MIN_DISPLACEMENT
 from ..tokens.features import is_pinnable
-from .lane_snap import SNAP_MAX_ANGLE, SNAP_RADIUS, walk_lanes
+from .lane_snap import GIVEN_MAX_ANGLE, SNAP_MAX_ANGLE, SNAP_RADIUS, walk_lanes
 from .pinning import _arc, _distance, retime
 
 log = logging.getLogger(__name__)
@@ -70,28 +74,45 @@ def match_rows(boxes: np.ndarray, rows: np.ndarray, radius: float, taken: np.nda
 
 def _speeds(traj: np.ndarray, row: np.ndarray) -> tuple[float, float]:
     """The (speed, final speed) an agent is paced to: the token's where it gives them; else the
-    drawn one, a drawn change of speed kept when only the speed is given (as pace_to_pins)."""
+    drawn one, a drawn change of speed kept when only the speed is given (as pace_to_pins). A token
+    giving ``heading_to_final`` says the vehicle moves (it is defined only for a displacement of at
+    least MIN_DISPLACEMENT in 2 s, tokens/encoding.py): a drawn final speed that would leave it
+    standing is raised to cover that distance."""
     v = speeds_from_traj(traj[None], np.ones((1, len(TIMES)), bool))[0]
     v0, v2 = row[6], row[7]
     if not np.isfinite(v0):
         v0 = float(v[T0])
     if not np.isfinite(v2):
         v2 = max(v0 + float(v[-1] - v[T0]), 0.0) if np.isfinite(row[6]) else float(v[-1])
+        if np.isfinite(row[8]):
+            v2 = _moving(float(v0), float(v2))
     return float(v0), float(v2)
+
+
+def _moving(v0: float, v2: float) -> float:
+    """The least final speed >= ``v2`` whose 2 s from ``v0`` cover MIN_DISPLACEMENT: a token giving
+    ``heading_to_final`` says the vehicle moves (tokens/encoding.py)."""
+    t = np.asarray(TIMES)
+    while _distance(v0, (v2 - v0) / 2.0, t)[-1] < MIN_DISPLACEMENT:   # distance grows with v2
+        v2 += 0.1
+    return v2
 
 
 def apply_rows(boxes: np.ndarray, traj: np.ndarray, rows: np.ndarray, pairs: list[tuple[int, int]]
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Each matched agent takes its token's heading (turned rigidly about its pose), size, and
-    speeds along its drawn path, its future turned by the token's ``heading_to_final``. Returns new
-    boxes and traj, which agents' heading a token gave (N,) and the (N, 2) speeds they were paced to
-    (NaN: not paced), for :func:`pace_rows` after lane snap."""
+    """Each matched agent takes its token's position (its drawn path moved rigidly there), heading
+    (turned rigidly about its pose), size, and speeds along its drawn path, its future turned by the
+    token's ``heading_to_final``. Returns new boxes and traj, which agents' heading a token gave (N,)
+    and the (N, 4) speed, final speed, heading_to_final (NaN: not given) they were paced to (NaN:
+    not paced) and whether the token gave that final speed (1), for :func:`pace_rows` after lane snap."""
     boxes, traj = np.array(boxes, np.float64), np.array(traj, np.float64)
     turned = np.zeros(len(boxes), bool)
-    speeds = np.full((len(boxes), 2), np.nan)
+    speeds = np.full((len(boxes), 4), np.nan)
     t = np.asarray(TIMES)
     for a, r in pairs:
         row = rows[r]
+        # the token's position: the user said where (the model drew it within the match radius)
+        traj[a, :, :2] += row[1:3] - traj[a, T0, :2]
         if np.isfinite(row[3]):
             delta = float(wrap_angle(row[3] - traj[a, T0, 2]))
             c, s = np.cos(delta), np.sin(delta)
@@ -108,20 +129,135 @@ def apply_rows(boxes: np.ndarray, traj: np.ndarray, rows: np.ndarray, pairs: lis
             if np.isfinite(row[8]):
                 x, y, h = traj[a, T0]
                 traj[a, t > 0] = _arc(x, y, h, s, float(row[8]), t)[t > 0]
-            speeds[a] = v0, v2
+            speeds[a] = v0, v2, row[8], float(np.isfinite(row[7]))
         boxes[a, :3] = traj[a, T0]
     return boxes, traj, turned, speeds
 
 
-def pace_rows(traj: np.ndarray, speeds: np.ndarray) -> np.ndarray:
+def _on_lanes(net, window: Window, poses: np.ndarray) -> bool:
+    """Whether every scene-frame pose (K, 3) has a car lane within lane snap's radius that agrees
+    with its heading (lane snap's angle): a vehicle can drive there."""
+    m = net.match_poses(window.scene_to_world(poses[:, :2]), window.yaw_to_world(poses[:, 2]),
+                        radius=SNAP_RADIUS, max_angle=SNAP_MAX_ANGLE)
+    return bool((m.lane >= 0).all())
+
+
+TURN_TOLERANCE = 0.1   # rad: a path along the lanes whose +2 s direction is this close delivers the turn
+
+
+def _scene_pose(net, window: Window, lane: int, pos: float) -> np.ndarray:
+    xy, h = net.lane_pose(lane, pos)
+    return np.r_[window.world_to_scene(np.asarray(xy, np.float64)[None])[0], window.yaw_to_scene(h)]
+
+
+def _direction(pose: np.ndarray, end: np.ndarray) -> float:
+    d = end[:2] - pose[:2]
+    return float(wrap_angle(np.arctan2(d[1], d[0]) - pose[2]))
+
+
+def turn_path(net, window: Window | None, pose: np.ndarray, v0: float, v2: float, alpha: float,
+              free: bool) -> tuple[np.ndarray, float] | None:
+    """The (T, 3) poses and final speed of a vehicle at scene-frame ``pose`` now, moving from ``v0``
+    to ``v2`` m/s, whose +2 s displacement leaves at ``alpha`` to its heading (the token's
+    ``heading_to_final``), on the car lanes (``net`` None: the arc, unchecked). In this order:
+
+    1. the token's arc (:func:`~.pinning._arc`), every +1/+2 s pose within lane snap's radius of a
+       lane along it;
+    2. along the lane graph from the lane at ``pose``: the branch whose +2 s point lies within
+       :data:`TURN_TOLERANCE` of that direction (a vehicle turning with the road: its heading at +2 s
+       the lane's, not the arc's);
+    3. a change of lanes: straight along that direction, the heading kept (SUMO, without the sublane
+       model, moves a vehicle sideways by a lane's width in one step), ending within 1 m of the
+       centre line of another lane along the heading.
+
+    2 and 3 with a final speed the token does not give (``free``) also at lower final speeds, the
+    highest that fits first (a vehicle slows into a turn). None where no path fits."""
+    t = np.asarray(TIMES)
+    s = _distance(v0, (v2 - v0) / 2.0, t)
+    arc = _arc(*pose, s, alpha, t)
+    if net is None or window is None or _on_lanes(net, window, arc[t > 0]):
+        return arc, v2
+    world = window.scene_to_world(np.asarray(pose, np.float64)[None, :2])
+    here = net.match_poses(world, [window.yaw_to_world(pose[2])], radius=SNAP_RADIUS, max_angle=SNAP_MAX_ANGLE)
+    if here.lane[0] < 0:
+        return None
+    lane0, pos0 = int(here.lane[0]), float(here.pos[0])
+    finals = [v2] + (list(np.arange(v2 - 0.5, 0.0, -0.5)) + [0.0] if free else [])
+    for v in finals:
+        v = _moving(v0, float(v))
+        s = _distance(v0, (v - v0) / 2.0, t)
+        ends = [_scene_pose(net, window, ln, p) for ln, p in walk_lanes(net, lane0, pos0, float(s[-1]))]
+        err = [abs(wrap_angle(_direction(pose, e) - alpha)) for e in ends]
+        if ends and min(err) <= TURN_TOLERANCE:
+            end = ends[int(np.argmin(err))]
+            path = np.array(pose, np.float64)[None].repeat(len(t), 0)
+            for k in np.flatnonzero(t > 0):
+                cands = [_scene_pose(net, window, ln, p) for ln, p in walk_lanes(net, lane0, pos0, float(s[k]))]
+                path[k] = min(cands, key=lambda c: np.linalg.norm(c[:2] - end[:2]))
+            path[-1] = end
+            return path, v
+        chord = np.array([pose[0] + s[-1] * np.cos(pose[2] + alpha), pose[1] + s[-1] * np.sin(pose[2] + alpha)])
+        m = net.match_poses(window.scene_to_world(chord[None]), [window.yaw_to_world(pose[2])],
+                            radius=1.0, max_angle=GIVEN_MAX_ANGLE)
+        if m.lane[0] >= 0 and int(m.lane[0]) != lane0:
+            d = np.where(t > 0, pose[2] + alpha, pose[2])
+            path = np.stack([pose[0] + s * np.cos(d), pose[1] + s * np.sin(d), np.full(len(t), pose[2])], 1)
+            return path, v
+    return None
+
+
+def _straight_past(traj: np.ndarray, v0: float, v2: float) -> None:
+    """Where the drawn past bends so sharply that its steps no longer give the speed now (a past the
+    model drew from another direction than the token's heading, snapped onto that lane: the step
+    from t = -1 to 0 cuts the corner), the past becomes straight behind the pose now along its
+    heading at the token's speeds (as a pinned token's, :func:`~.pinning.token_trajectories`). In place."""
+    t = np.asarray(TIMES)
+    v = speeds_from_traj(traj[None], np.ones((1, len(t)), bool))[0]
+    if abs(float(v[T0]) - v0) <= 0.05:
+        return
+    s = _distance(v0, (v2 - v0) / 2.0, t)
+    x, y, h = traj[T0]
+    past = t < 0
+    traj[past] = np.stack([x + s[past] * np.cos(h), y + s[past] * np.sin(h), np.full(past.sum(), h)], 1)
+
+
+def pace_rows(traj: np.ndarray, speeds: np.ndarray, window: Window | None = None, net=None,
+              owner: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
     """The paced agents (``speeds`` not NaN) re-timed again along their path at those speeds: lane
-    snap moved their poses onto the lanes, and so their steps."""
+    snap moved their poses onto the lanes, and so their steps. An agent whose token gives
+    ``heading_to_final`` (``speeds[:, 2]``) drives the token's turn from its pose now
+    (:func:`turn_path`: the arc of :func:`~.pinning.pace_to_pins`, else a change of lanes; ``speeds[:,
+    3]`` 1 where the token gives the final speed, else it may be lower): lane snap puts the centre
+    on a lane's centre line, but a turning vehicle's centre cuts inside the curve its front follows,
+    so the snapped path's +2 s direction is not the turn asked. Where no such path stays on the car
+    lanes, no lane turns so: the snapped path is kept, and a warning line names the token
+    (``owner``: per agent, its token's index). Returns the new traj and the warning lines."""
     traj = np.array(traj, np.float64)
     t = np.asarray(TIMES)
+    lines: list[str] = []
+    speeds = np.asarray(speeds, np.float64)
+    speeds = speeds.reshape(len(traj), speeds.shape[-1] if speeds.ndim == 2 else 2)
     for a in np.flatnonzero(np.isfinite(speeds[:, 0])):
-        v0, v2 = speeds[a]
+        v0, v2 = speeds[a, :2]
         traj[a] = retime(traj[a], _distance(v0, (v2 - v0) / 2.0, t))
-    return traj
+        final = float(v2)
+        if speeds.shape[1] > 2 and np.isfinite(speeds[a, 2]):
+            free = speeds.shape[1] > 3 and speeds[a, 3] != 1.0
+            found = turn_path(net, window, traj[a, T0].copy(), float(v0), float(v2), float(speeds[a, 2]), free)
+            if found is not None:
+                path, v = found
+                final = float(v)
+                traj[a] = retime(traj[a], _distance(v0, (v - v0) / 2.0, t))
+                traj[a, t > 0] = path[t > 0]
+            else:
+                x, y = traj[a, T0, :2]
+                i = int(owner[a]) if owner is not None else a
+                lines.append(f"token {i} at ({x:.1f}, {y:.1f}) m (window frame): heading_to_final "
+                             f"{speeds[a, 2]:+.2f} rad: no car lane turns so: the vehicle follows its lane")
+        _straight_past(traj[a], float(v0), final)
+    for line in lines:
+        log.warning(line)
+    return traj, lines
 
 
 def lane_trajectory(net, lane: int, pos: float, v0: float, v2: float, turn: float = np.nan
@@ -147,6 +283,17 @@ def lane_trajectory(net, lane: int, pos: float, v0: float, v2: float, turn: floa
     return out
 
 
+def _placed(net, window: Window, lane: int, pos: float, v0: float, v2: float, row: np.ndarray,
+            stated: bool) -> np.ndarray:
+    """(T, 3) scene-frame poses of a placed token's vehicle along the lane graph (:func:`lane_trajectory`),
+    its pose now the token's own where ``stated``."""
+    world = lane_trajectory(net, lane, pos, v0, v2, float(row[8]))
+    tr = np.c_[window.world_to_scene(world[:, :2]), window.yaw_to_scene(world[:, 2])]
+    if stated:
+        tr[T0] = row[1:4]
+    return tr
+
+
 def place_rows(boxes: np.ndarray, traj: np.ndarray, owner: np.ndarray, rows: np.ndarray,
                window: Window, net) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int], list[str]]:
     """Place the rows no generated agent matched: on the car lane at the token's position (within
@@ -169,15 +316,30 @@ def place_rows(boxes: np.ndarray, traj: np.ndarray, owner: np.ndarray, rows: np.
         yaw = None if not np.isfinite(row[3]) else float(window.yaw_to_world(row[3]))
         m = net.match_poses(xy[None], None if yaw is None else [yaw], radius=SNAP_RADIUS,
                             max_angle=SNAP_MAX_ANGLE)
+        stated = False      # the pose now is the token's: no lane runs along its heading (lane_snap's exact)
+        if yaw is not None and m.lane[0] >= 0 and m.heading_diff[0] > GIVEN_MAX_ANGLE:
+            strict = net.match_poses(xy[None], [yaw], radius=SNAP_RADIUS, max_angle=GIVEN_MAX_ANGLE)
+            m, stated = (strict, False) if strict.lane[0] >= 0 else (m, True)
         if m.lane[0] < 0:
             lines.append(f"{where}: on no car lane within {SNAP_RADIUS:g} m"
                          f"{'' if yaw is None else ' that runs along its heading'}: not placed")
             continue
         lane, pos = int(m.lane[0]), float(m.pos[0])
         v0 = row[6] if np.isfinite(row[6]) else float(net.lanes[lane].speed)
-        v2 = row[7] if np.isfinite(row[7]) else v0
-        world = lane_trajectory(net, lane, pos, float(v0), float(v2), float(row[8]))
-        tr = np.c_[window.world_to_scene(world[:, :2]), window.yaw_to_scene(world[:, 2])]
+        v2 = row[7] if np.isfinite(row[7]) else (_moving(float(v0), float(v0)) if np.isfinite(row[8]) else v0)
+        tr = _placed(net, window, lane, pos, float(v0), float(v2), row, stated)
+        if np.isfinite(row[8]):
+            # the token's turn from the pose now, where the lanes let a vehicle drive it (pace_rows)
+            t = np.asarray(TIMES)
+            found = turn_path(net, window, tr[T0].copy(), float(v0), float(v2), float(row[8]),
+                              free=not np.isfinite(row[7]))
+            if found is None:
+                lines.append(f"{where}: heading_to_final {row[8]:+.2f} rad: no car lane turns so: "
+                             f"the vehicle follows its lane")
+            else:
+                if found[1] != v2:             # slower into the turn: the past at that deceleration
+                    tr = _placed(net, window, lane, pos, float(v0), found[1], row, stated)
+                tr[t > 0] = found[0][t > 0]
         size = row[4:6] if np.isfinite(row[4]) else np.array([CAR_LENGTH, CAR_WIDTH])
         box = np.r_[tr[T0], size]
         mine = shapely.polygons(box_corners(*box[:, None]))[0]

@@ -196,7 +196,8 @@ class ScenarioGenerator:
         # the positioned tokens not pinned: their agents take what they give (deliver.py)
         rows = delivered_rows(given) if cfg.deliver_tokens else np.zeros((0, 9))
         owner = np.full(len(keep), -1, np.int64)       # per agent: the delivered token's index
-        paced = np.full((len(keep), 2), np.nan)
+        paced = np.full((len(keep), 4), np.nan)          # per agent: its token's speeds and turn
+        warnings: list[str] = []
         if len(rows):
             pinned = np.zeros(len(keep), bool)
             if cfg.pin_tokens and pins is not None and len(pins):
@@ -208,7 +209,7 @@ class ScenarioGenerator:
                 owner[a] = int(rows[r, 0])
         off_lane = 0
         if cfg.lane_snap and net is not None:
-            boxes, traj, snapped = snap_to_lanes(boxes, traj, window, net, given=turned)
+            boxes, traj, snapped = snap_to_lanes(boxes, traj, window, net, given=turned, exact=turned & (owner >= 0))
             # an agent on no car lane agreeing with it (off the road, or against a one-way street)
             # is one SUMO cannot take: removed, unless a token asked for a vehicle there
             asked = token_positions(tokens) if tokens is not None and len(tokens) else np.zeros((0, 2))
@@ -225,7 +226,7 @@ class ScenarioGenerator:
                 # snapping moved the poses onto the lanes, and so the steps: the token's speeds again
                 traj, _ = pace_to_pins(boxes, traj, pins, ASKED_RADIUS, turn=False)
             if len(rows):
-                traj = pace_rows(traj, paced)
+                traj, warnings = pace_rows(traj, paced, window, net, owner)
         if count is not None:
             mine = owner < 0
             if cfg.pin_tokens and pins is not None and len(pins):
@@ -235,9 +236,9 @@ class ScenarioGenerator:
             keep, boxes, traj, owner, paced = keep[ok], boxes[ok], traj[ok], owner[ok], paced[ok]
         score = np.round(prob[keep], 4).tolist()
         cell = keep.tolist()
-        warnings: list[str] = []
         if len(rows) and net is not None:
-            boxes, traj, owner, gone, warnings = place_rows(boxes, traj, owner, rows, window, net)
+            boxes, traj, owner, gone, placing = place_rows(boxes, traj, owner, rows, window, net)
+            warnings = warnings + placing
             kept = [k for k in range(len(keep)) if k not in set(gone)]
             placed = len(owner) - len(kept)
             # a placed vehicle is the user's, not the model's: score 1, no latent cell

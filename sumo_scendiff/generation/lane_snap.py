@@ -60,13 +60,18 @@ def walk_lanes(net: "Network", lane: int, pos: float, d: float, depth: int = FOL
 
 def snap_to_lanes(boxes: np.ndarray, traj: np.ndarray, window: Window, net: "Network",
                   radius: float = SNAP_RADIUS, max_angle: float = SNAP_MAX_ANGLE,
-                  given: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  given: np.ndarray | None = None, exact: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Boxes (N, 5: x, y, yaw, length, width) and trajectories (N, T, 3: x, y, yaw) of one scene
     (``window``'s frame) with their poses moved onto lane centre lines. ``given`` (N,) marks agents
     whose heading a token stated (:func:`~sumo_scendiff.generation.pinning.turn_to_pins`): their poses take a
     lane within ``GIVEN_MAX_ANGLE`` of it where there is one, even past a nearer lane that turns
-    away (inside a junction the lanes overlap). Returns new arrays (the box pose is the
-    trajectory's t = 0 pose) and which poses moved (N, T)."""
+    away (inside a junction the lanes overlap). ``exact`` (N,), a subset of ``given``: agents whose
+    pose at t = 0 a user's token stated (:mod:`.deliver`): that pose moves only onto a lane within
+    ``GIVEN_MAX_ANGLE`` of it, and where there is none it stays as stated instead of taking a lane
+    that turns away (a vehicle half through a junction turn, its nose already on the next edge,
+    has a centre on no lane's centre line and a heading between the lanes'). Returns new arrays
+    (the box pose is the trajectory's t = 0 pose) and which poses moved (N, T)."""
     boxes, traj = np.array(boxes, np.float64), np.array(traj, np.float64)
     n, t = traj.shape[:2]
     if n == 0:
@@ -80,6 +85,12 @@ def snap_to_lanes(boxes: np.ndarray, traj: np.ndarray, window: Window, net: "Net
         found = strict.lane >= 0
         for f in ("lane", "pos", "lateral", "heading", "xy", "heading_diff"):
             getattr(m, f)[rows[found]] = getattr(strict, f)[found]
+        if exact is not None and np.any(exact):
+            # the stated t = 0 poses with no lane along their heading: left where the token put them
+            t0 = rows % t == T0
+            held = rows[t0 & ~found & np.repeat(np.asarray(exact, bool), t)[rows]]
+            m.lane[held] = -1
+            m.xy[held] = xy[held]
     snapped = (m.lane >= 0).reshape(n, t)
     lane, pos = m.lane.reshape(n, t).copy(), m.pos.reshape(n, t).copy()
     w_xy, w_yaw = m.xy.reshape(n, t, 2).copy(), m.heading.reshape(n, t).copy()
