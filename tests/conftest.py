@@ -44,6 +44,21 @@ def cross_net(tmp_path_factory) -> str:
 
 
 @pytest.fixture(scope="session")
+def city():
+    """networks/city.net.xml, the shipped city, loaded once."""
+    from sumo_scendiff.map.network import Network
+    return Network.load(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                                     "networks", "city.net.xml"))
+
+
+@pytest.fixture(scope="session")
+def gen():
+    """The shipped generator, loaded once."""
+    from sumo_scendiff.generation.generator import ScenarioGenerator
+    return ScenarioGenerator.load()
+
+
+@pytest.fixture(scope="session")
 def grid(tmp_path_factory):
     """netgenerate's 3x3 grid with 100 m blocks (0..200 m), loaded as a Network."""
     import sumo

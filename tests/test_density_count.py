@@ -8,9 +8,8 @@ import pytest
 
 from sumo_scendiff.core.geometry import TIMES, Window
 from sumo_scendiff.core.scene import Scene
-from sumo_scendiff.generation.generator import ScenarioGenerator, trim_to_count
+from sumo_scendiff.generation.generator import trim_to_count
 from sumo_scendiff.generation.infill import add_new_agents, scene_tokens
-from sumo_scendiff.map.network import Network
 
 
 def test_trim_keeps_the_tokens_then_the_most_probable():
@@ -49,16 +48,6 @@ def test_infill_adds_only_new_clear_agents_most_probable_first():
     out = add_new_agents(first, second, 3, first.boxes[:, :2], 2.0, area=(-50.0, -50.0, 30.0, 50.0))
     assert out.boxes[:, 0].tolist() == [0, 20, -30]
     assert scene_tokens(first) == [{"x": 0.0, "y": 0.0, "heading": 0.0, "length": 4.5, "width": pytest.approx(1.8), "speed": 5.0}]
-
-
-@pytest.fixture(scope="module")
-def city():
-    return Network.load("networks/city.net.xml")
-
-
-@pytest.fixture(scope="module")
-def gen():
-    return ScenarioGenerator.load()
 
 
 @pytest.mark.slow

@@ -4,18 +4,24 @@ from __future__ import annotations
 from sumo_scendiff.sim.rollout import rollout
 
 
-def test_a_host_vehicle_running_into_a_standing_agent_is_counted_as_such(cross_net):
-    import libsumo as sim
+def _host_behind_standing_agent(sim, cross_net) -> None:
+    """SUMO started on the crossing with a standing agent and a host 90 m behind at 13 m/s that
+    cannot stop in time (no safe-speed checks)."""
     sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--step-length", "0.5",
                "--collision.check-junctions", "true", "--collision.action", "remove"])
+    sim.route.add("r", ["wc", "ce"])
+    sim.vehicle.add("agent", "r", depart="now", departPos="150", departSpeed="0")
+    sim.vehicle.add("host", "r", depart="now", departPos="60", departSpeed="13")
+    sim.simulationStep()
+    sim.vehicle.setSpeed("agent", 0.0)
+    sim.vehicle.setSpeedMode("host", 0)
+    sim.vehicle.setSpeed("host", 13.0)
+
+
+def test_a_host_vehicle_running_into_a_standing_agent_is_counted_as_such(cross_net):
+    import libsumo as sim
+    _host_behind_standing_agent(sim, cross_net)
     try:
-        sim.route.add("r", ["wc", "ce"])
-        sim.vehicle.add("agent", "r", depart="now", departPos="150", departSpeed="0")
-        sim.vehicle.add("host", "r", depart="now", departPos="60", departSpeed="13")
-        sim.simulationStep()
-        sim.vehicle.setSpeed("agent", 0.0)
-        sim.vehicle.setSpeedMode("host", 0)           # no safe-speed checks: it cannot stop in time
-        sim.vehicle.setSpeed("host", 13.0)
         stats = rollout(sim, ["agent"], seconds=8.0, brake_window=10.0)
     finally:
         sim.close()
@@ -33,16 +39,8 @@ def test_an_event_tracer_records_who_collided_where_and_how_they_got_there(cross
     from sumo_scendiff.map.network import Network
     from sumo_scendiff.sim.events import EventTracer
     net = Network.load(cross_net)
-    sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--step-length", "0.5",
-               "--collision.check-junctions", "true", "--collision.action", "remove"])
+    _host_behind_standing_agent(sim, cross_net)
     try:
-        sim.route.add("r", ["wc", "ce"])
-        sim.vehicle.add("agent", "r", depart="now", departPos="150", departSpeed="0")
-        sim.vehicle.add("host", "r", depart="now", departPos="60", departSpeed="13")
-        sim.simulationStep()
-        sim.vehicle.setSpeed("agent", 0.0)
-        sim.vehicle.setSpeedMode("host", 0)
-        sim.vehicle.setSpeed("host", 13.0)
         tracer = EventTracer(sim, net, ["agent"], seeded={"agent": {"lane": "wc_0"}}, label={"window": 0})
         stats = rollout(sim, ["agent"], seconds=8.0, brake_window=10.0, tracer=tracer)
     finally:

@@ -8,22 +8,11 @@ import pytest
 
 from sumo_scendiff.core.geometry import T0, Window
 from sumo_scendiff.generation.deliver import delivered_rows, place_rows
-from sumo_scendiff.generation.generator import ScenarioGenerator
 from sumo_scendiff.generation.token_resolve import resolve_tokens
 from sumo_scendiff.map.network import Network
 from sumo_scendiff.tokens.file import TokenFileError, parse_tokens
 
 pytestmark = pytest.mark.slow   # real runs of the CLIs: the fast tier is -m "not slow"
-
-
-@pytest.fixture(scope="module")
-def city():
-    return Network.load("networks/city.net.xml")
-
-
-@pytest.fixture(scope="module")
-def gen():
-    return ScenarioGenerator.load()
 
 
 def road_window(net) -> Window:

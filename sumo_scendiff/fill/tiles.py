@@ -68,11 +68,6 @@ def car_bounds(net) -> tuple:
     return (*xy.min(0), *xy.max(0))
 
 
-def lane_km_in(net, region) -> float:
-    """Kilometres of car lane inside a shapely region."""
-    return net.car_lane_km_in(region)
-
-
 def tile_grid(net, area: tuple | None = None, stride: float = 75.0, size: float = 100.0) -> list[Tile]:
     """The tiles whose core holds car lane (inside ``area`` when given), in row-major order."""
     if not (0 < stride <= size and 2 * stride >= size):
@@ -90,7 +85,7 @@ def tile_grid(net, area: tuple | None = None, stride: float = 75.0, size: float 
             region = shapely.box(*core)
             if clip is not None:
                 region = shapely.intersection(region, clip)
-            km = lane_km_in(net, region) if not region.is_empty else 0.0
+            km = net.car_lane_km_in(region) if not region.is_empty else 0.0
             if km <= 0:
                 continue       # nothing of the network to own here: the neighbours' windows see it
             w = Window(0.5 * (core[0] + core[2]), 0.5 * (core[1] + core[3]), 0.0, size)
@@ -160,11 +155,11 @@ def known_share(net, tile: Tile, owned_cores: list[tuple]) -> float:
     """The share of ``tile``'s window (by car-lane length) that earlier tiles' cores cover: the
     share of its traffic its pinned tokens describe when the neighbours are as dense as it is."""
     square = shapely.box(*tile.window.world_bounds())
-    total = lane_km_in(net, square)
+    total = net.car_lane_km_in(square)
     if total <= 0 or not owned_cores:
         return 0.0
     covered = shapely.intersection(shapely.union_all([shapely.box(*c) for c in owned_cores]), square)
-    return 0.0 if covered.is_empty else min(lane_km_in(net, covered) / total, 1.0)
+    return 0.0 if covered.is_empty else min(net.car_lane_km_in(covered) / total, 1.0)
 
 
 def scene_rows(scene) -> np.ndarray:
@@ -197,7 +192,6 @@ __all__ = [
     "colours",
     "keep_core",
     "known_share",
-    "lane_km_in",
     "parse_area",
     "pins_for",
     "scene_rows",
