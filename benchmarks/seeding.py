@@ -102,6 +102,9 @@ def get_options(args=None):
                         "and write; lets a change to the seeder be measured on the very same scenes")
     p.add_argument("--no-junction-rule", dest="junction_rule", action="store_false",
                    help="seed agents on conflicting junction links as generated (sim.junctions off)")
+    p.add_argument("--no-width-cap", dest="width_cap", action="store_false",
+                   help="seed the generated widths, also those wider than the network's junctions assume "
+                        "(Seeder.width_cap off)")
     p.add_argument("--signals", action="store_true",
                    help="generate with the traffic lights' states at T (run's --signals)")
     p.add_argument("--events", default=None, metavar="FILE",
@@ -215,7 +218,8 @@ def bench_net(path: str, gen, o, explicit: bool) -> dict | None:
     # address space randomisation, fixed file names and stdout / stderr, given only this net's inputs,
     # runs the same way whatever else the command does.
     import fcntl
-    opts = {k: getattr(o, k) for k in ("warmup", "rollout", "density", "step_length", "seed", "junction_rule")}
+    opts = {k: getattr(o, k) for k in ("warmup", "rollout", "density", "step_length", "seed", "junction_rule",
+                                          "width_cap")}
     opts["events"] = bool(getattr(o, "events", None))
     top = os.path.join(tempfile.gettempdir(), f"scendiff-bench-seeding-{os.getuid()}")
     os.makedirs(top, exist_ok=True)
@@ -307,7 +311,8 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
     finally:
         close(sim)
     res = {m: {"stats": [], "generated": 0, "dropped": 0, "refused": Counter(), "absent": 0,
-               "off_pose": 0, "placed": 0, "slowed": 0, "fitted": 0, "junction": 0} for m in METHODS}
+               "off_pose": 0, "placed": 0, "slowed": 0, "fitted": 0, "junction": 0,
+                  "narrowed": 0, "pulled_back": 0} for m in METHODS}
     t = time.perf_counter()
     events = []
     for k, w in enumerate(windows):
@@ -319,6 +324,8 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
                 sim.simulation.loadState(base)
                 cosim = CoSimulation(sim, net, None, seed=o.seed)
                 cosim.seeder.resolve_junctions = getattr(o, "junction_rule", True)
+                if not getattr(o, "width_cap", True):
+                    cosim.seeder.width_cap = None
                 ex = cosim.existing(w)
                 tracer = None
                 if getattr(o, "events", False) and name != "Lane-uniform":
@@ -350,6 +357,8 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
                 r["placed"] += rep.placed
                 r["slowed"] += len(rep.slowed)
                 r["fitted"] += len(rep.gap_fitted)
+                r["narrowed"] += len(rep.narrowed)
+                r["pulled_back"] += len(rep.pulled_back)
                 r["junction"] += len(getattr(rep, "conflicts", ()))
                 if tracer is not None:
                     from sumo_scendiff.sim.events import seed_info

@@ -56,9 +56,12 @@ def test_files_and_scene_json(exported):
     assert agents[0]["token"] == 0 and agents[0]["token_source"] == "user"
     assert [a["token"] for a in agents[1:]] == [None] * 4
     assert agents[2]["heading"] == pytest.approx(np.pi / 2)
+    # 1.95 m drawn, 1.8 m in SUMO: the width the network's junctions were built for (Seeder.width_cap)
+    assert agents[2]["width"] == pytest.approx(1.95) and agents[2]["sumo_width"] == 1.8
+    assert [a.get("sumo_width") for a in agents[:2]] == [None, None]
     assert len(agents[0]["poses"]) == 5 and agents[0]["y"] == pytest.approx(-1.6 + 0.6, abs=0.01)
-    assert agents[3]["replay_exact"] is False           # inside the junction
-    assert [a["replay_exact"] for a in agents[:3]] == [True] * 3
+    # agent 3 stands inside the junction: it departs on its internal edge, as exactly as the others
+    assert [a["replay_exact"] for a in agents[:4]] == [True] * 4
     stats = json.load(open(os.path.join(folder, "rollout.json")))
     assert stats["agents"] == 4 and stats["seconds"] == 5.0 and stats["collisions"] == 0
 
@@ -109,15 +112,28 @@ def test_a_copied_folder_replays_in_stock_sumo(exported, tmp_path):
     assert res.returncode == 0, res.stderr
 
 
-def test_route_file_replays_lane_agents(exported):
+def test_route_file_replays_every_agent(exported):
+    """The plain route file, without the state: the agents on lanes depart at their pose, the one
+    inside the junction on its internal lane at the position the state has it (its heading is then
+    the lane's, which a state keeps as the scene drew it)."""
     import libsumo
     folder, net = exported
     doc = json.load(open(os.path.join(folder, "scene.json")))
+    inside = doc["agents"][3]["vehicle"]
+    libsumo.start([sumo_binary(), "-c", os.path.join(folder, "scenario.sumocfg"), "--no-warnings", "true"])
+    try:
+        state = libsumo.vehicle.getLaneID(inside), libsumo.vehicle.getLanePosition(inside)
+    finally:
+        libsumo.close()
+    assert state[0].startswith(":")
     libsumo.start([sumo_binary(), "-n", net, "-r", os.path.join(folder, "scenario.rou.xml"),
                    "--lateral-resolution", "0.8", "--no-step-log", "true", "--no-warnings", "true"])
     try:
         libsumo.simulationStep()   # departures at t = 0
-        assert _check_poses(libsumo, doc, only_exact=True) == 3
+        lane_agents = dict(doc, agents=[a for a in doc["agents"] if a["vehicle"] != inside])
+        assert _check_poses(libsumo, lane_agents, only_exact=True) == 3
+        assert libsumo.vehicle.getLaneID(inside) == state[0]
+        assert libsumo.vehicle.getLanePosition(inside) == pytest.approx(state[1], abs=0.05)
     finally:
         libsumo.close()
 

@@ -67,7 +67,9 @@ def test_folder_is_complete_and_published(filled):
 def test_inflow_rate_from_the_filled_network(filled):
     """fill.json records how the inflow's rate was found: the probe's measured speed (standing vehicles
     included, so below the free-flow speed of a network with junctions), the trip time from it, and the
-    period Little's law gives; the probe's replacements are the file's first departures."""
+    period Little's law gives, offered SUPPLY times over with both configurations capping the network at
+    the filled number; the probe's replacements are the file's first departures."""
+    from sumo_scendiff.fill.seed import SUPPLY
     out, doc = filled
     inflow = doc["inflow"]
     rate, probe = inflow["rate"], inflow["rate"]["probe"]
@@ -75,7 +77,11 @@ def test_inflow_rate_from_the_filled_network(filled):
     assert rate["measured_speed_ms"] == probe["mean_speed_ms"]
     assert rate["measured_trip_s"] == pytest.approx(rate["route_m"] / probe["mean_speed_ms"], abs=0.2)
     assert inflow["trip_s"] == max(rate["measured_trip_s"], rate["free_flow_trip_s"])
-    assert inflow["period_s"] == pytest.approx(inflow["trip_s"] / doc["summary"]["vehicles"], abs=2e-3)
+    n = doc["summary"]["vehicles"]
+    assert inflow["period_s"] == pytest.approx(inflow["trip_s"] / n / SUPPLY, abs=2e-3)
+    assert inflow["max_num_vehicles"] == n
+    for cfg in ("scenario.sumocfg", "start.sumocfg"):
+        assert f'<max-num-vehicles value="{n}"/>' in (out / cfg).read_text()
     text = (out / "inflow.rou.xml").read_text()
     assert text.count("<vehicle ") == inflow["probe_departures"] == probe["replaced"]
     trips = [float(t.split('depart="')[1].split('"')[0]) for t in text.split("<trip ")[1:]]

@@ -198,3 +198,78 @@ def test_settle_stops_a_vehicle_inside_the_junction_on_red_before_a_green_stream
     assert slowed and calm >= -0.05 and collisions == 0
     unslowed, _, _ = run(False)
     assert not unslowed
+
+
+def test_a_nose_over_the_stop_line_is_moved_back_onto_its_lane(cross_net, tmp_path):
+    """A car standing with its nose 1.2 m past its lane's end is moved back behind the stop line (the
+    scene records it), so the state SUMO saves keeps it where the scene says; a second one, with a
+    car a metre behind it, would overlap that car and stays as generated."""
+    import math
+
+    import libsumo as sim
+    import numpy as np
+
+    from sumo_scendiff.core.geometry import Window, pose_to_sumo
+    from sumo_scendiff.core.scene import Scene
+    net = Network.load(cross_net)
+    east = next(ln for ln in net.lanes if ln.edge == "wc")
+    west = next(ln for ln in net.lanes if ln.edge == "ec")
+    x_end, y_e = (float(v) for v in east.shape[-1])
+    x_wend, y_w = (float(v) for v in west.shape[-1])
+    boxes = np.array([[x_end + 1.2 - 2.3, y_e, 0.0, 4.6, 1.8],           # nose 1.2 m over the line
+                      [x_wend - 1.2 + 2.3, y_w, math.pi, 4.6, 1.8],      # the same, westbound ...
+                      [x_wend - 1.2 + 2.3 + 5.4, y_w, math.pi, 4.6, 1.8]])  # ... with a car 0.8 m behind
+    traj = np.repeat(boxes[:, None, :3], 5, 1)
+    scene = Scene(Window(0.0, 0.0, 0.0), boxes.copy(), traj.copy(), np.ones((3, 5), bool), np.zeros((3, 5)),
+                  np.zeros(3), "cross")
+    sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--lateral-resolution", "0.8"])
+    try:
+        seeder = Seeder(sim, net)
+        report = seeder.seed(scene)
+        assert report.pulled_back == {0: pytest.approx(1.25, abs=0.02)}
+        assert scene.boxes[0, 0] == pytest.approx(boxes[0, 0] - 1.25, abs=0.02)
+        assert scene.traj[0, :, 0] == pytest.approx(scene.boxes[0, 0])
+        assert scene.boxes[1:] == pytest.approx(boxes[1:], abs=1e-5)
+        sim.simulationStep()
+        state = str(tmp_path / "state.xml")
+        sim.simulation.saveState(state)
+        sim.simulation.loadState(state)
+        fx, fy, _ = pose_to_sumo(*scene.boxes[0, :3], 4.6)
+        x, y = sim.vehicle.getPosition(report.ids[0])
+        assert math.hypot(x - fx, y - fy) < 0.1
+    finally:
+        sim.close()
+
+
+def test_a_vehicle_wider_than_the_junctions_assume_is_seeded_at_their_width(cross_net, tmp_path):
+    """netconvert places a turn's waiting position inside a junction for vehicles of its
+    --internal-junctions.vehicle-width (1.8 m unless the network says otherwise): a 2.4 m truck is
+    seeded 1.8 m wide (the report says so), a 1.6 m car as drawn; a network built for 2.6 m keeps
+    the truck's width."""
+    import libsumo as sim
+    import numpy as np
+
+    from sumo_scendiff.core.geometry import Window
+    from sumo_scendiff.core.scene import VEHICLE_CLASSES, Scene
+
+    from .conftest import netconvert
+    wide = netconvert('<node id="c" x="0" y="0" type="priority"/><node id="w" x="-200" y="0"/>'
+                      '<node id="e" x="200" y="0"/>',
+                      '<edge id="wc" from="w" to="c" numLanes="1"/><edge id="ce" from="c" to="e" numLanes="1"/>',
+                      str(tmp_path / "wide.net.xml"), "--internal-junctions.vehicle-width", "2.6")
+    assert Network.load(cross_net).junction_vehicle_width == 1.8
+    assert Network.load(wide).junction_vehicle_width == 2.6
+    for path, truck_width in ((cross_net, 1.8), (wide, 2.4)):
+        net = Network.load(path)
+        ye = float(next(ln for ln in net.lanes if ln.edge == "wc").shape[0][1])
+        boxes = np.array([[-60.0, ye, 0.0, 9.0, 2.4], [-80.0, ye, 0.0, 4.2, 1.6]])
+        scene = Scene(Window(0.0, 0.0, 0.0), boxes, np.repeat(boxes[:, None, :3], 5, 1), np.ones((2, 5), bool),
+                      np.zeros((2, 5)), np.array([VEHICLE_CLASSES.index("truck"), 0]), "t")
+        sim.start(["sumo", "-n", path, "--no-step-log", "--no-warnings"])
+        try:
+            report = Seeder(sim, net).seed(scene)
+            assert sim.vehicle.getWidth(report.ids[0]) == pytest.approx(truck_width)
+            assert sim.vehicle.getWidth(report.ids[1]) == pytest.approx(1.6)
+            assert report.narrowed == ({0: (pytest.approx(2.4), 1.8)} if truck_width == 1.8 else {})
+        finally:
+            sim.close()

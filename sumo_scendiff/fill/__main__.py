@@ -108,6 +108,8 @@ def _files(arg: str | None) -> list[str]:
 
 def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | None, bool, dict]:
     """Per tile the density target, whether the model is given it, and the source for fill.json."""
+    import shapely
+
     from ..map.edgedata import EdgeData, EdgeDataError
     from .demand import DemandEstimate
     name = o.checkpoint or "the shipped model"
@@ -120,14 +122,16 @@ def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | No
     if o.edge_data:
         try:
             data = EdgeData.read(o.edge_data, net)
-            targets = [data.window_density(net, t.window, begin) for t in tiles]
+            targets = [data.region_density(net, shapely.box(*t.core), begin) for t in tiles]
         except EdgeDataError as e:
             raise FillError(f"--edge-data: {e}") from None
         return targets, True, {"kind": "edge-data", "file": os.path.abspath(o.edge_data), "time": begin,
                                "applied": True}
     if routes:
         est = DemandEstimate.at(net, routes, begin, additional=additional)
-        targets = [est.window_density(net, t.window) for t in tiles]
+        # each tile's count is kept in its core: the core's own density, so the tiles add up to the
+        # estimate (a window's would spread a vehicle over every tile whose window sees it)
+        targets = [est.region_density(net, shapely.box(*t.core)) for t in tiles]
         src = {"kind": "demand", "time": begin, "en_route": est.vehicles, "departed": est.departed,
                "unrouted": est.unrouted, "applied": gen.has_density,
                "method": "each departure up to --begin laid on its route (trips: shortest path) at "

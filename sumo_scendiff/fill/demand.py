@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..map.network import window_square
+
 TYPICAL_SPEED_FACTOR = 0.7   # urban traffic averages well below the limit (signals, turns)
 HORIZON_S = 7200.0           # departures longer ago than this are not followed (none is en route)
 
@@ -84,22 +86,35 @@ class DemandEstimate:
         return cls(begin, on_edge, sum(on_edge.values()), counts["unrouted"], counts["departed"])
 
     def edge_density(self, net) -> dict[str, float]:
-        """Vehicles per km of lane, per edge with vehicles."""
-        snet = net.sumo_net
-        return {e: n / max(snet.getEdge(e).getLength() * snet.getEdge(e).getLaneNumber() / 1000.0, 1e-3)
-                for e, n in self.on_edge.items()}
+        """Vehicles per km of car lane, per edge with vehicles (its sidewalks and bike lanes left out:
+        the vehicles stand on the car lanes, and a region's density is taken over those)."""
+        km: dict[str, float] = {}
+        for ln in net.lanes:
+            if ln.car and not ln.internal:
+                km[ln.edge] = km.get(ln.edge, 0.0) + ln.length / 1000.0
+        return {e: n / max(km.get(e, 0.0), 1e-3) for e, n in self.on_edge.items()}
 
     def window_density(self, net, window) -> float | None:
-        """The window's density, its edges weighted by their car-lane length inside it (edges
-        without estimated vehicles count as empty); None where the window has no normal car lane."""
+        """The window's density (:meth:`region_density` of its square)."""
+        return self.region_density(net, window_square(window))
+
+    def region_density(self, net, region) -> float | None:
+        """The density in a shapely region: the estimated vehicles on its edges (each edge's density
+        times its car-lane length inside the region; edges without estimated vehicles are empty) per
+        km of all its car lane, the junctions' included, as a window's count is taken (round(D x
+        car-lane km) holds the estimate's vehicles); None where it has no normal car lane."""
         dens = self.edge_density(net)
-        idx, km = net.car_lanes_in(window)
+        idx, km = net.car_lanes_in_region(region)
         num = den = 0.0
+        normal = False
         for i, k in zip(idx, km):
-            if net.lanes[i].internal or k <= 0:
+            if k <= 0:
                 continue
-            num, den = num + dens.get(net.lanes[i].edge, 0.0) * k, den + k
-        return num / den if den > 0 else None
+            den += k
+            if not net.lanes[i].internal:
+                normal = True
+                num += dens.get(net.lanes[i].edge, 0.0) * k
+        return num / den if normal and den > 0 else None
 
 
 def green_shares(paths) -> dict[str, tuple[float, np.ndarray]]:

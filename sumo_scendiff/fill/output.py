@@ -41,6 +41,10 @@ def _agents(result, reports) -> list[dict]:
                    "vclass": int(scene.vclass[a]), "vehicle": vid, "status": status}
             if why:
                 row["reason"] = why
+            if rep is not None and a in rep.pulled_back:   # its nose was over the stop line (Seeder.fit_lane_ends)
+                row["pulled_back_m"] = round(rep.pulled_back[a], 3)
+            if rep is not None and a in rep.narrowed:     # wider than the network's junctions assume (Seeder.width_cap)
+                row["sumo_width"] = rep.narrowed[a][1]
             out.append(row)
     return out
 
@@ -74,6 +78,8 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
         close(sim)
     onward = list(routes) + ([os.path.join(folder, inflow["file"])] if inflow.get("file") else [])
     options = cfg.options()
+    if inflow.get("max_num_vehicles"):   # the inflow's surplus waits to enter (seed.SUPPLY)
+        options["max-num-vehicles"] = str(inflow["max_num_vehicles"])
     # SUMO starts a loaded state at the state's own time (one seeding step after --begin)
     write_sumocfg(os.path.join(folder, "scenario.sumocfg"), {**options, "b": f"{state_time:g}"},
                   "state.xml.gz", routes=onward)
@@ -112,7 +118,8 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
                        "placed": sum(a["status"] == "placed" for a in agents),
                        "misplaced": sum(a["status"] == "misplaced" for a in agents),
                        "refused": sum(a["status"] in ("refused", "conflict") for a in agents),
-                       "start_exact": sum(exact.values()), "car_lane_km": round(area_km, 3),
+                       "start_exact": sum(exact.values()),
+                       "pulled_back": sum("pulled_back_m" in a for a in agents), "car_lane_km": round(area_km, 3),
                        "density_veh_per_km": round(len(seeded) / max(area_km, 1e-9), 2),
                        "edges_with_vehicles": sum(v > 0 for v in dens.values())},
            "tiles": tiles, "agents": agents,

@@ -41,6 +41,12 @@ SAMPLE_TRIPS = 200          # random trips: their mean route gives the trip time
 # 3.46 m/s on a fill of 430 vehicles there).
 SETTLE_SECONDS = 90.0
 PROBE_SECONDS = 90.0
+# The inflow offers SUPPLY times the rate Little's law estimates, and SUMO's --max-num-vehicles (in
+# both configurations) holds the network at the filled number: vehicles beyond it wait to enter. An
+# open-loop rate alone is unstable on a signalised network: a little too high and the queues grow
+# to gridlock, a little too low and it drains (grid4x4 at 25 veh/km, three seeds: -24 % to +21 %
+# after 30 min); with the cap an estimate up to SUPPLY times too low still holds the count.
+SUPPLY = 1.5
 
 
 class InflowError(RuntimeError):
@@ -234,7 +240,8 @@ def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: 
                  sample: list[list[str]] | None = None, probe: Probe | None = None) -> dict:
     """inflow.rou.xml: randomTrips.py trips from the fringe (or anywhere, for a network without
     one) at the rate that holds ``vehicles`` on the network: in a steady state as many enter as
-    leave, ``vehicles / trip time`` per second (Little's law).
+    leave, ``vehicles / trip time`` per second (Little's law), offered :data:`SUPPLY` times over, the
+    configurations capping the network at ``vehicles`` (``max_num_vehicles`` in the result).
 
     The trip time is the mean route length of a first sample of the same random trips (``sample``,
     else drawn here: :func:`inflow_sample`) over ``speed`` (m/s; default the ``probe``'s), the
@@ -255,7 +262,7 @@ def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: 
         speed = probe.speed
     measured_s = metres / speed if speed else None
     trip_s = max(free_s, measured_s or 0.0)
-    period = max(trip_s / vehicles, 0.1)
+    period = max(trip_s / vehicles / SUPPLY, 0.1)
     steady = max(begin, probe.until) if probe is not None else begin
     _random_trips(net.path, path, steady, period, seed, bool(sources), end=begin + INFLOW_SECONDS)
     if probe is not None and probe.departures:
@@ -265,11 +272,13 @@ def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: 
             "measured_speed_ms": None if speed is None else round(speed, 3),
             "measured_trip_s": None if measured_s is None else round(measured_s, 1),
             "trip_s_from": "measured" if measured_s is not None and measured_s >= free_s else "free flow",
-            "method": "period = trip_s / vehicles (Little's law); trip_s = the slower of route_m / the "
-                      "filled network's measured mean speed and the routes at 0.7 x the speed limits"}
+            "supply": SUPPLY,
+            "method": "period = trip_s / vehicles / supply (Little's law, offered supply times); trip_s = the "
+                      "slower of route_m / the filled network's measured mean speed and the routes at 0.7 x the "
+                      "speed limits; SUMO's max-num-vehicles holds the network at vehicles"}
     out = {"file": os.path.basename(path), "period_s": round(period, 3), "trip_s": round(trip_s, 1),
            "from": "fringe" if sources else "anywhere (the network has no fringe)",
-           "fringe_sources": len(sources), "seconds": INFLOW_SECONDS, "rate": rate}
+           "fringe_sources": len(sources), "seconds": INFLOW_SECONDS, "max_num_vehicles": vehicles, "rate": rate}
     if probe is not None:
         rate["probe"] = probe.record
         out["probe_departures"] = len(probe.departures)

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import shapely
 
+from .network import window_square
+
 
 class EdgeDataError(ValueError):
     """One line: the file and the problem."""
@@ -71,16 +73,27 @@ class EdgeData:
                             f"{self.intervals[0].begin:g}-{self.intervals[-1].end:g} s)")
 
     def window_density(self, net, window, time: float) -> float | None:
-        """Vehicles per km of car lane in ``window`` at ``time``, weighted by each edge's car-lane
-        length inside it; None where the file lists none of the window's edges."""
+        """Vehicles per km of car lane in ``window`` at ``time`` (:meth:`region_density` of its square)."""
+        return self.region_density(net, window_square(window), time)
+
+    def region_density(self, net, region, time: float) -> float | None:
+        """Vehicles per km of car lane in a shapely region at ``time``: the listed edges' densities
+        times their car-lane length inside it, per km of all its car lane (junctions and unlisted
+        edges included, as a window's count is taken: round(D x car-lane km)); None where the file
+        lists none of its edges."""
         iv = self.at(time)
-        idx, km = net.car_lanes_in(window)
+        idx, km = net.car_lanes_in_region(region)
         num = den = 0.0
+        listed = False
         for i, k in zip(idx, km):
+            if k <= 0:
+                continue
+            den += k
             d = iv.density.get(net.lanes[i].edge)
-            if d is not None and k > 0:
-                num, den = num + d * k, den + k
-        return num / den if den > 0 else None
+            if d is not None:
+                listed = True
+                num += d * k
+        return num / den if listed and den > 0 else None
 
 
 def _lanes_per_edge(net) -> dict[str, tuple[int, float]]:

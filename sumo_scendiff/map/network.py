@@ -31,6 +31,8 @@ class NetworkError(ValueError):
     """A network file that cannot be used; the message names the file and the problem."""
 
 
+NETCONVERT_VEHICLE_WIDTH = 1.8   # m: netconvert's default --internal-junctions.vehicle-width
+
 @dataclass
 class Lane:
     id: str
@@ -124,7 +126,7 @@ class LaneMatch:
     heading_diff: np.ndarray
 
 
-def _square(window) -> shapely.Polygon:
+def window_square(window) -> shapely.Polygon:
     """The (turned) window's square in world coordinates."""
     return shapely.Polygon(window.scene_to_world(np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]])
                                                  * 0.5 * window.size))
@@ -215,6 +217,26 @@ class Network:
         return network
 
     @cached_property
+    def junction_vehicle_width(self) -> float:
+        """The vehicle width netconvert placed the waiting positions inside junctions for (its
+        ``--internal-junctions.vehicle-width``, recorded in the file's header when not the default
+        1.8 m): a wider vehicle waiting there, or passing one that waits, touches the other."""
+        import re
+
+        import sumolib
+        head = ""
+        try:
+            with sumolib.openz(self.path) as f:
+                for line in f:
+                    head += line
+                    if "<net " in line or len(head) > 200_000:
+                        break
+        except OSError:
+            pass
+        m = re.search(r'<internal-junctions\.vehicle-width value="([0-9.eE+-]+)"', head)
+        return float(m.group(1)) if m else NETCONVERT_VEHICLE_WIDTH
+
+    @cached_property
     def signal_links(self) -> list:
         """Every traffic-light-controlled link (:class:`~.signals.SignalLink`), read once."""
         from .signals import signal_links
@@ -250,17 +272,20 @@ class Network:
 
     def has_road(self, window) -> bool:
         """Whether any car lane crosses the window's square."""
-        square = _square(window)
+        square = window_square(window)
         idx = self.lane_tree.query(square, predicate="intersects")
         return any(self.lanes[i].car for i in idx)
 
     def car_lanes_in(self, window) -> tuple[np.ndarray, np.ndarray]:
         """(lane indices, km of each inside the window's square) of the car lanes crossing it
         (junction-internal lanes included)."""
-        square = _square(window)
-        idx = self.lane_tree.query(square, predicate="intersects")
+        return self.car_lanes_in_region(window_square(window))
+
+    def car_lanes_in_region(self, region) -> tuple[np.ndarray, np.ndarray]:
+        """(lane indices, km of each inside a shapely region) of the car lanes crossing it."""
+        idx = self.lane_tree.query(region, predicate="intersects")
         idx = np.sort(idx[np.isin(idx, self.car_lane_ids)])
-        return idx, shapely.length(shapely.intersection(self.lines[idx], square)) / 1000.0
+        return idx, shapely.length(shapely.intersection(self.lines[idx], region)) / 1000.0
 
     def car_lane_km(self, window) -> float:
         """Kilometres of car lane inside the window's square: the denominator of a window's density
@@ -269,9 +294,7 @@ class Network:
 
     def car_lane_km_in(self, region) -> float:
         """Kilometres of car lane inside a shapely region (junction-internal lanes included)."""
-        idx = self.lane_tree.query(region, predicate="intersects")
-        idx = idx[np.isin(idx, self.car_lane_ids)]
-        return float(shapely.length(shapely.intersection(self.lines[idx], region)).sum()) / 1000.0
+        return float(self.car_lanes_in_region(region)[1].sum())
 
     # ---- point queries --------------------------------------------------------------------
     def on_drivable(self, points) -> np.ndarray:

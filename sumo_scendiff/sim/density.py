@@ -48,9 +48,12 @@ def parse_vehicles(text: str | None, flag: str = "--vehicles") -> int | None:
 
 def road_class(net, lane: int):
     """The class of road a lane belongs to, for :func:`host_density`: its edge's priority (netconvert
-    ranks road types by it: a main road above a residential street); None for junction lanes."""
+    ranks road types by it: a main road above a residential street); "junction" for the lanes inside
+    junctions (a window's count includes them, so their vehicles and km are a class of their own)."""
     ln = net.lanes[lane]
-    if ln.internal or net.sumo_net is None or not net.sumo_net.hasEdge(ln.edge):
+    if ln.internal:
+        return "junction"
+    if net.sumo_net is None or not net.sumo_net.hasEdge(ln.edge):
         return None
     return net.sumo_net.getEdge(ln.edge).getPriority()
 
@@ -59,9 +62,9 @@ def host_density(sim, net, window, radius: float = AUTO_RADIUS) -> float | None:
     """Vehicles per km of car lane of the host simulation's own traffic within ``radius`` m of the
     window's centre (None where no car lane is that close), per class of road: each class's density
     around the window (:func:`road_class`: a main road's queue says little about the side streets
-    beside it) weighted by that class's car-lane km inside the window. Junction lanes belong to no
-    class (left out of both); a window with no classed lane, or whose classes have no lane around,
-    falls back to the plain density of every car lane around."""
+    beside it) weighted by that class's car-lane km inside the window; the lanes inside junctions are
+    a class of their own. A window with no classed lane, or whose classes have no lane around, falls
+    back to the plain density of every car lane around."""
     circle = shapely.Point(window.cx, window.cy).buffer(radius)
     idx = net.lane_tree.query(circle, predicate="intersects")
     idx = idx[np.isin(idx, net.car_lane_ids)]

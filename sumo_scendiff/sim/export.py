@@ -44,6 +44,10 @@ def _agents(seeding, sim) -> list[dict]:
             a["reason"] = rep.refused[i]
         if i in rep.misplaced:
             a["position_error"] = rep.misplaced[i]
+        if i in rep.pulled_back:   # its nose was over the stop line (Seeder.fit_lane_ends)
+            a["pulled_back_m"] = round(rep.pulled_back[i], 3)
+        if i in rep.narrowed:      # wider than the network's junctions assume (Seeder.width_cap)
+            a["sumo_width"] = rep.narrowed[i][1]
         out.append(a)
     return out
 
@@ -68,20 +72,22 @@ def scene_document(seeding, net, sim, info: dict) -> dict:
 
 def _vehicle_xml(sim, vid: str, net) -> tuple[str, str, str, bool]:
     """(vType, route, vehicle) XML for a present vehicle departing where it stands now, and
-    whether that is exact. A vehicle cannot depart inside a junction: one there starts on the edge it
-    is entering, its rear at the edge's start (where it is a moment later; behind, at the stop line it
-    has passed, a queue may stand), and with SUMO's insertion checks, so that it waits rather than
-    departs into a vehicle."""
+    whether that is exact. A vehicle inside a junction departs on its internal edge (SUMO accepts a
+    route that starts with one, and finds the internal lanes between it and the next normal edge);
+    only a vehicle SUMO reports on no lane, or whose route ends there, starts at the edge it is
+    entering, at its start and with SUMO's insertion checks."""
     tid = sim.vehicle.getTypeID(vid)
     vt = sim.vehicletype
     vtype = (f'    <vType id={quoteattr(tid)} vClass="{vt.getVehicleClass(tid)}" length="{vt.getLength(tid):.3f}" '
              f'width="{vt.getWidth(tid):.3f}" minGap="{vt.getMinGap(tid):.3f}"/>')
     edges = list(sim.vehicle.getRoute(vid))[sim.vehicle.getRouteIndex(vid):]
     lane = sim.vehicle.getLaneID(vid)
-    exact = not lane.startswith(":")
+    exact = bool(lane) and (not lane.startswith(":") or len(edges) > 1)
     if exact:
         pos, lane_index = sim.vehicle.getLanePosition(vid), sim.vehicle.getLaneIndex(vid)
         lat = sim.vehicle.getLateralLanePosition(vid)
+        if lane.startswith(":"):   # the route index still points at the edge before the junction
+            edges = [sim.lane.getEdgeID(lane)] + edges[1:]
     elif len(edges) > 1:
         edges = edges[1:]
         nxt = net.sumo_net.getEdge(edges[0])

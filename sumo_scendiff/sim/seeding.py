@@ -32,8 +32,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import shapely
 
-from ..core.geometry import T0, pose_to_sumo, wrap_angle
+from ..core.geometry import T0, box_corners, pose_to_sumo, wrap_angle
 from ..core.scene import VEHICLE_CLASSES, Scene
 from ..map.network import Network
 from .junctions import JunctionConflicts
@@ -45,6 +46,8 @@ DEFAULT_MIN_GAP = 2.5
 MIN_GAP_MARGIN = 0.2   # m: a seeded vehicle's minGap stays this much below its bumper gap
 FOE_VISIBILITY = 4.5   # m: netconvert's default foe visibility distance of a link without priority
 LINKS_AHEAD = 2        # links (a turn's entry and its internal junction) settle looks at
+LANE_END_MARGIN = 0.05  # m: a nose further than this past its lane's end is moved back behind it
+OVERLAP_AREA = 0.01     # m^2: boxes sharing more than this overlap
 
 
 @dataclass
@@ -56,6 +59,8 @@ class SeedReport:
     slowed: dict[int, tuple] = field(default_factory=dict)   # agent index -> (generated, departure speed)
     gap_fitted: dict[int, tuple] = field(default_factory=dict)  # agent index -> (minGap, minGap fitted)
     conflicts: dict[int, str] = field(default_factory=dict)  # agent index -> why not seeded (junction foe)
+    pulled_back: dict[int, float] = field(default_factory=dict)  # agent index -> m moved behind its lane's end
+    narrowed: dict[int, tuple] = field(default_factory=dict)  # agent index -> (generated, SUMO width), width_cap
 
     @property
     def placed(self) -> int:
@@ -89,6 +94,12 @@ class Seeder:
         self.junctions = JunctionConflicts(net)
         self.resolve_junctions = True
         self.junction_stops = True               # settle: the junction ahead as a leader (link_stops)
+        # netconvert puts the waiting position of a turn inside a junction where a vehicle of the
+        # network's junction width clears the crossing stream (Network.junction_vehicle_width, 1.8 m
+        # by default): a wider vehicle waiting there, or passing one that waits, touches the other
+        # and SUMO registers a junction collision, whatever its class. So in SUMO a seeded vehicle is
+        # at most that wide (scene.json keeps the generated width); None: the generated widths.
+        self.width_cap: float | None = net.junction_vehicle_width
 
     # ---- network helpers --------------------------------------------------------------------
     def _internal_links(self) -> dict[str, tuple[str, str]]:
@@ -235,6 +246,38 @@ class Seeder:
         return np.clip(np.nan_to_num(bumper_gap - MIN_GAP_MARGIN, posinf=DEFAULT_MIN_GAP), 0.3, DEFAULT_MIN_GAP)
 
     # ---- seeding --------------------------------------------------------------------------------
+    def fit_lane_ends(self, scene: Scene, report: SeedReport, others: np.ndarray) -> None:
+        """Agents standing on a normal lane with the nose past its end (over the stop line) are moved
+        back along their heading until the nose is at the end, the whole trajectory with them; the
+        scene records the pose. SUMO keeps a vehicle on its lane within the lane's length: placed
+        there by ``moveToXY`` it stands where asked for one step, but the state saves it at the lane's
+        end (and a vehicle put on the junction instead would no longer stop for its light). One that
+        would then overlap another box (a follower close behind) stays as generated.
+        ``others``: the host's boxes around the window (scene frame)."""
+        w = scene.window
+        polys = [shapely.Polygon(box_corners(*b[:5])) for b in np.concatenate([scene.boxes[:, :5], others[:, :5]])]
+        for i in range(len(scene)):
+            (x, y), yaw = w.scene_to_world(scene.boxes[i, None, 0:2])[0], float(w.yaw_to_world(scene.boxes[i, 2]))
+            start = self._edges_at(x, y, yaw)
+            if start is None or start[2].internal:
+                continue
+            shape = np.asarray(start[2].shape, np.float64)
+            u = shape[-1] - shape[-2]
+            u /= max(float(np.hypot(*u)), 1e-9)
+            half = 0.5 * float(scene.boxes[i, 3])
+            over = float(np.dot(np.array([x + half * np.cos(yaw), y + half * np.sin(yaw)]) - shape[-1], u))
+            if over <= LANE_END_MARGIN:
+                continue
+            back = over + LANE_END_MARGIN
+            d = back * np.array([np.cos(scene.boxes[i, 2]), np.sin(scene.boxes[i, 2])])   # scene frame
+            moved = shapely.Polygon(box_corners(*(scene.boxes[i, :5] - [*d, 0, 0, 0])))
+            if any(k != i and moved.intersection(p).area > OVERLAP_AREA for k, p in enumerate(polys)):
+                continue
+            polys[i] = moved
+            scene.boxes[i, 0:2] -= d
+            scene.traj[i, :, 0:2] -= d
+            report.pulled_back[i] = back
+
     def seed(self, scene: Scene, others: tuple[np.ndarray, np.ndarray] | None = None) -> SeedReport:
         """Add every agent of ``scene``; call ``simulationStep`` and then :meth:`verify`.
 
@@ -247,6 +290,7 @@ class Seeder:
         sim, report = self.sim, SeedReport()
         w = scene.window
         other_boxes, other_speed = others if others is not None else (np.zeros((0, 5)), np.zeros(0))
+        self.fit_lane_ends(scene, report, other_boxes)
         lead, bumper_gap = self.leaders(scene.boxes, other_boxes)
         gaps = self.min_gaps(bumper_gap)
         lead_speed = np.concatenate([scene.speed[:, T0], other_speed]).astype(np.float64)
@@ -267,7 +311,11 @@ class Seeder:
             vid = f"{self.prefix}{self.count}"
             self.count += 1
             try:
-                tid = self.vtype(vid, scene.boxes[i, 3], scene.boxes[i, 4], scene.vclass[i], gaps[i])
+                width = float(scene.boxes[i, 4])
+                if self.width_cap is not None and width > self.width_cap:
+                    report.narrowed[i] = (width, self.width_cap)
+                    width = self.width_cap
+                tid = self.vtype(vid, scene.boxes[i, 3], width, scene.vclass[i], gaps[i])
                 sim.route.add(f"{vid}_route", self.routes.complete(edges, last_lane, tid, self.rng))
                 speed, slowed = max(float(scene.speed[i, T0]), 0.0), None
                 if hold[i]:        # waits for a foe on its junction (sim.junctions)
