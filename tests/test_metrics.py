@@ -208,3 +208,36 @@ def test_token_metrics_counts_and_speed_mae():
     # the tokens' frame does not matter
     r2 = token_metrics([gen, gen2], [rotate_scene(tok, 0.7), tok2])
     assert (r2["tp"], r2["fp"], r2["fn"]) == (2, 2, 2)
+
+
+def test_signal_standing_shares_at_red_and_green(cross_net):
+    """A car standing 5 m before its red stop line and one driving towards its green one count as
+    standing at red 1/1 and at green 0/1; one 120 m before the line counts for neither; a scene
+    without lights for nothing."""
+    import math
+
+    from sumo_scendiff.core.geometry import Window
+    from sumo_scendiff.core.scene import Scene
+    from sumo_scendiff.evaluate.metrics import signal_standing
+    from sumo_scendiff.map.network import Network
+    from sumo_scendiff.map.signals import signal_links
+    net = Network.load(cross_net)
+    east = next(ln for ln in net.lanes if ln.edge == "wc")
+    north = next(ln for ln in net.lanes if ln.edge == "sc")
+    links = signal_links(net)
+    tls = links[0].tls
+    state = ["G"] * (max(ln.index for ln in links) + 1)
+    for ln in links:
+        if ln.lane == net.lane_index[east.id]:
+            state[ln.index] = "r"
+    x_e, y_e = (float(v) for v in east.shape[-1])
+    x_n, y_n = (float(v) for v in north.shape[-1])
+    boxes = np.array([[x_e - 5.0, y_e, 0.0, 4.5, 1.8], [x_n, y_n - 20.0, math.pi / 2, 4.5, 1.8],
+                      [x_e - 120.0, y_e, 0.0, 4.5, 1.8]])
+    speed = np.array([[0.0] * 5, [9.0] * 5, [0.0] * 5])
+    scene = Scene(Window(0.0, 0.0, 0.0, 400.0), boxes, np.repeat(boxes[:, None, :3], 5, 1), np.ones((3, 5), bool),
+                  speed, np.zeros(3), "cross")
+    got = signal_standing([scene], net, [{tls: "".join(state)}])
+    assert (got["standing_red"], got["at_red"], got["standing_green"], got["at_green"]) == (1.0, 1, 0.0, 1)
+    none = signal_standing([scene], net, [None])
+    assert none["at_red"] == none["at_green"] == 0 and np.isnan(none["standing_red"])

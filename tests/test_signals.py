@@ -83,3 +83,17 @@ def test_the_generator_takes_the_lights_only_when_asked(cross_net):
     assert "signals" not in off.meta
     assert on.meta["signals"] == {"c": state}   # the window's lights, as scene.json records them
     assert GenerationConfig(signals=True).record(ScenarioGenerator.load(None))["signals"] is True
+
+
+def test_a_via_lane_without_area_is_skipped_not_a_crash(cross_net):
+    """Some real networks have zero-length internal lanes (an empty polygon: berlin_doerpfeldstr):
+    their link is still drawn on its approach, the via lane has nothing to fill."""
+    net = Network.load(cross_net)
+    link = next(ln for ln in net.signal_links if net.lanes[ln.lane].id == "wc_0")
+    net.lanes[link.via].ring = np.zeros((0, 2))
+    # as Network.load leaves a lane without area out of its lane index
+    every = net.lanes_in
+    net.lanes_in = lambda window: np.array([i for i in every(window) if i != link.via], np.int64)
+    state = "".join("G" if ln is link else "r" for ln in sorted(net.signal_links, key=lambda ln: ln.index))
+    lit = render_map(net, Window(0.0, 0.0, 0.0, 100.0), signals={"c": state})
+    assert _value(lit, GO, approach(net.lanes[link.lane].shape).mean(0)) == 1.0

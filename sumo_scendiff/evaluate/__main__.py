@@ -47,7 +47,8 @@ REFERENCE = "SUMO 2 min later"
 COLUMNS = (("mmd2_position", "MMD² pos"), ("mmd2_heading", "MMD² head"),
            ("mmd2_velocity", "MMD² vel"), ("mmd2_joint", "MMD² joint"),
            ("traj_on_drivable", "traj on drivable"), ("lane_heading_difference", "lane head. diff"),
-           ("agents_emd", "agents/scene EMD"), ("agents_per_scene", "agents/scene"))
+           ("agents_emd", "agents/scene EMD"), ("agents_per_scene", "agents/scene"),
+           ("standing_red", "standing at red"), ("standing_green", "standing at green"))
 
 
 def get_options(args=None):
@@ -195,7 +196,9 @@ def evaluate_net(net: Network, o, pool: SceneStore, models: dict) -> dict:
     gt = first["gt_only"]
     result["methods"] = {"Ground truth": {"traj_on_drivable": gt["traj_on_drivable"],
                                           "lane_heading_difference": gt["lane_heading_diff"],
-                                          "agents_per_scene": first["agents_per_scene_gt"]},
+                                          "agents_per_scene": first["agents_per_scene_gt"],
+                                          **{k: gt[k] for k in ("standing_red", "standing_green",
+                                                                "at_red", "at_green") if k in gt}},
                          **result["methods"]}
     if o.pictures:
         save_pictures(net, tiles, os.path.join(o.pictures, f"{net.name}.png"))
@@ -224,7 +227,8 @@ def _row(res: dict) -> dict:
             "traj_on_drivable": res["traj_on_drivable"],
             "lane_heading_difference": res["lane_heading_diff"],
             "agents_emd": res["agents_per_scene_emd"], "agents_per_scene": res["agents_per_scene_gen"],
-            "mmd_scenes": res["mmd_scenes"]}
+            "mmd_scenes": res["mmd_scenes"],
+            **{k: res[k] for k in ("standing_red", "standing_green", "at_red", "at_green") if k in res}}
 
 
 def markdown(results: list[dict]) -> str:

@@ -146,6 +146,44 @@ def trajectory_metrics(scenes: Sequence[Scene], net) -> dict[str, float]:
             "lane_heading_excluded": excl}
 
 
+STANDING_SPEED = 0.5    # m/s: a vehicle slower than this stands
+QUEUE_REACH = 50.0      # m before the stop line: a vehicle this close is queued at its light (or passes it)
+RED, GREEN = "rRu", "Gg"  # a lane's light is red / green when every link from it shows one of these
+
+
+def signal_standing(scenes: Sequence[Scene], net, signals: Sequence[dict | None]) -> dict[str, float]:
+    """The share of vehicles standing (below :data:`STANDING_SPEED`) among those within
+    :data:`QUEUE_REACH` m of the stop line of a lane whose light is red, and among those whose light
+    is green; ``signals[i]`` is the light states (tls id -> state string) at scene ``i``'s time.
+    Returns ``standing_red``, ``standing_green`` (nan without such vehicles) and their counts."""
+    from ..map.signals import signal_links
+    by_lane: dict[int, list] = {}
+    for ln in signal_links(net):
+        by_lane.setdefault(ln.lane, []).append(ln)
+    counts = {"red": [0, 0], "green": [0, 0]}
+    for scene, states in zip(scenes, signals):
+        if not states or not len(scene):
+            continue
+        agents = scene.world_agents()
+        m = net.match_poses([[a["x"], a["y"]] for a in agents], [a["heading"] for a in agents])
+        for i, lane in enumerate(m.lane):
+            links = by_lane.get(int(lane), [])
+            if not links or net.lanes[int(lane)].length - m.pos[i] > QUEUE_REACH:
+                continue
+            chars = [states[ln.tls][ln.index] for ln in links
+                     if ln.tls in states and ln.index < len(states[ln.tls])]
+            kind = ("red" if chars and all(c in RED for c in chars) else
+                    "green" if chars and all(c in GREEN for c in chars) else None)
+            if kind is not None:
+                counts[kind][0] += 1
+                counts[kind][1] += float(scene.speed[i, T0]) < STANDING_SPEED
+    out = {}
+    for kind, (n, standing) in counts.items():
+        out[f"standing_{kind}"] = standing / n if n else float("nan")
+        out[f"at_{kind}"] = n
+    return out
+
+
 def check_pairing(generated: Sequence[Scene], ground_truth: Sequence[Scene]) -> None:
     """Raise ValueError unless ``generated[i]`` is for the window of ``ground_truth[i]``."""
     if len(generated) != len(ground_truth):
@@ -161,7 +199,9 @@ def evaluate_scenes(generated: Sequence[Scene], ground_truth: Sequence[Scene], n
 
     Returns: ``scenes``; the :func:`mean_scene_mmd2` entries (``mmd2_*``, ``mmd_scenes``);
     ``agents_per_scene_emd``, ``agents_per_scene_gen``/``_gt`` (means); the generated scenes'
-    :func:`trajectory_metrics`; and ``gt_only``: the trajectory metrics of the ground truth itself.
+    :func:`trajectory_metrics`; with the recorded lights, :func:`signal_standing` (each generated
+    scene judged under its ground truth's lights); and ``gt_only``: the trajectory metrics (and signal
+    standing) of the ground truth itself.
     """
     check_pairing(generated, ground_truth)
     n_gen = [len(s) for s in generated]
@@ -173,6 +213,10 @@ def evaluate_scenes(generated: Sequence[Scene], ground_truth: Sequence[Scene], n
     out["agents_per_scene_gt"] = float(np.mean(n_gt)) if n_gt else float("nan")
     out.update(trajectory_metrics(generated, net))
     out["gt_only"] = trajectory_metrics(ground_truth, net)
+    lights = [t.meta.get("signals") or None for t in ground_truth]   # the recorded moment's lights
+    if any(lights):
+        out.update(signal_standing(generated, net, lights))
+        out["gt_only"].update(signal_standing(ground_truth, net, lights))
     return out
 
 

@@ -101,7 +101,10 @@ def _draw_signals(ch: dict, net, window: Window, states: dict[str, str], cfg: Ra
     links = [net.signal_links[k] for k in idx]
     go, stop = link_values(links, states)
     lines = [approach(net.lanes[ln.lane].shape) for ln in links]
-    vias = [net.lanes[ln.via].ring if ln.via >= 0 else None for ln in links]
+    # a via lane whose polygon is empty (a zero-length internal lane: berlin_doerpfeldstr has some)
+    # has nothing to fill
+    vias = [net.lanes[ln.via].ring if ln.via >= 0 and len(net.lanes[ln.via].ring) >= 3 else None
+            for ln in links]
     pix = _px_many(window, lines + [v for v in vias if v is not None], cfg)
     line_pix, via_pix = pix[: len(links)], iter(pix[len(links):])
     via_pix = [next(via_pix) if v is not None else None for v in vias]
