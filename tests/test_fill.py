@@ -356,3 +356,18 @@ def test_signal_delays_of_the_demand_estimate(tmp_path):
     b = tmp_path / "b.add.xml"
     b.write_text(a.read_text().replace('duration="26"', 'duration="56"'))
     assert green_shares([str(a), str(b)])["J"][0] == 90
+
+
+def test_tile_counts_add_up_to_the_network_total():
+    """Tiles expecting less than half a vehicle each would all round to 0: the counts are apportioned
+    by largest remainder, so they add up to the rounded total, ties to the lower tile index; a tile
+    without a target stays without one."""
+    from sumo_scendiff.fill.plan import whole_counts
+    kms = [0.1, 0.1, 0.1, 0.1, 0.2, 0.3]
+    targets = [4.0, 4.0, 4.0, 4.0, None, 5.0]          # expected 0.4 each, none, 1.5
+    got = whole_counts(targets, kms)
+    counts = [None if d is None else round(d * km) for d, km in zip(got, kms)]
+    # 0.4 x 4 + 1.5 = 3.1 -> 3: the floor gives the last tile 1; the largest remainders (its 0.5,
+    # then the first tile's 0.4) the other 2
+    assert counts == [1, 0, 0, 0, None, 2]
+    assert whole_counts([None, None], [1.0, 1.0]) == [None, None]

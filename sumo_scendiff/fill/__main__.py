@@ -145,6 +145,8 @@ def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | No
 
 
 def run(o, folder: str) -> dict:
+    import shapely
+
     from ..core.threads import GENERATION_THREADS, share_cpu
     share_cpu(default=GENERATION_THREADS)   # before torch is imported (core/threads.py: why one)
     from ..data.demand import DemandError, check_demand
@@ -155,7 +157,7 @@ def run(o, folder: str) -> dict:
     from ..sim.scenario import ScenarioError, scenario_from_files
     from ..sim.sumo import SimConfig
     from .output import write_outputs
-    from .plan import fill_network
+    from .plan import fill_network, whole_counts
     from .tiles import TileError, tile_grid
     from .workers import tile_engine
 
@@ -186,6 +188,11 @@ def run(o, folder: str) -> dict:
     # started here, the workers load their model while this process prepares the rest
     with tile_engine(net, gen, o.workers, o.ray_address, o.checkpoint) as engine:
         targets, applied, source = _amount(o, net, gen, tiles, routes, begin, scen.additional)
+        if applied and targets is not None:
+            # the counts the tiles' cores keep (generator: round(D x car-lane km)) add up to the total
+            kms = [net.car_lane_km_in(shapely.box(*t.core)) for t in tiles]
+            targets = whole_counts(targets, kms)
+            source["vehicles_planned"] = int(round(sum(d * km for d, km in zip(targets, kms) if d is not None)))
         timing["load"] = time.perf_counter() - t
 
         cfg = SimConfig(net=scen.net, additional=scen.additional, step_length=o.step_length, seed=o.seed,

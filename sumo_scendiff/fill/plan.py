@@ -60,6 +60,27 @@ def tasks_of(batch: list[Tile]) -> list[list[Tile]]:
     return [batch[s:s + size] for s in range(0, len(batch), size)]
 
 
+def whole_counts(targets: list[float | None], kms: list[float]) -> list[float | None]:
+    """Per tile density targets (veh per km of car lane) made whole: the expected vehicles,
+    target x km, apportioned to integer counts by largest remainder (ties to the lower tile index) so
+    that they add up to the rounded total, returned as densities whose round(D x km) is that count.
+    Rounding each tile alone loses the whole network's traffic where tiles expect less than half a
+    vehicle (545 ingolstadt21 tiles expecting 315 vehicles kept 276)."""
+    idx = [k for k, (t, km) in enumerate(zip(targets, kms)) if t is not None and km > 0]
+    want = np.array([targets[k] * kms[k] for k in idx], np.float64)
+    if not len(want):
+        return list(targets)
+    n = np.floor(want).astype(np.int64)
+    short = int(round(want.sum())) - int(n.sum())
+    order = sorted(range(len(idx)), key=lambda j: (-(want[j] - n[j]), j))
+    for j in order[:max(short, 0)]:
+        n[j] += 1
+    out = list(targets)
+    for j, k in enumerate(idx):
+        out[k] = float(n[j]) / kms[k]
+    return out
+
+
 def fill_network(net, gen, tiles: list[Tile], seed: int = 0, p_mask: float = 1.0,
                  targets: list[float | None] | None = None, use_density: bool = False,
                  area: tuple | None = None, progress: bool = False,
