@@ -12,8 +12,10 @@ the lane it stands on (heading agreement; an internal junction lane gives the ro
 and outgoing edges, never starts a route), a route through the lanes of its +1/+2 s poses and on by
 SUMO's router to a destination the host's traffic drives to, or the network's fringe
 (:mod:`~sumo_scendiff.sim.routes`), a vehicle type with its box and a minGap that
-fits the gap to the vehicle ahead in the scene, a departure speed that is its generated speed capped
-at the Krauss safe speed behind that vehicle, then ``vehicle.add`` and ``vehicle.moveToXY``. SUMO
+fits the gap to the vehicle ahead in the scene and at most the width the network's junctions were
+built for (``width_cap``), a departure speed that is its generated speed capped at the Krauss safe
+speed behind that vehicle, then ``vehicle.add`` and ``vehicle.moveToXY``; a nose over the stop line is
+first moved back onto its lane (:meth:`Seeder.fit_lane_ends`). SUMO
 refusing a vehicle never crashes the host simulation: the agent is reported as refused. Before any
 is added, agents on internal lanes of one junction whose links conflict are resolved
 (:mod:`~sumo_scendiff.sim.junctions`): of two already in the area their links share, one is
