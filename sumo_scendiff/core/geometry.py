@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import shapely
 
 TIMES = (-2.0, -1.0, 0.0, 1.0, 2.0)  # trajectory time stamps (s); index 2 is the box (t = 0)
 T0 = 2  # index of t = 0 in TIMES
@@ -62,6 +63,14 @@ def box_corners(x, y, yaw, length, width):
     cx = x[..., None] + c[..., None] * lx - s[..., None] * ly
     cy = y[..., None] + s[..., None] * lx + c[..., None] * ly
     return np.stack([cx, cy], axis=-1)
+
+
+def box_polygons(boxes) -> np.ndarray:
+    """Boxes (N, >= 5: x, y, yaw, length, width, ...) as an (N,) array of shapely polygons."""
+    if not len(boxes):
+        return np.zeros(0, dtype=object)
+    b = np.asarray(boxes, np.float64)
+    return shapely.polygons(box_corners(b[:, 0], b[:, 1], b[:, 2], b[:, 3], b[:, 4]))
 
 
 @dataclass(frozen=True)

@@ -88,10 +88,7 @@ class DemandEstimate:
     def edge_density(self, net) -> dict[str, float]:
         """Vehicles per km of car lane, per edge with vehicles (its sidewalks and bike lanes left out:
         the vehicles stand on the car lanes, and a region's density is taken over those)."""
-        km: dict[str, float] = {}
-        for ln in net.lanes:
-            if ln.car and not ln.internal:
-                km[ln.edge] = km.get(ln.edge, 0.0) + ln.length / 1000.0
+        km = net.edge_car_km
         return {e: n / max(km.get(e, 0.0), 1e-3) for e, n in self.on_edge.items()}
 
     def window_density(self, net, window) -> float | None:

@@ -15,12 +15,7 @@ def edge_density(net, rows: np.ndarray) -> dict[str, float]:
             ln = net.lanes[lane]
             if not ln.internal:
                 counts[ln.edge] = counts.get(ln.edge, 0) + 1
-    km: dict[str, float] = {}
-    for i in net.car_lane_ids:
-        ln = net.lanes[i]
-        if not ln.internal:
-            km[ln.edge] = km.get(ln.edge, 0.0) + ln.length / 1000.0
-    return {e: counts.get(e, 0) / max(k, 1e-3) for e, k in km.items()}
+    return {e: counts.get(e, 0) / max(k, 1e-3) for e, k in net.edge_car_km.items()}
 
 
 def draw_fill(path: str, net, rows: np.ndarray, tiles, title: str) -> None:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from ..core.geometry import T0, Window, box_corners
+from ..core.geometry import T0, Window, box_polygons
 
 MIN_AREA = 1e-3   # m^2: boxes touching along an edge are not an overlap (as generator.remove_overlaps)
 
@@ -113,7 +113,7 @@ class Accepted:
         rows = np.asarray(rows, np.float64).reshape(-1, 6)
         self.rows = np.concatenate([self.rows, rows])
         self.tile = np.concatenate([self.tile, np.full(len(rows), tile)])
-        self.polys = np.concatenate([self.polys, _polygons(rows)])
+        self.polys = np.concatenate([self.polys, box_polygons(rows)])
 
     def inside(self, window: Window) -> np.ndarray:
         """Indices of the kept vehicles whose centre lies in ``window``."""
@@ -126,18 +126,12 @@ class Accepted:
         out = np.zeros(len(rows), bool)
         if not len(self.rows) or not len(rows):
             return out
-        mine = _polygons(rows)
+        mine = box_polygons(rows)
         a, b = shapely.STRtree(self.polys).query(mine, predicate="intersects")
         for k, m in zip(a, b):
             if not out[k] and shapely.area(shapely.intersection(mine[k], self.polys[m])) > MIN_AREA:
                 out[k] = True
         return out
-
-
-def _polygons(rows: np.ndarray) -> np.ndarray:
-    if not len(rows):
-        return np.zeros(0, dtype=object)
-    return shapely.polygons(box_corners(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], rows[:, 4]))
 
 
 def pins_for(tile: Tile, accepted: Accepted) -> tuple[list[dict], np.ndarray]:

@@ -27,7 +27,7 @@ from typing import Mapping, Sequence
 import numpy as np
 import shapely
 
-from ..core.geometry import T0, TIMES, Window, box_corners, wrap_angle
+from ..core.geometry import T0, TIMES, Window, box_polygons, wrap_angle
 from ..core.matching import assign
 from ..core.scene import speeds_from_traj
 from ..tokens.encoding import MIN_DISPLACEMENT
@@ -342,11 +342,11 @@ def place_rows(boxes: np.ndarray, traj: np.ndarray, owner: np.ndarray, rows: np.
                 tr[t > 0] = found[0][t > 0]
         size = row[4:6] if np.isfinite(row[4]) else np.array([CAR_LENGTH, CAR_WIDTH])
         box = np.r_[tr[T0], size]
-        mine = shapely.polygons(box_corners(*box[:, None]))[0]
+        mine = box_polygons(box[None])[0]
         all_b = np.concatenate([boxes, np.array(add_b).reshape(-1, 5)])
         all_o = np.concatenate([owner, np.array(add_o, owner.dtype)])
         hit = np.flatnonzero(shapely.area(shapely.intersection(
-            shapely.polygons(box_corners(*all_b.T)), mine)) > 1e-3) if len(all_b) else np.zeros(0, int)
+            box_polygons(all_b), mine)) > 1e-3) if len(all_b) else np.zeros(0, int)
         hit = [k for k in hit.tolist() if k not in removed]
         if any(all_o[k] >= 0 for k in hit):
             lines.append(f"{where}: overlaps the vehicle of token {int(all_o[[k for k in hit if all_o[k] >= 0][0]])}"

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
-from ..core.geometry import T0, box_corners
+from ..core.geometry import T0, box_polygons
 from ..core.scene import Scene
 
 
@@ -23,12 +23,6 @@ def scene_tokens(scene: Scene) -> list[dict]:
     """A scene's agents as pinnable token dicts (scene frame: pose, size, speed at t = 0)."""
     return [{"x": float(b[0]), "y": float(b[1]), "heading": float(b[2]), "length": float(b[3]),
              "width": float(b[4]), "speed": float(v)} for b, v in zip(scene.boxes, scene.speed[:, T0])]
-
-
-def _polygons(boxes: np.ndarray) -> np.ndarray:
-    b = np.asarray(boxes, np.float64).reshape(-1, 5)
-    return shapely.polygons(box_corners(b[:, 0], b[:, 1], b[:, 2], b[:, 3], b[:, 4])) if len(b) \
-        else np.zeros(0, dtype=object)
 
 
 def area_mask(window, boxes: np.ndarray, area: tuple | None) -> np.ndarray:
@@ -60,8 +54,8 @@ def add_new_agents(first: Scene, second: Scene, count: int, taken: np.ndarray, r
         ok &= (np.linalg.norm(second.boxes[:, None, :2] - np.asarray(taken)[None, :, :2], axis=-1)
                > radius).all(1)
     if len(first) and ok.any():
-        tree = shapely.STRtree(_polygons(first.boxes))
-        a, _ = tree.query(_polygons(second.boxes), predicate="intersects")
+        tree = shapely.STRtree(box_polygons(first.boxes))
+        a, _ = tree.query(box_polygons(second.boxes), predicate="intersects")
         ok[np.unique(a)] = False
     score = np.asarray(second.meta.get("score", np.ones(len(second))), np.float64)
     new = np.flatnonzero(ok)

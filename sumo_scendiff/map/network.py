@@ -217,6 +217,17 @@ class Network:
         return network
 
     @cached_property
+    def edge_car_km(self) -> dict[str, float]:
+        """Normal edge id -> kilometres of its car lanes (sidewalks and bike lanes left out): the
+        denominator of an edge's density in vehicles per km of car lane."""
+        km: dict[str, float] = {}
+        for i in self.car_lane_ids:
+            ln = self.lanes[i]
+            if not ln.internal:
+                km[ln.edge] = km.get(ln.edge, 0.0) + ln.length / 1000.0
+        return km
+
+    @cached_property
     def junction_vehicle_width(self) -> float:
         """The vehicle width netconvert placed the waiting positions inside junctions for (its
         ``--internal-junctions.vehicle-width``, recorded in the file's header when not the default

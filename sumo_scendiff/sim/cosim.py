@@ -32,7 +32,7 @@ from ..core.geometry import (
     T0,
     TIMES,
     Window,
-    box_corners,
+    box_polygons,
     pose_to_sumo,
     sumo_to_pose,
     wrap_angle,
@@ -137,8 +137,8 @@ class CoSimulation:
         token_of = token_assignment(scene, tokens)
         keep = np.array([t is None or token_source[t] == "user" for t in token_of], bool)
         if len(existing.ids) and len(scene):
-            occupied = shapely.union_all(shapely.polygons(box_corners(*existing.boxes.T))).buffer(OVERLAP_BUFFER)
-            mine = shapely.polygons(box_corners(*scene.boxes[:, :5].T.astype(np.float64)))
+            occupied = shapely.union_all(box_polygons(existing.boxes)).buffer(OVERLAP_BUFFER)
+            mine = box_polygons(scene.boxes)
             keep &= ~shapely.intersects(mine, occupied)
         idx = np.flatnonzero(keep)
         sub = scene.select(idx)

@@ -21,7 +21,8 @@ is added, agents on internal lanes of one junction whose links conflict are reso
 (:mod:`~sumo_scendiff.sim.junctions`): of two already in the area their links share, one is
 seeded (the other is in ``report.conflicts``); of two still before it, the later departs standing
 and waits (in ``report.slowed``). After the
-seeding step, :meth:`Seeder.settle` checks both again against the leader SUMO itself sees.
+seeding step, :meth:`Seeder.settle` (:mod:`~sumo_scendiff.sim.settle`) checks both again against the
+leader SUMO itself sees.
 
 Generated agents are rarely on a lane's centre line. With SUMO's sublane model
 (``--lateral-resolution``, which :mod:`~sumo_scendiff.sim.sumo` turns on) ``moveToXY`` with
@@ -34,20 +35,17 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import shapely
 
-from ..core.geometry import T0, box_corners, pose_to_sumo, wrap_angle
+from ..core.geometry import T0, box_polygons, pose_to_sumo, wrap_angle
 from ..core.scene import VEHICLE_CLASSES, Scene
 from ..map.network import Network
 from .junctions import JunctionConflicts
 from .routes import RouteChooser
+from .settle import MIN_GAP_MARGIN, Settling, krauss_safe_speed
 
 POS_TOLERANCE, YAW_TOLERANCE = 0.5, 0.1   # m, rad: "present where it was generated"
 GAP_EDGES = 3          # at most this many edges between two generated poses' edges are filled in
 DEFAULT_MIN_GAP = 2.5
-MIN_GAP_MARGIN = 0.2   # m: a seeded vehicle's minGap stays this much below its bumper gap
-FOE_VISIBILITY = 4.5   # m: netconvert's default foe visibility distance of a link without priority
-LINKS_AHEAD = 2        # links (a turn's entry and its internal junction) settle looks at
 LANE_END_MARGIN = 0.05  # m: a nose further than this past its lane's end is moved back behind it
 OVERLAP_AREA = 0.01     # m^2: boxes sharing more than this overlap
 
@@ -69,14 +67,6 @@ class SeedReport:
         return len(self.ids) - len(self.misplaced)
 
 
-def krauss_safe_speed(gap: float, v_leader: float, decel: float, tau: float) -> float:
-    """The fastest speed that can still stop behind a leader braking at the same ``decel``: Krauss's
-    safe speed (Krauss 1998, eq. 2.12 in its ballistic form), ``v tau + v^2 / 2b <= g + v_l^2 / 2b``,
-    the bound SUMO's default car-following model keeps to (``MSCFModel_Krauss::vsafe``)."""
-    b = decel
-    return float(-b * tau + np.sqrt((b * tau) ** 2 + v_leader ** 2 + 2.0 * b * max(gap, 0.0)))
-
-
 def sublane(sim) -> bool:
     """Whether the host simulation runs SUMO's sublane model (``--lateral-resolution`` > 0)."""
     try:
@@ -85,7 +75,7 @@ def sublane(sim) -> bool:
         return False
 
 
-class Seeder:
+class Seeder(Settling):
     def __init__(self, sim, net: Network, prefix: str = "sd", seed: int = 0):
         self.sim, self.net, self.prefix = sim, net, prefix
         self.rng = np.random.default_rng(seed)
@@ -257,7 +247,7 @@ class Seeder:
         would then overlap another box (a follower close behind) stays as generated.
         ``others``: the host's boxes around the window (scene frame)."""
         w = scene.window
-        polys = [shapely.Polygon(box_corners(*b[:5])) for b in np.concatenate([scene.boxes[:, :5], others[:, :5]])]
+        polys = None            # every box, the host's after the scene's: made when a nose is over
         for i in range(len(scene)):
             (x, y), yaw = w.scene_to_world(scene.boxes[i, None, 0:2])[0], float(w.yaw_to_world(scene.boxes[i, 2]))
             start = self._edges_at(x, y, yaw)
@@ -272,7 +262,9 @@ class Seeder:
                 continue
             back = over + LANE_END_MARGIN
             d = back * np.array([np.cos(scene.boxes[i, 2]), np.sin(scene.boxes[i, 2])])   # scene frame
-            moved = shapely.Polygon(box_corners(*(scene.boxes[i, :5] - [*d, 0, 0, 0])))
+            if polys is None:
+                polys = box_polygons(np.concatenate([scene.boxes[:, :5], others[:, :5]]))
+            moved = box_polygons(scene.boxes[i, None, :5] - [*d, 0, 0, 0])[0]
             if any(k != i and moved.intersection(p).area > OVERLAP_AREA for k, p in enumerate(polys)):
                 continue
             polys[i] = moved
@@ -354,121 +346,6 @@ class Seeder:
             dyaw = abs(float(wrap_angle(np.radians(angle - self.sim.vehicle.getAngle(vid)))))
             if err > POS_TOLERANCE or dyaw > YAW_TOLERANCE:
                 report.misplaced[i] = err
-        return report
-
-    def fit_min_gap(self, i: int, vid: str, gap: float, report: SeedReport) -> None:
-        """SUMO sees a leader ``gap`` < 0 m beyond this vehicle's minGap (``getLeader``'s distance
-        counts from front bumper + minGap): SUMO registers a collision whenever a gap is below the
-        follower's minGap (``--collision.mingap-factor``, default: the whole minGap), so a vehicle
-        seeded that close would collide standing still. Its minGap shrinks to fit the bumper gap."""
-        tid = self.sim.vehicle.getTypeID(vid)
-        old = float(self.sim.vehicletype.getMinGap(tid))
-        new = max(old + gap - MIN_GAP_MARGIN, 0.0)
-        self.sim.vehicletype.setMinGap(tid, new)
-        report.gap_fitted[i] = (report.gap_fitted.get(i, (old,))[0], new)
-
-    def link_stops(self, vid: str, reach: float = 100.0, links: int = LINKS_AHEAD) -> list[tuple[float, float]]:
-        """The junctions ahead as SUMO's junction model sees them, as (gap, speed) "leaders" for the
-        Krauss safe speed (``vehicle.getNextLinks``: one entry link per junction):
-
-        * a link the vehicle must be able to stop at -- the next one closed (``isOpen`` false: red, or
-          a foe it has to yield to), a red one, or one without priority (``g m s w =``) while farther than
-          the foe visibility distance (SUMO approaches those ready to stop and looks at its foes only
-          from there) -- is a standing leader at its stop line;
-        * a turn that waits inside the junction (an entry without priority whose internal lane ends at
-          an internal junction: the left turn's waiting point) a standing leader at that point.
-
-        (A turn's lower speed limit needs nothing: SUMO slows for it braking at most ``decel``,
-        measured with SUMO 1.28.)
-
-        A vehicle on a junction's internal lane on a red movement: :meth:`red_stops`."""
-        sim = self.sim
-        lane = sim.vehicle.getLaneID(vid)
-        if not lane:
-            return []
-        if lane.startswith(":"):
-            return self.red_stops(vid, lane)
-        d = float(sim.lane.getLength(lane) - sim.vehicle.getLanePosition(vid))
-        out = []
-        for k, link in enumerate(sim.vehicle.getNextLinks(vid)[:links]):
-            if d > reach:
-                break
-            to, prio, opened, _foe, via, state = link[:6]
-            if (k == 0 and not opened) or state in "rR" or (not prio and state in "gmsw=" and d > FOE_VISIBILITY):
-                out.append((d, 0.0))
-                break
-            if not via:
-                break
-            inner = d + float(sim.lane.getLength(via))
-            if not prio and any(str(x[0]).startswith(":") and not x[1] for x in sim.lane.getLinks(via)):
-                out.append((inner, 0.0))      # the turn's waiting point inside the junction
-                break
-            d = inner + float(sim.lane.getLength(to))
-        return out
-
-    def _link_state(self, lane_id: str) -> str:
-        """The signal character (``G g r y m M s =`` ...) now of the link an internal lane belongs to."""
-        inc, first = self.junctions.entry[lane_id]
-        try:
-            for link in self.sim.lane.getLinks(inc):
-                if link[4] == first:
-                    return str(link[5])
-        except Exception:   # a host that cannot say: no stop
-            pass
-        return "?"
-
-    def red_stops(self, vid: str, lane: str) -> list[tuple[float, float]]:
-        """A vehicle inside a junction on a movement whose light is red now (the model, without the
-        lights, puts some there): the start of each area its lane shares with a link that has green
-        (``G g``) is a standing leader, if it is still ahead of the vehicle's front -- SUMO makes it
-        yield to that stream and otherwise brakes it beyond its decel at hand-off."""
-        if lane not in self.junctions.entry or self._link_state(lane) not in "rR":
-            return []
-        j = self.junctions.link[lane][0]
-        front = float(self.sim.vehicle.getLanePosition(vid))
-        out = []
-        for other, (jo, _) in self.junctions.link.items():
-            if jo != j or other == lane or self.junctions.entry[other][1] != other:
-                continue
-            if not self.junctions.foes(lane, other) or self._link_state(other) not in "Gg":
-                continue
-            area = self.junctions._area(lane, other)
-            if area is not None and area[0] - front > 0.0:
-                out.append((area[0] - front, 0.0))
-        return out
-
-    def settle(self, report: SeedReport, reach: float = 100.0) -> SeedReport:
-        """After the seeding step, against the leaders as SUMO sees them (any vehicle within ``reach``
-        m along its route, across junctions and sublanes, which the scene's own leaders at :meth:`seed`
-        time miss; a red light; a link it must be ready to stop at, :meth:`link_stops`): a seeded vehicle closer to its leader than its minGap gets a minGap
-        that fits (:meth:`fit_min_gap`); one faster than the Krauss safe speed behind it is slowed to
-        that speed (``setPreviousSpeed``: the speed it ends the seeding step with). Repeats until no
-        vehicle changes, since slowing a leader can make its follower too fast."""
-        sim, present = self.sim, set(self.sim.vehicle.getIDList())
-        vids = [(i, v) for i, v in report.ids.items() if v in present]
-        for _ in range(len(vids)):
-            changed = False
-            for i, vid in vids:
-                lead = sim.vehicle.getLeader(vid, reach)
-                if lead and lead[0] and float(lead[1]) < 0.0:
-                    self.fit_min_gap(i, vid, float(lead[1]), report)
-                    lead = sim.vehicle.getLeader(vid, reach)
-                stops = [(float(lead[1]), float(sim.vehicle.getSpeed(lead[0])))] if lead and lead[0] else []
-                stops += [(float(d), 0.0) for _, _, d, state in sim.vehicle.getNextTLS(vid)[:1]
-                          if state in "rR" and d < reach]        # a red light: a standing leader
-                if self.junction_stops:
-                    stops += self.link_stops(vid, reach)
-                if not stops:
-                    continue
-                speed = float(sim.vehicle.getSpeed(vid))
-                decel, tau = float(sim.vehicle.getDecel(vid)), float(sim.vehicle.getTau(vid))
-                safe = min(krauss_safe_speed(g, v, decel, tau) for g, v in stops)
-                if speed > safe + 1e-3:
-                    sim.vehicle.setPreviousSpeed(vid, safe)
-                    report.slowed[i] = (report.slowed.get(i, (speed,))[0], safe)
-                    changed = True
-            if not changed:
-                break
         return report
 
 
