@@ -317,6 +317,8 @@ def demand_table(r: dict, o) -> list[str]:
         (f"vehicles at T + {o.hold:g} s", s["hold"]["n"], f"{f['hold']['n']} ({d_h})", "±15 % of SUMO's",
          _met(ok_h)),
     ] + portable_rows(f) + [
+        ("the demand's own vehicles in the fill; driving their own route on", "–",
+         f"{doc['summary'].get('demand_vehicles', 0)}; {doc['summary'].get('demand_routes_followed', 0)}", "–", "–"),
         ("boxes overlapping at start (pairs)", s["overlaps"], f"state {f['overlaps']}, portable {p['overlaps']}",
          "–", "–"),
         ("wall time (s)", f"warm-up {s['wall']:.2f}", f"fill {r['fill_wall']:.1f} "

@@ -6,6 +6,7 @@ import math
 import os
 import subprocess
 import sys
+import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
@@ -322,9 +323,69 @@ def test_demand_estimate(tmp_path):
     assert est.on_edge == {e: 1} and est.departed == 2
 
 
+def _edge_pair(net, signalised: bool = False):
+    """An edge with two car lanes or more and a successor, from a lane that leads there."""
+    for e in net.sumo_net.getEdges():
+        if e.getLaneNumber() < 2 or e.getLength() < 60 or (signalised and not e.getTLS()):
+            continue
+        for nxt in e.getOutgoing():
+            if nxt.getToNode() is not e.getFromNode():
+                return e, nxt
+    raise AssertionError("no such edge")
+
+
+def test_en_route_vehicles_on_their_lanes():
+    """The demand's vehicles: on a lane that leads to their next edge, waiting ones queued from the
+    stop line (longest waiting first), moving ones where they have driven to, none overlapping;
+    sizes from the vTypes."""
+    from sumo_scendiff.fill.demand import DemandEstimate, EnRoute
+    from sumo_scendiff.fill.en_route import MIN_GAP, STOP_MARGIN, place_en_route
+    from sumo_scendiff.map.network import Network
+    net = Network.load(NET4)
+    e, nxt = _edge_pair(net)
+    route = (e.getID(), nxt.getID())
+    travel = e.getLength() / 10.0
+    vehicles = [EnRoute(f"w{k}", "truck" if k == 1 else None, route, travel + 5.0 * (3 - k), travel, 10.0)
+                for k in range(3)] + [EnRoute("m0", None, route, 2.0, travel, 10.0),
+                                      EnRoute("m1", None, route, 2.1, travel, 10.0)]
+    placed, skipped = place_en_route(net, DemandEstimate(0.0, {}, 5, 0, 5, vehicles), {"truck": (10.0, 2.5)})
+    assert not skipped and [p.vehicle.id for p in placed] == ["w0", "w1", "w2", "m1", "m0"]
+    ok_lanes = {c.getFromLane().getID() for c in e.getConnections(nxt)}
+    by_lane = {}
+    for p in placed:
+        lane = net.lanes[p.lane]
+        assert lane.edge == e.getID() and lane.id in ok_lanes
+        by_lane.setdefault(p.lane, []).append(p)
+        xy, _ = net.lane_pose(p.lane, p.pos - 0.5 * p.length)
+        assert math.hypot(p.x - xy[0], p.y - xy[1]) < 1e-6
+    assert {p.vehicle.id: (p.length, p.width) for p in placed}["w1"] == (10.0, 2.5)
+    fronts = {p.vehicle.id: p.pos for p in placed}
+    for ps in by_lane.values():   # along each lane: in order, a minGap apart
+        for a, b in zip(ps, ps[1:]):
+            assert b.pos <= a.pos - a.length - MIN_GAP + 1e-9
+    first = max(fronts[f"w{k}"] for k in range(3))
+    assert first == pytest.approx(net.lanes[placed[0].lane].length - STOP_MARGIN)
+    lane_of = {p.vehicle.id: p.lane for p in placed}
+    assert fronts["m1"] == pytest.approx(21.0)     # 2.1 s at 10 m/s; m0 there too unless m1 is ahead
+    assert fronts["m0"] == pytest.approx(20.0 if lane_of["m0"] != lane_of["m1"] else 21.0 - 5.0 - MIN_GAP)
+
+
+def test_vtype_sizes(tmp_path):
+    """A vType's length and width, SUMO's default for its vClass where it gives none, and a
+    distribution's first member's."""
+    from sumo_scendiff.fill.en_route import vtype_sizes
+    f = tmp_path / "t.add.xml"
+    f.write_text('<additional><vType id="a" length="4.2" width="1.7"/><vType id="b" vClass="bus"/>'
+                 '<vTypeDistribution id="d"><vType id="c" vClass="truck" probability="1"/></vTypeDistribution>'
+                 '<vTypeDistribution id="e" vTypes="b a"/></additional>')
+    assert vtype_sizes([str(f)]) == {"a": (4.2, 1.7), "b": (12.0, 2.5), "c": (7.1, 2.4), "d": (7.1, 2.4),
+                                     "e": (12.0, 2.5)}
+
+
 def test_fill_with_demand(tmp_path):
     """-r: the demand's level at --begin is the density source (recorded; applied only with a
-    density model), no inflow is drawn, and the demand continues in both configurations."""
+    density model), no inflow is drawn, and the demand continues in both configurations. The
+    fill's vehicles are the demand's own (fill.json names them) and drive their own routes on."""
     from sumo_scendiff.core.tools import sumo_binary
     from sumo_scendiff.map.network import Network
     snet = Network.load(NET).sumo_net
@@ -336,11 +397,33 @@ def test_fill_with_demand(tmp_path):
     src = doc["density"]
     assert src["kind"] == "demand" and src["time"] == 120 and src["en_route"] > 0
     assert doc["inflow"]["file"] is None and not os.path.exists(tmp_path / "o" / "inflow.rou.xml")
+    mine = [a for a in doc["agents"] if a.get("demand")]
+    assert src["vehicles"]["placed"] == src["en_route"] - src["vehicles"]["no_room"]
+    assert len(mine) >= 0.9 * src["vehicles"]["placed"] and all(a["demand"]["id"].startswith("f.") for a in mine)
+    start = ET.parse(tmp_path / "o" / "start.rou.xml").getroot()
+    named = {r.get("id"): r.get("edges") for r in start.iter("route")}
+    edges_of = {v.get("id"): (v.find("route").get("edges") if v.find("route") is not None else named[v.get("route")])
+                for v in start.iter("vehicle")}
+    followed = [a for a in mine if a["demand"]["route"] == "followed"]
+    assert len(followed) >= 0.7 * len(mine)
+    assert all(edges_of[a["vehicle"]].split()[-1] == edges[-1] for a in followed)   # the flow's destination
     for cfg in ("scenario.sumocfg", "start.sumocfg"):
         assert "demand.rou.xml.gz" in (tmp_path / "o" / cfg).read_text()
         run = subprocess.run([sumo_binary(), "-c", str(tmp_path / "o" / cfg), "--end", "130"],
                              check=False, capture_output=True, text=True, timeout=60)
         assert run.returncode == 0 and "Error" not in run.stderr, run.stderr
+
+
+def test_demand_level_only(tmp_path):
+    """--demand-level-only: the demand's level per tile, no vehicle of its own in the fill."""
+    from sumo_scendiff.map.network import Network
+    edges = sorted(e.getID() for e in Network.load(NET).sumo_net.getEdges())
+    demand = tmp_path / "demand.rou.xml"
+    demand.write_text(f'<routes><flow id="f" begin="0" end="600" period="4" from="{edges[0]}" '
+                      f'to="{edges[-1]}"/></routes>')
+    doc = _fill(tmp_path / "o", "-r", str(demand), "--begin", "120", "--demand-level-only")
+    assert doc["density"]["kind"] == "demand" and "vehicles" not in doc["density"]
+    assert doc["agents"] and not any("demand" in a for a in doc["agents"])
 
 
 def test_signal_delays_of_the_demand_estimate(tmp_path):

@@ -50,6 +50,9 @@ def get_options(args=None):
     amount.add_argument("--density", metavar="D", help="vehicles per km of car lane (needs a model with "
                         "the density condition; --p-mask is the fallback)")
     amount.add_argument("--edge-data", metavar="FILE", help="SUMO edgeData file: each tile's density at --begin")
+    p.add_argument("--demand-level-only", action="store_true",
+                   help="with demand: take only its level per tile and let the model place the vehicles "
+                        "(default: the demand's own vehicles where the estimate has them, on their own routes)")
     p.add_argument("--p-mask", type=float, default=1.0, metavar="P",
                    help="global token of a tile without neighbours (default 1: the model's prior; lower: fewer vehicles)")
     p.add_argument("-s", "--seed", type=int, default=0)
@@ -106,19 +109,23 @@ def _files(arg: str | None) -> list[str]:
     return [f for f in (arg or "").split(",") if f]
 
 
-def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | None, bool, dict]:
-    """Per tile the density target, whether the model is given it, and the source for fill.json."""
+def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | None, bool, dict, list | None]:
+    """Per tile the density target, whether the model is given it, the source for fill.json, and
+    with demand the demand's vehicles placed on their lanes (fill/en_route.py; None: none given)."""
+    import numpy as np
     import shapely
 
     from ..map.edgedata import EdgeData, EdgeDataError
     from .demand import DemandEstimate
+    from .en_route import place_en_route, vtype_sizes
+    from .plan import demand_tiles
     name = o.checkpoint or "the shipped model"
     if (o.density is not None or o.edge_data) and not gen.has_density:
         flag = "--density" if o.density is not None else "--edge-data"
         raise FillError(f"{flag}: {name} has no density condition (trained before it); leave it out "
                         f"for the model's prior, or use --p-mask (lower: fewer vehicles) as the fallback")
     if o.density is not None:
-        return [o.density] * len(tiles), True, {"kind": "density", "veh_per_km": o.density, "applied": True}
+        return [o.density] * len(tiles), True, {"kind": "density", "veh_per_km": o.density, "applied": True}, None
     if o.edge_data:
         try:
             data = EdgeData.read(o.edge_data, net)
@@ -126,7 +133,7 @@ def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | No
         except EdgeDataError as e:
             raise FillError(f"--edge-data: {e}") from None
         return targets, True, {"kind": "edge-data", "file": os.path.abspath(o.edge_data), "time": begin,
-                               "applied": True}
+                               "applied": True}, None
     if routes:
         est = DemandEstimate.at(net, routes, begin, additional=additional)
         # each tile's count is kept in its core: the core's own density, so the tiles add up to the
@@ -140,8 +147,24 @@ def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | No
         if not gen.has_density:
             src["note"] = (f"{name} has no density condition: the demand's density is recorded per tile "
                            f"(target) but generation uses the model's prior scaled by --p-mask {o.p_mask:g}")
-        return targets, gen.has_density, src
-    return None, False, {"kind": "prior", "p_mask": o.p_mask, "applied": False}
+        if o.demand_level_only:
+            return targets, gen.has_density, src, None
+        placed, skipped = place_en_route(net, est, vtype_sizes([*routes, *additional]))
+        # each core keeps the vehicles placed in it: an edge's queue stands in the core of its stop
+        # line, not spread over the edge as the per-edge density has it
+        owner = demand_tiles(tiles, placed, o.area)
+        per_tile = np.bincount([k for k in owner if k is not None], minlength=len(tiles))
+        for t in tiles:
+            km = net.car_lane_km_in(shapely.box(*t.core))
+            targets[t.index] = float(per_tile[t.index]) / km if km > 0 else None
+        placed = [p for p, k in zip(placed, owner) if k is not None]
+        src["vehicles"] = {"placed": len(placed), "no_room": len(skipped), "outside": len(owner) - len(placed),
+                           "method": "each en-route vehicle on a lane of its edge from which its route goes on, "
+                                     "waiting ones queued from the stop line, moving ones where their time on the "
+                                     "edge brought them; given to its tile as a token (pose and size), the model "
+                                     "draws its speed and path; it drives its own route on"}
+        return targets, gen.has_density, src, placed
+    return None, False, {"kind": "prior", "p_mask": o.p_mask, "applied": False}, None
 
 
 def run(o, folder: str) -> dict:
@@ -187,7 +210,7 @@ def run(o, folder: str) -> dict:
     gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig.from_options(o))
     # started here, the workers load their model while this process prepares the rest
     with tile_engine(net, gen, o.workers, o.ray_address, o.checkpoint) as engine:
-        targets, applied, source = _amount(o, net, gen, tiles, routes, begin, scen.additional)
+        targets, applied, source, demand = _amount(o, net, gen, tiles, routes, begin, scen.additional)
         if applied and targets is not None:
             # the counts the tiles' cores keep (generator: round(D x car-lane km)) add up to the total
             kms = [net.car_lane_km_in(shapely.box(*t.core)) for t in tiles]
@@ -204,7 +227,7 @@ def run(o, folder: str) -> dict:
         t = time.perf_counter()
         result = fill_network(net, gen, tiles, seed=o.seed, p_mask=o.p_mask, targets=targets,
                               use_density=applied, area=o.area, progress=progress, signals=signals,
-                              engine=engine)
+                              engine=engine, demand=demand)
         timing["generate"] = time.perf_counter() - t
     workers = {"count": o.workers, "engine": "ray" if o.ray_address is not None else "local",
                "ray_address": o.ray_address,

@@ -16,7 +16,7 @@ more vehicles than this counts) and vTypes' own speed factors.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -26,6 +26,24 @@ TYPICAL_SPEED_FACTOR = 0.7   # urban traffic averages well below the limit (sign
 HORIZON_S = 7200.0           # departures longer ago than this are not followed (none is en route)
 
 
+@dataclass(frozen=True)
+class EnRoute:
+    """One of the demand's vehicles en route at ``begin``, where the estimate has it."""
+
+    id: str                        # SUMO's id (a flow's k-th vehicle: ``flow.k``)
+    type: str | None               # its ``type`` attribute (a vType or vTypeDistribution id)
+    edges: tuple[str, ...]         # its route from the edge it is on to its end
+    since: float                   # s it has been on that edge
+    travel: float                  # s the edge takes at the typical speed (then it waits, if signalised)
+    speed: float                   # m/s on that edge while moving
+    behind: str | None = None      # the route's edge before it (where a queue that does not fit stands)
+
+    @property
+    def waiting(self) -> bool:
+        """At the edge's end, waiting for its light (the signal delay)."""
+        return self.since >= self.travel
+
+
 @dataclass
 class DemandEstimate:
     begin: float
@@ -33,6 +51,7 @@ class DemandEstimate:
     vehicles: int                  # en route at ``begin``
     unrouted: int                  # trips with no path between their edges (not counted)
     departed: int                  # departures up to ``begin`` looked at
+    en_route: list[EnRoute] = field(default_factory=list)   # each of them (``vehicles`` long)
 
     @classmethod
     def at(cls, net, route_files, begin: float, additional=()) -> DemandEstimate:
@@ -42,6 +61,7 @@ class DemandEstimate:
         named: dict[str, list[str]] = {}
         paths: dict[tuple[str, str], list[str] | None] = {}
         on_edge: dict[str, int] = {}
+        en_route: list[EnRoute] = []
         counts = {"unrouted": 0, "departed": 0}
 
         def edges_of(el) -> list[str] | None:
@@ -58,21 +78,24 @@ class DemandEstimate:
                 paths[(a, b)] = [e.getID() for e in path] if path else None
             return paths[(a, b)]
 
-        def lay(edges, depart):
+        def lay(vid, vtype, edges, depart):
             counts["departed"] += 1
             if not edges:
                 counts["unrouted"] += 1
                 return
             t = begin - depart
-            for e, nxt in zip(edges, edges[1:] + [None]):
+            for k, (e, nxt) in enumerate(zip(edges, edges[1:] + [None])):
                 if not snet.hasEdge(e):
                     return
                 edge = snet.getEdge(e)
-                t -= edge.getLength() / max(edge.getSpeed() * TYPICAL_SPEED_FACTOR, 0.1)
-                t -= delay.get((e, nxt), 0.0)
-                if t < 0:
+                speed = max(edge.getSpeed() * TYPICAL_SPEED_FACTOR, 0.1)
+                travel = edge.getLength() / speed
+                if t < travel + delay.get((e, nxt), 0.0):
                     on_edge[e] = on_edge.get(e, 0) + 1
+                    en_route.append(EnRoute(vid, vtype, tuple(edges[k:]), t, travel, speed,
+                                            edges[k - 1] if k else None))
                     return
+                t -= travel + delay.get((e, nxt), 0.0)
 
         for path in route_files:       # named routes first: vehicles may refer to them
             for el in parse(path, "route"):
@@ -80,10 +103,11 @@ class DemandEstimate:
                     named[el.id] = el.edges.split()
         for path in route_files:       # (one pass per kind: sumolib empties a child it also yields)
             for el in parse(path, ["vehicle", "trip", "flow"]):
-                for depart in _departures(el, begin):
+                for k, depart in enumerate(_departures(el, begin)):
                     if begin - depart <= HORIZON_S:
-                        lay(edges_of(el), depart)
-        return cls(begin, on_edge, sum(on_edge.values()), counts["unrouted"], counts["departed"])
+                        vid = f"{el.id}.{k}" if el.name == "flow" else el.id
+                        lay(vid, getattr(el, "type", None), edges_of(el), depart)
+        return cls(begin, on_edge, sum(on_edge.values()), counts["unrouted"], counts["departed"], en_route)
 
     def edge_density(self, net) -> dict[str, float]:
         """Vehicles per km of car lane, per edge with vehicles (its sidewalks and bike lanes left out:
@@ -183,4 +207,4 @@ def _departures(el, begin: float) -> list[float]:
     return list(np.arange(start, stop + 1e-9, period)) if stop >= start else []
 
 
-__all__ = ["TYPICAL_SPEED_FACTOR", "DemandEstimate", "green_shares", "signal_delays"]
+__all__ = ["TYPICAL_SPEED_FACTOR", "DemandEstimate", "EnRoute", "green_shares", "signal_delays"]

@@ -45,6 +45,10 @@ def _agents(result, reports) -> list[dict]:
                 row["pulled_back_m"] = round(rep.pulled_back[a], 3)
             if rep is not None and a in rep.narrowed:     # wider than the network's junctions assume (Seeder.width_cap)
                 row["sumo_width"] = rep.narrowed[a][1]
+            d = (scene.meta.get("demand") or [None] * len(rows))[a]
+            if d is not None:                              # drawn for a vehicle of the demand (fill/en_route.py)
+                v = result.demand[d].vehicle
+                row["demand"] = {"id": v.id, "type": v.type, "route": rep.own_route.get(a) if rep is not None else None}
             out.append(row)
     return out
 
@@ -52,7 +56,8 @@ def _agents(result, reports) -> list[dict]:
 def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing, progress,
                   workers: dict | None = None) -> dict:
     t = time.perf_counter()
-    sim, reports = seed_fill(result, net, cfg, seed=o.seed, quiet=not o.verbose, progress=progress)
+    sim, reports = seed_fill(result, net, cfg, seed=o.seed, quiet=not o.verbose, progress=progress,
+                             demand=result.demand)
     try:
         timing["seed"] = time.perf_counter() - t
         t = time.perf_counter()
@@ -120,6 +125,8 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
                        "refused": sum(a["status"] in ("refused", "conflict") for a in agents),
                        "start_exact": sum(exact.values()),
                        "pulled_back": sum("pulled_back_m" in a for a in agents), "car_lane_km": round(area_km, 3),
+                       "demand_vehicles": sum("demand" in a for a in seeded),
+                       "demand_routes_followed": sum(a.get("demand", {}).get("route") == "followed" for a in seeded),
                        "density_veh_per_km": round(len(seeded) / max(area_km, 1e-9), 2),
                        "edges_with_vehicles": sum(v > 0 for v in dens.values())},
            "tiles": tiles, "agents": agents,

@@ -10,7 +10,10 @@ Tile k starts from the noise of seed (seed, k) alone (``generate``'s ``noise_see
 are fixed (colour, then index), and so are the model calls they are cut into (:func:`tasks_of`), so a
 seed gives one fill whatever else changes around it, the number of workers included. The global
 token of a tile is the share of its window its pins do not describe (:func:`~.tiles.known_share`),
-times the user's ``p_mask`` (1: the model's prior).
+times the user's ``p_mask`` (1: the model's prior). With ``demand`` (the demand's vehicles en route,
+:func:`~.en_route.place_en_route`) each tile is also given those whose centre is in its core, as
+tokens of pose and size: the model draws them there, with speeds and paths of its own, and each
+kept agent drawn for one says which (``scene.meta["demand"]``, its index into ``demand``).
 """
 from __future__ import annotations
 
@@ -33,6 +36,7 @@ class TileRecord:
     target: float | None = None       # veh/km asked for (density condition), None: prior
     generated: int = 0                # agents the model drew in the whole window
     kept: int = 0                     # ... of them in the tile's own core, overlapping nothing
+    demand: list[int] = field(default_factory=list)   # the demand's vehicles given as tokens (indices)
     pin_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # into accepted
 
 
@@ -43,6 +47,7 @@ class FillResult:
     scenes: list                      # per tile: its kept agents (Scene in its window's frame)
     accepted: Accepted
     order: list[int]                  # tile indices in generation (and seeding) order
+    demand: list | None = None        # the placed demand vehicles the tiles were given (en_route.Placed)
 
 
 def tile_seed(seed: int, index: int) -> int:
@@ -84,16 +89,20 @@ def whole_counts(targets: list[float | None], kms: list[float]) -> list[float | 
 def fill_network(net, gen, tiles: list[Tile], seed: int = 0, p_mask: float = 1.0,
                  targets: list[float | None] | None = None, use_density: bool = False,
                  area: tuple | None = None, progress: bool = False,
-                 signals: dict[str, str] | None = None, engine=None) -> FillResult:
+                 signals: dict[str, str] | None = None, engine=None, demand: list | None = None) -> FillResult:
     """Generate every tile; ``targets`` per tile (veh/km), given to the model with ``use_density``;
     ``signals``: the traffic lights' states at the fill's time (``sim.lights.initial_light_states``);
-    ``engine``: where the model calls run (:func:`~.workers.tile_engine`; default: ``gen`` here)."""
+    ``engine``: where the model calls run (:func:`~.workers.tile_engine`; default: ``gen`` here);
+    ``demand``: vehicles (:class:`~.en_route.Placed`) each tile is given as tokens in its core."""
     from tqdm import tqdm
 
     from .workers import tile_engine
     engine = engine or tile_engine(net, gen)   # ``gen`` in this process: nothing to close
     accepted = Accepted()
     records = [TileRecord(t, target=None if targets is None else targets[t.index]) for t in tiles]
+    for k, t in enumerate(demand_tiles(tiles, demand or [], area)):
+        if t is not None:
+            records[t].demand.append(k)
     scenes: list = [None] * len(tiles)
     owned: list[tuple] = []
     order: list[int] = []
@@ -104,6 +113,7 @@ def fill_network(net, gen, tiles: list[Tile], seed: int = 0, p_mask: float = 1.0
             tokens, idx = pins_for(t, accepted)
             rec = records[t.index]
             rec.pins, rec.pin_ids = len(tokens), idx
+            tokens = tokens + [demand_token(t, demand[k]) for k in rec.demand]
             rec.p_mask = round(max(p_mask * (1.0 - known_share(net, t, owned)), MIN_P_MASK), 4)
             pins[t.index] = tokens
         groups = tasks_of(batch)
@@ -118,6 +128,8 @@ def fill_network(net, gen, tiles: list[Tile], seed: int = 0, p_mask: float = 1.0
         # the batch's tiles do not overlap: each is checked against the earlier colours only, then
         # added, in index order (whichever worker finished first)
         for t in batch:
+            if demand is not None:
+                _name_demand(out[t.index], records[t.index])
             keep = keep_core(t, out[t.index], accepted, area)
             sub = out[t.index].select(keep)
             records[t.index].generated, records[t.index].kept = len(out[t.index]), len(sub)
@@ -127,7 +139,43 @@ def fill_network(net, gen, tiles: list[Tile], seed: int = 0, p_mask: float = 1.0
             accepted.add(scene_rows(scenes[t.index]), t.index)
         owned += [t.core for t in batch]
     bar.close()
-    return FillResult(tiles, records, scenes, accepted, order)
+    return FillResult(tiles, records, scenes, accepted, order, demand)
 
 
-__all__ = ["FillResult", "TileRecord", "fill_network", "tasks_of", "tile_seed"]
+def demand_tiles(tiles: list[Tile], placed: list, area: tuple | None = None) -> list[int | None]:
+    """Per placed vehicle, the index of the tile whose core holds its centre (None: no tile's, or
+    outside ``area``)."""
+    out: list[int | None] = [None] * len(placed)
+    if not placed:
+        return out
+    xy = np.array([[p.x, p.y] for p in placed])
+    inside = np.ones(len(placed), bool)
+    if area is not None:
+        x0, y0, x1, y1 = area
+        inside = (xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)
+    for t in tiles:
+        for k in np.flatnonzero(t.in_core(xy) & inside):
+            if out[k] is None:
+                out[k] = t.index
+    return out
+
+
+def demand_token(tile: Tile, p) -> dict:
+    """A placed demand vehicle as a token of ``tile``'s window: pose and size (its speed and path
+    are the model's)."""
+    w = tile.window
+    xy = w.world_to_scene(np.array([[p.x, p.y]]))[0]
+    return {"x": float(xy[0]), "y": float(xy[1]), "heading": float(w.yaw_to_scene(p.heading)),
+            "length": float(p.length), "width": float(p.width)}
+
+
+def _name_demand(scene, rec: TileRecord) -> None:
+    """``scene.meta["demand"]``: per agent the demand vehicle it was drawn for (index), else None.
+    The generator says which token each agent delivers; the tile's tokens are its pins, then its
+    demand vehicles."""
+    delivers = scene.meta.get("delivers") or [None] * len(scene)
+    scene.meta["demand"] = [rec.demand[d - rec.pins] if d is not None and rec.pins <= d < rec.pins + len(rec.demand)
+                            else None for d in delivers]
+
+
+__all__ = ["FillResult", "TileRecord", "demand_tiles", "demand_token", "fill_network", "tasks_of", "tile_seed"]

@@ -55,9 +55,11 @@ class InflowError(RuntimeError):
 
 
 
-def seed_fill(result, net, cfg, seed: int = 0, quiet: bool = True, progress: bool = False):
+def seed_fill(result, net, cfg, seed: int = 0, quiet: bool = True, progress: bool = False,
+              demand: list | None = None):
     """Start SUMO (``cfg``), seed every tile, step once, verify and settle. Returns (sim, reports
-    per tile index)."""
+    per tile index). ``demand``: the placed demand vehicles the tiles were given (plan.py): an agent
+    drawn for one drives the rest of its route."""
     from tqdm import tqdm
     sim = start(cfg, quiet=quiet)
     seeder = Seeder(sim, net, prefix="fill", seed=seed)
@@ -76,7 +78,9 @@ def seed_fill(result, net, cfg, seed: int = 0, quiet: bool = True, progress: boo
             others[:, 2] = w.yaw_to_scene(pins[:, 2])
             others[:, 3:] = pins[:, 3:5]
         seeder.prefix, seeder.count = f"fill{k}.", 0
-        reports[k] = seeder.seed(scene, others=(others, pins[:, 5] if len(pins) else np.zeros(0)))
+        which = scene.meta.get("demand")
+        routes = [None if d is None else demand[d].vehicle.edges for d in which] if demand and which else None
+        reports[k] = seeder.seed(scene, others=(others, pins[:, 5] if len(pins) else np.zeros(0)), routes=routes)
     sim.simulationStep()
     for rep in reports.values():
         seeder.verify(rep)

@@ -17,7 +17,9 @@ traffic hits it. So the route continues to a *destination* by the fastest path (
   drawn uniformly;
 
 only among those the agent can reach, drawn with the seeder's random generator (deterministic for a
-seed). The first turn after the generated part is one the agent's lane makes where it can (the
+seed). An agent that stands for a vehicle of the demand (a fill with demand) drives that vehicle's
+own route (:meth:`RouteChooser.along`): from where its generated part leaves it, or, where that part
+left the route, by the fastest path to the route's end. The first turn after the generated part is one the agent's lane makes where it can (the
 fastest route through the lane's own successors), and no route turns back on itself (a U-turn) or
 visits an edge twice.
 """
@@ -101,6 +103,34 @@ class RouteChooser:
                     if edges and t < t_best and self.valid([last] + edges):
                         best, t_best = [last] + edges, t
         return best if best and self.valid(best) else []
+
+    def along(self, edges: list[str], lane_id: str | None, wanted, vtype: str) -> tuple[list[str], str]:
+        """``edges`` (the generated part) continued along ``wanted`` (a route whose vehicle the agent
+        stands for, from its edge then): (route, how), how = ``"followed"`` (the rest of ``wanted``
+        after the generated part's last edge, through a successor of ``lane_id``), ``"rerouted"``
+        (the fastest path to ``wanted``'s last edge) or ``""`` (neither: ``[]``)."""
+        wanted = list(wanted)
+        last = edges[-1]
+        if last in wanted:
+            rest = wanted[wanted.index(last) + 1:]
+            route = edges + rest
+            if self.valid(route) and (not rest or self._leads(last, lane_id, rest[0])):
+                return route, "followed"
+        if last == wanted[-1]:
+            return [], ""
+        on = self.onward(last, lane_id, wanted[-1], vtype)
+        if on and self.valid(edges[:-1] + on):
+            return edges[:-1] + on, "rerouted"
+        return [], ""
+
+    def _leads(self, edge: str, lane_id: str | None, nxt: str) -> bool:
+        """Whether ``edge`` (from lane ``lane_id`` if known) connects to ``nxt``."""
+        snet = self.net.sumo_net
+        if not (snet.hasEdge(edge) and snet.hasEdge(nxt)):
+            return False
+        if lane_id:
+            return any(c.getTo().getID() == nxt for c in snet.getLane(lane_id).getOutgoing())
+        return snet.getEdge(nxt) in snet.getEdge(edge).getOutgoing()
 
     def complete(self, edges: list[str], lane_id: str | None, vtype: str, rng: np.random.Generator) -> list[str]:
         """``edges`` (the generated part) continued to a destination drawn with ``rng``; the

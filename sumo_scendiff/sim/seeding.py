@@ -61,6 +61,7 @@ class SeedReport:
     conflicts: dict[int, str] = field(default_factory=dict)  # agent index -> why not seeded (junction foe)
     pulled_back: dict[int, float] = field(default_factory=dict)  # agent index -> m moved behind its lane's end
     narrowed: dict[int, tuple] = field(default_factory=dict)  # agent index -> (generated, SUMO width), width_cap
+    own_route: dict[int, str] = field(default_factory=dict)  # agent index -> how its given route went (RouteChooser.along)
 
     @property
     def placed(self) -> int:
@@ -272,8 +273,13 @@ class Seeder(Settling):
             scene.traj[i, :, 0:2] -= d
             report.pulled_back[i] = back
 
-    def seed(self, scene: Scene, others: tuple[np.ndarray, np.ndarray] | None = None) -> SeedReport:
+    def seed(self, scene: Scene, others: tuple[np.ndarray, np.ndarray] | None = None,
+             routes: list | None = None) -> SeedReport:
         """Add every agent of ``scene``; call ``simulationStep`` and then :meth:`verify`.
+
+        ``routes``: per agent a route (edges from where it stands) it should drive, or None: the
+        vehicle of a demand it stands for (``report.own_route``: followed, rerouted to its end, or
+        "lost" when neither reaches it and a destination is drawn as for the others).
 
         ``others``: (boxes (M, 5), speeds (M,)) in the scene frame of the host's vehicles around the
         window, which can be the vehicle ahead of an agent. An agent departs at its generated speed,
@@ -310,7 +316,11 @@ class Seeder(Settling):
                     report.narrowed[i] = (width, self.width_cap)
                     width = self.width_cap
                 tid = self.vtype(vid, scene.boxes[i, 3], width, scene.vclass[i], gaps[i])
-                sim.route.add(f"{vid}_route", self.routes.complete(edges, last_lane, tid, self.rng))
+                given = routes[i] if routes is not None else None
+                full, how = self.routes.along(edges, last_lane, given, tid) if given else ([], "")
+                if given:
+                    report.own_route[i] = how or "lost"
+                sim.route.add(f"{vid}_route", full or self.routes.complete(edges, last_lane, tid, self.rng))
                 speed, slowed = max(float(scene.speed[i, T0]), 0.0), None
                 if hold[i]:        # waits for a foe on its junction (sim.junctions)
                     slowed, speed = (speed, 0.0), 0.0

@@ -1,0 +1,138 @@
+"""The demand's own vehicles at the fill's time, put on their lanes: where a fill with demand puts them.
+
+    est = DemandEstimate.at(net, routes, begin)            # fill/demand.py: who is en route, on which edge
+    placed, skipped = place_en_route(net, est, vtype_sizes([*routes, *additional]))
+    placed[k].x, placed[k].y, placed[k].heading            # world pose of its box centre
+    placed[k].vehicle.edges                                # the rest of its route
+
+The estimate knows each vehicle's edge and how long it has been on it; here it gets a lane and a
+place on it. The lane is one from which its route continues (SUMO's connections to its next edge;
+any car lane on its last edge), the least occupied of those. A vehicle waiting at its light stands
+in the queue from the stop line back; a moving one at the distance it has driven (its time on the
+edge at the typical speed). Along a lane no two overlap: each front stays behind the back of the
+vehicle ahead by SUMO's default minGap, queues first (longest waiting at the front), then the movers
+from the furthest on; one that finds no room on any of its lanes is skipped (counted). Sizes are the
+vTypes' (``length``/``width``, else SUMO's defaults for the vClass).
+
+A fill with demand gives these positions to its tiles as tokens (pose and size); the model draws
+each one's speed and motion around the others, and the seeder gives each the rest of its own route.
+"""
+from __future__ import annotations
+
+import zlib
+from collections import Counter
+from dataclasses import dataclass, replace
+
+from .demand import DemandEstimate, EnRoute
+
+MIN_GAP = 2.5          # m, SUMO's default minGap: the space kept between two placed vehicles
+STOP_MARGIN = 0.3      # m a queue's first front stays behind the stop line
+# SUMO's vType defaults per vClass (length, width), sumo.dlr.de "Vehicle Type Parameter Defaults"
+CLASS_SIZE = {"passenger": (5.0, 1.8), "private": (5.0, 1.8), "taxi": (5.0, 1.8), "evehicle": (5.0, 1.8),
+              "delivery": (6.5, 2.16), "emergency": (6.5, 2.16), "authority": (5.0, 1.8),
+              "army": (5.0, 1.8), "vip": (5.0, 1.8), "custom1": (5.0, 1.8), "custom2": (5.0, 1.8),
+              "truck": (7.1, 2.4), "trailer": (16.5, 2.55), "bus": (12.0, 2.5), "coach": (14.0, 2.6),
+              "motorcycle": (2.2, 0.9), "moped": (2.1, 0.8)}
+DEFAULT_SIZE = CLASS_SIZE["passenger"]   # DEFAULT_VEHTYPE
+
+
+@dataclass(frozen=True)
+class Placed:
+    vehicle: EnRoute
+    lane: int              # index into Network.lanes
+    pos: float             # m of its front bumper along the lane (SUMO's lane position)
+    x: float               # world centre of its box
+    y: float
+    heading: float         # rad, the lane's there
+    length: float
+    width: float
+
+
+def vtype_sizes(paths) -> dict[str, tuple[float, float]]:
+    """(length, width) of every vType in ``paths`` (route and additional files) by id, and of every
+    vTypeDistribution (its first member's; a distribution lists members or holds vTypes)."""
+    from sumolib.xml import parse
+    sizes: dict[str, tuple[float, float]] = {}
+
+    def size(el) -> tuple[float, float]:
+        cls_len, cls_wid = CLASS_SIZE.get(getattr(el, "vClass", None) or "passenger", DEFAULT_SIZE)
+        return (float(getattr(el, "length", None) or cls_len), float(getattr(el, "width", None) or cls_wid))
+
+    dists: dict[str, list[str]] = {}
+    for path in paths:          # (one pass per kind: sumolib empties a child it also yields)
+        for el in parse(path, "vType"):
+            sizes[el.id] = size(el)
+        for el in parse(path, "vTypeDistribution"):
+            members = (getattr(el, "vTypes", None) or "").split()
+            dists[el.id] = members + [c.id for c in (el.getChild("vType") if el.hasChild("vType") else [])]
+    for name, members in dists.items():
+        first = next((m for m in members if m in sizes), None)
+        if first is not None and name not in sizes:
+            sizes[name] = sizes[first]
+    return sizes
+
+
+def _stable(text: str) -> int:
+    return zlib.crc32(text.encode())
+
+
+def _fit(lanes: list[int], vid: str, want: float | None, length: float, room: dict, used: Counter, net):
+    """(lane, front) for a vehicle of ``length`` whose front would be at ``want`` (None: as far
+    forward as the lane allows) on the least used of ``lanes`` where it fits, else None."""
+    for lane in sorted(lanes, key=lambda i: (used[i], _stable(f"{vid}/{i}"))):
+        end = net.lanes[lane].length
+        front = min(room.get(lane, end - STOP_MARGIN), end - STOP_MARGIN)
+        if want is not None:
+            front = min(front, max(want, length))
+        if front - length >= 0.0:
+            return lane, front
+    return None
+
+
+def place_en_route(net, est: DemandEstimate, sizes: dict[str, tuple[float, float]] | None = None
+                   ) -> tuple[list[Placed], list[EnRoute]]:
+    """(the placed vehicles, those without room on any of their lanes); deterministic."""
+    snet, sizes = net.sumo_net, sizes or {}
+    by_edge: dict[str, dict[int, int]] = {}      # edge -> lane index on the edge -> Network.lanes index
+    for i, ln in enumerate(net.lanes):
+        if ln.car and not ln.internal:
+            by_edge.setdefault(ln.edge, {})[ln.index] = i
+
+    def lanes_for(edges: tuple[str, ...]) -> list[int]:
+        mine = by_edge.get(edges[0], {})
+        if len(edges) > 1 and snet.hasEdge(edges[0]) and snet.hasEdge(edges[1]):
+            conns = snet.getEdge(edges[0]).getConnections(snet.getEdge(edges[1]))
+            linked = sorted({mine[c.getFromLane().getIndex()] for c in conns if c.getFromLane().getIndex() in mine})
+            if linked:
+                return linked
+        return [mine[k] for k in sorted(mine)]
+
+    # queues first, longest waiting at the front; then the movers, furthest along first; ties by id
+    def order(v: EnRoute):
+        return (0, -(v.since - v.travel), v.id) if v.waiting else (1, -v.since * v.speed, v.id)
+
+    room: dict[int, float] = {}                  # lane -> where the next front may be at most
+    used: Counter = Counter()                    # lane -> vehicles placed on it
+    placed: list[Placed] = []
+    skipped: list[EnRoute] = []
+    for v in sorted(est.en_route, key=order):
+        length, width = sizes.get(v.type, DEFAULT_SIZE) if v.type else DEFAULT_SIZE
+        want = None if v.waiting else v.since * v.speed
+        best = _fit(lanes_for(v.edges), v.id, want, length, room, used, net)
+        if best is None and v.waiting and v.behind:
+            # a queue longer than its edge (a short edge before the light) stands on the edge before
+            best = _fit(lanes_for((v.behind,) + v.edges), v.id, None, length, room, used, net)
+            if best is not None:
+                v = replace(v, edges=(v.behind,) + v.edges, since=0.0, behind=None)
+        if best is None:
+            skipped.append(v)
+            continue
+        lane, front = best
+        room[lane] = front - length - MIN_GAP      # the vehicles come front-most first on each lane
+        used[lane] += 1
+        xy, heading = net.lane_pose(lane, front - 0.5 * length)
+        placed.append(Placed(v, lane, float(front), float(xy[0]), float(xy[1]), heading, length, width))
+    return placed, skipped
+
+
+__all__ = ["CLASS_SIZE", "Placed", "place_en_route", "vtype_sizes"]
