@@ -391,7 +391,8 @@ def test_fill_with_demand(tmp_path):
     snet = Network.load(NET).sumo_net
     edges = sorted(e.getID() for e in snet.getEdges())
     demand = tmp_path / "demand.rou.xml"
-    demand.write_text(f'<routes><flow id="f" begin="0" end="600" period="4" from="{edges[0]}" '
+    demand.write_text(f'<routes><vType id="calm" accel="1.2" sigma="0.1" color="0,0,255"/>'
+                      f'<flow id="f" type="calm" begin="0" end="600" period="4" from="{edges[0]}" '
                       f'to="{edges[-1]}"/></routes>')
     doc = _fill(tmp_path / "o", "-r", str(demand), "--begin", "120")
     src = doc["density"]
@@ -407,6 +408,19 @@ def test_fill_with_demand(tmp_path):
     followed = [a for a in mine if a["demand"]["route"] == "followed"]
     assert len(followed) >= 0.7 * len(mine)
     assert all(edges_of[a["vehicle"]].split()[-1] == edges[-1] for a in followed)   # the flow's destination
+    # they drive with the demand's vType: in the state, and in the portable start
+    types = {t.get("id"): t for t in start.iter("vType")}
+    vtype_of = {v.get("id"): v.get("type") for v in start.iter("vehicle")}
+    assert all(types[vtype_of[a["vehicle"]]].get("accel") == "1.2" for a in mine if a["vehicle"] in vtype_of)
+    import libsumo
+    libsumo.start([sumo_binary(), "-c", str(tmp_path / "o" / "scenario.sumocfg"), "--no-step-log", "true"])
+    try:
+        present = set(libsumo.vehicle.getIDList())
+        accels = [libsumo.vehicletype.getAccel(libsumo.vehicle.getTypeID(a["vehicle"])) for a in mine
+                  if a["vehicle"] in present]
+    finally:
+        libsumo.close()
+    assert accels and all(a == pytest.approx(1.2) for a in accels)
     for cfg in ("scenario.sumocfg", "start.sumocfg"):
         assert "demand.rou.xml.gz" in (tmp_path / "o" / cfg).read_text()
         run = subprocess.run([sumo_binary(), "-c", str(tmp_path / "o" / cfg), "--end", "130"],

@@ -72,6 +72,30 @@ def vtype_sizes(paths) -> dict[str, tuple[float, float]]:
     return sizes
 
 
+def write_vtypes(route_files, path: str) -> list[str]:
+    """An additional file at ``path`` with the vType and vTypeDistribution definitions of
+    ``route_files`` (top level; a distribution with the vTypes inside it), so that a SUMO started
+    without the demand knows its types; returns their ids ([]: none, no file written)."""
+    import xml.etree.ElementTree as ET
+    found: list = []
+    for f in route_files:
+        for _, el in ET.iterparse(f, events=("end",)):
+            if el.tag in ("vType", "vTypeDistribution") and el.get("id") and \
+                    el.get("id") not in {e.get("id") for e in found}:
+                found.append(el)
+            elif el.tag in ("vehicle", "trip", "flow", "route", "person", "personFlow"):
+                el.clear()     # a large demand is read without holding it
+    # a vType inside a distribution is defined with it: not again on its own
+    inner = {c.get("id") for e in found if e.tag == "vTypeDistribution" for c in e}
+    found = [e for e in found if e.get("id") not in inner]
+    if not found:
+        return []
+    root = ET.Element("additional")
+    root.extend(found)
+    ET.ElementTree(root).write(path, encoding="unicode")
+    return [e.get("id") for e in found]
+
+
 def _stable(text: str) -> int:
     return zlib.crc32(text.encode())
 
@@ -135,4 +159,4 @@ def place_en_route(net, est: DemandEstimate, sizes: dict[str, tuple[float, float
     return placed, skipped
 
 
-__all__ = ["CLASS_SIZE", "Placed", "place_en_route", "vtype_sizes"]
+__all__ = ["CLASS_SIZE", "Placed", "place_en_route", "vtype_sizes", "write_vtypes"]

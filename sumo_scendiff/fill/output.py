@@ -3,12 +3,15 @@ from __future__ import annotations
 
 import json
 import os
+import tempfile
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from ..sim.export import write_sumocfg
 from ..sim.sumo import close
+from .en_route import write_vtypes
 from .picture import draw_fill, edge_density
 from .seed import (
     inflow_sample,
@@ -56,8 +59,14 @@ def _agents(result, reports) -> list[dict]:
 def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing, progress,
                   workers: dict | None = None) -> dict:
     t = time.perf_counter()
-    sim, reports = seed_fill(result, net, cfg, seed=o.seed, quiet=not o.verbose, progress=progress,
-                             demand=result.demand)
+    with tempfile.TemporaryDirectory(prefix="scendiff-vtypes-") as work:
+        # the demand's own vTypes, for the vehicles that stand for its vehicles (only the seeding
+        # SUMO loads them: the folder's configurations load the route files themselves)
+        extra = os.path.join(work, "vtypes.add.xml")
+        seed_cfg = replace(cfg, additional=tuple(cfg.additional) + (extra,)) \
+            if result.demand and write_vtypes(routes, extra) else cfg
+        sim, reports = seed_fill(result, net, seed_cfg, seed=o.seed, quiet=not o.verbose, progress=progress,
+                                 demand=result.demand)
     try:
         timing["seed"] = time.perf_counter() - t
         t = time.perf_counter()

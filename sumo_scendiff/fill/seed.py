@@ -59,7 +59,7 @@ def seed_fill(result, net, cfg, seed: int = 0, quiet: bool = True, progress: boo
               demand: list | None = None):
     """Start SUMO (``cfg``), seed every tile, step once, verify and settle. Returns (sim, reports
     per tile index). ``demand``: the placed demand vehicles the tiles were given (plan.py): an agent
-    drawn for one drives the rest of its route."""
+    drawn for one drives the rest of its route, with its vType where ``cfg`` loads it."""
     from tqdm import tqdm
     sim = start(cfg, quiet=quiet)
     seeder = Seeder(sim, net, prefix="fill", seed=seed)
@@ -79,8 +79,10 @@ def seed_fill(result, net, cfg, seed: int = 0, quiet: bool = True, progress: boo
             others[:, 3:] = pins[:, 3:5]
         seeder.prefix, seeder.count = f"fill{k}.", 0
         which = scene.meta.get("demand")
-        routes = [None if d is None else demand[d].vehicle.edges for d in which] if demand and which else None
-        reports[k] = seeder.seed(scene, others=(others, pins[:, 5] if len(pins) else np.zeros(0)), routes=routes)
+        mine = [None if d is None else demand[d].vehicle for d in which] if demand and which else None
+        reports[k] = seeder.seed(scene, others=(others, pins[:, 5] if len(pins) else np.zeros(0)),
+                                 routes=[v and v.edges for v in mine] if mine else None,
+                                 types=[v and v.type for v in mine] if mine else None)
     sim.simulationStep()
     for rep in reports.values():
         seeder.verify(rep)

@@ -78,8 +78,15 @@ def _vehicle_xml(sim, vid: str, net) -> tuple[str, str, str, bool]:
     entering, at its start and with SUMO's insertion checks."""
     tid = sim.vehicle.getTypeID(vid)
     vt = sim.vehicletype
+    # its box and the driving parameters it drives with (a demand's type copied by the seeder keeps
+    # its own), so that the start drives as the state does
+    color = ",".join(str(c) for c in vt.getColor(tid))
     vtype = (f'    <vType id={quoteattr(tid)} vClass="{vt.getVehicleClass(tid)}" length="{vt.getLength(tid):.3f}" '
-             f'width="{vt.getWidth(tid):.3f}" minGap="{vt.getMinGap(tid):.3f}"/>')
+             f'width="{vt.getWidth(tid):.3f}" minGap="{vt.getMinGap(tid):.3f}" accel="{vt.getAccel(tid):g}" '
+             f'decel="{vt.getDecel(tid):g}" emergencyDecel="{vt.getEmergencyDecel(tid):g}" '
+             f'sigma="{vt.getImperfection(tid):g}" tau="{vt.getTau(tid):g}" maxSpeed="{vt.getMaxSpeed(tid):g}" '
+             f'speedFactor="normc({vt.getSpeedFactor(tid):g},{vt.getSpeedDeviation(tid):g},0.2,2)" '
+             f'color="{color}"/>')
     edges = list(sim.vehicle.getRoute(vid))[sim.vehicle.getRouteIndex(vid):]
     lane = sim.vehicle.getLaneID(vid)
     exact = bool(lane) and (not lane.startswith(":") or len(edges) > 1)
@@ -98,7 +105,8 @@ def _vehicle_xml(sim, vid: str, net) -> tuple[str, str, str, bool]:
     route = f'    <route id={quoteattr(vid + "_replay")} edges="{" ".join(edges)}"/>'
     veh = (f'    <vehicle id={quoteattr(vid)} type={quoteattr(tid)} route={quoteattr(vid + "_replay")} '
            f'depart="0" departLane="{lane_index}" departPos="{pos:.3f}" departPosLat="{lat:.3f}" '
-           f'departSpeed="{sim.vehicle.getSpeed(vid):.3f}"' + (' insertionChecks="none"/>' if exact else '/>'))
+           f'departSpeed="{sim.vehicle.getSpeed(vid):.3f}" speedFactor="{sim.vehicle.getSpeedFactor(vid):.4f}"'
+           + (' insertionChecks="none"/>' if exact else '/>'))
     return vtype, route, veh, exact
 
 

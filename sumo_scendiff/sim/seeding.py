@@ -93,6 +93,7 @@ class Seeder(Settling):
         # and SUMO registers a junction collision, whatever its class. So in SUMO a seeded vehicle is
         # at most that wide (scene.json keeps the generated width); None: the generated widths.
         self.width_cap: float | None = net.junction_vehicle_width
+        self._types: set[str] | None = None      # the simulation's own vTypes (a demand's), read once
 
     # ---- network helpers --------------------------------------------------------------------
     def _internal_links(self) -> dict[str, tuple[str, str]]:
@@ -205,11 +206,22 @@ class Seeder(Settling):
                                     f"shares with another vehicle's" for i in np.flatnonzero(~keep)}
 
     # ---- vehicle types ------------------------------------------------------------------------
-    def vtype(self, vid: str, length: float, width: float, vclass: int, min_gap: float) -> str:
+    def _known_types(self) -> set[str]:
+        if self._types is None:
+            self._types = set(self.sim.vehicletype.getIDList())
+        return self._types
+
+    def vtype(self, vid: str, length: float, width: float, vclass: int, min_gap: float,
+              parent: str | None = None) -> str:
+        """The agent's own vType: a copy of ``parent`` (a type the simulation knows: a demand's
+        vehicle's, with its class and driving parameters) or of SUMO's default with the class of
+        its size, with its box and fitted minGap."""
         t = self.sim.vehicletype
         tid = f"{vid}_type"
-        t.copy("DEFAULT_VEHTYPE", tid)
-        t.setVehicleClass(tid, VEHICLE_CLASSES[int(vclass)])
+        known = parent is not None and parent in self._known_types()
+        t.copy(parent if known else "DEFAULT_VEHTYPE", tid)
+        if not known:
+            t.setVehicleClass(tid, VEHICLE_CLASSES[int(vclass)])
         t.setLength(tid, float(length))
         t.setWidth(tid, float(width))
         t.setMinGap(tid, float(min_gap))
@@ -274,12 +286,13 @@ class Seeder(Settling):
             report.pulled_back[i] = back
 
     def seed(self, scene: Scene, others: tuple[np.ndarray, np.ndarray] | None = None,
-             routes: list | None = None) -> SeedReport:
+             routes: list | None = None, types: list | None = None) -> SeedReport:
         """Add every agent of ``scene``; call ``simulationStep`` and then :meth:`verify`.
 
         ``routes``: per agent a route (edges from where it stands) it should drive, or None: the
         vehicle of a demand it stands for (``report.own_route``: followed, rerouted to its end, or
-        "lost" when neither reaches it and a destination is drawn as for the others).
+        "lost" when neither reaches it and a destination is drawn as for the others). ``types``:
+        per agent a vType the simulation knows whose driving parameters it takes, or None.
 
         ``others``: (boxes (M, 5), speeds (M,)) in the scene frame of the host's vehicles around the
         window, which can be the vehicle ahead of an agent. An agent departs at its generated speed,
@@ -315,7 +328,8 @@ class Seeder(Settling):
                 if self.width_cap is not None and width > self.width_cap:
                     report.narrowed[i] = (width, self.width_cap)
                     width = self.width_cap
-                tid = self.vtype(vid, scene.boxes[i, 3], width, scene.vclass[i], gaps[i])
+                tid = self.vtype(vid, scene.boxes[i, 3], width, scene.vclass[i], gaps[i],
+                                 types[i] if types is not None else None)
                 given = routes[i] if routes is not None else None
                 full, how = self.routes.along(edges, last_lane, given, tid) if given else ([], "")
                 if given:
