@@ -131,10 +131,10 @@ def demand(net, o, tmp: str):
     from sumo_scendiff.data.demand import (
         RandomDemand,
         check_routes,
+        find_demand,
         random_trips,
         write_vtypes,
     )
-    from sumo_scendiff.data.demand import find_demand
     routes = find_demand(net)
     if routes:
         first = check_routes(routes, {ln.edge for ln in net.lanes})  # first departure (data CLI -> record)

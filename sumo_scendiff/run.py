@@ -29,8 +29,8 @@ EGO_AHEAD_M = 25.0   # the ego window's centre ahead of the ego: it sees its own
 
 
 def get_options(args=None):
-    from .generation.config import GenerationConfig, SettingError
     from .core.cli import HelpFormatter, description, epilog
+    from .generation.config import GenerationConfig, SettingError
     p = argparse.ArgumentParser(prog=PROG, description=description(__doc__), epilog=epilog(__doc__),
                                 formatter_class=HelpFormatter)
     p.add_argument("-c", "--configuration-file", dest="config", metavar="FILE",

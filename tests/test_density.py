@@ -11,7 +11,13 @@ import pytest
 
 from sumo_scendiff.core.geometry import Window
 from sumo_scendiff.map.network import Network
-from sumo_scendiff.sim.density import DensityError, host_density, parse_density, parse_vehicles, window_target
+from sumo_scendiff.sim.density import (
+    DensityError,
+    host_density,
+    parse_density,
+    parse_vehicles,
+    window_target,
+)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -51,8 +57,9 @@ def test_the_hosts_own_level_around_a_window(tmp_path):
     import libsumo
     import shapely
 
-    from .conftest import netconvert
     from sumo_scendiff.core.tools import sumo_binary
+
+    from .conftest import netconvert
     nodes = ('<node id="c" x="0" y="0" type="priority"/><node id="w" x="-300" y="0"/><node id="e" x="300" y="0"/>'
              '<node id="s" x="0" y="-300"/><node id="n" x="0" y="300"/>')
     edges = "".join(f'<edge id="{a}{b}" from="{a}" to="{b}" numLanes="1" speed="13.89" priority="{p}"/>'

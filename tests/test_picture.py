@@ -12,8 +12,14 @@ import pytest
 from sumo_scendiff.core.geometry import Window
 from sumo_scendiff.core.scene import Scene
 from sumo_scendiff.map.network import Network
-from sumo_scendiff.map.picture import (KIND_COLOURS, contact_sheets, draw_scene, paginate, picture_view,
-                                       scale_bar_metres)
+from sumo_scendiff.map.picture import (
+    KIND_COLOURS,
+    contact_sheets,
+    draw_scene,
+    paginate,
+    picture_view,
+    scale_bar_metres,
+)
 from sumo_scendiff.map.raster import RasterConfig
 
 

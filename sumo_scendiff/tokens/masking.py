@@ -14,7 +14,13 @@ from typing import Mapping
 
 import numpy as np
 
-from .encoding import FEATURE_GROUPS, GLOBAL_TOKEN_DIM, P_MASK_BINS, encode_agent_tokens, global_token
+from .encoding import (
+    FEATURE_GROUPS,
+    GLOBAL_TOKEN_DIM,
+    P_MASK_BINS,
+    encode_agent_tokens,
+    global_token,
+)
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,12 @@ from torch.utils.data import DataLoader, DistributedSampler, RandomSampler
 from ..data.dataset import SceneDataset, collate_scenes
 from ..data.shards import DataError, read_manifest
 from ..model import checkpoint as ckpt
-from ..tokens.encoding import GLOBAL_TOKEN_DIM, features_from_scene, pad_tokens, token_cells
+from ..tokens.encoding import (
+    GLOBAL_TOKEN_DIM,
+    features_from_scene,
+    pad_tokens,
+    token_cells,
+)
 from ..tokens.masking import TokenMaskConfig, partial_tokens
 
 VAL_STEP = 1_000_000_000  # "step" given to step_loss in validation: its token masks never repeat training's
