@@ -399,7 +399,8 @@ def test_fill_with_demand(tmp_path):
     assert src["kind"] == "demand" and src["time"] == 120 and src["en_route"] > 0
     assert doc["inflow"]["file"] is None and not os.path.exists(tmp_path / "o" / "inflow.rou.xml")
     mine = [a for a in doc["agents"] if a.get("demand")]
-    assert src["vehicles"]["placed"] == src["en_route"] - src["vehicles"]["no_room"]
+    v = src["vehicles"]
+    assert v["placed"] + v["no_room"] + v["no_car_lane"] + v["outside"] == src["en_route"]
     assert len(mine) >= 0.9 * src["vehicles"]["placed"] and all(a["demand"]["id"].startswith("f.") for a in mine)
     start = ET.parse(tmp_path / "o" / "start.rou.xml").getroot()
     named = {r.get("id"): r.get("edges") for r in start.iter("route")}

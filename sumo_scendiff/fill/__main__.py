@@ -158,7 +158,9 @@ def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | No
             km = net.car_lane_km_in(shapely.box(*t.core))
             targets[t.index] = float(per_tile[t.index]) / km if km > 0 else None
         placed = [p for p, k in zip(placed, owner) if k is not None]
-        src["vehicles"] = {"placed": len(placed), "no_room": len(skipped), "outside": len(owner) - len(placed),
+        off = sum(net.edge_car_km.get(v.edges[0], 0.0) <= 0 for v in skipped)   # trams, bicycles
+        src["vehicles"] = {"placed": len(placed), "no_room": len(skipped) - off, "no_car_lane": off,
+                           "outside": len(owner) - len(placed),
                            "method": "each en-route vehicle on a lane of its edge from which its route goes on, "
                                      "waiting ones queued from the stop line, moving ones where their time on the "
                                      "edge brought them; given to its tile as a token (pose and size), the model "
