@@ -370,6 +370,31 @@ def test_en_route_vehicles_on_their_lanes():
     assert fronts["m0"] == pytest.approx(20.0 if lane_of["m0"] != lane_of["m1"] else 21.0 - 5.0 - MIN_GAP)
 
 
+def test_a_queue_longer_than_its_edge_stands_on_the_edge_before():
+    """Waiting vehicles that do not fit on their edge queue back onto the route's edge before it
+    (their route then starts there); without an edge before, they are skipped."""
+    from sumo_scendiff.fill.demand import DemandEstimate, EnRoute
+    from sumo_scendiff.fill.en_route import place_en_route
+    from sumo_scendiff.map.network import Network
+    net = Network.load(NET4)
+    e, nxt = _edge_pair(net)
+    before = next(p for p in e.getIncoming() if p.getFromNode() is not e.getToNode())
+    route = (e.getID(), nxt.getID())
+    lanes = len({c.getFromLane().getID() for c in e.getConnections(nxt)})
+    n = int(lanes * e.getLength() / 7.5) + 6      # more than the edge holds at 5 m + 2.5 m each
+    queue = [EnRoute(f"q{k:02d}", None, route, 100.0 + n - k, 10.0, 10.0, before.getID()) for k in range(n)]
+    placed, skipped = place_en_route(net, DemandEstimate(0.0, {}, n, 0, n, queue))
+    assert not skipped and len(placed) == n
+    back = [p for p in placed if p.vehicle.edges[0] == before.getID()]
+    assert back and all(p.vehicle.edges == (before.getID(),) + route for p in back)
+    assert all(net.lanes[p.lane].edge == before.getID() for p in back)
+    on_e = [p for p in placed if p.vehicle.edges[0] == e.getID()]
+    assert max(int(p.vehicle.id[1:]) for p in on_e) < min(int(p.vehicle.id[1:]) for p in back)  # the front of the queue
+    alone = [EnRoute(v.id, None, route, v.since, 10.0, 10.0) for v in queue]
+    placed, skipped = place_en_route(net, DemandEstimate(0.0, {}, n, 0, n, alone))
+    assert len(placed) == len(on_e) and len(skipped) == n - len(on_e)
+
+
 def test_vtype_sizes(tmp_path):
     """A vType's length and width, SUMO's default for its vClass where it gives none, and a
     distribution's first member's."""
