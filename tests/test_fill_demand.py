@@ -1,0 +1,188 @@
+"""Whole-network fill with demand (python -m sumo_scendiff.fill -r/-c): the demand estimate, the
+demand's own vehicles put on their lanes, their routes and vTypes. Real model, real SUMO."""
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import xml.etree.ElementTree as ET
+
+import pytest
+
+from .test_fill import NET, NET4, _fill
+
+pytestmark = pytest.mark.slow   # real runs of the CLIs: the fast tier is -m "not slow"
+
+
+def test_demand_estimate(tmp_path):
+    """Vehicles departed before T and still on their route at free flow count; those arrived or
+    not yet departed do not."""
+    from sumo_scendiff.fill.demand import DemandEstimate
+    from sumo_scendiff.map.network import Network
+    net = Network.load(NET)
+    edges = [e.getID() for e in net.sumo_net.getEdges() if e.getFromNode().getID() != e.getToNode().getID()]
+    e = edges[0]
+    routes = tmp_path / "d.rou.xml"
+    routes.write_text(f'<routes><vehicle id="a" depart="95"><route edges="{e}"/></vehicle>'
+                      f'<vehicle id="b" depart="0"><route edges="{e}"/></vehicle>'
+                      f'<vehicle id="c" depart="200"><route edges="{e}"/></vehicle></routes>')
+    est = DemandEstimate.at(net, [str(routes)], begin=100.0)
+    assert est.on_edge == {e: 1} and est.departed == 2
+
+
+def _edge_pair(net):
+    """An edge with two car lanes or more and a successor, from a lane that leads there."""
+    for e in net.sumo_net.getEdges():
+        if e.getLaneNumber() < 2 or e.getLength() < 60:
+            continue
+        for nxt in e.getOutgoing():
+            if nxt.getToNode() is not e.getFromNode():
+                return e, nxt
+    raise AssertionError("no such edge")
+
+
+def test_en_route_vehicles_on_their_lanes():
+    """The demand's vehicles: on a lane that leads to their next edge, waiting ones queued from the
+    stop line (longest waiting first), moving ones where they have driven to, none overlapping;
+    sizes from the vTypes."""
+    from sumo_scendiff.fill.demand import DemandEstimate, EnRoute
+    from sumo_scendiff.fill.en_route import MIN_GAP, STOP_MARGIN, place_en_route
+    from sumo_scendiff.map.network import Network
+    net = Network.load(NET4)
+    e, nxt = _edge_pair(net)
+    route = (e.getID(), nxt.getID())
+    travel = e.getLength() / 10.0
+    vehicles = [EnRoute(f"w{k}", "truck" if k == 1 else None, route, travel + 5.0 * (3 - k), travel, 10.0)
+                for k in range(3)] + [EnRoute("m0", None, route, 2.0, travel, 10.0),
+                                      EnRoute("m1", None, route, 2.1, travel, 10.0)]
+    placed, skipped = place_en_route(net, DemandEstimate(0.0, {}, 5, 0, 5, vehicles), {"truck": (10.0, 2.5)})
+    assert not skipped and [p.vehicle.id for p in placed] == ["w0", "w1", "w2", "m1", "m0"]
+    ok_lanes = {c.getFromLane().getID() for c in e.getConnections(nxt)}
+    by_lane = {}
+    for p in placed:
+        lane = net.lanes[p.lane]
+        assert lane.edge == e.getID() and lane.id in ok_lanes
+        by_lane.setdefault(p.lane, []).append(p)
+        xy, _ = net.lane_pose(p.lane, p.pos - 0.5 * p.length)
+        assert math.hypot(p.x - xy[0], p.y - xy[1]) < 1e-6
+    assert {p.vehicle.id: (p.length, p.width) for p in placed}["w1"] == (10.0, 2.5)
+    fronts = {p.vehicle.id: p.pos for p in placed}
+    for ps in by_lane.values():   # along each lane: in order, a minGap apart
+        for a, b in zip(ps, ps[1:]):
+            assert b.pos <= a.pos - a.length - MIN_GAP + 1e-9
+    first = max(fronts[f"w{k}"] for k in range(3))
+    assert first == pytest.approx(net.lanes[placed[0].lane].length - STOP_MARGIN)
+    lane_of = {p.vehicle.id: p.lane for p in placed}
+    assert fronts["m1"] == pytest.approx(21.0)     # 2.1 s at 10 m/s; m0 there too unless m1 is ahead
+    assert fronts["m0"] == pytest.approx(20.0 if lane_of["m0"] != lane_of["m1"] else 21.0 - 5.0 - MIN_GAP)
+
+
+def test_a_queue_longer_than_its_edge_stands_on_the_edge_before():
+    """Waiting vehicles that do not fit on their edge queue back onto the route's edge before it
+    (their route then starts there); without an edge before, they are skipped."""
+    from sumo_scendiff.fill.demand import DemandEstimate, EnRoute
+    from sumo_scendiff.fill.en_route import place_en_route
+    from sumo_scendiff.map.network import Network
+    net = Network.load(NET4)
+    e, nxt = _edge_pair(net)
+    before = next(p for p in e.getIncoming() if p.getFromNode() is not e.getToNode())
+    route = (e.getID(), nxt.getID())
+    lanes = len({c.getFromLane().getID() for c in e.getConnections(nxt)})
+    n = int(lanes * e.getLength() / 7.5) + 6      # more than the edge holds at 5 m + 2.5 m each
+    queue = [EnRoute(f"q{k:02d}", None, route, 100.0 + n - k, 10.0, 10.0, before.getID()) for k in range(n)]
+    placed, skipped = place_en_route(net, DemandEstimate(0.0, {}, n, 0, n, queue))
+    assert not skipped and len(placed) == n
+    back = [p for p in placed if p.vehicle.edges[0] == before.getID()]
+    assert back and all(p.vehicle.edges == (before.getID(),) + route for p in back)
+    assert all(net.lanes[p.lane].edge == before.getID() for p in back)
+    on_e = [p for p in placed if p.vehicle.edges[0] == e.getID()]
+    assert max(int(p.vehicle.id[1:]) for p in on_e) < min(int(p.vehicle.id[1:]) for p in back)  # the front of the queue
+    alone = [EnRoute(v.id, None, route, v.since, 10.0, 10.0) for v in queue]
+    placed, skipped = place_en_route(net, DemandEstimate(0.0, {}, n, 0, n, alone))
+    assert len(placed) == len(on_e) and len(skipped) == n - len(on_e)
+
+
+def test_vtype_sizes(tmp_path):
+    """A vType's length and width, SUMO's default for its vClass where it gives none, and a
+    distribution's first member's."""
+    from sumo_scendiff.fill.en_route import vtype_sizes
+    f = tmp_path / "t.add.xml"
+    f.write_text('<additional><vType id="a" length="4.2" width="1.7"/><vType id="b" vClass="bus"/>'
+                 '<vTypeDistribution id="d"><vType id="c" vClass="truck" probability="1"/></vTypeDistribution>'
+                 '<vTypeDistribution id="e" vTypes="b a"/></additional>')
+    assert vtype_sizes([str(f)]) == {"a": (4.2, 1.7), "b": (12.0, 2.5), "c": (7.1, 2.4), "d": (7.1, 2.4),
+                                     "e": (12.0, 2.5)}
+
+
+def test_fill_with_demand(tmp_path):
+    """-r: the demand's level at --begin is the density source (recorded; applied only with a
+    density model), no inflow is drawn, and the demand continues in both configurations. The
+    fill's vehicles are the demand's own (fill.json names them) and drive their own routes on."""
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.map.network import Network
+    snet = Network.load(NET).sumo_net
+    edges = sorted(e.getID() for e in snet.getEdges())
+    demand = tmp_path / "demand.rou.xml"
+    demand.write_text(f'<routes><vType id="calm" accel="1.2" sigma="0.1" color="0,0,255"/>'
+                      f'<flow id="f" type="calm" begin="0" end="600" period="4" from="{edges[0]}" '
+                      f'to="{edges[-1]}"/></routes>')
+    doc = _fill(tmp_path / "o", "-r", str(demand), "--begin", "120")
+    src = doc["density"]
+    assert src["kind"] == "demand" and src["time"] == 120 and src["en_route"] > 0
+    assert doc["inflow"]["file"] is None and not os.path.exists(tmp_path / "o" / "inflow.rou.xml")
+    mine = [a for a in doc["agents"] if a.get("demand")]
+    v = src["vehicles"]
+    assert v["placed"] + v["no_room"] + v["no_car_lane"] + v["outside"] == src["en_route"]
+    assert len(mine) >= 0.9 * src["vehicles"]["placed"] and all(a["demand"]["id"].startswith("f.") for a in mine)
+    start = ET.parse(tmp_path / "o" / "start.rou.xml").getroot()
+    named = {r.get("id"): r.get("edges") for r in start.iter("route")}
+    edges_of = {v.get("id"): (v.find("route").get("edges") if v.find("route") is not None else named[v.get("route")])
+                for v in start.iter("vehicle")}
+    followed = [a for a in mine if a["demand"]["route"] == "followed"]
+    assert len(followed) >= 0.7 * len(mine)
+    assert all(edges_of[a["vehicle"]].split()[-1] == edges[-1] for a in followed)   # the flow's destination
+    # they drive with the demand's vType: in the state, and in the portable start
+    types = {t.get("id"): t for t in start.iter("vType")}
+    vtype_of = {v.get("id"): v.get("type") for v in start.iter("vehicle")}
+    assert all(types[vtype_of[a["vehicle"]]].get("accel") == "1.2" for a in mine if a["vehicle"] in vtype_of)
+    import libsumo
+    libsumo.start([sumo_binary(), "-c", str(tmp_path / "o" / "scenario.sumocfg"), "--no-step-log", "true"])
+    try:
+        present = set(libsumo.vehicle.getIDList())
+        accels = [libsumo.vehicletype.getAccel(libsumo.vehicle.getTypeID(a["vehicle"])) for a in mine
+                  if a["vehicle"] in present]
+    finally:
+        libsumo.close()
+    assert accels and all(a == pytest.approx(1.2) for a in accels)
+    for cfg in ("scenario.sumocfg", "start.sumocfg"):
+        assert "demand.rou.xml.gz" in (tmp_path / "o" / cfg).read_text()
+        run = subprocess.run([sumo_binary(), "-c", str(tmp_path / "o" / cfg), "--end", "130"],
+                             check=False, capture_output=True, text=True, timeout=60)
+        assert run.returncode == 0 and "Error" not in run.stderr, run.stderr
+
+
+def test_demand_level_only(tmp_path):
+    """--demand-level-only: the demand's level per tile, no vehicle of its own in the fill."""
+    from sumo_scendiff.map.network import Network
+    edges = sorted(e.getID() for e in Network.load(NET).sumo_net.getEdges())
+    demand = tmp_path / "demand.rou.xml"
+    demand.write_text(f'<routes><flow id="f" begin="0" end="600" period="4" from="{edges[0]}" '
+                      f'to="{edges[-1]}"/></routes>')
+    doc = _fill(tmp_path / "o", "-r", str(demand), "--begin", "120", "--demand-level-only")
+    assert doc["density"]["kind"] == "demand" and "vehicles" not in doc["density"]
+    assert doc["agents"] and not any("demand" in a for a in doc["agents"])
+
+
+def test_signal_delays_of_the_demand_estimate(tmp_path):
+    """A light's program gives each link its green share (amber half) and Webster's uniform delay;
+    an additional file's program replaces the network's, as in SUMO."""
+    from sumo_scendiff.fill.demand import green_shares
+    a = tmp_path / "a.add.xml"
+    a.write_text('<additional><tlLogic id="J" type="static" programID="1" offset="0">'
+                 '<phase duration="30" state="Gr"/><phase duration="4" state="yr"/>'
+                 '<phase duration="26" state="rG"/></tlLogic></additional>')
+    cycle, green = green_shares([str(a)])["J"]
+    assert cycle == 60 and green == pytest.approx([32 / 60, 26 / 60])
+    b = tmp_path / "b.add.xml"
+    b.write_text(a.read_text().replace('duration="26"', 'duration="56"'))
+    assert green_shares([str(a), str(b)])["J"][0] == 90
