@@ -202,7 +202,7 @@ def main(o) -> None:
             glob = torch.from_numpy(glob.reshape(n, -1))
             z = gen.diffusion.sample(m, tok, pad, glob, steps=steps, sampler=sampler, guidance=w,
                                      generator=torch.Generator().manual_seed(o.seed), known=known)
-            rows[row] = score(decode_boxes(gen.ae.decode(z / gen.latent_scale, m)), gts, o.threshold, *truth)
+            rows[row] = score(decode_boxes(gen.decode(z, m, tok, pad)), gts, o.threshold, *truth)
             rows[row]["z_std"] = float(z.std())
         if not o.autoencoder:
             rows.update(from_noised_data(gen, mu * gen.latent_scale, m, gts, o, truth))

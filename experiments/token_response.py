@@ -119,7 +119,7 @@ def generate(gen, batch, picked, override: tuple[str, float] | None, cfg, seed: 
         known = pinned_latent(gen.ae, dicts, gen.latent_scale) if cfg.pin_tokens else None
         z = gen.diffusion.sample(batch["map"], tok, pad, glob, steps=cfg.steps, sampler=cfg.solver(),
                                  guidance=cfg.guidance, generator=torch.Generator().manual_seed(seed), known=known)
-        dec = decode_boxes(gen.ae.decode(z / gen.latent_scale, batch["map"]))
+        dec = decode_boxes(gen.decode(z, batch["map"], tok, pad))
     return at_probes(dec, picked, cfg.threshold)
 
 

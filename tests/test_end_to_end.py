@@ -340,6 +340,39 @@ def test_decoder_fine_tune_adds_map_skips_map_channels_and_a_heading_head(tmp_pa
     assert len(gen.generate(Network.load(cross_net), [Window(0.0, 0.0, 0.0)], seed=0)) == 1
 
 
+def test_decoder_fine_tune_learns_to_read_the_tokens(tmp_path, cross_net):
+    """--freeze-encoder with '{"C_t": 13}': the decoder's token inputs start at zero and are trained
+    (the encoder bit-identical), the export with the diffusion model of the source's latent loads,
+    and generation hands the decoder the tokens' raster; another C_t is one line and exit 2."""
+    import torch
+
+    from sumo_scendiff.generation.generator import GenerationConfig, ScenarioGenerator
+    from sumo_scendiff.model import checkpoint as ckpt
+    from sumo_scendiff.tokens.raster import C_T
+    common, src = autoencoder_and_diffusion(tmp_path, cross_net)
+    train("autoencoder", *common, "-o", tmp_path / "dec", "--steps", 3, "--init-from", src, "--freeze-encoder",
+          "--p-keep-all-tokens", 1.0, "--model-config", json.dumps({"C_t": C_T}))
+    a, b = (ckpt.load(str(p), "autoencoder-train") for p in (src, tmp_path / "dec" / "last.pt"))
+    assert b["model_config"]["C_t"] == C_T and not a["model_config"].get("C_t")
+    assert all(torch.equal(a["state"][k], b["state"][k]) for k in a["state"] if k.startswith("E."))
+    tokens = [k for k in b["state"] if k.startswith("D_up.tokens.")]
+    assert len(tokens) == 6 and any(b["state"][k].any() for k in tokens if k.endswith("weight"))
+    out = tmp_path / "model.pt"
+    train("export", "--autoencoder", tmp_path / "dec" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
+          "-o", out)
+    gen = ScenarioGenerator.load(str(out), GenerationConfig(steps=2))
+    seen = []
+    gen.ae.D_up.tokens["5"].register_forward_hook(lambda mod, inp, res: seen.append(float(inp[0].abs().sum())))
+    scenes = gen.generate(Network.load(cross_net), [Window(0.0, 0.0, 0.0)], seed=0,
+                          tokens=[[{"x": -12.0, "y": -1.6, "speed": 5.0}]])
+    assert len(scenes) == 1 and seen and seen[-1] > 0
+    bad = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "autoencoder", *map(str, common), "-o",
+                          str(tmp_path / "x"), "--steps", "1", "--model-config", '{"C_t": 5}'],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "C_t 5: the token raster has 13 channels" in bad.stderr
+    assert "Traceback" not in bad.stderr
+
+
 def test_grown_latent_warm_starts_both_stages(tmp_path, cross_net):
     """--model-config '{"C_z": 6}' with --init-from a C_z 4 autoencoder grows its latent (at
     learning rate 0 the old channels decode as before); a diffusion run on it takes c_z 6 from the

@@ -42,6 +42,7 @@ from ..tokens.encoding import (
     pad_tokens,
     token_positions,
 )
+from ..tokens.raster import token_raster
 from .config import GenerationConfig
 from .deliver import apply_rows, delivered_rows, match_rows, pace_rows, place_rows
 from .infill import add_new_agents, area_mask, in_area, scene_tokens
@@ -153,6 +154,13 @@ class ScenarioGenerator:
         """The noise level below which that guidance stops (None: the checkpoint's)."""
         return self.scene_guidance_sigma if cfg.scene_guidance_sigma is None else cfg.scene_guidance_sigma
 
+    def decode(self, z: torch.Tensor, m: torch.Tensor, tokens: torch.Tensor | None = None,
+               pad: torch.Tensor | None = None) -> torch.Tensor:
+        """y = D(z / latent_scale, m[, the tokens' raster]): a decoder with ``C_t`` also reads the
+        agent tokens (``tokens`` (B, T, AGENT_TOKEN_DIM) and ``pad`` from ``pad_tokens``)."""
+        t = token_raster(tokens, pad, self.ae.out_res) if self.ae.cfg.C_t and tokens is not None else None
+        return self.ae.decode(z / self.latent_scale, m, t)
+
     # ---- one batch ------------------------------------------------------------------------
     @torch.no_grad()
     def _batch(self, maps: np.ndarray, tokens: list[np.ndarray], p_mask: np.ndarray,
@@ -174,7 +182,7 @@ class ScenarioGenerator:
                                   known=pinned_latent(self.ae, pins, self.latent_scale, self.raster,
                                                       maps=m if cfg.pin_calibration else None)
                                   if cfg.pin_tokens and pins is not None else None)
-        y = self.ae.decode(z / self.latent_scale, m)
+        y = self.decode(z, m, tok, pad)
         yaw = junction_yaw(y, windows, net, m[:, MAP_CHANNELS.index("junction")], self.raster.size) \
             if cfg.lane_headings and net is not None else None
         dec = decode_boxes(y, self.raster.size, yaw=yaw)

@@ -10,6 +10,10 @@ resolution, narrowed for CPU training and without the mid-block self-attention:
   With ``map_skips`` (beyond the paper) D_down's 32 and 64 px features are added (1x1 projections)
   into D_up at those resolutions, U-Net fashion, so the decoder sees the lanes finer than the 16 px
   bottleneck's 6.25 m cells (docs/model.md: a small gain in lane heading).
+  With ``C_t`` > 0 (beyond the paper) D_up also reads the positioned agent tokens as a 64 px raster
+  (``tokens/raster.py``), pooled to and added (3x3 convolutions) at 16, 32 and 64 px, so a vehicle
+  decoded under a token can take the speed, turn and size it gives, which the 4-channel latent
+  carries only roughly: D(z, m, t).
 
 Training objective (appendix C.3): L = L_rec + kl_weight * L_KL, both per-scene sums averaged
 over the batch.
@@ -53,6 +57,9 @@ class AutoencoderConfig:
     # beyond the paper: K > 0 adds a MultiBin heading head of K bins (2K output channels, heading.py)
     # that commits to one heading where the cos/sin regression would average between lanes
     heading_bins: int = 0
+    # beyond the paper: C_t > 0 gives D_up the agent tokens as a raster of C_t channels
+    # (tokens.raster.C_T); 0 = the paper's D(z, m), which decodes from the latent alone
+    C_t: int = 0
     loss: DetectionLossConfig = field(default_factory=DetectionLossConfig)
 
 
@@ -118,6 +125,15 @@ class DetectionDecoder(nn.Module):
             self.skips[str(1 + 2 * i)] = conv = nn.Conv2d(cfg.enc_channels[top - i], ch[i - 1], 1)
             nn.init.zeros_(conv.weight)
             nn.init.zeros_(conv.bias)
+        # with C_t, the token raster (at the output resolution) is average-pooled to each level's
+        # resolution and added (3x3, zero-initialised: a decoder warm-started without it begins as
+        # it was) to the input of that level's ResnetBlock, body index 1 + 2 i
+        self.token_at, self.tokens = {}, nn.ModuleDict()
+        for i in range(len(ch)) if cfg.C_t else ():
+            self.token_at[1 + 2 * i] = 2 ** (len(ch) - 1 - i)
+            self.tokens[str(1 + 2 * i)] = conv = nn.Conv2d(cfg.C_t, ch[max(i - 1, 0)], 3, padding=1)
+            nn.init.zeros_(conv.weight)
+            nn.init.zeros_(conv.bias)
         self.body = nn.Sequential(*layers)
         self.norm_out = group_norm(prev)
         k = cfg.heading_bins
@@ -133,12 +149,16 @@ class DetectionDecoder(nn.Module):
             self.conv_out.bias[3:7] = cfg.log_dist_bias
 
     def forward(self, z: torch.Tensor, m_enc: torch.Tensor,
-                m_feats: list[torch.Tensor] | None = None) -> torch.Tensor:
-        """``m_feats``: D_down's pyramid (finest first), needed with ``map_skips``."""
+                m_feats: list[torch.Tensor] | None = None, t: torch.Tensor | None = None) -> torch.Tensor:
+        """``m_feats``: D_down's pyramid (finest first), needed with ``map_skips``; ``t``: the token
+        raster (B, C_t, 64, 64) of a decoder with C_t (None: no tokens)."""
         h = self.conv_in(torch.cat([z, m_enc], dim=1))
         for k, layer in enumerate(self.body):
             if k in self.skip_at:
                 h = h + self.skips[str(k)](m_feats[self.skip_at[k]])
+            if t is not None and k in self.token_at:
+                f = self.token_at[k]
+                h = h + self.tokens[str(k)](F.avg_pool2d(t, f) if f > 1 else t)
             h = layer(h)
         return self.conv_out(F.silu(self.norm_out(h))) * self.out_scale
 
@@ -162,22 +182,29 @@ class ScenarioAutoencoder(nn.Module):
         """Reparameterised z = mu + sigma * eps (sigma scaled by ``latent_noise``)."""
         return mu + self.cfg.latent_noise * torch.exp(0.5 * logvar) * torch.randn_like(mu)
 
-    def decode(self, z: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
-        """y = D(z, m) = D_up(z, D_down(m)), (B, 19 [+ 2 heading_bins], 64, 64)."""
+    @property
+    def out_res(self) -> int:
+        """Side of y's grid (and of the token raster): the latent's 16 px doubled per D_up level."""
+        return 16 * 2 ** (len(self.cfg.dec_channels) - 1)
+
+    def decode(self, z: torch.Tensor, m: torch.Tensor, t: torch.Tensor | None = None) -> torch.Tensor:
+        """y = D(z, m) = D_up(z, D_down(m)), (B, 19 [+ 2 heading_bins], 64, 64). ``t``: the token
+        raster (``tokens.raster.token_raster``), read by a decoder with C_t > 0, else ignored."""
         m = m[:, : self.cfg.C_m]
+        t = t if self.cfg.C_t else None
         if not self.cfg.use_map:
             m = torch.zeros_like(m)
         if self.cfg.map_skips:
-            return self.D_up(z, *self.D_down.pyramid(m))
-        return self.D_up(z, self.D_down(m))
+            return self.D_up(z, *self.D_down.pyramid(m), t=t)
+        return self.D_up(z, self.D_down(m), t=t)
 
-    def forward(self, x: torch.Tensor, m: torch.Tensor,
-                sample: bool | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(self, x: torch.Tensor, m: torch.Tensor, sample: bool | None = None,
+                t: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """-> (y, mu, logvar). z is sampled in training mode (or if ``sample``), else z = mu."""
         mu, logvar = self.encode(x)
         sample = self.training if sample is None else sample
         z = self.sample(mu, logvar) if sample else mu
-        return self.decode(z, m), mu, logvar
+        return self.decode(z, m, t), mu, logvar
 
     def grow_latent(self, state: dict, old_c_z: int) -> dict:
         """A state dict of this autoencoder's layout with ``old_c_z`` latent channels, fitted to this
@@ -207,12 +234,13 @@ class ScenarioAutoencoder(nn.Module):
         return 0.5 * (mu.square() + logvar.exp() - 1.0 - logvar).flatten(1).sum(1).mean()
 
     def loss(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """Batch with keys x, m, boxes, traj, traj_mask, valid -> dict of loss terms.
+        """Batch with keys x, m, boxes, traj, traj_mask, valid (and t, the token raster, for a
+        decoder with C_t) -> dict of loss terms.
 
         Keys: the detection terms (cls_pos, cls_neg, box, vertex, traj_pos, traj_yaw, rec), the
         diagnostic ``matched``, ``kl`` (unweighted) and ``total`` = rec + kl_weight * kl.
         """
-        y, mu, logvar = self(batch["x"], batch["m"])
+        y, mu, logvar = self(batch["x"], batch["m"], t=batch.get("t"))
         out = detection_loss(y, batch["boxes"], batch["traj"], batch["traj_mask"], batch["valid"],
                              self.cfg.loss, junction=batch["m"][:, MAP_CHANNELS.index("junction")])
         out["kl"] = self.kl(mu, logvar)

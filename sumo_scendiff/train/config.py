@@ -22,8 +22,9 @@ class TrainConfig:
     lr_drop_at: int = 0           # step at which lr /= 10 (a fixed schedule); 0: the plateau rule
     ema_halflife: float = 0.0     # weight average half-life in steps (0: none); export uses it
     ema_rampup: float = 0.05      # ... but at most this fraction of the steps so far (EDM's rule)
-    p_keep_all_tokens: float = 0.4  # diffusion: P(p_mask = 0), every agent a token (sec. 4.3.1)
-    p_map_only: float = 0.0       # diffusion: P(p_mask = 1), the map alone; else p_mask ~ Beta(2, 1)
+    # diffusion, and an autoencoder whose decoder reads the tokens (C_t):
+    p_keep_all_tokens: float = 0.4  # P(p_mask = 0), every agent a token (sec. 4.3.1)
+    p_map_only: float = 0.0       # P(p_mask = 1), the map alone; else p_mask ~ Beta(2, 1)
     # diffusion: the denoising error of the latent cells under an agent kept as a positioned token
     # counts 1 + this many times (the rest of a scene dominates the mean otherwise)
     token_loss_weight: float = 0.0

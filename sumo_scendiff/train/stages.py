@@ -15,7 +15,9 @@ from ..model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from ..model.blocks import widen_input, widen_output
 from ..model.diffusion import DiffusionConfig, ScenarioDiffusion
 from ..model.unet import grow_latent, widen_conv_in
+from ..tokens.encoding import P_MASK_BINS
 from ..tokens.masking import TokenMaskConfig
+from ..tokens.raster import C_T, token_raster
 from .config import TrainConfig
 from .loop import Loop, conditioning, estimate_latent_scale, load_training
 
@@ -54,13 +56,16 @@ def train_autoencoder(o) -> None:
     base = (saved or init or {}).get("model_config")
     model = ScenarioAutoencoder(model_config(o, AutoencoderConfig, base=base,
                                              **({"use_map": False} if o.no_map else {})))
+    if model.cfg.C_t not in (0, C_T):
+        o.parser.exit(2, f"{o.parser.prog}: error: --model-config: C_t {model.cfg.C_t}: the token raster has "
+                         f"{C_T} channels (0: a decoder without tokens)\n")
     extra = {"model_config": ckpt.config_to_dict(model.cfg)}
     if saved is not None:  # a decoder-only run stays one when resumed
         o.freeze_encoder = o.freeze_encoder or "encoder_from_sha256" in saved
     elif init is not None:
         state = init["state"]
-        if all(k.startswith("D_up.skips.") for k in set(model.state_dict()) - set(state)):
-            state = {**model.state_dict(), **state}  # map skips the source lacks start at zero
+        if all(k.startswith(("D_up.skips.", "D_up.tokens.")) for k in set(model.state_dict()) - set(state)):
+            state = {**model.state_dict(), **state}  # map skips or token inputs the source lacks start at zero
         # map channels the source lacks (a larger C_m) start at zero
         state = widen_input(state, "D_down.conv_in.weight", model.D_down.conv_in.weight)
         for key in ("D_up.conv_out.weight", "D_up.conv_out.bias"):  # a heading head the source lacks
@@ -84,11 +89,18 @@ def train_autoencoder(o) -> None:
         model.E.requires_grad_(False)
     opt = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=cfg.lr,
                            weight_decay=cfg.weight_decay)
+    # a token-reading decoder (C_t) sees the partial tokens the diffusion model is trained with
+    mask_cfg = TokenMaskConfig(p_keep_all_tokens=cfg.p_keep_all_tokens, p_map_only=cfg.p_map_only)
 
     def step_loss(module, batch, step):
+        t = None
+        if model.cfg.C_t:
+            tokens, pad, _, _ = conditioning(batch, seed=cfg.seed, step=step, device=batch["map"].device,
+                                             mask_cfg=mask_cfg, global_dim=P_MASK_BINS)
+            t = token_raster(tokens, pad, res=model.out_res)
         out = module.loss({"x": batch["agents"], "m": batch["map"], "boxes": batch["boxes"],
                            "traj": batch["traj"], "traj_mask": batch["traj_mask"],
-                           "valid": batch["valid"]})
+                           "valid": batch["valid"], "t": t})
         return out["total"], {k: float(v.detach()) for k, v in out.items() if v.ndim == 0}
 
     Loop("autoencoder", o, cfg, model, opt, step_loss, extra=extra).run()
