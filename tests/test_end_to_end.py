@@ -341,8 +341,8 @@ def test_decoder_fine_tune_adds_map_skips_map_channels_and_a_heading_head(tmp_pa
 
 
 def test_decoder_fine_tune_learns_to_read_the_tokens(tmp_path, cross_net):
-    """--freeze-encoder with '{"C_t": 13}': the decoder's token inputs start at zero and are trained
-    (the encoder bit-identical), the export with the diffusion model of the source's latent loads,
+    """--freeze-encoder with '{"C_t": 13}' and --p-mislead: the decoder's token inputs start at zero and
+    are trained (the encoder bit-identical), the export with the diffusion model of the source's latent loads,
     and generation hands the decoder the tokens' raster; another C_t is one line and exit 2."""
     import torch
 
@@ -351,7 +351,7 @@ def test_decoder_fine_tune_learns_to_read_the_tokens(tmp_path, cross_net):
     from sumo_scendiff.tokens.raster import C_T
     common, src = autoencoder_and_diffusion(tmp_path, cross_net)
     train("autoencoder", *common, "-o", tmp_path / "dec", "--steps", 3, "--init-from", src, "--freeze-encoder",
-          "--p-keep-all-tokens", 1.0, "--model-config", json.dumps({"C_t": C_T}))
+          "--p-keep-all-tokens", 1.0, "--p-mislead", 1.0, "--model-config", json.dumps({"C_t": C_T}))
     a, b = (ckpt.load(str(p), "autoencoder-train") for p in (src, tmp_path / "dec" / "last.pt"))
     assert b["model_config"]["C_t"] == C_T and not a["model_config"].get("C_t")
     assert all(torch.equal(a["state"][k], b["state"][k]) for k in a["state"] if k.startswith("E."))

@@ -2,6 +2,7 @@
 recorded scene become tokens, and which of their features, for one training example.
 
     p_mask, keep = sample_token_mask(n_agents, rng)              # agents kept as tokens
+    p_mask, keep, given = choose_tokens(features, present, rng)   # ... and the features they give
     tokens, glob, p_mask = partial_tokens(features, present, rng) # one example's conditioning
 
 The rules and their rationale are in :mod:`~sumo_scendiff.tokens.encoding` (module docstring); encoding
@@ -69,21 +70,36 @@ def sample_feature_dropout(n_tokens: int, rng: np.random.Generator,
     return keep
 
 
+def choose_tokens(features: Mapping[str, np.ndarray], present: Mapping[str, np.ndarray],
+                  rng: np.random.Generator, cfg: TokenMaskConfig = TokenMaskConfig()
+                  ) -> tuple[float, np.ndarray, dict[str, np.ndarray]]:
+    """Which agents of a scene become tokens, and which of their features: token masking, then
+    feature dropout. Returns ``(p_mask, keep (n,) bool, given)``, ``given`` name -> (n,) bool: the
+    agent is a token and its token gives that feature (recorded, and not dropped)."""
+    n = len(next(iter(features.values()))) if features else 0
+    p_mask, keep = sample_token_mask(n, rng, cfg)
+    fk = sample_feature_dropout(int(keep.sum()), rng, cfg)
+    given = {}
+    for k in features:
+        g = np.zeros(n, bool)
+        g[keep] = np.asarray(present.get(k, np.ones(n, bool)))[keep] & fk[k]
+        given[k] = g
+    return p_mask, keep, given
+
+
 def partial_tokens(features: Mapping[str, np.ndarray], present: Mapping[str, np.ndarray],
                    rng: np.random.Generator, cfg: TokenMaskConfig = TokenMaskConfig(),
                    density: float | None = None, global_dim: int = GLOBAL_TOKEN_DIM
                    ) -> tuple[np.ndarray, np.ndarray, float]:
-    """One training example's conditioning: token masking, then feature dropout, then encoding.
+    """One training example's conditioning: :func:`choose_tokens`, then encoding.
     ``density``: the window's vehicles per km of car lane, given to a model with the density
     condition (``global_dim``) unless dropped (``p_drop_density``).
 
     Returns ``(agent_tokens (K, 170), global_token (global_dim,), p_mask)`` for the K kept agents.
     """
-    n = len(next(iter(features.values()))) if features else 0
-    p_mask, keep = sample_token_mask(n, rng, cfg)
-    fk = sample_feature_dropout(int(keep.sum()), rng, cfg)
+    p_mask, keep, given = choose_tokens(features, present, rng, cfg)
     feats = {k: np.asarray(v)[keep] for k, v in features.items()}
-    pres = {k: np.asarray(present.get(k, np.ones(n, bool)))[keep] & fk[k] for k in features}
+    pres = {k: g[keep] for k, g in given.items()}
     if global_dim == P_MASK_BINS or density is None or rng.random() < cfg.p_drop_density:
         density = None
     return encode_agent_tokens(feats, pres), global_token(p_mask, density, dim=global_dim), p_mask

@@ -28,6 +28,9 @@ class TrainConfig:
     # diffusion: the denoising error of the latent cells under an agent kept as a positioned token
     # counts 1 + this many times (the rest of a scene dominates the mean otherwise)
     token_loss_weight: float = 0.0
+    # an autoencoder whose decoder reads the tokens (C_t): the share of token features whose motion
+    # the encoder is shown otherwise (train/token_decoder.py), so the decoder learns to follow the token
+    p_mislead: float = 0.0
     p_no_signals: float = 0.0     # scenes shown with their traffic lights unknown (a model without a host)
     seed: int = 0
     workers: int = 0              # DataLoader worker processes (rendering is ~2 % of a step)

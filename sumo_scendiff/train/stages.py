@@ -15,11 +15,11 @@ from ..model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from ..model.blocks import widen_input, widen_output
 from ..model.diffusion import DiffusionConfig, ScenarioDiffusion
 from ..model.unet import grow_latent, widen_conv_in
-from ..tokens.encoding import P_MASK_BINS
 from ..tokens.masking import TokenMaskConfig
-from ..tokens.raster import C_T, token_raster
+from ..tokens.raster import C_T
 from .config import TrainConfig
-from .loop import Loop, conditioning, estimate_latent_scale, load_training
+from .loop import Loop, conditioning, estimate_latent_scale, load_training, rank
+from .token_decoder import decoder_conditioning
 
 
 def train_config(o, defaults: TrainConfig) -> TrainConfig:
@@ -93,12 +93,10 @@ def train_autoencoder(o) -> None:
     mask_cfg = TokenMaskConfig(p_keep_all_tokens=cfg.p_keep_all_tokens, p_map_only=cfg.p_map_only)
 
     def step_loss(module, batch, step):
-        t = None
+        x, t = batch["agents"], None
         if model.cfg.C_t:
-            tokens, pad, _, _ = conditioning(batch, seed=cfg.seed, step=step, device=batch["map"].device,
-                                             mask_cfg=mask_cfg, global_dim=P_MASK_BINS)
-            t = token_raster(tokens, pad, res=model.out_res)
-        out = module.loss({"x": batch["agents"], "m": batch["map"], "boxes": batch["boxes"],
+            x, t = decoder_conditioning(batch, cfg.seed, step, rank(), mask_cfg, cfg.p_mislead, model.out_res)
+        out = module.loss({"x": x, "m": batch["map"], "boxes": batch["boxes"],
                            "traj": batch["traj"], "traj_mask": batch["traj_mask"],
                            "valid": batch["valid"], "t": t})
         return out["total"], {k: float(v.detach()) for k, v in out.items() if v.ndim == 0}

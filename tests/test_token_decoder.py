@@ -1,12 +1,15 @@
-"""The agent tokens as the raster a token-reading decoder sees (sumo_scendiff/tokens/raster.py), and
-that decoder (model/autoencoder.py, C_t)."""
+"""A decoder that reads the tokens: the tokens' raster (sumo_scendiff/tokens/raster.py), the decoder's
+token inputs (model/autoencoder.py, C_t) and what it is trained on (train/token_decoder.py)."""
 import numpy as np
 import torch
 
 from sumo_scendiff.core.geometry import metres_to_pixels
 from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
-from sumo_scendiff.tokens.encoding import agent_tokens_from_dicts, pad_tokens
+from sumo_scendiff.core.geometry import T0
+from sumo_scendiff.tokens.encoding import agent_tokens_from_dicts, features_from_scene, pad_tokens
+from sumo_scendiff.tokens.masking import TokenMaskConfig, choose_tokens, partial_tokens
 from sumo_scendiff.tokens.raster import C_T, TOKEN_CHANNELS, token_raster
+from sumo_scendiff.train.token_decoder import MISLEAD_SCALE, MISLEAD_TURN, mislead
 
 TINY = AutoencoderConfig(enc_channels=(4, 8, 8, 8), dec_channels=(16, 16, 16), C_map=4, C_m=19)
 
@@ -63,3 +66,44 @@ def test_the_token_inputs_start_at_zero_and_are_read_once_trained():
     col, row = metres_to_pixels(np.array([30.0, 30.0]), 100.0, (64, 64))
     peak = np.unravel_index(int(diff.argmax()), diff.shape)
     assert abs(peak[0] - row) <= 4 and abs(peak[1] - col) <= 4, (peak, row, col)
+
+
+def moving_scene(n: int = 6):
+    """n vehicles driving east at 10 m/s, one lane apart (scene frame)."""
+    t = np.arange(-2, 3, dtype=np.float64)
+    traj = np.stack([np.stack([10.0 * t - 20.0, np.full(5, 3.5 * i - 10.0), np.zeros(5)], -1) for i in range(n)])
+    boxes = np.stack([traj[:, T0, 0], traj[:, T0, 1], np.zeros(n), np.full(n, 4.5), np.full(n, 1.8)], -1)
+    return boxes.astype(np.float32), traj.astype(np.float32), np.ones((n, 5), bool), np.full((n, 5), 10.0, np.float32)
+
+
+def test_the_token_choice_is_the_one_partial_tokens_encodes():
+    boxes, traj, mask, speed = moving_scene()
+    feats, pres = features_from_scene(boxes, traj, mask, speed)
+    for seed in range(20):
+        p_mask, keep, given = choose_tokens(feats, pres, np.random.default_rng(seed))
+        tok, _, p2 = partial_tokens(feats, pres, np.random.default_rng(seed))
+        assert p2 == p_mask and len(tok) == keep.sum()
+        assert all(not (g & ~keep).any() for g in given.values())
+        expected = agent_tokens_from_dicts([{f: float(feats[f][i]) for f in feats if given[f][i]}
+                                            for i in np.flatnonzero(keep)])
+        assert np.array_equal(tok, expected.reshape(tok.shape))
+
+
+def test_mislead_moves_only_what_a_token_gives():
+    """Given speed: the steps before t = 0 scaled about the t = 0 position; final speed: the steps
+    after; heading_to_final: the future turned about it (and its yaw); the pose at t = 0, and every
+    agent whose token gives none of them, untouched; p = 0 changes nothing."""
+    _, traj, _, _ = moving_scene(4)
+    given = {"speed": np.array([True, False, False, False]), "final_speed": np.array([False, True, False, False]),
+             "heading_to_final": np.array([False, False, True, False])}
+    out = mislead(traj, given, np.random.default_rng(0), p=1.0)
+    assert np.array_equal(out[:, T0], traj[:, T0]) and np.array_equal(out[3], traj[3])
+    k = (out[0, 0, 0] - out[0, T0, 0]) / (traj[0, 0, 0] - traj[0, T0, 0])
+    assert MISLEAD_SCALE[0] <= k <= MISLEAD_SCALE[1] and np.array_equal(out[0, T0 + 1:], traj[0, T0 + 1:])
+    assert np.allclose(out[0, :T0, :2] - out[0, T0, :2], k * (traj[0, :T0, :2] - traj[0, T0, :2]), atol=1e-4)
+    assert np.array_equal(out[1, :T0], traj[1, :T0]) and not np.allclose(out[1, T0 + 1:], traj[1, T0 + 1:])
+    a = out[2, -1, 2]
+    assert 0 < abs(a) <= MISLEAD_TURN and np.array_equal(out[2, :T0 + 1], traj[2, :T0 + 1])
+    d = out[2, -1, :2] - out[2, T0, :2]
+    assert np.isclose(np.arctan2(d[1], d[0]), a, atol=1e-5) and np.isclose(np.hypot(*d), 20.0, atol=1e-4)
+    assert np.array_equal(mislead(traj, given, np.random.default_rng(0), p=0.0), traj)

@@ -1,0 +1,72 @@
+"""What a decoder that reads the tokens (``AutoencoderConfig.C_t``) is trained on: each example's
+tokens, drawn as the diffusion model's are, and the agent raster its (frozen) encoder sees.
+
+On a recorded scene the encoder's latent and the tokens agree. A generated latent does not always
+agree with the token it was asked for: the diffusion model follows a speed or a turn only roughly.
+A decoder trained on agreeing pairs alone learns to trust the latent and ignores the token. So,
+with probability ``p_mislead`` per token and feature, the encoder is shown that vehicle moving
+otherwise (its past steps scaled for a given speed, its future steps scaled for a given final
+speed, its future turned for a given heading_to_final) while the loss asks for the recorded
+motion: only the token says what it was.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..core.geometry import T0
+from ..map.raster import RasterConfig, render_agents
+from ..tokens.encoding import encode_agent_tokens, features_from_scene, pad_tokens
+from ..tokens.masking import TokenMaskConfig, choose_tokens
+from ..tokens.raster import token_raster
+
+MISLEAD_SCALE = (0.1, 2.0)   # the steps scaled by a factor drawn uniformly in this range
+MISLEAD_TURN = 0.6           # rad: the future turned by an angle drawn uniformly in +- this
+
+
+def _rotate(v: np.ndarray, a: np.ndarray) -> np.ndarray:
+    c, s = np.cos(a)[:, None], np.sin(a)[:, None]
+    return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], -1)
+
+
+def mislead(traj: np.ndarray, given: dict[str, np.ndarray], rng: np.random.Generator, p: float) -> np.ndarray:
+    """A copy of ``traj`` (N, 5, 3; scene frame) in which, for each agent whose token gives
+    ``speed`` / ``final_speed`` / ``heading_to_final``, with probability ``p`` each: the steps
+    before t = 0 / after it are scaled about the t = 0 position, the future turned about it."""
+    out = np.array(traj, dtype=np.float64, copy=True)
+    n = len(out)
+    if n == 0 or p <= 0:
+        return out.astype(traj.dtype)
+    p0 = out[:, T0:T0 + 1, :2]
+    for name, steps in (("speed", slice(0, T0)), ("final_speed", slice(T0 + 1, None))):
+        hit = given[name] & (rng.random(n) < p)
+        k = rng.uniform(*MISLEAD_SCALE, n)[hit, None, None]
+        out[hit, steps, :2] = p0[hit] + k * (out[hit, steps, :2] - p0[hit])
+    hit = given["heading_to_final"] & (rng.random(n) < p)
+    a = rng.uniform(-MISLEAD_TURN, MISLEAD_TURN, n)[hit]
+    future = slice(T0 + 1, None)
+    out[hit, future, :2] = p0[hit] + _rotate(out[hit, future, :2] - p0[hit], a)
+    out[hit, future, 2] += a[:, None]
+    return out.astype(traj.dtype)
+
+
+def decoder_conditioning(batch: dict, seed: int, step: int, rank: int, mask_cfg: TokenMaskConfig,
+                         p_mislead: float, res: int, raster: RasterConfig = RasterConfig()
+                         ) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(x, t)``: the agent raster the encoder sees ((B, C_x, H, W): the batch's own where no token
+    misleads it) and the tokens' raster (B, C_T, res, res)."""
+    toks, xs = [], []
+    for i in range(batch["boxes"].shape[0]):
+        v = batch["valid"][i].cpu().numpy()
+        boxes, traj, mask, speed = (batch[k][i].cpu().numpy()[v] for k in ("boxes", "traj", "traj_mask", "speed"))
+        feats, present = features_from_scene(boxes, traj, mask, speed)
+        rng = np.random.default_rng([seed, step, int(batch["index"][i]), rank])
+        _, keep, given = choose_tokens(feats, present, rng, mask_cfg)
+        toks.append(encode_agent_tokens({k: f[keep] for k, f in feats.items()},
+                                        {k: g[keep] for k, g in given.items()}))
+        moved = mislead(traj, given, rng, p_mislead)
+        xs.append(render_agents(boxes, moved, mask, raster) if not np.array_equal(moved, traj)
+                  else batch["agents"][i].cpu().numpy())
+    tokens, pad = pad_tokens(toks)
+    x = torch.from_numpy(np.stack(xs)).to(batch["agents"].device)
+    return x, token_raster(tokens.to(x.device), pad.to(x.device), res)
