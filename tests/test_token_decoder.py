@@ -3,11 +3,14 @@ token inputs (model/autoencoder.py, C_t) and what it is trained on (train/token_
 import numpy as np
 import torch
 
-from sumo_scendiff.core.geometry import metres_to_pixels
+from sumo_scendiff.core.geometry import T0, metres_to_pixels
 from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
-from sumo_scendiff.core.geometry import T0
-from sumo_scendiff.tokens.encoding import agent_tokens_from_dicts, features_from_scene, pad_tokens
-from sumo_scendiff.tokens.masking import TokenMaskConfig, choose_tokens, partial_tokens
+from sumo_scendiff.tokens.encoding import (
+    agent_tokens_from_dicts,
+    features_from_scene,
+    pad_tokens,
+)
+from sumo_scendiff.tokens.masking import choose_tokens, partial_tokens
 from sumo_scendiff.tokens.raster import C_T, TOKEN_CHANNELS, token_raster
 from sumo_scendiff.train.token_decoder import MISLEAD_SCALE, MISLEAD_TURN, mislead
 
