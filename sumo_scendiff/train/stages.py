@@ -87,8 +87,14 @@ def train_autoencoder(o) -> None:
         o.parser.exit(2, f"{o.parser.prog}: error: --freeze-encoder needs --init-from (a trained encoder to keep)\n")
     if o.freeze_encoder:
         model.E.requires_grad_(False)
-    opt = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=cfg.lr,
-                           weight_decay=cfg.weight_decay)
+    # the token inputs of a token-reading decoder learning faster: a group of their own, after the
+    # first (whose rate the loop reports); one group otherwise, as runs saved before resume
+    fast = cfg.token_lr_scale != 1.0
+    own = [p for k, p in model.named_parameters() if p.requires_grad and not (fast and k.startswith("D_up.tokens."))]
+    new = [p for k, p in model.named_parameters() if fast and k.startswith("D_up.tokens.")]
+    groups = [{"params": own}] + ([{"params": new, "lr": cfg.lr * cfg.token_lr_scale,
+                                    "lr_scale": cfg.token_lr_scale}] if new else [])
+    opt = torch.optim.Adam(groups, lr=cfg.lr, weight_decay=cfg.weight_decay)
     # a token-reading decoder (C_t) sees the partial tokens the diffusion model is trained with
     mask_cfg = TokenMaskConfig(p_keep_all_tokens=cfg.p_keep_all_tokens, p_map_only=cfg.p_map_only)
 
