@@ -341,7 +341,7 @@ def test_decoder_fine_tune_adds_map_skips_map_channels_and_a_heading_head(tmp_pa
 
 
 def test_decoder_fine_tune_learns_to_read_the_tokens(tmp_path, cross_net):
-    """--freeze-encoder with '{"C_t": 13}', --p-mislead and --token-lr-scale: the decoder's token inputs
+    """--freeze-encoder with '{"C_t": 13}', --p-mislead, --p-counterfactual and --token-lr-scale: the decoder's token inputs
     start at zero and are trained (the encoder bit-identical), and the run resumes with its two
     optimiser groups, the export with the diffusion model of the source's latent loads,
     and generation hands the decoder the tokens' raster; another C_t is one line and exit 2."""
@@ -352,8 +352,8 @@ def test_decoder_fine_tune_learns_to_read_the_tokens(tmp_path, cross_net):
     from sumo_scendiff.tokens.raster import C_T
     common, src = autoencoder_and_diffusion(tmp_path, cross_net)
     train("autoencoder", *common, "-o", tmp_path / "dec", "--steps", 3, "--init-from", src, "--freeze-encoder",
-          "--p-keep-all-tokens", 1.0, "--p-mislead", 1.0, "--token-lr-scale", 10, "--model-config",
-          json.dumps({"C_t": C_T}))
+          "--p-keep-all-tokens", 1.0, "--p-mislead", 1.0, "--p-counterfactual", 0.5, "--token-lr-scale", 10,
+          "--model-config", json.dumps({"C_t": C_T}))
     a, b = (ckpt.load(str(p), "autoencoder-train") for p in (src, tmp_path / "dec" / "last.pt"))
     assert b["model_config"]["C_t"] == C_T and not a["model_config"].get("C_t")
     assert all(torch.equal(a["state"][k], b["state"][k]) for k in a["state"] if k.startswith("E."))

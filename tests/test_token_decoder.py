@@ -4,15 +4,22 @@ import numpy as np
 import torch
 
 from sumo_scendiff.core.geometry import T0, metres_to_pixels
+from sumo_scendiff.core.scene import speeds_from_traj
+from sumo_scendiff.map.raster import render_agents
 from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from sumo_scendiff.tokens.encoding import (
     agent_tokens_from_dicts,
     features_from_scene,
     pad_tokens,
 )
-from sumo_scendiff.tokens.masking import choose_tokens, partial_tokens
+from sumo_scendiff.tokens.masking import TokenMaskConfig, choose_tokens, partial_tokens
 from sumo_scendiff.tokens.raster import C_T, TOKEN_CHANNELS, token_raster
-from sumo_scendiff.train.token_decoder import MISLEAD_SCALE, MISLEAD_TURN, mislead
+from sumo_scendiff.train.token_decoder import (
+    MISLEAD_SCALE,
+    MISLEAD_TURN,
+    decoder_conditioning,
+    mislead,
+)
 
 TINY = AutoencoderConfig(enc_channels=(4, 8, 8, 8), dec_channels=(16, 16, 16), C_map=4, C_m=19)
 
@@ -110,3 +117,30 @@ def test_mislead_moves_only_what_a_token_gives():
     d = out[2, -1, :2] - out[2, T0, :2]
     assert np.isclose(np.arctan2(d[1], d[0]), a, atol=1e-5) and np.isclose(np.hypot(*d), 20.0, atol=1e-4)
     assert np.array_equal(mislead(traj, given, np.random.default_rng(0), p=0.0), traj)
+
+
+def batch_of(boxes, traj, mask, speed):
+    return {"boxes": torch.from_numpy(boxes[None]), "traj": torch.from_numpy(traj[None]),
+            "traj_mask": torch.from_numpy(mask[None]), "speed": torch.from_numpy(speed[None]),
+            "valid": torch.ones(1, len(boxes), dtype=torch.bool), "index": torch.tensor([0]),
+            "agents": torch.from_numpy(render_agents(boxes, traj, mask)[None])}
+
+
+def test_misled_and_counterfactual_examples():
+    """Misled: the encoder sees other motion, the token and the loss the recorded one.
+    Counterfactual: the encoder sees the recorded motion, the token and the loss the moved one, and
+    the token's speed is the moved trajectory's."""
+    scene = moving_scene()
+    batch = batch_of(*scene)
+    every = TokenMaskConfig(p_keep_all_tokens=1.0, p_all_features=1.0)
+    x, t, traj = decoder_conditioning(batch, 0, 0, 0, every, 1.0, 64)
+    assert not torch.equal(x, batch["agents"]) and torch.equal(traj, batch["traj"])
+    assert torch.allclose(channel(t[0], "speed")[channel(t[0], "speed_given") > 0], torch.tensor(1.1))  # 10 m/s bin
+    x, t, traj = decoder_conditioning(batch, 0, 0, 0, every, 1.0, 64, p_counterfactual=1.0)
+    assert torch.equal(x, batch["agents"]) and not torch.equal(traj, batch["traj"])
+    assert torch.equal(traj[:, :, T0], batch["traj"][:, :, T0])
+    told = speeds_from_traj(traj[0].numpy(), scene[2])[:, T0]
+    col, row = np.floor(metres_to_pixels(scene[0][:, :2].astype(np.float64), 100.0, (64, 64)) + 0.5).astype(int).T
+    drawn = channel(t[0], "speed")[row, col].numpy() * 10.0
+    assert np.all(np.abs(drawn - np.clip(told, 0, 19.9)) <= 1.0 + 1e-4)   # within the 2 m/s bin
+    assert (np.abs(told - 10.0) > 1.0).any()

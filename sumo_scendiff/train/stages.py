@@ -99,11 +99,12 @@ def train_autoencoder(o) -> None:
     mask_cfg = TokenMaskConfig(p_keep_all_tokens=cfg.p_keep_all_tokens, p_map_only=cfg.p_map_only)
 
     def step_loss(module, batch, step):
-        x, t = batch["agents"], None
+        x, t, traj = batch["agents"], None, batch["traj"]
         if model.cfg.C_t:
-            x, t = decoder_conditioning(batch, cfg.seed, step, rank(), mask_cfg, cfg.p_mislead, model.out_res)
+            x, t, traj = decoder_conditioning(batch, cfg.seed, step, rank(), mask_cfg, cfg.p_mislead, model.out_res,
+                                              p_counterfactual=cfg.p_counterfactual)
         out = module.loss({"x": x, "m": batch["map"], "boxes": batch["boxes"],
-                           "traj": batch["traj"], "traj_mask": batch["traj_mask"],
+                           "traj": traj, "traj_mask": batch["traj_mask"],
                            "valid": batch["valid"], "t": t})
         return out["total"], {k: float(v.detach()) for k, v in out.items() if v.ndim == 0}
 

@@ -7,7 +7,11 @@ A decoder trained on agreeing pairs alone learns to trust the latent and ignores
 with probability ``p_mislead`` per token and feature, the encoder is shown that vehicle moving
 otherwise (its past steps scaled for a given speed, its future steps scaled for a given final
 speed, its future turned for a given heading_to_final) while the loss asks for the recorded
-motion: only the token says what it was.
+motion: only the token says what it was. A decoder taught only that may still learn to side with
+whichever of the two looks more plausible in its scene; so, for a share ``p_counterfactual`` of the
+agents moved so, it is the other way round: the encoder sees the recorded motion, and the token and
+the loss the moved one (a vehicle slower, faster or turning otherwise than its neighbours suggest,
+as a user may ask for): the token's word wins either way.
 """
 from __future__ import annotations
 
@@ -15,6 +19,7 @@ import numpy as np
 import torch
 
 from ..core.geometry import T0
+from ..core.scene import speeds_from_traj
 from ..map.raster import RasterConfig, render_agents
 from ..tokens.encoding import encode_agent_tokens, features_from_scene, pad_tokens
 from ..tokens.masking import TokenMaskConfig, choose_tokens
@@ -51,22 +56,33 @@ def mislead(traj: np.ndarray, given: dict[str, np.ndarray], rng: np.random.Gener
 
 
 def decoder_conditioning(batch: dict, seed: int, step: int, rank: int, mask_cfg: TokenMaskConfig,
-                         p_mislead: float, res: int, raster: RasterConfig = RasterConfig()
-                         ) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(x, t)``: the agent raster the encoder sees ((B, C_x, H, W): the batch's own where no token
-    misleads it) and the tokens' raster (B, C_T, res, res)."""
+                         p_mislead: float, res: int, raster: RasterConfig = RasterConfig(),
+                         p_counterfactual: float = 0.0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(x, t, traj)``: the agent raster the encoder sees ((B, C_x, H, W): the batch's own where no
+    token misleads it), the tokens' raster (B, C_T, res, res) and the trajectories the loss asks for
+    (the batch's, but for the counterfactual agents)."""
     toks, xs = [], []
+    target = batch["traj"].clone()
     for i in range(batch["boxes"].shape[0]):
         v = batch["valid"][i].cpu().numpy()
         boxes, traj, mask, speed = (batch[k][i].cpu().numpy()[v] for k in ("boxes", "traj", "traj_mask", "speed"))
         feats, present = features_from_scene(boxes, traj, mask, speed)
         rng = np.random.default_rng([seed, step, int(batch["index"][i]), rank])
         _, keep, given = choose_tokens(feats, present, rng, mask_cfg)
-        toks.append(encode_agent_tokens({k: f[keep] for k, f in feats.items()},
-                                        {k: g[keep] for k, g in given.items()}))
         moved = mislead(traj, given, rng, p_mislead)
+        changed = (moved != traj).any((1, 2))
+        swap = changed & (rng.random(len(traj)) < p_counterfactual)
+        if swap.any():   # the encoder sees the recorded motion; the token and the loss the moved one
+            seen, told = np.where(swap[:, None, None], traj, moved), np.where(swap[:, None, None], moved, traj)
+            speed = speed.copy()
+            speed[swap] = speeds_from_traj(told[swap], mask[swap])
+            feats, present = features_from_scene(boxes, told, mask, speed)
+            target[i, torch.from_numpy(np.flatnonzero(v))] = torch.from_numpy(told).to(target.dtype)
+            moved = seen
+        toks.append(encode_agent_tokens({k: f[keep] for k, f in feats.items()},
+                                        {k: (g & present[k])[keep] for k, g in given.items()}))
         xs.append(render_agents(boxes, moved, mask, raster) if not np.array_equal(moved, traj)
                   else batch["agents"][i].cpu().numpy())
     tokens, pad = pad_tokens(toks)
     x = torch.from_numpy(np.stack(xs)).to(batch["agents"].device)
-    return x, token_raster(tokens.to(x.device), pad.to(x.device), res)
+    return x, token_raster(tokens.to(x.device), pad.to(x.device), res), target
