@@ -19,7 +19,9 @@ A model can only follow a speed its latent carries, so the autoencoder gets the 
 probe is re-rendered with its trajectory scaled about its current position (speed x 0.2 and x 1.5),
 encoded and decoded (D(mu(E(x)), m)), and the decoded speed at the probe is read; likewise its
 future alone scaled (final speed), and its future redrawn as the arc that turns by
-``heading_to_final`` -0.5 / +0.5 rad at its own distances (pinning.token_trajectories' arc).
+``heading_to_final`` -0.5 / +0.5 rad at its own distances (pinning.token_trajectories' arc). A decoder
+that reads the tokens (C_t) is also asked with the recorded scene's latent and the probe's token
+changed: does the token's word win over the latent's?
 """
 from __future__ import annotations
 
@@ -52,6 +54,7 @@ from sumo_scendiff.tokens.encoding import (
     global_token,
     pad_tokens,
 )
+from sumo_scendiff.tokens.raster import token_raster
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 WINDOW = Window(0.0, 0.0)  # boxes are already in the scene frame
@@ -194,6 +197,33 @@ def autoencoder_rows(ae, ds, picked, threshold: float) -> list[str]:
     return rows
 
 
+def decoder_token_rows(ae, picked, threshold: float) -> list[str]:
+    """A decoder that reads the tokens (C_t): the recorded scene's latent D(mu(E(x)), m, t) with
+    every agent a full token and the probe's feature set low and high in its token only; the latent
+    says what was recorded, the token something else: which does the decoder draw?"""
+    m = torch.from_numpy(np.stack([np.asarray(s["map"]) for s, _ in picked]))
+    with torch.no_grad():
+        mu = ae.encode(torch.from_numpy(np.stack([np.asarray(s["agents"]) for s, _ in picked])))[0]
+    rows = []
+    for name, (lo, hi, what) in PROBES.items():
+        got = {}
+        for v in (lo, hi):
+            toks = []
+            for s, j in picked:
+                feats, pres = features_from_scene(*(np.asarray(s[k]) for k in ("boxes", "traj", "traj_mask", "speed")))
+                feats, pres = {k: a.copy() for k, a in feats.items()}, {k: a.copy() for k, a in pres.items()}
+                feats[name][j], pres[name][j] = v, True
+                toks.append(encode_agent_tokens(feats, pres))
+            tok, pad = pad_tokens(toks)
+            with torch.no_grad():
+                got[v] = at_probes(decode_boxes(ae.decode(mu, m, token_raster(tok, pad, ae.out_res))), picked, threshold)
+        both = [k for k in range(len(picked)) if got[lo][k] and got[hi][k]]
+        g_lo, g_hi = (float(np.mean([got[v][k][name] for k in both])) for v in (lo, hi))
+        rows.append(f"| decoder D(mu(E(x)), m, t), the probe's token changed | {what} | – | {lo:g} → {g_lo:.2f} | "
+                    f"{hi:g} → {g_hi:.2f} | {(g_hi - g_lo) / (hi - lo):.2f} | {len(both)} / {len(picked)} |")
+    return rows
+
+
 def turning_row(ae, ds, n: int, seed: int, threshold: float) -> str:
     """Can the latent carry a turn at all? Recorded agents that turn (|heading_to_final| >= 0.1 rad,
     moving >= 0.5 m in 2 s) in ``n`` held-out windows, each window encoded and decoded as recorded:
@@ -253,6 +283,8 @@ def main(o) -> None:
     if gen is not None:
         lines += diffusion_rows(gen, picked, cfg, o.seed, o.p_mask)
     lines += autoencoder_rows(ae, ds, picked, cfg.threshold)
+    if ae.cfg.C_t:
+        lines += decoder_token_rows(ae, picked, cfg.threshold)
     lines.append(turning_row(ae, ds, o.scenes, o.seed, cfg.threshold))
     emit("\n".join(lines) + "\n", o.output, "Token feature response on held-out scenes")
 

@@ -6,7 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from sumo_scendiff.core.geometry import T0, Window
+from sumo_scendiff.core.geometry import T0, Window, wrap_angle
 from sumo_scendiff.generation.deliver import delivered_rows, place_rows
 from sumo_scendiff.generation.token_resolve import resolve_tokens
 from sumo_scendiff.map.network import Network
@@ -200,3 +200,32 @@ def test_a_placed_turn_token_at_a_standstill_moves(city, gen):
         k = delivered(s)
         assert s.speed[k, T0] == pytest.approx(0.0, abs=0.05)
         assert np.hypot(*(s.traj[k, -1, :2] - s.traj[k, T0, :2])) >= 0.5
+
+
+def test_a_turn_whose_drawn_final_speed_is_too_slow_for_it_is_still_driven(city):
+    """turn_path with a final speed the token does not give tries lower final speeds first, then
+    higher ones: a vehicle drawn slowing to 1 m/s cannot reach into the turn the token asks for by
+    +2 s, one keeping its 8 m/s does. With the final speed given, only that one is tried."""
+    from sumo_scendiff.generation.deliver import _direction, _scene_pose, turn_path
+    from sumo_scendiff.generation.lane_snap import walk_lanes
+    from sumo_scendiff.generation.pinning import _distance
+    s = float(_distance(8.0, 0.0, np.asarray([2.0]))[0])
+    for i in city.car_lane_ids:
+        ln = city.lanes[i]
+        if ln.internal or ln.length < s + 5:
+            continue
+        xy, h = city.lane_pose(i, ln.length - 8.0)
+        w = Window(float(xy[0]), float(xy[1]), float(h))
+        pose = _scene_pose(city, w, i, ln.length - 8.0)
+        turns = [(lane, p) for lane, p in walk_lanes(city, i, ln.length - 8.0, s)
+                 if abs(_direction(pose, _scene_pose(city, w, lane, p))) > 0.3]
+        if turns:
+            alpha = _direction(pose, _scene_pose(city, w, *turns[0]))
+            break
+    else:
+        raise AssertionError("no lane ending in a turn")
+    found = turn_path(city, w, pose, 8.0, 1.0, alpha, free=True)
+    assert found is not None and found[1] > 1.0
+    path, _ = found
+    assert abs(wrap_angle(np.arctan2(*(path[-1, 1::-1] - path[T0, 1::-1])) - pose[2] - alpha)) <= 0.1
+    assert turn_path(city, w, pose, 8.0, 1.0, alpha, free=False) is None

@@ -171,7 +171,9 @@ def turn_path(net, window: Window | None, pose: np.ndarray, v0: float, v2: float
        centre line of another lane along the heading.
 
     2 and 3 with a final speed the token does not give (``free``) also at lower final speeds, the
-    highest that fits first (a vehicle slows into a turn). None where no path fits."""
+    highest that fits first (a vehicle slows into a turn), then at higher ones up to the faster of
+    ``v0`` and the lane's limit (the drawn final speed may be slower than the turn asked needs).
+    None where no path fits."""
     t = np.asarray(TIMES)
     s = _distance(v0, (v2 - v0) / 2.0, t)
     arc = _arc(*pose, s, alpha, t)
@@ -182,7 +184,9 @@ def turn_path(net, window: Window | None, pose: np.ndarray, v0: float, v2: float
     if here.lane[0] < 0:
         return None
     lane0, pos0 = int(here.lane[0]), float(here.pos[0])
-    finals = [v2] + (list(np.arange(v2 - 0.5, 0.0, -0.5)) + [0.0] if free else [])
+    top = max(v0, v2, net.lanes[lane0].speed)
+    finals = [v2] + (list(np.arange(v2 - 0.5, 0.0, -0.5)) + [0.0] + list(np.arange(v2 + 0.5, top + 1e-9, 0.5))
+                     if free else [])
     for v in finals:
         v = _moving(v0, float(v))
         s = _distance(v0, (v - v0) / 2.0, t)
