@@ -138,9 +138,9 @@ def test_shipped_model_places_a_pinned_token_exactly():
                          config=replace(gen.config, pin_speeds=False))[0]
     assert np.array_equal(drawn.boxes, s.boxes)                    # pacing moves no box
     k, _ = nearest(drawn, toks[0])
-    # as the decoder draws it: calibration draws it at the speeds nearest both, 4.4-4.6 m/s
-    # (5.4-5.6 drawn as asked), its final speed 4.8-6.1 m/s
-    assert abs(drawn.speed[k, T0] - toks[0]["speed"]) < 2.0 and drawn.speed[k, -1] > 3.0
+    # as the decoder draws it, reading the token (round 18): 6.6 and 2.9 m/s for 6 -> 1 asked; a
+    # decoder without the tokens drew the final speed at 4.8-6.1 m/s
+    assert abs(drawn.speed[k, T0] - toks[0]["speed"]) < 2.0 and drawn.speed[k, -1] < 4.0
     free = gen.generate(net, window, tokens=[toks], p_mask=0.5, seed=3,
                         config=replace(gen.config, pin_tokens=False))
     assert not np.array_equal(free[0].boxes, s.boxes)

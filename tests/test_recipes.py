@@ -132,21 +132,27 @@ def assert_recorded(stated: dict, recorded: dict, where: str) -> None:
 def test_the_recipes_are_what_the_shipped_model_records():
     """The shipped model is configs/fast.json's autoencoder and its diffusion model fine-tuned by
     configs/density.json (the density condition), then by configs/signals.json (the traffic lights'
-    channels, the token-weighted loss)."""
+    channels, the token-weighted loss), its decoder then trained on by configs/token_decoder.json's
+    stages (the decoder reads the tokens)."""
     shipped = ckpt.load(os.path.join(REPO, "sumo_scendiff", "weights", "scendiff.pt"), "scenario-diffusion")
     fast, density = rc.load(FAST), rc.load(os.path.join(REPO, "configs", "density.json"))
     signals = rc.load(os.path.join(REPO, "configs", "signals.json"))
     ae, decoder, diffusion = (rc.stage(fast, n) for n in ("autoencoder", "decoder", "diffusion"))
     tuned, lit = rc.stage(density, "diffusion"), rc.stage(signals, "diffusion")
-    # the decoder stage continues the autoencoder's config with its own overrides on top
-    assert_recorded(_merge(ae["model_config"], decoder["model_config"]), shipped["autoencoder_config"],
-                    "autoencoder_config")
+    reads = [st for st in rc.load(os.path.join(REPO, "configs", "token_decoder.json"))["stages"]
+             if st["run"] == "autoencoder"]
+    # the decoder stages continue the autoencoder's config with their own overrides on top
+    config = _merge(ae["model_config"], decoder["model_config"])
+    for st in reads:
+        config = _merge(config, st.get("model_config", {}))
+    assert_recorded(config, shipped["autoencoder_config"], "autoencoder_config")
+    assert shipped["autoencoder_config"]["C_t"] == 13                 # the decoder reads the tokens
     assert_recorded(_merge(_merge(diffusion["model_config"], tuned["model_config"]), lit["model_config"]),
                     shipped["diffusion_config"], "diffusion_config")
     assert shipped["diffusion_config"]["unet"]["global_dim"] == 23    # p_mask, density, its presence bit
     assert shipped["diffusion_config"]["C_m"] == 21                   # the map with the lights' channels
     trained = shipped["trained"]
-    assert trained["autoencoder_steps"] == ae["steps"] + decoder["steps"]
+    assert trained["autoencoder_steps"] == ae["steps"] + decoder["steps"] + sum(st["steps"] for st in reads)
     assert trained["diffusion_steps"] == diffusion["steps"] + tuned["steps"] + lit["steps"]
     assert trained["diffusion_ema"]   # the diffusion stage's default EMA, which the export ships
     record = rc.stage(signals, "record-train")
