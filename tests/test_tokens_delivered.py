@@ -229,3 +229,22 @@ def test_a_turn_whose_drawn_final_speed_is_too_slow_for_it_is_still_driven(city)
     path, _ = found
     assert abs(wrap_angle(np.arctan2(*(path[-1, 1::-1] - path[T0, 1::-1])) - pose[2] - alpha)) <= 0.1
     assert turn_path(city, w, pose, 8.0, 1.0, alpha, free=False) is None
+
+
+def test_the_models_own_drawing_follows_a_partial_tokens_final_speed(city, gen):
+    """No delivery, no pinning: the vehicle the model draws under a token (x, y, heading, speed 8)
+    is the token's, and its speed at +2 s follows the token's final speed, 0 or 12 m/s (round 18's
+    decoder reads the tokens: 2.4 / 10.9 and 3.6 / 12.0 m/s at seeds 0 and 1; round 17 drew the
+    speed now at 4.1 and 5.3 for 8 asked, and 4.9 m/s at +2 s for a stop at seed 1)."""
+    w = road_window(city)
+    own = replace(gen.config, deliver_tokens=False, pin_tokens=False)
+    for seed in (0, 1):
+        drawn = {}
+        for final in (0.0, 12.0):
+            tok = {"x": 0.0, "y": 0.0, "heading": 0.0, "speed": 8.0, "final_speed": final}
+            s = gen.generate(city, [w], tokens=[[tok]], p_mask=0.5, seed=seed, config=own)[0]
+            d = np.hypot(s.boxes[:, 0], s.boxes[:, 1])
+            k = int(d.argmin())
+            assert d[k] < 1.0 and abs(s.speed[k, T0] - 8.0) < 2.5
+            drawn[final] = float(s.speed[k, -1])
+        assert drawn[0.0] < 4.0 and drawn[12.0] > 9.0, drawn
