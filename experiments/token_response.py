@@ -102,8 +102,9 @@ def read(traj: np.ndarray, box: np.ndarray) -> dict[str, float]:
             "heading_to_final": float(wrap_angle(np.arctan2(d[1], d[0]) - box[2]))}
 
 
-def generate(gen, batch, picked, override: tuple[str, float] | None, cfg, seed: int, p_mask: float = 0.0) -> list:
-    """Per window, the probed quantities of the vehicle generated at the probe (None if none)."""
+def asked_tokens(picked, override: tuple[str, float] | None) -> tuple[list, list]:
+    """Per window, every agent as a full token (encoded, and as feature dicts), the probe's feature
+    ``override`` = (name, value) set."""
     toks, dicts = [], []
     for s, j in picked:
         feats, pres = features_from_scene(*(np.asarray(s[k]) for k in ("boxes", "traj", "traj_mask", "speed")))
@@ -115,6 +116,12 @@ def generate(gen, batch, picked, override: tuple[str, float] | None, cfg, seed: 
             pres[name][j] = True
         toks.append(encode_agent_tokens(feats, pres))
         dicts.append(feature_dicts(feats, pres))
+    return toks, dicts
+
+
+def generate(gen, batch, picked, override: tuple[str, float] | None, cfg, seed: int, p_mask: float = 0.0) -> list:
+    """Per window, the probed quantities of the vehicle generated at the probe (None if none)."""
+    toks, dicts = asked_tokens(picked, override)
     tok, pad = pad_tokens(toks)
     n = len(picked)
     glob = torch.from_numpy(global_token(np.full(n, p_mask), dim=gen.diffusion.cfg.unet.global_dim).reshape(n, -1))
@@ -208,13 +215,7 @@ def decoder_token_rows(ae, picked, threshold: float) -> list[str]:
     for name, (lo, hi, what) in PROBES.items():
         got = {}
         for v in (lo, hi):
-            toks = []
-            for s, j in picked:
-                feats, pres = features_from_scene(*(np.asarray(s[k]) for k in ("boxes", "traj", "traj_mask", "speed")))
-                feats, pres = {k: a.copy() for k, a in feats.items()}, {k: a.copy() for k, a in pres.items()}
-                feats[name][j], pres[name][j] = v, True
-                toks.append(encode_agent_tokens(feats, pres))
-            tok, pad = pad_tokens(toks)
+            tok, pad = pad_tokens(asked_tokens(picked, (name, v))[0])
             with torch.no_grad():
                 got[v] = at_probes(decode_boxes(ae.decode(mu, m, token_raster(tok, pad, ae.out_res))), picked, threshold)
         both = [k for k in range(len(picked)) if got[lo][k] and got[hi][k]]
