@@ -21,7 +21,10 @@ encoded and decoded (D(mu(E(x)), m)), and the decoded speed at the probe is read
 future alone scaled (final speed), and its future redrawn as the arc that turns by
 ``heading_to_final`` -0.5 / +0.5 rad at its own distances (pinning.token_trajectories' arc). A decoder
 that reads the tokens (C_t) is also asked with the recorded scene's latent and the probe's token
-changed: does the token's word win over the latent's?
+changed: does the token's word win over the latent's? And with the latent and the token agreeing, the
+probe's token giving only its speed, only its final speed, or both (as a user writes them): is what
+the decoder draws what the token says (mean signed error: a decoder that reads a missing final speed
+as 0 m/s draws a speed-only token too fast)?
 """
 from __future__ import annotations
 
@@ -54,7 +57,6 @@ from sumo_scendiff.tokens.encoding import (
     global_token,
     pad_tokens,
 )
-from sumo_scendiff.tokens.raster import token_raster
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 WINDOW = Window(0.0, 0.0)  # boxes are already in the scene frame
@@ -217,11 +219,35 @@ def decoder_token_rows(ae, picked, threshold: float) -> list[str]:
         for v in (lo, hi):
             tok, pad = pad_tokens(asked_tokens(picked, (name, v))[0])
             with torch.no_grad():
-                got[v] = at_probes(decode_boxes(ae.decode(mu, m, token_raster(tok, pad, ae.out_res))), picked, threshold)
+                got[v] = at_probes(decode_boxes(ae.decode(mu, m, ae.token_raster(tok, pad))), picked, threshold)
         both = [k for k in range(len(picked)) if got[lo][k] and got[hi][k]]
         g_lo, g_hi = (float(np.mean([got[v][k][name] for k in both])) for v in (lo, hi))
         rows.append(f"| decoder D(mu(E(x)), m, t), the probe's token changed | {what} | – | {lo:g} → {g_lo:.2f} | "
                     f"{hi:g} → {g_hi:.2f} | {(g_hi - g_lo) / (hi - lo):.2f} | {len(both)} / {len(picked)} |")
+    return rows
+
+
+def decoder_partial_rows(ae, picked, threshold: float) -> list[str]:
+    """A decoder that reads the tokens, the recorded scene's latent and the probe alone a token of its
+    position and its own speed / final speed / both: the mean signed error of what is drawn."""
+    m = torch.from_numpy(np.stack([np.asarray(s["map"]) for s, _ in picked]))
+    with torch.no_grad():
+        mu = ae.encode(torch.from_numpy(np.stack([np.asarray(s["agents"]) for s, _ in picked])))[0]
+    rows = []
+    for given in (("speed",), ("final_speed",), ("speed", "final_speed")):
+        toks = []
+        for s, j in picked:
+            feats, pres = features_from_scene(*(np.asarray(s[k]) for k in ("boxes", "traj", "traj_mask", "speed")))
+            toks.append(encode_agent_tokens({k: v[j:j + 1] for k, v in feats.items()},
+                                            {k: v[j:j + 1] & (k in ("x", "y") + given) for k, v in pres.items()}))
+        tok, pad = pad_tokens(toks)
+        with torch.no_grad():
+            got = at_probes(decode_boxes(ae.decode(mu, m, ae.token_raster(tok, pad))), picked, threshold)
+        err = {name: [g[name] - float(np.asarray(s["speed"])[j, t]) for g, (s, j) in zip(got, picked) if g]
+               for name, t in (("speed", T0), ("final_speed", -1))}
+        rows.append(f"| decoder D(mu(E(x)), m, t), the probe's token x, y, {' and '.join(given)} as recorded | "
+                    f"speed now / at +2 s, mean signed error m/s | – | {np.mean(err['speed']):+.2f} | "
+                    f"{np.mean(err['final_speed']):+.2f} | – | {len(err['speed'])} / {len(picked)} |")
     return rows
 
 
@@ -286,6 +312,7 @@ def main(o) -> None:
     lines += autoencoder_rows(ae, ds, picked, cfg.threshold)
     if ae.cfg.C_t:
         lines += decoder_token_rows(ae, picked, cfg.threshold)
+        lines += decoder_partial_rows(ae, picked, cfg.threshold)
     lines.append(turning_row(ae, ds, o.scenes, o.seed, cfg.threshold))
     emit("\n".join(lines) + "\n", o.output, "Token feature response on held-out scenes")
 

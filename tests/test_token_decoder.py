@@ -1,6 +1,7 @@
 """A decoder that reads the tokens: the tokens' raster (sumo_scendiff/tokens/raster.py), the decoder's
 token inputs (model/autoencoder.py, C_t) and what it is trained on (train/token_decoder.py)."""
 import numpy as np
+import pytest
 import torch
 
 from sumo_scendiff.core.geometry import T0, metres_to_pixels
@@ -44,6 +45,27 @@ def test_a_token_is_drawn_around_its_position_with_what_it_gives():
         assert not channel(r[0], absent).any(), absent
     # the token without a position is not drawn (the diffusion model still sees it)
     assert channel(r[0], "token").sum() == 9
+
+
+def test_a_decoder_with_filled_speeds_reads_one_given_speed_in_both_channels():
+    """An absent final speed read as 0 m/s made round 18's decoder draw a speed-only token braking from
+    too fast; a decoder with ``token_speeds_filled`` sees the given one in both channels, the
+    presence bits unchanged, and each model reads its own encoding (``ScenarioAutoencoder.token_raster``)."""
+    tok, pad = pad_tokens([agent_tokens_from_dicts([{"x": 0.0, "y": 0.0, "speed": 13.0},
+                                                    {"x": 30.0, "y": 0.0, "final_speed": 3.0},
+                                                    {"x": -30.0, "y": 0.0, "speed": 9.0, "final_speed": 1.0}])])
+    ae = ScenarioAutoencoder(AutoencoderConfig(**{**TINY.__dict__, "C_t": C_T, "token_speeds_filled": True}))
+    filled, plain = ae.token_raster(tok, pad)[0], token_raster(tok, pad, ae.out_res)[0]
+    cells = [tuple(np.floor(metres_to_pixels(np.array([x, 0.0]), 100.0, (64, 64)) + 0.5).astype(int)[::-1])
+             for x in (0.0, 30.0, -30.0)]
+    at = (lambda r, name, k: float(channel(r, name)[cells[k]]))
+    assert at(filled, "speed", 0) == at(filled, "final_speed", 0) == at(plain, "speed", 0) == pytest.approx(1.3)
+    assert at(plain, "final_speed", 0) == 0.0 and at(filled, "final_speed_given", 0) == 0.0
+    assert at(filled, "speed", 1) == at(filled, "final_speed", 1) == pytest.approx(0.3)
+    assert at(plain, "speed", 1) == 0.0 and at(filled, "speed_given", 1) == 0.0
+    # both given: each its own, as before
+    assert (at(filled, "speed", 2), at(filled, "final_speed", 2)) == pytest.approx((0.9, 0.1))
+    assert torch.equal(filled[TOKEN_CHANNELS.index("speed_given")], plain[TOKEN_CHANNELS.index("speed_given")])
 
 
 def test_a_token_at_the_window_edge_is_clipped_and_turns_are_signed():

@@ -42,7 +42,6 @@ from ..tokens.encoding import (
     pad_tokens,
     token_positions,
 )
-from ..tokens.raster import token_raster
 from .config import GenerationConfig
 from .deliver import apply_rows, delivered_rows, match_rows, pace_rows, place_rows
 from .infill import add_new_agents, area_mask, in_area, scene_tokens
@@ -158,7 +157,7 @@ class ScenarioGenerator:
                pad: torch.Tensor | None = None) -> torch.Tensor:
         """y = D(z / latent_scale, m[, the tokens' raster]): a decoder with ``C_t`` also reads the
         agent tokens (``tokens`` (B, T, AGENT_TOKEN_DIM) and ``pad`` from ``pad_tokens``)."""
-        t = token_raster(tokens, pad, self.ae.out_res) if self.ae.cfg.C_t and tokens is not None else None
+        t = self.ae.token_raster(tokens, pad) if self.ae.cfg.C_t and tokens is not None else None
         return self.ae.decode(z / self.latent_scale, m, t)
 
     # ---- one batch ------------------------------------------------------------------------

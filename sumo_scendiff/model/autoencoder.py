@@ -27,6 +27,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..map.raster import MAP_CHANNELS
+from ..tokens.raster import token_raster
 from .blocks import Downsample, ResnetBlock, Upsample, group_norm, grow_segments
 from .detection import C_Y, DetectionLossConfig, detection_loss
 from .heading import bin_width
@@ -60,6 +61,11 @@ class AutoencoderConfig:
     # beyond the paper: C_t > 0 gives D_up the agent tokens as a raster of C_t channels
     # (tokens.raster.C_T); 0 = the paper's D(z, m), which decodes from the latent alone
     C_t: int = 0
+    # with C_t: a token giving only one of speed / final speed shows the decoder that value in the
+    # other's channel too (its presence bit still 0). With absent read as 0 m/s, a decoder learns
+    # the two channels' difference as the vehicle's acceleration and draws a token that gives only
+    # its speed braking from too fast (docs/tokens.md)
+    token_speeds_filled: bool = False
     loss: DetectionLossConfig = field(default_factory=DetectionLossConfig)
 
 
@@ -187,9 +193,14 @@ class ScenarioAutoencoder(nn.Module):
         """Side of y's grid (and of the token raster): the latent's 16 px doubled per D_up level."""
         return 16 * 2 ** (len(self.cfg.dec_channels) - 1)
 
+    def token_raster(self, tokens: torch.Tensor, pad: torch.Tensor) -> torch.Tensor:
+        """The decoder's input ``t`` of agent tokens (B, T, AGENT_TOKEN_DIM) and their padding (B, T):
+        ``tokens.raster.token_raster`` at the output resolution, in this decoder's encoding."""
+        return token_raster(tokens, pad, self.out_res, fill_speeds=self.cfg.token_speeds_filled)
+
     def decode(self, z: torch.Tensor, m: torch.Tensor, t: torch.Tensor | None = None) -> torch.Tensor:
         """y = D(z, m) = D_up(z, D_down(m)), (B, 19 [+ 2 heading_bins], 64, 64). ``t``: the token
-        raster (``tokens.raster.token_raster``), read by a decoder with C_t > 0, else ignored."""
+        raster (:meth:`token_raster`), read by a decoder with C_t > 0, else ignored."""
         m = m[:, : self.cfg.C_m]
         t = t if self.cfg.C_t else None
         if not self.cfg.use_map:

@@ -43,24 +43,29 @@ def _bin_value(tokens: torch.Tensor, name: str, lo: float, hi: float, n: int) ->
     return lo + (tokens[..., FEATURE_SLICES[name]].argmax(-1).float() + 0.5) * (hi - lo) / n
 
 
-def token_features(tokens: torch.Tensor) -> torch.Tensor:
+def token_features(tokens: torch.Tensor, fill_speeds: bool = False) -> torch.Tensor:
     """(..., AGENT_TOKEN_DIM) -> (..., C_T): each token's channels of :data:`TOKEN_CHANNELS`, absent
-    features zero."""
+    features zero; with ``fill_speeds`` an absent speed or final speed takes the other's value
+    where that one is given (its presence bit stays 0: constant speed as the neutral reading)."""
     g = {f: _given(tokens, f) for f in FEATURES}
-    speed = _bin_value(tokens, "speed", *SPEED_RANGE, SPEED_BINS) / SPEED_SCALE
-    final = _bin_value(tokens, "final_speed", *SPEED_RANGE, SPEED_BINS) / SPEED_SCALE
+    speed = _bin_value(tokens, "speed", *SPEED_RANGE, SPEED_BINS) / SPEED_SCALE * g["speed"]
+    final = _bin_value(tokens, "final_speed", *SPEED_RANGE, SPEED_BINS) / SPEED_SCALE * g["final_speed"]
+    if fill_speeds:
+        speed, final = (torch.where(g["speed"] > 0, speed, final), torch.where(g["final_speed"] > 0, final, speed))
     h2f = _bin_value(tokens, "heading_to_final", *H2F_RANGE, H2F_BINS) / H2F_RANGE[1]
     head = tokens[..., FEATURE_SLICES["heading"]]
     cols = [torch.ones_like(speed), head[..., 0] * g["heading"], head[..., 1] * g["heading"], g["heading"],
             tokens[..., FEATURE_SLICES["length"]][..., 0] * g["length"],
             tokens[..., FEATURE_SLICES["width"]][..., 0] * g["width"], g["length"],
-            speed * g["speed"], g["speed"], final * g["final_speed"], g["final_speed"],
+            speed, g["speed"], final, g["final_speed"],
             h2f * g["heading_to_final"], g["heading_to_final"]]
     return torch.stack(cols, -1)
 
 
-def token_raster(tokens: torch.Tensor, pad: torch.Tensor, res: int = 64, radius: int = RADIUS) -> torch.Tensor:
-    """(B, T, AGENT_TOKEN_DIM) tokens, (B, T) padding -> (B, C_T, res, res).
+def token_raster(tokens: torch.Tensor, pad: torch.Tensor, res: int = 64, radius: int = RADIUS,
+                 fill_speeds: bool = False) -> torch.Tensor:
+    """(B, T, AGENT_TOKEN_DIM) tokens, (B, T) padding -> (B, C_T, res, res) (``fill_speeds``: see
+    :func:`token_features`; a decoder's own encoding is ``ScenarioAutoencoder.token_raster``).
 
     Rows and columns as the map raster's (``token_cells``); each positioned token fills the
     (2 radius + 1)^2 cells around its own, clipped at the window's edge. Where two tokens' squares
@@ -71,7 +76,7 @@ def token_raster(tokens: torch.Tensor, pad: torch.Tensor, res: int = 64, radius:
     if t == 0:
         return out.permute(0, 3, 1, 2).contiguous()
     cell, placed = token_cells(tokens, pad, res)
-    feats = token_features(tokens.float())
+    feats = token_features(tokens.float(), fill_speeds)
     rows, cols = cell // res, cell % res
     batch = torch.arange(b, device=tokens.device)[:, None].expand(b, t)
     for dr in range(-radius, radius + 1):

@@ -25,6 +25,8 @@ class TrainConfig:
     # diffusion, and an autoencoder whose decoder reads the tokens (C_t):
     p_keep_all_tokens: float = 0.4  # P(p_mask = 0), every agent a token (sec. 4.3.1)
     p_map_only: float = 0.0       # P(p_mask = 1), the map alone; else p_mask ~ Beta(2, 1)
+    p_all_features: float = 0.5   # a kept token gives every feature (TokenMaskConfig)
+    p_drop_group: float = 0.3     # ... else each feature group is dropped with this probability
     # diffusion: the denoising error of the latent cells under an agent kept as a positioned token
     # counts 1 + this many times (the rest of a scene dominates the mean otherwise)
     token_loss_weight: float = 0.0

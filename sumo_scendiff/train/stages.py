@@ -27,6 +27,12 @@ def train_config(o, defaults: TrainConfig) -> TrainConfig:
     return TrainConfig(**{**asdict(defaults), **kw})
 
 
+def token_mask_config(cfg: TrainConfig) -> TokenMaskConfig:
+    """Which agents become tokens and which features they give, as a stage asks."""
+    return TokenMaskConfig(p_keep_all_tokens=cfg.p_keep_all_tokens, p_map_only=cfg.p_map_only,
+                           p_all_features=cfg.p_all_features, p_drop_group=cfg.p_drop_group)
+
+
 def _merge(base: dict, over: dict) -> dict:
     return {k: (_merge(v, over[k]) if isinstance(v, dict) and isinstance(over.get(k), dict)
                 else over.get(k, v)) for k, v in base.items()} | {k: v for k, v in over.items() if k not in base}
@@ -96,13 +102,14 @@ def train_autoencoder(o) -> None:
                                     "lr_scale": cfg.token_lr_scale}] if new else [])
     opt = torch.optim.Adam(groups, lr=cfg.lr, weight_decay=cfg.weight_decay)
     # a token-reading decoder (C_t) sees the partial tokens the diffusion model is trained with
-    mask_cfg = TokenMaskConfig(p_keep_all_tokens=cfg.p_keep_all_tokens, p_map_only=cfg.p_map_only)
+    mask_cfg = token_mask_config(cfg)
 
     def step_loss(module, batch, step):
         x, t, traj = batch["agents"], None, batch["traj"]
         if model.cfg.C_t:
             x, t, traj = decoder_conditioning(batch, cfg.seed, step, rank(), mask_cfg, cfg.p_mislead, model.out_res,
-                                              p_counterfactual=cfg.p_counterfactual)
+                                              p_counterfactual=cfg.p_counterfactual,
+                                              fill_speeds=model.cfg.token_speeds_filled)
         out = module.loss({"x": x, "m": batch["map"], "boxes": batch["boxes"],
                            "traj": traj, "traj_mask": batch["traj_mask"],
                            "valid": batch["valid"], "t": t})
@@ -132,7 +139,7 @@ def train_diffusion(o) -> None:
                          f"{o.autoencoder}'s latent channels C_z {ae.cfg.C_z}\n")
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     scale = {"value": None}
-    mask_cfg = TokenMaskConfig(p_keep_all_tokens=cfg.p_keep_all_tokens, p_map_only=cfg.p_map_only)
+    mask_cfg = token_mask_config(cfg)
 
     def step_loss(module, batch, step):
         if scale["value"] is None:

@@ -57,10 +57,12 @@ def mislead(traj: np.ndarray, given: dict[str, np.ndarray], rng: np.random.Gener
 
 def decoder_conditioning(batch: dict, seed: int, step: int, rank: int, mask_cfg: TokenMaskConfig,
                          p_mislead: float, res: int, raster: RasterConfig = RasterConfig(),
-                         p_counterfactual: float = 0.0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                         p_counterfactual: float = 0.0, fill_speeds: bool = False
+                         ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(x, t, traj)``: the agent raster the encoder sees ((B, C_x, H, W): the batch's own where no
     token misleads it), the tokens' raster (B, C_T, res, res) and the trajectories the loss asks for
-    (the batch's, but for the counterfactual agents)."""
+    (the batch's, but for the counterfactual agents). ``fill_speeds``: the decoder's token encoding
+    (``AutoencoderConfig.token_speeds_filled``)."""
     toks, xs = [], []
     target = batch["traj"].clone()
     for i in range(batch["boxes"].shape[0]):
@@ -85,4 +87,4 @@ def decoder_conditioning(batch: dict, seed: int, step: int, rank: int, mask_cfg:
                   else batch["agents"][i].cpu().numpy())
     tokens, pad = pad_tokens(toks)
     x = torch.from_numpy(np.stack(xs)).to(batch["agents"].device)
-    return x, token_raster(tokens.to(x.device), pad.to(x.device), res), target
+    return x, token_raster(tokens.to(x.device), pad.to(x.device), res, fill_speeds=fill_speeds), target
