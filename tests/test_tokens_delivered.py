@@ -248,3 +248,21 @@ def test_the_models_own_drawing_follows_a_partial_tokens_final_speed(city, gen):
             assert d[k] < 1.0 and abs(s.speed[k, T0] - 8.0) < 2.5
             drawn[final] = float(s.speed[k, -1])
         assert drawn[0.0] < 4.0 and drawn[12.0] > 9.0, drawn
+
+
+def test_a_token_giving_one_of_its_speeds_is_drawn_at_it_without_braking_or_accelerating(city, gen):
+    """No delivery, no pinning: a token giving its speed 8 m/s and nothing of its future, or its final
+    speed alone, is drawn near it and at about a constant speed. Round 18's decoder read the missing
+    speed as 0 m/s and drew the first braking (seeds 0-2: 10.2 / 11.4 / 9.5 m/s now, 5.6 / 7.4 / 4.7 at
+    +2 s) and the second accelerating (7.3 / 8.8 / 5.7 now, 9.3 / 12.0 / 8.0 at +2 s); round 19 reads
+    it as given (AutoencoderConfig.token_speeds_filled)."""
+    w = road_window(city)
+    own = replace(gen.config, deliver_tokens=False, pin_tokens=False)
+    for seed in (0, 1, 2):
+        for key, at in (("speed", T0), ("final_speed", -1)):
+            s = gen.generate(city, [w], tokens=[[{"x": 0.0, "y": 0.0, "heading": 0.0, key: 8.0}]], p_mask=0.5,
+                             seed=seed, config=own)[0]
+            d = np.hypot(s.boxes[:, 0], s.boxes[:, 1])
+            k = int(d.argmin())
+            v = s.speed[k]
+            assert d[k] < 1.0 and abs(v[at] - 8.0) < 2.5 and abs(v[-1] - v[T0]) < 2.0, (seed, key, v)
