@@ -206,13 +206,17 @@ def autoencoder_rows(ae, ds, picked, threshold: float) -> list[str]:
     return rows
 
 
-def decoder_token_rows(ae, picked, threshold: float) -> list[str]:
+def recorded_latents(ae, picked) -> tuple[torch.Tensor, torch.Tensor]:
+    """(mu(E(x)), m) of the probed windows as recorded."""
+    m = torch.from_numpy(np.stack([np.asarray(s["map"]) for s, _ in picked]))
+    with torch.no_grad():
+        return ae.encode(torch.from_numpy(np.stack([np.asarray(s["agents"]) for s, _ in picked])))[0], m
+
+
+def decoder_token_rows(ae, picked, threshold: float, mu: torch.Tensor, m: torch.Tensor) -> list[str]:
     """A decoder that reads the tokens (C_t): the recorded scene's latent D(mu(E(x)), m, t) with
     every agent a full token and the probe's feature set low and high in its token only; the latent
     says what was recorded, the token something else: which does the decoder draw?"""
-    m = torch.from_numpy(np.stack([np.asarray(s["map"]) for s, _ in picked]))
-    with torch.no_grad():
-        mu = ae.encode(torch.from_numpy(np.stack([np.asarray(s["agents"]) for s, _ in picked])))[0]
     rows = []
     for name, (lo, hi, what) in PROBES.items():
         got = {}
@@ -227,12 +231,9 @@ def decoder_token_rows(ae, picked, threshold: float) -> list[str]:
     return rows
 
 
-def decoder_partial_rows(ae, picked, threshold: float) -> list[str]:
+def decoder_partial_rows(ae, picked, threshold: float, mu: torch.Tensor, m: torch.Tensor) -> list[str]:
     """A decoder that reads the tokens, the recorded scene's latent and the probe alone a token of its
     position and its own speed / final speed / both: the mean signed error of what is drawn."""
-    m = torch.from_numpy(np.stack([np.asarray(s["map"]) for s, _ in picked]))
-    with torch.no_grad():
-        mu = ae.encode(torch.from_numpy(np.stack([np.asarray(s["agents"]) for s, _ in picked])))[0]
     rows = []
     for given in (("speed",), ("final_speed",), ("speed", "final_speed")):
         toks = []
@@ -311,8 +312,9 @@ def main(o) -> None:
         lines += diffusion_rows(gen, picked, cfg, o.seed, o.p_mask)
     lines += autoencoder_rows(ae, ds, picked, cfg.threshold)
     if ae.cfg.C_t:
-        lines += decoder_token_rows(ae, picked, cfg.threshold)
-        lines += decoder_partial_rows(ae, picked, cfg.threshold)
+        mu, m = recorded_latents(ae, picked)
+        lines += decoder_token_rows(ae, picked, cfg.threshold, mu, m)
+        lines += decoder_partial_rows(ae, picked, cfg.threshold, mu, m)
     lines.append(turning_row(ae, ds, o.scenes, o.seed, cfg.threshold))
     emit("\n".join(lines) + "\n", o.output, "Token feature response on held-out scenes")
 

@@ -1,5 +1,7 @@
 """A decoder that reads the tokens: the tokens' raster (sumo_scendiff/tokens/raster.py), the decoder's
 token inputs (model/autoencoder.py, C_t) and what it is trained on (train/token_decoder.py)."""
+from functools import partial
+
 import numpy as np
 import pytest
 import torch
@@ -155,10 +157,11 @@ def test_misled_and_counterfactual_examples():
     scene = moving_scene()
     batch = batch_of(*scene)
     every = TokenMaskConfig(p_keep_all_tokens=1.0, p_all_features=1.0)
-    x, t, traj = decoder_conditioning(batch, 0, 0, 0, every, 1.0, 64)
+    x, t, traj = decoder_conditioning(batch, 0, 0, 0, every, 1.0, partial(token_raster, res=64))
     assert not torch.equal(x, batch["agents"]) and torch.equal(traj, batch["traj"])
     assert torch.allclose(channel(t[0], "speed")[channel(t[0], "speed_given") > 0], torch.tensor(1.1))  # 10 m/s bin
-    x, t, traj = decoder_conditioning(batch, 0, 0, 0, every, 1.0, 64, p_counterfactual=1.0)
+    x, t, traj = decoder_conditioning(batch, 0, 0, 0, every, 1.0, partial(token_raster, res=64),
+                                      p_counterfactual=1.0)
     assert torch.equal(x, batch["agents"]) and not torch.equal(traj, batch["traj"])
     assert torch.equal(traj[:, :, T0], batch["traj"][:, :, T0])
     told = speeds_from_traj(traj[0].numpy(), scene[2])[:, T0]

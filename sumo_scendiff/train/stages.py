@@ -107,9 +107,8 @@ def train_autoencoder(o) -> None:
     def step_loss(module, batch, step):
         x, t, traj = batch["agents"], None, batch["traj"]
         if model.cfg.C_t:
-            x, t, traj = decoder_conditioning(batch, cfg.seed, step, rank(), mask_cfg, cfg.p_mislead, model.out_res,
-                                              p_counterfactual=cfg.p_counterfactual,
-                                              fill_speeds=model.cfg.token_speeds_filled)
+            x, t, traj = decoder_conditioning(batch, cfg.seed, step, rank(), mask_cfg, cfg.p_mislead,
+                                              model.token_raster, p_counterfactual=cfg.p_counterfactual)
         out = module.loss({"x": x, "m": batch["map"], "boxes": batch["boxes"],
                            "traj": traj, "traj_mask": batch["traj_mask"],
                            "valid": batch["valid"], "t": t})

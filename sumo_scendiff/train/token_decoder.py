@@ -15,6 +15,8 @@ as a user may ask for): the token's word wins either way.
 """
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 import torch
 
@@ -23,7 +25,6 @@ from ..core.scene import speeds_from_traj
 from ..map.raster import RasterConfig, render_agents
 from ..tokens.encoding import encode_agent_tokens, features_from_scene, pad_tokens
 from ..tokens.masking import TokenMaskConfig, choose_tokens
-from ..tokens.raster import token_raster
 
 MISLEAD_SCALE = (0.1, 2.0)   # the steps scaled by a factor drawn uniformly in this range
 MISLEAD_TURN = 0.6           # rad: the future turned by an angle drawn uniformly in +- this
@@ -56,13 +57,13 @@ def mislead(traj: np.ndarray, given: dict[str, np.ndarray], rng: np.random.Gener
 
 
 def decoder_conditioning(batch: dict, seed: int, step: int, rank: int, mask_cfg: TokenMaskConfig,
-                         p_mislead: float, res: int, raster: RasterConfig = RasterConfig(),
-                         p_counterfactual: float = 0.0, fill_speeds: bool = False
+                         p_mislead: float, read_tokens: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
+                         raster: RasterConfig = RasterConfig(), p_counterfactual: float = 0.0
                          ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(x, t, traj)``: the agent raster the encoder sees ((B, C_x, H, W): the batch's own where no
-    token misleads it), the tokens' raster (B, C_T, res, res) and the trajectories the loss asks for
-    (the batch's, but for the counterfactual agents). ``fill_speeds``: the decoder's token encoding
-    (``AutoencoderConfig.token_speeds_filled``)."""
+    token misleads it), the tokens' raster as the decoder reads them (``read_tokens(tokens, pad)``:
+    ``ScenarioAutoencoder.token_raster``) and the trajectories the loss asks for (the batch's, but for
+    the counterfactual agents)."""
     toks, xs = [], []
     target = batch["traj"].clone()
     for i in range(batch["boxes"].shape[0]):
@@ -87,4 +88,4 @@ def decoder_conditioning(batch: dict, seed: int, step: int, rank: int, mask_cfg:
                   else batch["agents"][i].cpu().numpy())
     tokens, pad = pad_tokens(toks)
     x = torch.from_numpy(np.stack(xs)).to(batch["agents"].device)
-    return x, token_raster(tokens.to(x.device), pad.to(x.device), res, fill_speeds=fill_speeds), target
+    return x, read_tokens(tokens.to(x.device), pad.to(x.device)), target
