@@ -71,6 +71,8 @@ def get_options(args=None):
     p.add_argument("--data", default=os.path.join(ROOT, "data", "val_dense"))
     p.add_argument("--scenes", type=int, default=96)
     p.add_argument("--guidance", type=float, default=None, help="token guidance (default: generate's)")
+    p.add_argument("--plain-guidance", dest="local_guidance", action="store_false", default=None,
+                   help="the tokens' guidance over the whole window, the paper's (default: local and projected)")
     p.add_argument("--steps", type=int, default=None, help="ODE steps (default: generate's)")
     p.add_argument("--sampler", default=None, help="ODE solver (default: generate's)")
     p.add_argument("--p-mask", type=float, default=0.0,
@@ -130,7 +132,8 @@ def generate(gen, batch, picked, override: tuple[str, float] | None, cfg, seed: 
     with torch.no_grad():
         known = pinned_latent(gen.ae, dicts, gen.latent_scale) if cfg.pin_tokens else None
         z = gen.diffusion.sample(batch["map"], tok, pad, glob, steps=cfg.steps, sampler=cfg.solver(),
-                                 guidance=cfg.guidance, generator=torch.Generator().manual_seed(seed), known=known)
+                                 guidance=cfg.guidance, local=cfg.local_guidance,
+                                 generator=torch.Generator().manual_seed(seed), known=known)
         dec = decode_boxes(gen.decode(z, batch["map"], tok, pad))
     return at_probes(dec, picked, cfg.threshold)
 
@@ -297,13 +300,14 @@ class _Index:
 
 def main(o) -> None:
     gen, ae, name, sha = load_models(o.checkpoint, o.autoencoder)
-    cfg = GenerationConfig(pin_tokens=o.pin_tokens, **{k: getattr(o, k) for k in ("guidance", "steps", "sampler")
+    cfg = GenerationConfig(pin_tokens=o.pin_tokens, **{k: getattr(o, k) for k in ("guidance", "local_guidance", "steps", "sampler")
                                                        if getattr(o, k) is not None}).validate()
     ds = SceneDataset(o.data, rotate=False)
     picked = probes(ds, o.scenes, o.seed)
     lines = [f"checkpoint `{name}` (sha256 {sha[:12]}…), {len(picked)} windows of "
              f"`{os.path.relpath(o.data, ROOT)}` with a moving probe agent, every agent a full token, "
-             f"{cfg.steps} steps of {cfg.solver().__name__}, token guidance {cfg.guidance:g}, tokens "
+             f"{cfg.steps} steps of {cfg.solver().__name__}, token guidance {cfg.guidance:g}"
+             f"{'' if cfg.local_guidance else ' (plain)'}, tokens "
              f"{'pinned' if cfg.pin_tokens else 'conditions only'}, p_mask {o.p_mask:g}", "",
              "| feature | read from the generated vehicle | as recorded: asked / generated | asked low → generated "
              "| asked high → generated | response (1 = follows, 0 = ignores) | probes found |",

@@ -11,11 +11,13 @@ each recorded window one to three of SUMO's vehicles become partial tokens of on
 * ``stop``: x, y, heading, speed of a vehicle moving at >= 4 m/s, with ``final_speed`` 0 (asked to stop);
 * ``turn``: x, y, heading, speed, heading_to_final of a vehicle turning (|heading_to_final| >= 0.1 rad).
 
-The scene is generated at p_mask 0.5 with delivery on (the default: generation/deliver.py) and off
+The scene is generated at p_mask 0.5 (``--density``: and the window's recorded density, the level a
+user asks with ``--density auto``) with delivery on (the default: generation/deliver.py) and off
 (the model's own drawing, ``deliver_tokens=False``), and the generated agents are matched one-to-one to
 the tokens (Hungarian on position within 2.2 m, heading within 0.2 rad where the token gives one).
-Reported: match rate, |speed - asked| at t = 0, |speed at +2 s - asked final speed|, and for turn
-tokens the share whose generated +2 s direction turns the same way within 0.2 rad of the token's;
+Reported: match rate, |speed - asked| at t = 0, |speed at +2 s - asked final speed|, for turn
+tokens the share whose generated +2 s direction turns the same way within 0.2 rad of the token's,
+the vehicles per window beside SUMO's in the same windows (the traffic left to the model);
 and how many tokens the delivered scenes name in a warning (``meta["token_warnings"]``: a token
 that could not be placed, or a turn no lane makes).
 """
@@ -73,7 +75,9 @@ def heading_to_final(traj: np.ndarray) -> float:
     return float(wrap_angle(np.arctan2(d[1], d[0]) - traj[T0, 2]))
 
 
-def score(scenes, tokens) -> dict:
+def score(scenes, tokens, recorded: list[int]) -> dict:
+    """Match, speed errors and turns of ``scenes`` against their ``tokens``; ``recorded``: the
+    vehicles in each window as SUMO had them (the scenes' counts are compared with them)."""
     n = matched = 0
     warned = sum(len({line.split(" at ")[0] for line in s.meta.get("token_warnings", ())}) for s in scenes)
     speed, final, turn, signed, signed_final = [], [], [], [], []
@@ -94,7 +98,8 @@ def score(scenes, tokens) -> dict:
                 turn.append(np.sign(h) == np.sign(t["heading_to_final"])
                             and abs(h - t["heading_to_final"]) <= TURN_AGREE)
     return summary({"n": n, "matched": matched, "speed": speed, "final": final, "turn": turn, "warned": warned,
-                    "signed": signed, "signed_final": signed_final})
+                    "signed": signed, "signed_final": signed_final, "windows": len(scenes),
+                    "vehicles": sum(len(s.boxes) for s in scenes), "recorded": sum(recorded)})
 
 
 def summary(raw: dict) -> dict:
@@ -102,14 +107,15 @@ def summary(raw: dict) -> dict:
     mean = (lambda v: float(np.mean(v)) if v else float("nan"))
     return {"tokens": raw["n"], "match": raw["matched"] / max(raw["n"], 1), "speed": mean(raw["speed"]),
             "final": mean(raw["final"]), "turn": mean(raw["turn"]), "warned": raw["warned"], "raw": raw,
-            "bias": mean(raw["signed"]), "final_bias": mean(raw["signed_final"])}
+            "bias": mean(raw["signed"]), "final_bias": mean(raw["signed_final"]),
+            "per_window": raw["vehicles"] / max(raw["windows"], 1), "recorded": raw["recorded"] / max(raw["windows"], 1)}
 
 
 def pooled(results: list[dict]) -> dict:
     """One :func:`summary` of several cities' results."""
     lists = ("speed", "final", "turn", "signed", "signed_final")
     raw = {k: sum((r["raw"][k] for r in results), [] if k in lists else 0)
-           for k in ("n", "matched", "warned") + lists}
+           for k in ("n", "matched", "warned", "windows", "vehicles", "recorded") + lists}
     return summary(raw)
 
 
@@ -124,9 +130,14 @@ def get_options(args=None):
     p.add_argument("--cache", default=os.path.join(ROOT, ".cache", "eval"))
     p.add_argument("--checkpoint", default=None)
     p.add_argument("--guidance", type=float, default=None, help="token guidance weight (default: generate's)")
+    p.add_argument("--plain-guidance", dest="local_guidance", action="store_false", default=None,
+                   help="the tokens' guidance over the whole window, the paper's (default: local and projected)")
     p.add_argument("--steps", type=int, default=None, help="ODE steps (default: generate's)")
     p.add_argument("--sampler", default=None, help="ODE solver (default: generate's)")
     p.add_argument("--drawn-only", action="store_true", help="only the model's own drawing (no delivery)")
+    p.add_argument("--density", action="store_true",
+                   help="each window also given its recorded density (the density token: SUMO's own level "
+                        "there, kept as a count around the tokens' vehicles)")
     p.add_argument("-o", "--output", default=None, help="also write the table here (markdown)")
     return p.parse_args(args)
 
@@ -153,17 +164,18 @@ def cities_with_demand() -> list[str]:
 def row(city: str, kind: str, res: list[dict]) -> str:
     fmt = (lambda k, p: "–" if all(np.isnan(r[k]) for r in res) else " / ".join(f"{r[k]:.{p}f}" for r in res))
     return (f"| {city} | {kind} | {res[0]['tokens']} | {fmt('match', 2)} | {fmt('speed', 2)} | "
-            f"{fmt('final', 2)} | {fmt('turn', 2)} | {res[0]['warned'] if len(res) > 1 else '–'} |")
+            f"{fmt('final', 2)} | {fmt('turn', 2)} | {fmt('per_window', 1)} ({res[0]['recorded']:.1f}) | "
+            f"{res[0]['warned'] if len(res) > 1 else '–'} |")
 
 
 def main(o) -> int:
     gen = ScenarioGenerator.load(o.checkpoint)
-    base = replace(gen.config, **{k: getattr(o, k) for k in ("guidance", "steps", "sampler")
+    base = replace(gen.config, **{k: getattr(o, k) for k in ("guidance", "local_guidance", "steps", "sampler")
                                   if getattr(o, k) is not None}).validate()
     modes = (False,) if o.drawn_only else (True, False)
     every: dict[str, list[list[dict]]] = {}
     lines = [("| city | tokens | n | match (delivered / drawn) | speed MAE m/s | final speed MAE m/s | turn agreement "
-              "| warned |"), "|---|---|---|---|---|---|---|---|"]
+              "| vehicles per window (SUMO's) | warned |"), "|---|---|---|---|---|---|---|---|---|"]
     for city in o.cities or cities_with_demand():
         net = network_of(city)
         store = SceneStore(record_cached([net.path], [find_demand(net)], o.windows, o.seed, o.cache,
@@ -176,8 +188,10 @@ def main(o) -> int:
                 continue
             windows, toks = [g.window for g, _ in pairs], [t for _, t in pairs]
             lights = [g.meta.get("signals") or None for g, _ in pairs]   # the recorded moment's lights
+            dens = [len(g.boxes) / max(net.car_lane_km(g.window), 1e-3) for g, _ in pairs] if o.density else None
             res = [score(gen.generate(net, windows, tokens=toks, p_mask=o.p_mask, seed=o.seed, signals=lights,
-                                      config=replace(base, deliver_tokens=d)), toks) for d in modes]
+                                      density=dens, config=replace(base, deliver_tokens=d)), toks,
+                         [len(g.boxes) for g, _ in pairs]) for d in modes]
             every.setdefault(kind, []).append(res)
             lines.append(row(net.name, kind, res))
             print(lines[-1], file=sys.stderr)

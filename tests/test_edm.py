@@ -208,3 +208,38 @@ def test_guidance_stops_below_each_examples_sigma_lo_and_only_guided_rows_pay_a_
     # no row guided: one plain pass
     assert torch.allclose(guided(d, cond, uncond, 3.0, 5.0)(z, 1.0), z * cond["c"][:, None])
     assert calls[-1] == (3, [1.0, 1.0, 1.0])
+
+
+def test_projected_guidance_drops_the_update_along_the_conditional_estimate_per_example():
+    def d(z, sigma, *, c):
+        return z * c[:, None]
+
+    z = torch.tensor([[1.0, 2.0], [3.0, -1.0]])
+    cond, uncond = {"c": torch.tensor([2.0, 2.0])}, {"c": torch.tensor([0.5, 0.5])}
+    # D(cond) = 2 z, D(uncond) = 0.5 z: the whole update is along D(cond), so APG leaves D(cond)
+    assert torch.allclose(guided(d, cond, uncond, 3.0, 0.0, 0.0)(z, 1.0), 2.0 * z)
+    assert torch.allclose(guided(d, cond, uncond, 3.0, 0.0, 1.0)(z, 1.0), guided(d, cond, uncond, 3.0)(z, 1.0))
+
+    def d2(z, sigma, *, c):   # the condition adds a fixed vector: an update with both parts
+        return z + c
+
+    cond, uncond = {"c": torch.tensor([[0.0, 1.0], [1.0, 0.0]])}, {"c": torch.zeros(2, 2)}
+    out = guided(d2, cond, uncond, 3.0, 0.0, torch.tensor([0.0, 1.0]))(z, 1.0)
+    d_c, update = z + cond["c"], cond["c"]
+    along = (update * d_c).sum(1, keepdim=True) / (d_c * d_c).sum(1, keepdim=True) * d_c
+    assert torch.allclose(out[0], d_c[0] + 2.0 * (update[0] - along[0]))   # projected
+    assert torch.allclose(out[1], d_c[1] + 2.0 * update[1])                # plain
+    assert abs(float(((out[0] - d_c[0]) * d_c[0]).sum())) < 1e-5           # nothing added along D(cond)
+
+
+def test_guidance_region_weighs_the_update_per_cell():
+    def d(z, sigma, *, c):
+        return z + c
+
+    z = torch.zeros(1, 1, 2, 2)
+    cond, uncond = {"c": torch.ones(1, 1, 2, 2)}, {"c": torch.zeros(1, 1, 2, 2)}
+    region = torch.tensor([[[[1.0, 0.0], [0.0, 1.0]]]])
+    out = guided(d, cond, uncond, 3.0, 0.0, 1.0, region)(z, 1.0)
+    assert torch.equal(out, torch.tensor([[[[3.0, 1.0], [1.0, 3.0]]]]))   # guided in the region only
+    assert torch.equal(guided(d, cond, uncond, 3.0, 0.0, 1.0, torch.ones(1, 1, 2, 2))(z, 1.0),
+                       guided(d, cond, uncond, 3.0)(z, 1.0))

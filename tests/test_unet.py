@@ -7,8 +7,10 @@ from sumo_scendiff.model.unet import UNet, UNetConfig, count_parameters
 from sumo_scendiff.tokens.encoding import (
     AGENT_TOKEN_DIM,
     GLOBAL_TOKEN_DIM,
+    encode_agent_tokens,
     global_token,
     pad_tokens,
+    token_cells,
 )
 
 CFG = UNetConfig(channels=(16, 32, 64), d_model=32, c_map=8)  # small for fast tests
@@ -221,7 +223,9 @@ def test_training_noise_levels_follow_the_config():
     assert abs(float(log_sigma.mean())) < 0.05 and abs(float(log_sigma.std()) - 1.4) < 0.05
 
 
-def test_guidance_follows_the_tokens_and_skips_a_map_only_batch():
+def _small_diffusion():
+    """A small diffusion model whose zero-initialised outputs are randomised (conditioning visible),
+    two maps, their starting noise and the generator that drew them."""
     from sumo_scendiff.model.diffusion import DiffusionConfig, ScenarioDiffusion
     torch.manual_seed(0)
     model = ScenarioDiffusion(DiffusionConfig(map_channels=(4, 8, 8, 8), unet=CFG)).eval()
@@ -232,6 +236,11 @@ def test_guidance_follows_the_tokens_and_skips_a_map_only_batch():
     g = torch.Generator().manual_seed(0)
     m = torch.rand(2, model.cfg.C_m, 128, 128, generator=g)
     noise = torch.randn(2, CFG.c_z, 16, 16, generator=g)
+    return model, m, noise, g
+
+
+def test_guidance_follows_the_tokens_and_skips_a_map_only_batch():
+    model, m, noise, g = _small_diffusion()
     tok, pad = pad_tokens([torch.rand(2, AGENT_TOKEN_DIM, generator=g), torch.zeros(0, AGENT_TOKEN_DIM)])
     glob = torch.as_tensor(global_token([0.0, 0.3]))
 
@@ -243,3 +252,33 @@ def test_guidance_follows_the_tokens_and_skips_a_map_only_batch():
     none, none_pad = pad_tokens([torch.zeros(0, AGENT_TOKEN_DIM)] * 2)
     ones = torch.as_tensor(global_token([1.0, 1.0]))
     assert torch.equal(run(1.0, none, none_pad, ones), run(3.0, none, none_pad, ones))
+
+
+def test_local_guidance_changes_only_the_windows_with_tokens_and_only_around_them():
+    model, m, noise, g = _small_diffusion()
+    tok, pad = pad_tokens([encode_agent_tokens({"x": [3.0, -30.0], "y": [0.0, 20.0], "speed": [12.0, 4.0]}),
+                           torch.zeros(0, AGENT_TOKEN_DIM)])
+    glob = torch.as_tensor(global_token([0.5, 0.3]))
+
+    def run(local):
+        return model.sample(m, tok, pad, glob, steps=3, noise=noise, guidance=3.0, scene_guidance=2.0,
+                            local=local)
+    a, b = run(True), run(False)
+    assert not torch.allclose(a[0], b[0])      # the window with tokens: local
+    assert torch.allclose(a[1], b[1])          # the one without: the global token's plain guidance
+    # its guidance reaches the cells within one of each positioned token, nothing else
+    parallel, region = model.local_guidance(model.cond(m, tok, pad, glob))
+    assert parallel.tolist() == [0.0, 1.0] and region.shape == (2, 1, CFG.res, CFG.res)
+    cell, placed = token_cells(tok, pad, CFG.res)
+    want = torch.zeros(CFG.res, CFG.res)
+    for c in cell[0][placed[0]].tolist():
+        r, k = divmod(c, CFG.res)
+        want[max(r - 1, 0):r + 2, max(k - 1, 0):k + 2] = 1.0
+    assert torch.equal(region[0, 0], want) and bool(region[1].eq(1.0).all())
+
+
+def test_a_token_without_a_position_is_guided_over_the_whole_window():
+    from sumo_scendiff.tokens.encoding import token_region
+    tok, pad = pad_tokens([encode_agent_tokens({"x": [3.0, float("nan")], "y": [0.0, float("nan")],
+                                                "speed": [12.0, 4.0]})])
+    assert bool(token_region(tok, pad, 16).eq(1.0).all())

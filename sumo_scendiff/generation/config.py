@@ -42,6 +42,10 @@ class GenerationConfig:
     # a second UNet pass only for batches that carry tokens
     guidance: float = _setting(3.0, "classifier-free guidance weight of the agent tokens (1 = off)",
                                kind=float, minimum=0.0)
+    local_guidance: bool = _setting(
+        True, "the agent tokens' guidance as the paper's, over the whole window (default: local, only "
+        "around the tokens' vehicles, and projected, so the rest of the traffic is the model's and a "
+        "token's vehicle is not drawn faster than it asks; docs/model.md)", kind=bool, flag="--plain-guidance")
     scene_guidance: float | None = _setting(
         None, "classifier-free guidance weight of the global token for windows without agent tokens: "
         "more agents above 1 (default: the model's calibrated value; 1 = off)", kind=float, minimum=0.0)
@@ -180,7 +184,7 @@ class GenerationConfig:
         return {"sha256": generator.sha256, "sampler": self.solver().__name__, "steps": self.steps,
                 "threshold": self.threshold, "pin_tokens": self.pin_tokens, "pin_speeds": self.pin_speeds,
                 "lane_headings": self.lane_headings, "lane_snap": self.lane_snap, "guidance": self.guidance,
-                "scene_guidance": generator.scene_guidance_for(self),
+                "local_guidance": self.local_guidance, "scene_guidance": generator.scene_guidance_for(self),
                 "scene_guidance_sigma": generator.scene_guidance_sigma_for(self),
                 "deliver_tokens": self.deliver_tokens, "signals": self.signals,
                 "match_density": self.match_density, "density_floor": self.density_floor,

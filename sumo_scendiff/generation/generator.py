@@ -173,7 +173,7 @@ class ScenarioGenerator:
                                          self.diffusion.cfg.unet.res,
                                          generator=torch.Generator().manual_seed(s)) for s in seeds])
         z = self.diffusion.sample(m, tok, pad, glob, steps=cfg.steps, sampler=cfg.solver(),
-                                  noise=noise, guidance=cfg.guidance,
+                                  noise=noise, guidance=cfg.guidance, local=cfg.local_guidance,
                                   scene_guidance=self.scene_guidance_for(cfg),
                                   scene_guidance_sigma=self.scene_guidance_sigma_for(cfg),
                                   density_guidance=self.density_guidance if cfg.scene_guidance is None
@@ -356,8 +356,11 @@ class ScenarioGenerator:
         # (the share the pins describe) under the tokens' guidance pushes towards adding nothing
         pm2 = np.ones(len(ks))
         seeds2 = [int(np.random.SeedSequence([seeds[k], p]).generate_state(1)[0]) for k in ks]
-        # the pinned agents are context only (the first scene keeps its own): no pin calibration
-        prob, boxes, traj = self._batch(maps, toks2, pm2, seeds2, replace(cfg, pin_calibration=False), dicts, net=net,
+        # the pinned agents are context only (the first scene keeps its own): no pin calibration;
+        # the guidance here is for adding vehicles around them, over the whole window and along the
+        # estimate (local guidance fell short of the counts), the pins being fixed in the latent
+        prob, boxes, traj = self._batch(maps, toks2, pm2, seeds2,
+                                        replace(cfg, pin_calibration=False, local_guidance=False), dicts, net=net,
                                         windows=[windows[k] for k in ks], density=dens[ks])
         for i, k in enumerate(ks):
             # every candidate down to the floor: the first scene's redrawn agents are not new

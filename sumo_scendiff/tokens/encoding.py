@@ -348,6 +348,19 @@ def pad_tokens(tokens: Sequence[Any], dim: int = AGENT_TOKEN_DIM) -> tuple[torch
     return out, pad
 
 
+def token_region(tokens: torch.Tensor, pad: torch.Tensor, res: int, radius: int = 1) -> torch.Tensor:
+    """(B, 1, res, res): 1 in the cells within ``radius`` cells of a positioned token, else 0; all 1
+    for a window with a token that gives no position (it may be anywhere) or with no token."""
+    cell, placed = token_cells(tokens, pad, res)
+    out = torch.zeros(tokens.shape[0], res * res, device=tokens.device)
+    rows = torch.arange(tokens.shape[0], device=tokens.device)[:, None].expand_as(cell)
+    out[rows[placed], cell[placed]] = 1.0
+    out = torch.nn.functional.max_pool2d(out.view(-1, 1, res, res), 2 * radius + 1, stride=1, padding=radius)
+    anywhere = ((~pad) & ~placed).any(1) | pad.all(1)
+    out[anywhere] = 1.0
+    return out
+
+
 def token_positions(tokens: np.ndarray) -> np.ndarray:
     """Scene-frame (x, y) (P, 2) of the encoded agent tokens (T, AGENT_TOKEN_DIM) that give a
     position: their bins' centres (within 0.8 m of what was asked)."""
