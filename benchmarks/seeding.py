@@ -107,6 +107,8 @@ def get_options(args=None):
                         "(Seeder.width_cap off)")
     p.add_argument("--signals", action="store_true",
                    help="generate with the traffic lights' states at T (run's --signals)")
+    p.add_argument("--signal-guidance", type=float, default=None,
+                   help="with --signals: the lights' guidance weight (default: generate's)")
     p.add_argument("--events", default=None, metavar="FILE",
                    help="write every collision / teleport of SUMO's and the model's rollouts in detail "
                         "(pickle; sim.events)")
@@ -180,7 +182,7 @@ def cached_scenes(path: str | None, name: str, windows: list, o, scenes: list | 
     import pickle
     if not path:
         return None
-    key = (name, o.checkpoint, o.seed, getattr(o, "signals", False), o.scene_guidance, o.scene_guidance_sigma, o.lane_snap, tuple((round(w.cx, 3), round(w.cy, 3), round(w.yaw, 4), w.size) for w in windows))
+    key = (name, o.checkpoint, o.seed, getattr(o, "signals", False), getattr(o, "signal_guidance", None), o.scene_guidance, o.scene_guidance_sigma, o.lane_snap, tuple((round(w.cx, 3), round(w.cy, 3), round(w.yaw, 4), w.size) for w in windows))
     cache = {}
     if os.path.exists(path):
         with open(path, "rb") as f:
@@ -394,7 +396,8 @@ def main(o) -> int:
         if not loaded:
             loaded.append(ScenarioGenerator.load(o.checkpoint, GenerationConfig(
                 scene_guidance=o.scene_guidance, scene_guidance_sigma=o.scene_guidance_sigma,
-                lane_snap=o.lane_snap, signals=o.signals)))
+                lane_snap=o.lane_snap, signals=o.signals,
+                **({} if o.signal_guidance is None else {"signal_guidance": o.signal_guidance}))))
         return loaded[0]
     results = []
     for path in (o.nets or default_nets()):

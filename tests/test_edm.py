@@ -243,3 +243,23 @@ def test_guidance_region_weighs_the_update_per_cell():
     assert torch.equal(out, torch.tensor([[[[3.0, 1.0], [1.0, 3.0]]]]))   # guided in the region only
     assert torch.equal(guided(d, cond, uncond, 3.0, 0.0, 1.0, torch.ones(1, 1, 2, 2))(z, 1.0),
                        guided(d, cond, uncond, 3.0)(z, 1.0))
+
+
+def test_condition_guided_weighs_one_entry_and_composes_under_guided():
+    from sumo_scendiff.model.edm import condition_guided
+
+    def d(z, sigma, *, a, b):
+        return z * a[:, None] + b[:, None]
+
+    z = torch.randn(2, 3)
+    a, a_null, b = torch.tensor([2.0, 1.0]), torch.tensor([1.0, 1.0]), torch.tensor([0.5, 0.0])
+    D = condition_guided(d, "a", 3.0)
+    # D(a) + 2 (D(a) - D(a_null)): only the entry named moves, b is the same in both branches
+    assert torch.allclose(D(z, 1.0, a=a, a_null=a_null, b=b), d(z, 1.0, a=a, b=b) + 2.0 * z * (a - a_null)[:, None])
+    # a row whose entry equals its null is the plain denoiser
+    assert torch.allclose(D(z, 1.0, a=a, a_null=a_null, b=b)[1], d(z, 1.0, a=a, b=b)[1])
+    # under guided: both of its branches are guided in the entry, the nested formula
+    cond, uncond = {"a": a, "a_null": a_null, "b": b}, {"a": a, "a_null": a_null, "b": torch.zeros(2)}
+    D2 = guided(D, cond, uncond, 2.0)(z, 1.0)
+    g = lambda c: D(z, 1.0, **dict(c))   # noqa: E731
+    assert torch.allclose(D2, g(cond) + (g(cond) - g(uncond)))

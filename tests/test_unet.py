@@ -282,3 +282,18 @@ def test_a_token_without_a_position_is_guided_over_the_whole_window():
     tok, pad = pad_tokens([encode_agent_tokens({"x": [3.0, float("nan")], "y": [0.0, float("nan")],
                                                 "speed": [12.0, 4.0]})])
     assert bool(token_region(tok, pad, 16).eq(1.0).all())
+
+
+def test_signal_guidance_changes_only_the_windows_that_show_a_light():
+    from sumo_scendiff.map.raster import MAP_CHANNELS
+    model, m, noise, g = _small_diffusion()
+    m = m.clone()
+    m[1, [MAP_CHANNELS.index("signal_go"), MAP_CHANNELS.index("signal_stop")]] = 0.0   # lights unknown
+    tok, pad = pad_tokens([torch.zeros(0, AGENT_TOKEN_DIM)] * 2)
+    glob = torch.as_tensor(global_token([1.0, 1.0]))
+
+    def run(w, guidance=1.0):
+        return model.sample(m, tok, pad, glob, steps=3, noise=noise, scene_guidance=guidance, signal_guidance=w)
+    for guidance in (1.0, 2.0):                  # alone, and under the global token's guidance
+        a, b = run(3.0, guidance), run(1.0, guidance)
+        assert not torch.allclose(a[0], b[0]) and torch.allclose(a[1], b[1], atol=1e-5)

@@ -16,6 +16,8 @@ from dataclasses import dataclass, field, fields
 
 # model.edm.SAMPLERS' keys (tests/test_generation_config.py holds them equal), default first
 SAMPLER_NAMES = ("dpmpp-2m", "euler", "heun")
+# the lights' guidance weight, chosen on the held-out generated networks (docs/model.md)
+SIGNAL_GUIDANCE_DEFAULT = 8.0
 
 
 class SettingError(ValueError):
@@ -77,6 +79,10 @@ class GenerationConfig:
         False, "the model sees each traffic light's state at the seeding moment, from the simulation "
         "(map/signals.py: queues at red, flows through green); off by default: on the hand-off "
         "benchmark the lights gave no fewer collisions (docs/evaluation.md)", kind=bool, flag="--signals")
+    signal_guidance: float = _setting(
+        SIGNAL_GUIDANCE_DEFAULT, "with --signals: how strongly the scene follows the lights' states "
+        "(classifier-free guidance against the same map without them; 1 = off, twice the UNet passes "
+        "otherwise)", kind=float, minimum=0.0)
     match_density: bool = _setting(
         True, "a requested density (--density/--vehicles) is a condition only: the scene holds the "
         "vehicles the model draws above --threshold (default: the window holds the requested count, "
@@ -187,5 +193,6 @@ class GenerationConfig:
                 "local_guidance": self.local_guidance, "scene_guidance": generator.scene_guidance_for(self),
                 "scene_guidance_sigma": generator.scene_guidance_sigma_for(self),
                 "deliver_tokens": self.deliver_tokens, "signals": self.signals,
+                "signal_guidance": self.signal_guidance,
                 "match_density": self.match_density, "density_floor": self.density_floor,
                 "infill_passes": self.infill_passes}

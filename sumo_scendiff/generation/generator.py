@@ -174,6 +174,7 @@ class ScenarioGenerator:
                                          generator=torch.Generator().manual_seed(s)) for s in seeds])
         z = self.diffusion.sample(m, tok, pad, glob, steps=cfg.steps, sampler=cfg.solver(),
                                   noise=noise, guidance=cfg.guidance, local=cfg.local_guidance,
+                                  signal_guidance=cfg.signal_guidance,
                                   scene_guidance=self.scene_guidance_for(cfg),
                                   scene_guidance_sigma=self.scene_guidance_sigma_for(cfg),
                                   density_guidance=self.density_guidance if cfg.scene_guidance is None

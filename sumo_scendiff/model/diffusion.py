@@ -25,6 +25,7 @@ from .edm import (
     P_STD,
     EDMLoss,
     EDMPrecond,
+    condition_guided,
     guided,
     initial_noise,
     inpainted,
@@ -135,7 +136,7 @@ class ScenarioDiffusion(nn.Module):
                generator: Optional[torch.Generator] = None, noise: Optional[Tensor] = None,
                guidance: float = 1.0, scene_guidance: float = 1.0,
                scene_guidance_sigma: float = 0.0, density_guidance: float | None = None,
-               local: bool = True, known: Optional[tuple[Tensor, Tensor]] = None) -> Tensor:
+               local: bool = True, signal_guidance: float = 1.0, known: Optional[tuple[Tensor, Tensor]] = None) -> Tensor:
         """Integrate the probability-flow ODE from sigma_max to 0 (paper eq. 3); returns z (scaled).
 
         ``noise``: standard-normal (B, C_z, R, R) starting noise (scaled by sigma_max here); drawn
@@ -143,7 +144,10 @@ class ScenarioDiffusion(nn.Module):
         ``guidance`` for examples with agent tokens, ``scene_guidance`` for those without (at
         sigma > ``scene_guidance_sigma`` only); a weight of 1 is off. A guided step costs an example
         two UNet passes. ``local``: the tokens' guidance as :meth:`local_guidance` says, not
-        the paper's over the whole window. ``known``: ``(z_known, mask)``, latent cells fixed to z_known where mask
+        the paper's over the whole window. ``signal_guidance``: the weight of the traffic lights'
+        map channels against the same map without them (:func:`~.edm.condition_guided`; the
+        model is trained both ways, ``p_no_signals``), applied to both branches of the guidance
+        above: twice the UNet passes, only when a window shows a light's state. ``known``: ``(z_known, mask)``, latent cells fixed to z_known where mask
         is 1 and generated around them (:func:`~.edm.inpainted`; pinned tokens).
         """
         cfg = self.cfg.unet
@@ -152,8 +156,16 @@ class ScenarioDiffusion(nn.Module):
         null, w, sigma_lo = self.null_condition(cond, guidance, scene_guidance, scene_guidance_sigma,
                                                 density_guidance)
         parallel, region = self.local_guidance(cond, local)
+        signals = [MAP_CHANNELS.index("signal_go"), MAP_CHANNELS.index("signal_stop")]
+        if signal_guidance != 1.0 and m.shape[1] >= len(MAP_CHANNELS) and self.cfg.C_m >= len(MAP_CHANNELS) \
+                and bool(m[:, signals].any()):
+            dark = m.clone()
+            dark[:, signals] = 0.0      # what training shows for lights unknown
+            m_dark = self.encode_map(dark)
+            cond, null = dict(cond, m_enc_null=m_dark), dict(null, m_enc_null=m_dark)
+            denoiser = condition_guided(denoiser, "m_enc", signal_guidance)
         if bool((w != 1.0).any()):
-            denoiser, cond = guided(self.denoiser, cond, null, w, sigma_lo, parallel, region), None
+            denoiser, cond = guided(denoiser, cond, null, w, sigma_lo, parallel, region), None
         if known is not None:
             denoiser = inpainted(denoiser, *known)
         sigmas = karras_sigmas(steps, device=m.device)

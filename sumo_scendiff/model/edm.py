@@ -285,6 +285,24 @@ def guided(denoiser: Denoiser, cond: dict, uncond: dict, w: float | Tensor,
     return D
 
 
+def condition_guided(denoiser: Denoiser, name: str, w: float) -> Denoiser:
+    """Classifier-free guidance of one entry of the condition (Ho & Salimans 2022, eq. 6):
+    D_w(z; sigma, c) = D(z; sigma, c) + (w - 1) (D(z; sigma, c) - D(z; sigma, c without it)).
+
+    The returned denoiser takes the condition with ``name`` and ``name + "_null"``, that entry's
+    value without what is guided (both branches in one batch). It is a denoiser of a condition
+    still, so :func:`guided` can wrap it in turn: each part of the condition followed with its own
+    weight (Liu et al. 2022), both of :func:`guided`'s branches guided in this entry."""
+    def D(z: Tensor, sigma: Tensor | float, **cond) -> Tensor:
+        null = cond.pop(name + "_null")
+        s = _as_batch_sigma(sigma, z)
+        both = {k: torch.cat([v, null if k == name else v]) for k, v in cond.items()}
+        out = denoiser(torch.cat([z, z]), torch.cat([s, s]), **both)
+        d, d_null = out[:len(z)], out[len(z):]
+        return d + (w - 1.0) * (d - d_null)
+    return D
+
+
 def inpainted(denoiser: Denoiser, z_known: Tensor, mask: Tensor) -> Denoiser:
     """Inpainting by replacement in the denoiser form: D'(z; sigma) = mask z_known + (1 - mask)
     D(z; sigma) (the replacement method of Song et al. 2021, sec. 5 / app. I.2, applied to the
@@ -311,6 +329,6 @@ def num_evaluations(sampler: Callable, sigmas: Tensor) -> int:
 __all__ = [
     "SIGMA_DATA", "SIGMA_MIN", "SIGMA_MAX", "RHO", "P_MEAN", "P_STD",
     "c_skip", "c_out", "c_in", "c_noise", "loss_weight", "EDMPrecond", "EDMLoss",
-    "karras_sigmas", "initial_noise", "sample_euler", "sample_heun", "sample_dpmpp_2m", "SAMPLERS", "guided",
+    "karras_sigmas", "initial_noise", "sample_euler", "sample_heun", "sample_dpmpp_2m", "SAMPLERS", "guided", "condition_guided",
     "num_evaluations", "inpainted",
 ]
