@@ -42,6 +42,14 @@ def test_a_partial_speed_token_is_delivered(city, gen):
     assert "delivers" not in drawn.meta
 
 
+def test_a_token_drawn_without_delivery_is_never_trimmed_to_a_count(city, gen):
+    # density 0: the window keeps no vehicle of the model's own, but the one the token asked for
+    w = road_window(city)
+    s = gen.generate(city, [w], tokens=[[{"x": 0.0, "y": 0.0, "speed": 12.0}]], p_mask=0.5, seed=0,
+                     density=0.0, config=replace(gen.config, deliver_tokens=False))[0]
+    assert len(s.boxes) == 1 and np.hypot(*s.boxes[0, :2]) < 2.2
+
+
 def test_a_stop_token_stops_and_pinned_tokens_are_untouched(city, gen):
     w = road_window(city)
     stop = parse_tokens({"agents": [{"x": 0.0, "y": 0.0, "heading": 0.0, "speed": 8.0,

@@ -28,6 +28,7 @@ import shapely
 import torch
 
 from ..core.geometry import T0, TIMES, Window, box_corners
+from ..core.matching import match_agents
 from ..core.scene import Scene, speeds_from_traj, vclass_from_size
 from ..map.raster import MAP_CHANNELS, RasterConfig, render_map
 from ..model import checkpoint as ckpt
@@ -239,6 +240,11 @@ class ScenarioGenerator:
             mine = owner < 0
             if cfg.pin_tokens and pins is not None and len(pins):
                 mine[[a for a, _ in match_pins(boxes, pins, ASKED_RADIUS)]] = False
+            if not len(rows) and tokens is not None and len(tokens):
+                # not delivered: the vehicle drawn for a positioned token is still the user's, never trimmed
+                asked = token_positions(tokens)
+                drawn, _ = match_agents(boxes[:, :3], np.c_[asked, np.full(len(asked), np.nan)], ASKED_RADIUS)
+                mine[drawn] = False
             unplaced = len(rows) - int((owner >= 0).sum())     # tokens place_rows will still place
             ok = trim_to_count(prob[keep], mine, count - unplaced, area_mask(window, boxes, area))
             keep, boxes, traj, owner, paced = keep[ok], boxes[ok], traj[ok], owner[ok], paced[ok]
