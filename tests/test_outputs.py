@@ -100,6 +100,22 @@ def test_only_partials_of_dead_processes_are_cleaned(tmp_path):
     assert sorted(os.listdir(tmp_path)) == sorted([os.path.basename(mine), f"other.partial-{dead}", "keep.txt"])
 
 
+def test_the_partial_of_a_dead_writer_not_yet_reaped_is_cleaned(tmp_path):
+    # a worker killed with its parent is a zombie until reaped: it writes nothing any more
+    zombie = subprocess.Popen([sys.executable, "-c", "pass"])
+    deadline = time.time() + 30
+    while time.time() < deadline:
+        with open(f"/proc/{zombie.pid}/stat") as f:
+            if f.read().rpartition(")")[2].split()[0] == "Z":
+                break
+        time.sleep(0.05)
+    (tmp_path / f"scene_000.partial-{zombie.pid}").mkdir()
+    try:
+        assert clean_stale(str(tmp_path)) == [f"scene_000.partial-{zombie.pid}"]
+    finally:
+        zombie.wait()
+
+
 def test_two_runs_into_one_directory(tmp_path):
     out = tmp_path / "out"
     a, b = _start(out), _start(out)

@@ -133,13 +133,20 @@ def publish(partial: str, final: str, replace: bool = False) -> str:
 
 
 def _alive(pid: int) -> bool:
+    """The process runs (a zombie, dead and not yet reaped, does not)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:
         return True
-    return True
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rpartition(")")[2].split()[0] not in ("Z", "X")
+    except FileNotFoundError:       # it ended in between, or there is no /proc (not Linux)
+        return not os.path.isdir("/proc")
+    except (OSError, IndexError):
+        return True
 
 
 def clean_stale(directory: str, finals=None) -> list[str]:

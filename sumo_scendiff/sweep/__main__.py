@@ -120,6 +120,10 @@ def _sweep(o, spec, scenarios, t0) -> int:
             o.parser.exit(2, f"{PROG}: error: {e}\n")
         finally:
             bar.close()
+    # the workers of a sweep killed with SIGKILL die with it, but may not yet be gone when --resume
+    # first looks: what they left is removed now, once this run's own writers are done
+    from ..core.outputs import clean_stale
+    clean_stale(o.out)
     rows = write_index(o.out, scenarios)
     pictures = [] if o.no_pictures else [contact_sheet(o.out, rows), stats_plot(o.out, rows)]
     ok = sum(r["status"] == "ok" for r in rows)
