@@ -136,7 +136,8 @@ class ScenarioDiffusion(nn.Module):
                generator: Optional[torch.Generator] = None, noise: Optional[Tensor] = None,
                guidance: float = 1.0, scene_guidance: float = 1.0,
                scene_guidance_sigma: float = 0.0, density_guidance: float | None = None,
-               local: bool = True, signal_guidance: float = 1.0, known: Optional[tuple[Tensor, Tensor]] = None) -> Tensor:
+               local: bool = True, signal_guidance: float = 1.0,
+               known: Optional[tuple[Tensor, Tensor]] = None) -> Tensor:
         """Integrate the probability-flow ODE from sigma_max to 0 (paper eq. 3); returns z (scaled).
 
         ``noise``: standard-normal (B, C_z, R, R) starting noise (scaled by sigma_max here); drawn
@@ -147,8 +148,9 @@ class ScenarioDiffusion(nn.Module):
         the paper's over the whole window. ``signal_guidance``: the weight of the traffic lights'
         map channels against the same map without them (:func:`~.edm.condition_guided`; the
         model is trained both ways, ``p_no_signals``), applied to both branches of the guidance
-        above: twice the UNet passes, only when a window shows a light's state. ``known``: ``(z_known, mask)``, latent cells fixed to z_known where mask
-        is 1 and generated around them (:func:`~.edm.inpainted`; pinned tokens).
+        above: twice the UNet passes, for a batch where some window shows a light's state.
+        ``known``: ``(z_known, mask)``, latent cells fixed to z_known where mask is 1 and generated
+        around them (:func:`~.edm.inpainted`; pinned tokens).
         """
         cfg = self.cfg.unet
         cond = self.cond(m, agent_tokens, agent_pad_mask, global_token)

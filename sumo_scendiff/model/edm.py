@@ -277,9 +277,11 @@ def guided(denoiser: Denoiser, cond: dict, uncond: dict, w: float | Tensor,
         d_r = d_c
         if region is not None:
             update, d_r = update * region.to(z)[on], d_c * region.to(z)[on]
-        dims = tuple(range(1, z.ndim))
-        along = (update * d_r).sum(dims, keepdim=True) / (d_r * d_r).sum(dims, keepdim=True).clamp_min(1e-12) * d_r
-        update = update - (1.0 - per_example(parallel, z)[on].reshape(shape)) * along
+        keep = per_example(parallel, z)[on]
+        if bool((keep != 1.0).any()):     # the projection only where it is asked for
+            dims = tuple(range(1, z.ndim))
+            along = (update * d_r).sum(dims, keepdim=True) / (d_r * d_r).sum(dims, keepdim=True).clamp_min(1e-12) * d_r
+            update = update - (1.0 - keep.reshape(shape)) * along
         d[on] = d_c + (wz[on] - 1.0).reshape(shape) * update
         return d
     return D
