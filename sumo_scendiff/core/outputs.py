@@ -21,6 +21,7 @@ import fcntl
 import os
 import re
 import shutil
+import time
 
 LOCK = ".lock"
 _PARTIAL = re.compile(r"^(?P<final>.+)\.partial(?:-(?P<pid>\d+))?$")
@@ -60,13 +61,21 @@ class Claim:
                 os.rmdir(self.directory)
 
 
-def _holder(path: str) -> str:
-    try:
-        with open(path) as f:
-            pid = f.read().strip()
-    except OSError:
-        pid = ""
-    return f"process {pid}" if pid.isdigit() else "another process"
+def _holder(path: str, wait: float = 2.0) -> str:
+    # The owner writes its pid just after it takes the lock: a process that finds the lock taken
+    # in between waits a moment for the pid rather than naming nobody.
+    deadline = time.monotonic() + wait
+    while True:
+        try:
+            with open(path) as f:
+                pid = f.read().strip()
+        except OSError:
+            pid = ""
+        if pid.isdigit():
+            return f"process {pid}"
+        if time.monotonic() > deadline:
+            return "another process"
+        time.sleep(0.01)
 
 
 def _lock(directory: str) -> Claim:
