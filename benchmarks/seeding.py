@@ -109,6 +109,10 @@ def get_options(args=None):
                    help="generate with the traffic lights' states at T (run's --signals)")
     p.add_argument("--signal-guidance", type=float, default=None,
                    help="with --signals: the lights' guidance weight (default: generate's)")
+    p.add_argument("--scene-density", default="auto", metavar="D|auto|model|window",
+                   help="the level each window is generated at: veh / km of car lane; 'auto' (default, as run "
+                        "seeds with demand): the host's own level around the window at T; 'model': the model's "
+                        "own; 'window': the count SUMO's own traffic has in the window at T (told the count)")
     p.add_argument("--events", default=None, metavar="FILE",
                    help="write every collision / teleport of SUMO's and the model's rollouts in detail "
                         "(pickle; sim.events)")
@@ -182,7 +186,7 @@ def cached_scenes(path: str | None, name: str, windows: list, o, scenes: list | 
     import pickle
     if not path:
         return None
-    key = (name, o.checkpoint, o.seed, getattr(o, "signals", False), getattr(o, "signal_guidance", None), o.scene_guidance, o.scene_guidance_sigma, o.lane_snap, tuple((round(w.cx, 3), round(w.cy, 3), round(w.yaw, 4), w.size) for w in windows))
+    key = (name, o.checkpoint, o.seed, getattr(o, "signals", False), getattr(o, "signal_guidance", None), getattr(o, "scene_density", None), o.scene_guidance, o.scene_guidance_sigma, o.lane_snap, tuple((round(w.cx, 3), round(w.cy, 3), round(w.yaw, 4), w.size) for w in windows))
     cache = {}
     if os.path.exists(path):
         with open(path, "rb") as f:
@@ -235,8 +239,8 @@ def bench_net(path: str, gen, o, explicit: bool) -> dict | None:
         t = time.perf_counter()
         scenes = cached_scenes(o.scenes, net.name, windows, o)
         if scenes is None:   # map-only (no tokens, p_mask = 1), with the lights as they are at T
-            lights = host_lights(path, dem, o, net, windows) if o.signals else None
-            scenes = gen().generate(net, windows, seed=o.seed, signals=lights)
+            lights, density = host_at_t(path, dem, o, net, windows)
+            scenes = gen().generate(net, windows, seed=o.seed, signals=lights, density=density)
             cached_scenes(o.scenes, net.name, windows, o, scenes)
         t_gen = time.perf_counter() - t
         with open(src, "wb") as f:
@@ -273,15 +277,29 @@ def sim_config(path: str, dem: tuple, o):
                      extra=tuple(["--ignore-route-errors", "true"] + extra))
 
 
-def host_lights(path: str, dem: tuple, o, net, windows: list) -> list[dict]:
-    """Each window's traffic-light states at T: the warm-up run here once more (warm-ups from scratch
-    repeat exactly, see the docstring), so the model sees the lights the rollouts start with."""
+def host_at_t(path: str, dem: tuple, o, net, windows: list) -> tuple[list | None, list | None]:
+    """Each window's traffic-light states (``--signals``) and host density (``--scene-density
+    auto``) at T: the warm-up run here once more (warm-ups from scratch repeat exactly, see the
+    docstring), so the model sees the state the rollouts start with."""
+    sd = getattr(o, "scene_density", None)
+    density = None if sd in (None, "model", "auto", "window") else float(sd)
+    if not o.signals and sd not in ("auto", "window"):
+        return None, density
+    from sumo_scendiff.sim.density import host_density
     from sumo_scendiff.sim.lights import light_states
     from sumo_scendiff.sim.sumo import close, start
     sim = start(sim_config(path, dem, o))
     try:
         sim.simulationStep(dem[1] + o.warmup)
-        return [light_states(sim, net.lights_in(w)) for w in windows]
+        lights = [light_states(sim, net.lights_in(w)) for w in windows] if o.signals else None
+        if sd == "auto":
+            density = [host_density(sim, net, w) for w in windows]
+            density = [math.nan if d is None else d for d in density]
+        elif sd == "window":                 # the vehicles the SUMO row of the tables counts
+            from sumo_scendiff.sim.cosim import CoSimulation
+            cosim = CoSimulation(sim, net, None, seed=o.seed)
+            density = [len(cosim.existing(w).token_ids()) / max(net.car_lane_km(w), 1e-9) for w in windows]
+        return lights, density
     finally:
         close(sim)
 

@@ -51,7 +51,9 @@ def tables(results: list[dict], o, command: str) -> str:
         groups.append((f"**all ({len(results)} nets)**", {m: _merge(results, m) for m in METHODS}))
     lines = [f"Command: `{command}`", "",
              f"seed {o.seed}, {o.windows} windows per net (auto_windows), warm-up {o.warmup:g} s, "
-             f"rollout {o.rollout:g} s, step {o.step_length:g} s, sublane 0.8 m; a fresh SUMO at the state T "
+             f"rollout {o.rollout:g} s, step {o.step_length:g} s, sublane 0.8 m; the model's scenes at density "
+             f"{getattr(o, 'scene_density', 'model')}"
+             f"{', lights given' if getattr(o, 'signals', False) else ''}; a fresh SUMO at the state T "
              f"per rollout, in one worker process per net, address space randomisation off: "
              f"{'yes' if all(r.get('repeatable') for r in results) else 'NO (numbers may vary)'}", "",
              "| network | demand | windows (kinds) | vehicles on the net at T | wall (s): warm-up / generate / "

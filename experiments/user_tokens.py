@@ -124,6 +124,9 @@ def get_options(args=None):
     p.add_argument("--cities", nargs="+", default=None,
                    help="folders of /work/shared/nets holding a network and its .rou.xml (default: "
                         "every one whose network has demand)")
+    p.add_argument("-n", "--net-file", dest="nets", action="append", default=None, metavar="NET",
+                   help="a network instead of the cities (repeat): its own demand beside it, else random "
+                        "trips -- the held-out generated networks, to choose a setting on")
     p.add_argument("--windows", type=int, default=10, help="recorded windows per city")
     p.add_argument("--p-mask", type=float, default=0.5)
     p.add_argument("-s", "--seed", type=int, default=0)
@@ -176,8 +179,8 @@ def main(o) -> int:
     every: dict[str, list[list[dict]]] = {}
     lines = [("| city | tokens | n | match (delivered / drawn) | speed MAE m/s | final speed MAE m/s | turn agreement "
               "| vehicles per window (SUMO's) | warned |"), "|---|---|---|---|---|---|---|---|---|"]
-    for city in o.cities or cities_with_demand():
-        net = network_of(city)
+    for city in o.nets or o.cities or cities_with_demand():
+        net = Network.load(city) if o.nets else network_of(city)
         store = SceneStore(record_cached([net.path], [find_demand(net)], o.windows, o.seed, o.cache,
                                          f"gt-{net.name}"))
         gts = [store.scene(i) for i in range(min(o.windows, len(store)))]

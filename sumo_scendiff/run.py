@@ -54,10 +54,11 @@ def get_options(args=None):
     p.add_argument("--tokens", metavar="FILE", help="agent tokens and global token (TOML/JSON, docs/tokens.md)")
     p.add_argument("--p-mask", type=float, default=None, help="global scene token (overrides the token file)")
     amount = p.add_mutually_exclusive_group()
-    amount.add_argument("--density", metavar="D|auto", default=None,
+    amount.add_argument("--density", metavar="D|auto|model", default=None,
                         help="vehicles per km of car lane in each window, vehicles already there included; "
                              "'auto': the host simulation's own level around the window (-c/-r), or "
-                             "--edge-data's at the seeding time (default: the model's own prior)")
+                             "--edge-data's at the seeding time; 'model': the model's own level (default: "
+                             "'auto' with demand, else 'model')")
     amount.add_argument("--vehicles", metavar="N", default=None,
                         help="vehicles in each window, those already there included (converted with the "
                              "window's car-lane length)")
@@ -161,13 +162,17 @@ def _edge_data(o, net):
         raise RunError(f"--edge-data: {e}") from None
 
 
-def _targets(o, net, windows, session, edge_data, host: bool) -> list[float | None]:
-    """Each window's density target (veh per km of car lane) from --density/--vehicles, or None."""
+def _targets(o, net, windows, session, edge_data, host: bool, has_density: bool) -> list[float | None]:
+    """Each window's density target (veh per km of car lane) from --density/--vehicles (neither:
+    the host's own level where there is demand, ``sim.density.default_density``), or None."""
     from .map.edgedata import EdgeDataError
-    from .sim.density import window_target
+    from .sim.density import default_density, host_has_traffic, window_target
     when = session.sim.simulation.getTime() if host else (o.begin or 0.0)
+    density = default_density(o.density, o.vehicles, host and host_has_traffic(session.sim), has_density)
+    o.level = (f"vehicles {o.vehicles}" if o.vehicles is not None else "model" if density is None
+               else density if o.density is not None else f"{density} (default with demand)")
     try:
-        return [window_target(net, w, o.density, o.vehicles, sim=session.sim if host else None,
+        return [window_target(net, w, density, o.vehicles, sim=session.sim if host else None,
                               edge_data=edge_data, time=when) for w in windows]
     except EdgeDataError as e:
         raise RunError(f"--edge-data: {e}") from None
@@ -258,7 +263,7 @@ def run(o) -> dict:
         windows = [w for w, _ in places]
         _check_kept(o, kept, windows)
         existing = [session.existing(w) for w in windows]
-        targets = _targets(o, net, windows, session, edge_data, host=bool(routes))
+        targets = _targets(o, net, windows, session, edge_data, host=bool(routes), has_density=gen.has_density)
         if any(d is not None for d in targets) and not gen.has_density:
             raise RunError(f"--density/--vehicles: {o.checkpoint or 'the shipped model'} has no density "
                            f"condition (trained before it); leave them out or use a newer model")
@@ -308,7 +313,7 @@ def run(o) -> dict:
         session.close()
     summary = {"network": scen.net, "configuration": scen.config, "output_dir": os.path.abspath(o.out),
                "model_sha256": gen.sha256, "seed": o.seed, "threads": threads,
-               "scenes": results, "timing_s": {k: round(v, 3) for k, v in timing.items()}}
+               "density": getattr(o, "level", None), "scenes": results, "timing_s": {k: round(v, 3) for k, v in timing.items()}}
     tmp = partial_path(os.path.join(o.out, "run.json"))
     with open(tmp, "w") as f:
         json.dump(summary, f, indent=1)

@@ -13,6 +13,7 @@ from sumo_scendiff.core.geometry import Window
 from sumo_scendiff.map.network import Network
 from sumo_scendiff.sim.density import (
     DensityError,
+    QUEUE_ZONE,
     host_density,
     parse_density,
     parse_vehicles,
@@ -73,8 +74,8 @@ def test_the_hosts_own_level_around_a_window(tmp_path):
     try:
         for _ in range(90):
             libsumo.simulationStep()
-        side = host_density(libsumo, net, Window(0.0, 120.0, 1.5708), radius=200.0)
-        main = host_density(libsumo, net, Window(-120.0, 0.0, 0.0), radius=200.0)
+        side = host_density(libsumo, net, Window(0.0, 120.0, 1.5708), radius=200.0, zone=0.0)
+        main = host_density(libsumo, net, Window(-120.0, 0.0, 0.0), radius=200.0, zone=0.0)
         circle = shapely.Point(-120.0, 0).buffer(200.0)
         lanes = [i for i in net.car_lane_ids if net.lanes[i].edge in ("wc", "cw", "ec", "ce")]
         n = sum(libsumo.vehicle.getLaneID(v) in {net.lanes[i].id for i in lanes}
@@ -82,6 +83,38 @@ def test_the_hosts_own_level_around_a_window(tmp_path):
         km = sum(shapely.length(shapely.intersection(net.lines[i], circle)) for i in lanes) / 1000
         assert n > 5 and main == pytest.approx(n / km, rel=1e-6)
         assert side == 0.0
+    finally:
+        libsumo.close()
+
+
+def test_a_queue_before_the_stop_line_is_a_class_of_its_own(tmp_path):
+    """A queue stands at a red light: the last QUEUE_ZONE m before a stop line are denser than the
+    rest of the road, so a window at the light gets a higher level and a window mid-block a lower
+    one than with ``zone=0``, where both read the road's average."""
+    import libsumo
+
+    from sumo_scendiff.core.tools import sumo_binary
+
+    from .conftest import netconvert
+    nodes = ('<node id="c" x="0" y="0" type="traffic_light"/><node id="w" x="-400" y="0"/>'
+             '<node id="e" x="400" y="0"/>')
+    edges = "".join(f'<edge id="{a}{b}" from="{a}" to="{b}" numLanes="1" speed="13.89"/>'
+                    for a, b in (("w", "c"), ("c", "e")))
+    path = netconvert(nodes, edges, str(tmp_path / "light.net.xml"))
+    net = Network.load(path)
+    rou = tmp_path / "r.rou.xml"
+    rou.write_text('<routes><flow id="f" begin="0" end="200" period="6" from="wc" to="ce"/></routes>')
+    libsumo.start([sumo_binary(), "-n", path, "-r", str(rou), "--no-step-log", "true"])
+    try:
+        libsumo.trafficlight.setRedYellowGreenState("c", "r" * len(libsumo.trafficlight.getRedYellowGreenState("c")))
+        for _ in range(90):
+            libsumo.simulationStep()
+        assert libsumo.vehicle.getIDCount() >= 8
+        at_light, mid = Window(-40.0, 0.0, 0.0), Window(-250.0, 0.0, 0.0)
+        lvl = {z: (host_density(libsumo, net, at_light, radius=500.0, zone=z),
+                   host_density(libsumo, net, mid, radius=500.0, zone=z)) for z in (0.0, QUEUE_ZONE)}
+        assert lvl[QUEUE_ZONE][0] > 1.5 * lvl[0.0][0]           # the queue's level where the queue is
+        assert lvl[QUEUE_ZONE][1] < lvl[0.0][1]                 # and not spread over the road
     finally:
         libsumo.close()
 
@@ -97,10 +130,28 @@ def test_run_counts_the_vehicles_already_in_the_window(cross_net, tmp_path):
                           "--center", "0,0", "--scenes", "1", "--rollout", "0", "-o", str(out)],
                          capture_output=True, text=True, cwd=ROOT, env={**os.environ, "OMP_NUM_THREADS": "1"})
     assert res.returncode == 0, res.stderr
-    row = json.load(open(out / "run.json"))["scenes"][0]
+    summary = json.load(open(out / "run.json"))
+    assert summary["density"] == "auto (default with demand)"    # the host's level, not the model's
+    row = summary["scenes"][0]
     assert row["existing_vehicles"] >= 3
     assert row["vehicles_in_window"] == row["existing_vehicles"] + row["placed"]
     km = Network.load(cross_net).car_lane_km(Window(0.0, 0.0, 0.0))
     assert row["density_veh_per_km"] == pytest.approx(row["vehicles_in_window"] / km, abs=0.01)
     assert " kept " in res.stdout.splitlines()[0] and f"beside {row['existing_vehicles']} vehicles kept" in res.stdout
 
+
+
+def test_without_a_level_a_host_with_traffic_gives_its_own():
+    """Neither --density nor --vehicles: inside a host simulation with traffic the host's level
+    ("auto"), without one (or with a checkpoint that has no density condition) the model's own;
+    "model" asks for the model's own with a host too; a level the user names is kept."""
+    from sumo_scendiff.sim.density import MODEL, default_density
+    assert default_density(None, None, host=True, has_density=True) == "auto"
+    assert default_density(None, None, host=False, has_density=True) is None
+    assert default_density(None, None, host=True, has_density=False) is None
+    assert default_density(MODEL, None, host=True, has_density=True) is None
+    assert default_density(12.0, None, host=True, has_density=True) == 12.0
+    assert default_density(None, 5, host=True, has_density=True) is None     # window_target uses vehicles
+    assert parse_density("model") == MODEL and parse_density(" Auto ") == "auto"
+    with pytest.raises(DensityError, match="'auto' or 'model'"):
+        parse_density("lots")

@@ -41,7 +41,7 @@ from ..core.matching import match_agents
 from ..core.scene import Scene
 from ..generation.token_check import heading_warnings
 from ..map.network import Network
-from .density import window_target
+from .density import default_density, host_has_traffic, window_target
 from .lights import light_states
 from .seeding import Seeder, SeedReport
 
@@ -157,8 +157,9 @@ class CoSimulation:
         ``tokens``: the caller's agent tokens (window frame, see :mod:`~sumo_scendiff.tokens.encoding`);
         ``p_mask``: the global scene token (default 1.0 in an empty window, else 0.5);
         ``density``: vehicles per km of car lane the window should hold, those already there
-        included, or "auto" (this simulation's own level around the window, sim.density);
-        ``vehicles``: that many in the window instead. Neither: the model's own prior.
+        included, "auto" (this simulation's own level around the window, sim.density) or "model"
+        (the model's own level); ``vehicles``: that many in the window instead. Neither: "auto"
+        while the simulation has traffic of its own, else the model's (``default_density``).
         """
         for line in heading_warnings(self.net, window, tokens):
             warnings.warn(line, stacklevel=2)
@@ -167,6 +168,7 @@ class CoSimulation:
         source = ["user"] * len(tokens) + ex.token_ids()
         p = p_mask if p_mask is not None else (1.0 if not all_tokens else 0.5)
         s = self.seed + self.count if seed is None else seed
+        density = default_density(density, vehicles, host_has_traffic(self.sim), self.generator.has_density)
         target = window_target(self.net, window, density, vehicles, sim=self.sim)
         scene = self.generator.generate(self.net, [window], tokens=[all_tokens], p_mask=p, seed=s,
                                         density=None if target is None else [target],

@@ -11,8 +11,15 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
+import shapely.ops
+
+from ..map.network import window_square
 
 AUTO_RADIUS = 300.0   # m: the surroundings whose traffic level a window takes
+QUEUE_ZONE = 30.0     # m before a stop line: a class of its own in host_density (docs/evaluation.md)
+
+
+MODEL = "model"       # --density model: the model's own level, with a host too
 
 
 class DensityError(ValueError):
@@ -20,15 +27,15 @@ class DensityError(ValueError):
 
 
 def parse_density(text: str | None, flag: str = "--density") -> float | str | None:
-    """A flag's value: None, "auto" or a density >= 0 (vehicles per km of car lane)."""
+    """A flag's value: None, "auto", "model" or a density >= 0 (vehicles per km of car lane)."""
     if text is None:
         return None
-    if str(text).strip().lower() == "auto":
-        return "auto"
+    if str(text).strip().lower() in ("auto", MODEL):
+        return str(text).strip().lower()
     try:
         v = float(text)
     except ValueError:
-        raise DensityError(f"{flag}: not a number or 'auto': {text!r}") from None
+        raise DensityError(f"{flag}: not a number, 'auto' or 'model': {text!r}") from None
     if not np.isfinite(v) or v < 0:
         raise DensityError(f"{flag}: must be a finite number >= 0, got {text}")
     return v
@@ -58,43 +65,82 @@ def road_class(net, lane: int):
     return net.sumo_net.getEdge(ln.edge).getPriority()
 
 
-def host_density(sim, net, window, radius: float = AUTO_RADIUS) -> float | None:
+def _split(net, idx: np.ndarray, region, zone: float) -> tuple[np.ndarray, np.ndarray]:
+    """km inside ``region`` of each lane's last ``zone`` m (before its stop line) and of the rest."""
+    lines = net.lines[idx]
+    length = shapely.length(lines)
+    cut = np.maximum(length - zone, 0.0)
+    tails = np.array([shapely.ops.substring(ln, c, L) if c < L else ln for ln, c, L in zip(lines, cut, length)]
+                     if len(idx) else [], dtype=object)
+    inside = shapely.length(shapely.intersection(lines, region)) / 1000.0
+    tail = shapely.length(shapely.intersection(tails, region)) / 1000.0 if len(idx) and zone > 0 else 0.0 * inside
+    return tail, np.maximum(inside - tail, 0.0)
+
+
+def host_density(sim, net, window, radius: float = AUTO_RADIUS, zone: float = QUEUE_ZONE) -> float | None:
     """Vehicles per km of car lane of the host simulation's own traffic within ``radius`` m of the
     window's centre (None where no car lane is that close), per class of road: each class's density
     around the window (:func:`road_class`: a main road's queue says little about the side streets
     beside it) weighted by that class's car-lane km inside the window; the lanes inside junctions are
-    a class of their own. A window with no classed lane, or whose classes have no lane around, falls
-    back to the plain density of every car lane around."""
+    a class of their own, and the last ``zone`` m of a lane before its junction one apart from the rest
+    of it (queues stand there: a window on a junction holds more of them than the roads around). A
+    window with no classed lane, or whose classes have no lane around, falls back to the plain density
+    of every car lane around."""
     circle = shapely.Point(window.cx, window.cy).buffer(radius)
     idx = net.lane_tree.query(circle, predicate="intersects")
-    idx = idx[np.isin(idx, net.car_lane_ids)]
-    km_each = shapely.length(shapely.intersection(net.lines[idx], circle)) / 1000.0
-    km = float(km_each.sum())
+    idx = np.sort(idx[np.isin(idx, net.car_lane_ids)])
+    tail_km, rest_km = _split(net, idx, circle, zone)
+    km = float(tail_km.sum() + rest_km.sum())
     if km <= 0:
         return None
-    lane_of = {net.lanes[i].id: i for i in idx}
-    per_lane: dict[int, int] = {}
+    lane_of = {net.lanes[i].id: k for k, i in enumerate(idx)}
+    count = np.zeros((len(idx), 2))
     for vid in sim.vehicle.getIDList():
-        i = lane_of.get(sim.vehicle.getLaneID(vid))
-        if i is not None:
+        k = lane_of.get(sim.vehicle.getLaneID(vid))
+        if k is not None:
             x, y = sim.vehicle.getPosition(vid)
             if (x - window.cx) ** 2 + (y - window.cy) ** 2 <= radius ** 2:
-                per_lane[i] = per_lane.get(i, 0) + 1
-    plain = sum(per_lane.values()) / km
+                in_tail = zone > 0 and sim.vehicle.getLanePosition(vid) >= net.lanes[idx[k]].length - zone
+                count[k, 0 if in_tail else 1] += 1
+    plain = float(count.sum()) / km
     around: dict = {}
-    for i, k in zip(idx.tolist(), km_each.tolist()):
+    for k, i in enumerate(idx.tolist()):
         c = road_class(net, i)
         if c is not None:
-            n, kk = around.get(c, (0, 0.0))
-            around[c] = (n + per_lane.get(i, 0), kk + k)
+            for part, kk in ((0, tail_km[k]), (1, rest_km[k])):
+                key = (c, part) if c != "junction" else (c, 0)
+                n, km_c = around.get(key, (0, 0.0))
+                around[key] = (n + count[k, part], km_c + kk)
+    win_idx, _ = net.car_lanes_in(window)
+    win_tail, win_rest = _split(net, win_idx, window_square(window), zone)
     inside: dict = {}
-    for i, k in zip(*net.car_lanes_in(window)):
+    for i, kt, kr in zip(win_idx.tolist(), win_tail.tolist(), win_rest.tolist()):
         c = road_class(net, int(i))
-        if c is not None and k > 0:
-            inside[c] = inside.get(c, 0.0) + float(k)
+        if c is not None:
+            for part, kk in ((0, kt), (1, kr)):
+                key = (c, part) if c != "junction" else (c, 0)
+                if kk > 0:
+                    inside[key] = inside.get(key, 0.0) + float(kk)
     if not inside or any(around.get(c, (0, 0.0))[1] <= 0 for c in inside):
         return plain
     return sum(around[c][0] / around[c][1] * k for c, k in inside.items()) / sum(inside.values())
+
+
+def host_has_traffic(sim) -> bool:
+    """Whether a host simulation carries traffic of its own whose level a window can take."""
+    return sim is not None and sim.vehicle.getIDCount() > 0
+
+
+def default_density(density, vehicles, host: bool, has_density: bool):
+    """The level a window is seeded at when the user names none: inside a host simulation that
+    has traffic, the host's own level around the window ("auto": a scene seeded into running
+    traffic joins it at the level it has there; the model's own level is that of its training
+    networks, a third above the real cities', and a window seeded denser than the traffic around
+    it hands off with more conflicts, docs/evaluation.md); without a host, or with a checkpoint
+    without the density condition, the model's own (None). ``"model"`` asks for the latter."""
+    if density is None and vehicles is None:
+        return "auto" if host and has_density else None
+    return None if density == MODEL else density
 
 
 def window_target(net, window, density=None, vehicles=None, sim=None, edge_data=None,
@@ -103,6 +149,8 @@ def window_target(net, window, density=None, vehicles=None, sim=None, edge_data=
     km = net.car_lane_km(window)
     if vehicles is not None:
         return vehicles / km if km > 0 else None
+    if density == MODEL:
+        return None
     if density != "auto":
         return density
     if edge_data is not None:

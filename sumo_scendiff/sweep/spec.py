@@ -59,7 +59,7 @@ class Scenario:
     step_length: float
     replay: float = 0.0          # seconds the agents follow their generated future first
     generation: GenerationConfig = field(default_factory=GenerationConfig)
-    density: float | str | None = None   # veh per km of car lane, "auto" or None (the model's prior)
+    density: float | str | None = None   # veh per km of car lane, "auto", "model" or None (sim.density.default_density)
     vehicles: int | None = None          # vehicles in the window instead (exclusive with density)
 
     def __getattr__(self, name: str):
@@ -173,12 +173,12 @@ def _locations(source: str, raw: list) -> list[str]:
 
 
 def _density(source: str, key: str, v):
-    """A density value: "auto" or a finite number >= 0 (vehicles per km of car lane)."""
-    if isinstance(v, str) and v.strip().lower() == "auto":
-        return "auto"
+    """A density value: "auto", "model" or a finite number >= 0 (vehicles per km of car lane)."""
+    if isinstance(v, str) and v.strip().lower() in ("auto", "model"):
+        return v.strip().lower()
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-        raise _err(source, key, f"values must be numbers >= 0 (vehicles per km of car lane) or "
-                   f"\"auto\", got {v!r}")
+        raise _err(source, key, f"values must be numbers >= 0 (vehicles per km of car lane), "
+                   f"\"auto\" or \"model\", got {v!r}")
     return float(v)
 
 

@@ -40,11 +40,14 @@ def scenario_target(s: Scenario, net, window, sim=None, checkpoint: str | None =
                     has_density: bool = True) -> float | None:
     """The scenario's density target (veh per km of car lane, vehicles already in the window
     included) from its ``density``/``vehicles``: ``"auto"`` is ``sim``'s own level around the window
-    (the session's simulation of a network with routes) or, without one, None (the model's prior).
+    (the session's simulation of a network with routes) or, without one, None (the model's prior);
+    neither given: as ``sim.density.default_density``.
     A target the model cannot take (``has_density`` False) raises :class:`DensityUnsupported`."""
-    from ..sim.density import window_target
-    target = window_target(net, window, s.density, s.vehicles, sim=sim)
-    if target is not None and not has_density:
+    from ..sim.density import MODEL, default_density, host_has_traffic, window_target
+    asked = s.density not in (None, MODEL) or s.vehicles is not None
+    density = default_density(s.density, s.vehicles, host_has_traffic(sim), has_density)
+    target = window_target(net, window, density, s.vehicles, sim=sim)
+    if asked and target is not None and not has_density:
         what = f"density = {s.density!r}" if s.vehicles is None else f"vehicles = {s.vehicles}"
         if s.density == "auto":
             what += f" ({target:.1f} veh/km around the window)"
