@@ -17,8 +17,6 @@ from ..map.network import window_square
 
 AUTO_RADIUS = 300.0   # m: the surroundings whose traffic level a window takes
 QUEUE_ZONE = 30.0     # m before a stop line: a class of its own in host_density (docs/evaluation.md)
-
-
 MODEL = "model"       # --density model: the model's own level, with a host too
 
 
@@ -68,13 +66,23 @@ def road_class(net, lane: int):
 def _split(net, idx: np.ndarray, region, zone: float) -> tuple[np.ndarray, np.ndarray]:
     """km inside ``region`` of each lane's last ``zone`` m (before its stop line) and of the rest."""
     lines = net.lines[idx]
-    length = shapely.length(lines)
-    cut = np.maximum(length - zone, 0.0)
-    tails = np.array([shapely.ops.substring(ln, c, L) if c < L else ln for ln, c, L in zip(lines, cut, length)]
-                     if len(idx) else [], dtype=object)
     inside = shapely.length(shapely.intersection(lines, region)) / 1000.0
-    tail = shapely.length(shapely.intersection(tails, region)) / 1000.0 if len(idx) and zone > 0 else 0.0 * inside
+    if zone <= 0 or not len(idx):
+        return np.zeros_like(inside), inside
+    length = shapely.length(lines)
+    tails = np.array([shapely.ops.substring(ln, max(L - zone, 0.0), L) for ln, L in zip(lines, length)], dtype=object)
+    tail = shapely.length(shapely.intersection(tails, region)) / 1000.0
     return tail, np.maximum(inside - tail, 0.0)
+
+
+def _classes(net, lane: int, tail_km: float, rest_km: float):
+    """(class, km) of a lane's two parts (:func:`road_class`; the junction's lanes are one class)."""
+    c = road_class(net, lane)
+    if c is None:
+        return []
+    if c == "junction":
+        return [((c, 0), tail_km + rest_km)]
+    return [((c, 0), tail_km), ((c, 1), rest_km)]
 
 
 def host_density(sim, net, window, radius: float = AUTO_RADIUS, zone: float = QUEUE_ZONE) -> float | None:
@@ -105,22 +113,17 @@ def host_density(sim, net, window, radius: float = AUTO_RADIUS, zone: float = QU
     plain = float(count.sum()) / km
     around: dict = {}
     for k, i in enumerate(idx.tolist()):
-        c = road_class(net, i)
-        if c is not None:
-            for part, kk in ((0, tail_km[k]), (1, rest_km[k])):
-                key = (c, part) if c != "junction" else (c, 0)
-                n, km_c = around.get(key, (0, 0.0))
-                around[key] = (n + count[k, part], km_c + kk)
+        parts = _classes(net, i, tail_km[k], rest_km[k])
+        for part, (key, kk) in enumerate(parts):
+            n, km_c = around.get(key, (0, 0.0))
+            around[key] = (n + (count[k].sum() if len(parts) == 1 else count[k, part]), km_c + kk)
     win_idx, _ = net.car_lanes_in(window)
     win_tail, win_rest = _split(net, win_idx, window_square(window), zone)
     inside: dict = {}
     for i, kt, kr in zip(win_idx.tolist(), win_tail.tolist(), win_rest.tolist()):
-        c = road_class(net, int(i))
-        if c is not None:
-            for part, kk in ((0, kt), (1, kr)):
-                key = (c, part) if c != "junction" else (c, 0)
-                if kk > 0:
-                    inside[key] = inside.get(key, 0.0) + float(kk)
+        for key, kk in _classes(net, int(i), kt, kr):
+            if kk > 0:
+                inside[key] = inside.get(key, 0.0) + float(kk)
     if not inside or any(around.get(c, (0, 0.0))[1] <= 0 for c in inside):
         return plain
     return sum(around[c][0] / around[c][1] * k for c, k in inside.items()) / sum(inside.values())
