@@ -22,9 +22,12 @@ step for the generated ones) and ``rollout`` of ``--rollout`` s. Placement = age
 0.1 rad of their generated pose after that step, over the agents generated (refused, misplaced and
 dropped-on-existing ones count against it); "dropped (junction foe)" are agents not seeded because
 another agent was already in the area their junction links share (``sim.junctions``; off with
-``--no-junction-rule``), and the second placement rate leaves both kinds of drop out. "Slowed" counts
+``--no-junction-rule``) or because an agent waiting inside a junction on red found its place at the
+stop line taken (``sim.stop_lines``; "moved from a red junction" counts those moved there, off with
+``--no-red-stop-line``), and the second placement rate leaves both kinds of drop out. "Slowed" counts
 agents that departed below their generated speed, capped at the Krauss safe speed behind the vehicle
-or red light ahead (``Seeder.seed`` / ``settle``), or standing to wait for a junction foe.
+or red light ahead (``Seeder.seed`` / ``settle``), or a foe already inside the junction ahead
+(``junction_leaders``, off with ``--no-junction-leaders``), or standing to wait for a junction foe.
 Rollout rates are per 100 agents; "x SUMO" columns are the method's rate over SUMO's. Collision events
 are split per net by where and with whom (on a junction, with a host vehicle, a host vehicle ran into
 the agent, in the first 10 s), beside the teleports.
@@ -102,6 +105,11 @@ def get_options(args=None):
                         "and write; lets a change to the seeder be measured on the very same scenes")
     p.add_argument("--no-junction-rule", dest="junction_rule", action="store_false",
                    help="seed agents on conflicting junction links as generated (sim.junctions off)")
+    p.add_argument("--no-junction-leaders", dest="junction_leaders", action="store_false",
+                   help="settle without the foes already inside a junction as leaders (Seeder.junction_leaders off)")
+    p.add_argument("--no-red-stop-line", dest="red_stop_line", action="store_false",
+                   help="seed agents waiting inside a junction on red where generated, not at their stop line "
+                        "(Seeder.red_to_stop_line off)")
     p.add_argument("--no-width-cap", dest="width_cap", action="store_false",
                    help="seed the generated widths, also those wider than the network's junctions assume "
                         "(Seeder.width_cap off)")
@@ -225,7 +233,7 @@ def bench_net(path: str, gen, o, explicit: bool) -> dict | None:
     # runs the same way whatever else the command does.
     import fcntl
     opts = {k: getattr(o, k) for k in ("warmup", "rollout", "density", "step_length", "seed", "junction_rule",
-                                          "width_cap")}
+                                          "width_cap", "junction_leaders", "red_stop_line")}
     opts["events"] = bool(getattr(o, "events", None))
     top = os.path.join(tempfile.gettempdir(), f"scendiff-bench-seeding-{os.getuid()}")
     os.makedirs(top, exist_ok=True)
@@ -332,7 +340,7 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
         close(sim)
     res = {m: {"stats": [], "generated": 0, "dropped": 0, "refused": Counter(), "absent": 0,
                "off_pose": 0, "placed": 0, "slowed": 0, "fitted": 0, "junction": 0,
-                  "narrowed": 0, "pulled_back": 0} for m in METHODS}
+                  "narrowed": 0, "pulled_back": 0, "to_stop_line": 0} for m in METHODS}
     t = time.perf_counter()
     events = []
     for k, w in enumerate(windows):
@@ -344,6 +352,8 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
                 sim.simulation.loadState(base)
                 cosim = CoSimulation(sim, net, None, seed=o.seed)
                 cosim.seeder.resolve_junctions = getattr(o, "junction_rule", True)
+                cosim.seeder.junction_leaders_on = getattr(o, "junction_leaders", True)
+                cosim.seeder.red_to_stop_line = getattr(o, "red_stop_line", True)
                 if not getattr(o, "width_cap", True):
                     cosim.seeder.width_cap = None
                 ex = cosim.existing(w)
@@ -379,6 +389,7 @@ def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -
                 r["fitted"] += len(rep.gap_fitted)
                 r["narrowed"] += len(rep.narrowed)
                 r["pulled_back"] += len(rep.pulled_back)
+                r["to_stop_line"] += len(rep.to_stop_line)
                 r["junction"] += len(getattr(rep, "conflicts", ()))
                 if tracer is not None:
                     from sumo_scendiff.sim.events import seed_info

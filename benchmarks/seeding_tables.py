@@ -33,13 +33,13 @@ def _ratio(a: float, b: float) -> str:
 
 def _merge(results: list[dict], method: str) -> dict:
     out = {"stats": [], "generated": 0, "dropped": 0, "refused": Counter(), "absent": 0, "off_pose": 0,
-           "placed": 0, "slowed": 0, "fitted": 0, "junction": 0, "narrowed": 0, "pulled_back": 0}
+           "placed": 0, "slowed": 0, "fitted": 0, "junction": 0, "narrowed": 0, "pulled_back": 0, "to_stop_line": 0}
     for r in results:
         m = r["methods"][method]
         out["stats"] += m["stats"]
         out["refused"].update(m["refused"])
         for k in ("generated", "dropped", "absent", "off_pose", "placed", "slowed", "fitted", "junction",
-                  "narrowed", "pulled_back"):
+                  "narrowed", "pulled_back", "to_stop_line"):
             out[k] += m.get(k, 0)
     return out
 
@@ -69,7 +69,7 @@ def tables(results: list[dict], o, command: str) -> str:
               "| absent after step | off pose | placed | placement (placed / generated) "
               "| placement of those seeded (placed / generated − dropped) | slowed to a safe speed "
               "| minGap fitted to SUMO's leader | narrowed to the junctions' width | nose moved back behind "
-              "the stop line |", "|---|" + "---|" * 14]
+              "the stop line | moved from a red junction to its stop line |", "|---|" + "---|" * 15]
     for label, methods in groups:
         for k, name in enumerate(METHODS[1:]):
             m = methods[name]
@@ -79,7 +79,8 @@ def tables(results: list[dict], o, command: str) -> str:
             lines.append(f"| {label if k == 0 else ''} | {name} | {m['generated']} | {m['dropped']} | "
                          f"{m.get('junction', 0)} | {sum(m['refused'].values())} | {m['absent']} | "
                          f"{m['off_pose']} | {m['placed']} | {_f(rate, '{:.1f} %')} | {_f(rate2, '{:.1f} %')} | "
-                         f"{m['slowed']} | {m['fitted']} | {m.get('narrowed', 0)} | {m.get('pulled_back', 0)} |")
+                         f"{m['slowed']} | {m['fitted']} | {m.get('narrowed', 0)} | {m.get('pulled_back', 0)} | "
+                         f"{m.get('to_stop_line', 0)} |")
     for name in METHODS[1:]:
         refused = Counter()
         for r in results:

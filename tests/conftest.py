@@ -30,17 +30,29 @@ def diagonal_net(tmp_path_factory) -> str:
                       str(d / "diag.net.xml"))
 
 
-@pytest.fixture(scope="session")
-def cross_net(tmp_path_factory) -> str:
-    """A traffic-light crossing of two 2-way roads, 200 m arms, centred on (0, 0)."""
-    d = tmp_path_factory.mktemp("cross")
+def crossing(path: str, lanes: int) -> str:
+    """A traffic-light crossing of two 2-way roads with ``lanes`` lanes a direction, 200 m arms,
+    centred on (0, 0)."""
     nodes = ('<node id="c" x="0" y="0" type="traffic_light"/>'
              '<node id="w" x="-200" y="0"/><node id="e" x="200" y="0"/>'
              '<node id="s" x="0" y="-200"/><node id="n" x="0" y="200"/>')
-    edges = "".join(f'<edge id="{a}{b}" from="{a}" to="{b}" numLanes="1" speed="13.89"/>'
+    edges = "".join(f'<edge id="{a}{b}" from="{a}" to="{b}" numLanes="{lanes}" speed="13.89"/>'
                     for a, b in (("w", "c"), ("c", "w"), ("e", "c"), ("c", "e"),
                                  ("s", "c"), ("c", "s"), ("n", "c"), ("c", "n")))
-    return netconvert(nodes, edges, str(d / "cross.net.xml"))
+    return netconvert(nodes, edges, path)
+
+
+@pytest.fixture(scope="session")
+def cross_net(tmp_path_factory) -> str:
+    """A traffic-light crossing of two 2-way roads, one lane a direction (:func:`crossing`)."""
+    return crossing(str(tmp_path_factory.mktemp("cross") / "cross.net.xml"), 1)
+
+
+@pytest.fixture(scope="session")
+def cross2_net(tmp_path_factory) -> str:
+    """The crossing with two lanes a direction: its left turns wait inside the junction (two
+    internal lanes per left turn, an internal junction between them)."""
+    return crossing(str(tmp_path_factory.mktemp("cross2") / "cross2.net.xml"), 2)
 
 
 @pytest.fixture(scope="session")

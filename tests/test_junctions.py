@@ -73,6 +73,7 @@ def test_both_in_the_shared_area_one_kept(cross_net, check_junctions):
     sim = _start(cross_net, check_junctions)
     try:
         seeder = Seeder(sim, net)
+        seeder.red_to_stop_line = False     # the rule alone (the program's first phase has one of them on red)
         report = seeder.seed(scene)
         assert set(report.conflicts) == {1} and "shares" in report.conflicts[1]
         assert set(report.ids) == {0, 2} and not report.refused
@@ -94,6 +95,7 @@ def test_both_before_the_shared_area_the_later_waits(cross_net):
     sim = _start(cross_net)
     try:
         seeder = Seeder(sim, net)
+        seeder.red_to_stop_line = False     # the rule alone (the program's first phase has one of them on red)
         report = seeder.seed(scene)
         assert not report.conflicts and set(report.ids) == {0, 1}
         b = scene.boxes.astype(float)         # the window is the world frame here
@@ -120,6 +122,7 @@ def test_without_the_rule_the_pair_collides_or_brakes(cross_net):
     try:
         seeder = Seeder(sim, net)
         seeder.resolve_junctions = False
+        seeder.red_to_stop_line = False
         report = seeder.seed(scene)
         assert set(report.ids) == {0, 1}
         collided, brake = 0, 0.0
@@ -152,3 +155,68 @@ def test_an_agent_past_the_crossing_is_no_conflict(cross_net):
     inside = np.array([[*_pose(net, east, jc._area(east, north)[0] + 0.5 - 2.3), 4.6, 1.8]])
     keep, hold = jc.resolve([east], inside, [5.0], np.array([0.99]), fixed=[host])
     assert not keep.any()                             # in it already: not seeded
+
+
+def test_links_through_an_internal_junction_meet_on_their_later_lanes(cross2_net):
+    """On a two-lane crossing a left turn has two internal lanes (its waiting point between them). An
+    agent near the end of the turn's first lane and one just into a foe link share no area on the
+    lanes they are on now, but the turn's second lane crosses the other's path: the rule sees that
+    (``path_area``) and one of them waits."""
+    net = Network.load(cross2_net)
+    jc = JunctionConflicts(net)
+    turns = [lane for lane, rest in jc.rest.items() if len(rest) > 1 and rest[0] == lane]
+    pairs = [(a, b) for a in turns for b in jc.link
+             if jc.foes(a, b) and jc._area(a, b) is None and jc.path_area(a, b) is not None
+             and jc.entry[b][1] == b and b not in turns]
+    assert pairs, "the two-lane crossing has left turns through an internal junction"
+    a, b = pairs[0]
+    first = shapely.LineString(net.lanes[net.lane_index[a]].shape).length
+    assert jc.path_area(a, b)[0] >= first - 1e-6       # on the turn's later lane
+    boxes = np.array([[*_pose(net, a, first - 2.5), 4.6, 1.8], [*_pose(net, b, 2.5), 4.6, 1.8]])
+    keep, hold = jc.resolve([a, b], boxes, [3.0, 3.0])
+    assert keep.all() and hold.sum() == 1
+
+
+def test_a_vehicle_waiting_on_red_inside_the_junction_goes_to_its_stop_line(cross_net):
+    """Eastbound's light is red: a car the model put standing 3 m into the junction on that movement
+    is seeded standing at the stop line instead (the scene records the pose, its route keeps the
+    movement); a northbound one waiting on red too, whose stop line a host car already stands at,
+    queues a minGap behind it. Nobody collides or moves against the light."""
+    net = Network.load(cross_net)
+    jc = JunctionConflicts(net)
+    east, north = _lane(net, jc, "wc", "ce"), _lane(net, jc, "sc", "cn")
+    scene = _scene([_pose(net, east, 3.0), _pose(net, north, 3.0)], [0.0, 0.0], [0.9, 0.8])
+    sim = _start(cross_net)
+    try:
+        tls = sim.trafficlight.getIDList()[0]
+        sim.trafficlight.setRedYellowGreenState(tls, "r" * len(sim.trafficlight.getRedYellowGreenState(tls)))
+        sim.route.add("host", ["sc", "cn"])
+        sim.vehicle.add("host", "host", depart="now", departPos=f"{sim.lane.getLength('sc_0') - 3:.1f}",
+                        departSpeed="0")
+        sim.simulationStep()
+        others = np.array([[*sumo_pose(sim, "host"), 5.0, 1.8]])
+        seeder = Seeder(sim, net)
+        report = seeder.seed(scene, others=(others, np.zeros(1)))
+        assert set(report.ids) == {0, 1} and set(report.to_stop_line) == {0, 1} and not report.conflicts
+        host_rear = sim.lane.getLength("sc_0") - 3.0 - 5.0
+        north_nose = scene.boxes[1, 1] + 2.3      # northbound: the nose is north of the centre
+        assert north_nose == pytest.approx(sim.lane.getShape("sc_0")[0][1] + host_rear - 2.5, abs=0.3)
+        end = np.asarray(net.lanes[net.lane_index["wc_0"]].shape[-1])
+        nose = scene.boxes[0, :2] + 2.3 * np.array([math.cos(scene.boxes[0, 2]), math.sin(scene.boxes[0, 2])])
+        assert np.hypot(*(nose - end)) < 0.2 and (scene.speed[0] == 0).all()
+        vid = report.ids[0]
+        assert sim.vehicle.getRoute(vid)[:2] == ("wc", "ce")
+        sim.simulationStep()
+        assert seeder.verify(report).placed == 2 and sim.vehicle.getLaneID(vid) == "wc_0"
+        for _ in range(10):
+            sim.simulationStep()
+            assert sim.simulation.getCollidingVehiclesNumber() == 0
+        assert sim.vehicle.getLaneID(vid) == "wc_0" and sim.vehicle.getSpeed(vid) < 0.1
+    finally:
+        sim.close()
+
+
+def sumo_pose(sim, vid):
+    from sumo_scendiff.core.geometry import sumo_to_pose
+    x, y = sim.vehicle.getPosition(vid)
+    return sumo_to_pose(x, y, sim.vehicle.getAngle(vid), sim.vehicle.getLength(vid))

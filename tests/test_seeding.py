@@ -185,13 +185,7 @@ def test_settle_stops_a_vehicle_inside_the_junction_on_red_before_a_green_stream
             seeder = Seeder(sim, net)
             seeder.junction_stops = junction_stops
             report = seeder.settle(SeedReport(ids={0: "v"}))
-            worst, collisions = 0.0, 0
-            for _ in range(16):
-                sim.simulationStep()
-                collisions += sim.simulation.getCollidingVehiclesNumber()
-                if "v" in sim.vehicle.getIDList():
-                    worst = min(worst, sim.vehicle.getAcceleration("v") + sim.vehicle.getDecel("v"))
-            return 0 in report.slowed, worst, collisions
+            return (0 in report.slowed, *_drive(sim, "v", 16))
         finally:
             sim.close()
     slowed, calm, collisions = run(True)
@@ -273,3 +267,55 @@ def test_a_vehicle_wider_than_the_junctions_assume_is_seeded_at_their_width(cros
             assert report.narrowed == ({0: (pytest.approx(2.4), 1.8)} if truck_width == 1.8 else {})
         finally:
             sim.close()
+
+
+def test_settle_sees_a_foe_standing_inside_the_junction(cross_net):
+    """A host car stands 2 m into the junction on the eastbound straight; a car seeded 12 m before the
+    southbound stop line at 13 m/s with green has to stop for it (SUMO treats a foe inside a junction
+    as a leader at the crossing, priority or not). SUMO's own ``getJunctionFoes`` reports nothing for a
+    vehicle in the step it was inserted in; settle (``junction_leaders``) slows it at hand-off, and it
+    never brakes beyond its decel. Without that it does."""
+    import libsumo as sim
+
+    from sumo_scendiff.sim.seeding import SeedReport
+    net = Network.load(cross_net)
+
+    def run(leaders: bool) -> tuple[bool, float, int]:
+        sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--step-length", "0.5",
+                   "--collision.check-junctions", "true"])
+        try:
+            tls = sim.trafficlight.getIDList()[0]
+            sim.trafficlight.setRedYellowGreenState(tls, "G" * len(sim.trafficlight.getRedYellowGreenState(tls)))
+            sim.route.add("east", ["wc", "ce"])
+            sim.route.add("south", ["nc", "cs"])
+            via = sim.lane.getLinks("wc_0")[[link[0] for link in sim.lane.getLinks("wc_0")].index("ce_0")][4]
+            sim.vehicle.add("host", "east", depart="now", departSpeed="0")
+            x, y = sim.simulation.convert2D(via.rsplit("_", 1)[0], 2.0, 0)
+            sim.vehicle.moveToXY("host", "", -1, x, y, 90.0, keepRoute=1)
+            sim.vehicle.setSpeed("host", 0.0)
+            sim.vehicle.add("v", "south", depart="now", departPos=f"{sim.lane.getLength('nc_0') - 12:.1f}",
+                            departSpeed="13")
+            sim.simulationStep()
+            assert sim.vehicle.getJunctionFoes("v", 100.0) == ()
+            seeder = Seeder(sim, net)
+            seeder.junction_leaders_on = leaders
+            report = seeder.settle(SeedReport(ids={0: "v"}))
+            return (0 in report.slowed, *_drive(sim, "v", 12))
+        finally:
+            sim.close()
+    slowed, calm, collisions = run(True)
+    assert slowed and calm >= -0.05 and collisions == 0
+    unslowed, rough, _ = run(False)
+    assert not unslowed and rough < -0.05
+
+
+def _drive(sim, vid: str, steps: int) -> tuple[float, int]:
+    """Step ``steps`` times: (the most ``vid`` braked beyond its decel, as a negative number or 0;
+    the collisions SUMO counted)."""
+    worst, collisions = 0.0, 0
+    for _ in range(steps):
+        sim.simulationStep()
+        collisions += sim.simulation.getCollidingVehiclesNumber()
+        if vid in sim.vehicle.getIDList():
+            worst = min(worst, sim.vehicle.getAcceleration(vid) + sim.vehicle.getDecel(vid))
+    return worst, collisions

@@ -46,6 +46,8 @@ def _agents(result, reports) -> list[dict]:
                 row["reason"] = why
             if rep is not None and a in rep.pulled_back:   # its nose was over the stop line (Seeder.fit_lane_ends)
                 row["pulled_back_m"] = round(rep.pulled_back[a], 3)
+            if rep is not None and a in rep.to_stop_line:  # waiting on red inside a junction (Seeder.fit_red_junctions)
+                row["to_stop_line_m"] = round(rep.to_stop_line[a], 3)
             if rep is not None and a in rep.narrowed:     # wider than the network's junctions assume (Seeder.width_cap)
                 row["sumo_width"] = rep.narrowed[a][1]
             d = (scene.meta.get("demand") or [None] * len(rows))[a]
@@ -133,7 +135,8 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
                        "misplaced": sum(a["status"] == "misplaced" for a in agents),
                        "refused": sum(a["status"] in ("refused", "conflict") for a in agents),
                        "start_exact": sum(exact.values()),
-                       "pulled_back": sum("pulled_back_m" in a for a in agents), "car_lane_km": round(area_km, 3),
+                       "pulled_back": sum("pulled_back_m" in a for a in agents),
+                       "to_stop_line": sum("to_stop_line_m" in a for a in agents), "car_lane_km": round(area_km, 3),
                        "demand_vehicles": sum("demand" in a for a in seeded),
                        "demand_routes_followed": sum(a.get("demand", {}).get("route") == "followed" for a in seeded),
                        "density_veh_per_km": round(len(seeded) / max(area_km, 1e-9), 2),

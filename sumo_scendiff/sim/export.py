@@ -46,6 +46,8 @@ def _agents(seeding, sim) -> list[dict]:
             a["position_error"] = rep.misplaced[i]
         if i in rep.pulled_back:   # its nose was over the stop line (Seeder.fit_lane_ends)
             a["pulled_back_m"] = round(rep.pulled_back[i], 3)
+        if i in rep.to_stop_line:  # waiting inside a junction on red: moved to its stop line (Seeder.fit_red_junctions)
+            a["to_stop_line_m"] = round(rep.to_stop_line[i], 3)
         if i in rep.narrowed:      # wider than the network's junctions assume (Seeder.width_cap)
             a["sumo_width"] = rep.narrowed[i][1]
         out.append(a)

@@ -38,6 +38,8 @@ class JunctionConflicts:
         self._areas: dict[tuple[str, str], tuple[float, float] | None] = {}
         self.link: dict[str, tuple[str, int]] = {}   # internal lane -> (junction, link index)
         self.entry: dict[str, tuple[str, str]] = {}  # internal lane -> (incoming lane, first internal lane)
+        self.rest: dict[str, tuple[str, ...]] = {}   # internal lane -> it and its link's internal lanes after it
+        self._paths: dict[tuple[str, str], tuple[float, float] | None] = {}
         snet = net.sumo_net
         if snet is None:
             return
@@ -56,15 +58,16 @@ class JunctionConflicts:
                     index[c] = k
                     k += 1
             for c, k in index.items():
-                lane_id, seen = c.getViaLaneID(), 0
-                first = lane_id
-                while lane_id and seen < 8:      # a connection's chain of internal lanes (internal junctions)
+                lane_id, chain = c.getViaLaneID(), []
+                while lane_id and len(chain) < 8:   # a connection's chain of internal lanes (internal junctions)
                     self.link[lane_id] = (node.getID(), k)
-                    self.entry[lane_id] = (c.getFromLane().getID(), first)
+                    self.entry[lane_id] = (c.getFromLane().getID(), chain[0] if chain else lane_id)
+                    chain.append(lane_id)
                     lane = snet.getLane(lane_id)
                     lane_id = next((x.getViaLaneID() or x.getToLane().getID() for x in lane.getOutgoing()
                                     if (x.getViaLaneID() or x.getToLane().getID()).startswith(":")), "")
-                    seen += 1
+                for n, lane_id in enumerate(chain):
+                    self.rest[lane_id] = tuple(chain[n:])
 
     def foes(self, lane_a: str, lane_b: str) -> bool:
         """Whether two internal lanes belong to conflicting links of one junction."""
@@ -95,12 +98,31 @@ class JunctionConflicts:
             self._areas[key] = (min(s), max(s)) if s and not area.is_empty else None
         return self._areas[key]
 
+    def path_area(self, lane_a: str, lane_b: str) -> tuple[float, float] | None:
+        """Where (from, to, metres along ``lane_a`` and the internal lanes of its link after it)
+        that path overlaps ``lane_b``'s (``lane_b`` and its link's lanes after it), or None. A link
+        through an internal junction has two or more internal lanes (a left turn's waiting point
+        between them): two vehicles on the first lanes of their links can meet on the second."""
+        key = (lane_a, lane_b)
+        if key not in self._paths:
+            out, offset = None, 0.0
+            for la in self.rest.get(lane_a, (lane_a,)):
+                for lb in self.rest.get(lane_b, (lane_b,)):
+                    area = self._area(la, lb)
+                    if area is not None:
+                        lo, hi = offset + area[0], offset + area[1]
+                        out = (lo, hi) if out is None else (min(out[0], lo), max(out[1], hi))
+                offset += shapely.LineString(self.net.lanes[self.net.lane_index[la]].shape).length
+            self._paths[key] = out
+        return self._paths[key]
+
     def occupancy(self, lane_a: str, box_a, speed: float, lane_b: str) -> tuple[float, float] | None:
         """When (seconds from now: enters, leaves) the agent with ``box_a`` (x, y, yaw, length, width;
         world) on ``lane_a`` is in the area it shares with ``lane_b``, driving on from ``speed`` at
         ``ACCEL`` (a vehicle on an internal lane has passed its stop line and goes); None if it
-        has left that area already or there is none."""
-        area = self._area(lane_a, lane_b)
+        has left that area already or there is none. The area is the one their links' paths share
+        (:meth:`path_area`)."""
+        area = self.path_area(lane_a, lane_b)
         if area is None:
             return None
         lane = self.net.lanes[self.net.lane_index[lane_a]]

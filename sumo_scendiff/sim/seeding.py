@@ -42,6 +42,7 @@ from ..map.network import Network
 from .junctions import JunctionConflicts
 from .routes import RouteChooser
 from .settle import MIN_GAP_MARGIN, Settling, krauss_safe_speed
+from .stop_lines import StopLines
 
 POS_TOLERANCE, YAW_TOLERANCE = 0.5, 0.1   # m, rad: "present where it was generated"
 GAP_EDGES = 3          # at most this many edges between two generated poses' edges are filled in
@@ -61,6 +62,7 @@ class SeedReport:
     conflicts: dict[int, str] = field(default_factory=dict)  # agent index -> why not seeded (junction foe)
     pulled_back: dict[int, float] = field(default_factory=dict)  # agent index -> m moved behind its lane's end
     narrowed: dict[int, tuple] = field(default_factory=dict)  # agent index -> (generated, SUMO width), width_cap
+    to_stop_line: dict[int, float] = field(default_factory=dict)  # agent index -> m moved from a red junction
     own_route: dict[int, str] = field(default_factory=dict)  # agent index -> how its given route went (RouteChooser.along)
 
     @property
@@ -76,12 +78,13 @@ def sublane(sim) -> bool:
         return False
 
 
-class Seeder(Settling):
+class Seeder(Settling, StopLines):
     def __init__(self, sim, net: Network, prefix: str = "sd", seed: int = 0):
         self.sim, self.net, self.prefix = sim, net, prefix
         self.rng = np.random.default_rng(seed)
         self.count = 0
         self._via = self._internal_links()
+        self.moved_from: dict[int, str] = {}     # fit_red_junctions: agent -> internal lane it was generated on
         self.keep_route = 1 if sublane(sim) else 2
         self.routes = RouteChooser(sim, net, exclude_prefix=prefix.split(".")[0])
         self.junctions = JunctionConflicts(net)
@@ -158,6 +161,10 @@ class Seeder(Settling):
                         last_lane = nxt[2].id
                 elif e == edges[-1] and not nxt[2].internal:
                     last_lane = nxt[2].id
+        moved = self.moved_from.get(i)
+        if moved is not None and moved in self._via and self._via[moved][1] not in edges:
+            edges.append(self._via[moved][1])     # the movement it waits for (fit_red_junctions)
+            last_lane = None
         if last_lane is not None and last_lane.rsplit("_", 1)[0] != edges[-1]:
             last_lane = None
         return edges, lane_index, lane, last_lane
@@ -303,11 +310,15 @@ class Seeder(Settling):
         sim, report = self.sim, SeedReport()
         w = scene.window
         other_boxes, other_speed = others if others is not None else (np.zeros((0, 5)), np.zeros(0))
+        gone = self.fit_red_junctions(scene, report, other_boxes)
         self.fit_lane_ends(scene, report, other_boxes)
         lead, bumper_gap = self.leaders(scene.boxes, other_boxes)
         gaps = self.min_gaps(bumper_gap)
         lead_speed = np.concatenate([scene.speed[:, T0], other_speed]).astype(np.float64)
         keep, hold, report.conflicts = self.resolve(scene, other_boxes, other_speed)
+        for i, why in gone.items():
+            keep[i], hold[i] = False, False
+            report.conflicts[i] = why
         lead_speed[:len(scene)][hold] = 0.0      # a follower of a held agent departs safe behind it
         self.routes.refresh()
         for i in range(len(scene)):

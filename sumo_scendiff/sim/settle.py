@@ -14,9 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.geometry import sumo_to_pose
+
 MIN_GAP_MARGIN = 0.2   # m: a seeded vehicle's minGap stays this much below its bumper gap
 FOE_VISIBILITY = 4.5   # m: netconvert's default foe visibility distance of a link without priority
 LINKS_AHEAD = 2        # links (a turn's entry and its internal junction) settle looks at
+ACCEL = 2.6            # m/s^2: SUMO's default passenger car accel, how a seeded vehicle drives on to a conflict
 
 
 def krauss_safe_speed(gap: float, v_leader: float, decel: float, tau: float) -> float:
@@ -28,6 +31,8 @@ def krauss_safe_speed(gap: float, v_leader: float, decel: float, tau: float) -> 
 
 
 class Settling:
+    junction_leaders_on = True     # settle: foes inside the junction as leaders (junction_leaders)
+
     def fit_min_gap(self, i: int, vid: str, gap: float, report) -> None:
         """SUMO sees a leader ``gap`` < 0 m beyond this vehicle's minGap (``getLeader``'s distance
         counts from front bumper + minGap): SUMO registers a collision whenever a gap is below the
@@ -44,29 +49,35 @@ class Settling:
         Krauss safe speed (``vehicle.getNextLinks``: one entry link per junction):
 
         * a link the vehicle must be able to stop at -- the next one closed (``isOpen`` false: red, or
-          a foe it has to yield to), a red one, or one without priority (``g m s w =``) while farther than
+          a foe it has to yield to), a red one, one without priority (``g m s w =``) while farther than
           the foe visibility distance (SUMO approaches those ready to stop and looks at its foes only
-          from there) -- is a standing leader at its stop line;
+          from there), or the next one without priority while a foe approaches it (``hasFoe``: SUMO
+          brakes a vehicle that cannot stop there beyond its decel) -- is a standing leader at its
+          stop line;
         * a turn that waits inside the junction (an entry without priority whose internal lane ends at
           an internal junction: the left turn's waiting point) a standing leader at that point.
 
         (A turn's lower speed limit needs nothing: SUMO slows for it braking at most ``decel``,
         measured with SUMO 1.28.)
 
-        A vehicle on a junction's internal lane on a red movement: :meth:`red_stops`."""
+        A vehicle on a junction's internal lane: the links after the lane its movement leads to (a
+        minor link just beyond a junction it is crossing), and if its movement is red now,
+        :meth:`red_stops`."""
         sim = self.sim
         lane = sim.vehicle.getLaneID(vid)
         if not lane:
             return []
-        if lane.startswith(":"):
-            return self.red_stops(vid, lane)
         d = float(sim.lane.getLength(lane) - sim.vehicle.getLanePosition(vid))
         out = []
+        if lane.startswith(":"):
+            out = self.red_stops(vid, lane)
+            d = self._to_next_stop_line(lane, d)
         for k, link in enumerate(sim.vehicle.getNextLinks(vid)[:links]):
             if d > reach:
                 break
             to, prio, opened, _foe, via, state = link[:6]
-            if (k == 0 and not opened) or state in "rR" or (not prio and state in "gmsw=" and d > FOE_VISIBILITY):
+            if (k == 0 and not opened) or state in "rR" or (not prio and state in "gmsw=" and
+                                                            (d > FOE_VISIBILITY or (k == 0 and _foe))):
                 out.append((d, 0.0))
                 break
             if not via:
@@ -77,6 +88,78 @@ class Settling:
                 break
             d = inner + float(sim.lane.getLength(to))
         return out
+
+    def inside(self) -> dict[str, list[tuple[str, str]]]:
+        """Junction id -> the vehicles (any: the host's and seeded) on its internal lanes now, with
+        their lane."""
+        out: dict[str, list[tuple[str, str]]] = {}
+        for vid in self.sim.vehicle.getIDList():
+            lane = self.sim.vehicle.getLaneID(vid)
+            if lane in self.junctions.link:
+                out.setdefault(self.junctions.link[lane][0], []).append((vid, lane))
+        return out
+
+    def junction_leaders(self, vid: str, inside: dict, reach: float = 100.0) -> list[tuple[float, float]]:
+        """Vehicles already inside the junction ahead (or the one this vehicle is in) on a foe link
+        that will still hold the area the two links' paths share when this vehicle gets there
+        (:meth:`~sumo_scendiff.sim.junctions.JunctionConflicts.occupancy`, each driving on from its
+        speed at ``ACCEL``), as standing leaders at the area's start. SUMO treats a foe inside a
+        junction as a leader at the conflict (``MSLink::getLeaderInfo``), also one that has
+        priority and also one standing short of the area; a vehicle seeded too fast to stop there
+        brakes beyond its decel or collides. ``inside``: :meth:`inside`, once per settle.
+
+        SUMO's own ``vehicle.getJunctionFoes`` would say this, but reports nothing for a vehicle in
+        the step it was inserted in, which is when settle runs."""
+        sim, jc = self.sim, self.junctions
+        lane = sim.vehicle.getLaneID(vid)
+        if lane in jc.link:
+            path, front = lane, float(sim.vehicle.getLanePosition(vid))
+        elif lane:
+            links = sim.vehicle.getNextLinks(vid)[:1]
+            d = float(sim.lane.getLength(lane) - sim.vehicle.getLanePosition(vid))
+            if not links or not links[0][4] or links[0][4] not in jc.link or d > reach:
+                return []
+            path, front = links[0][4], -d
+        else:
+            return []
+        v = max(float(sim.vehicle.getSpeed(vid)), 0.0)
+        length = float(sim.vehicle.getLength(vid))
+
+        def time(d: float) -> float:        # d = v t + ACCEL t^2 / 2
+            return 0.0 if d <= 0 else (-v + np.sqrt(v * v + 2.0 * ACCEL * d)) / ACCEL
+        out = []
+        for other, other_lane in inside.get(jc.link[path][0], ()):
+            if other == vid or not jc.foes(path, other_lane):
+                continue
+            area = jc.path_area(path, other_lane)
+            if area is None or area[0] - front <= 0.0:
+                continue
+            x, y = sim.vehicle.getPosition(other)
+            ol = float(sim.vehicle.getLength(other))
+            cx, cy, yaw = sumo_to_pose(x, y, sim.vehicle.getAngle(other), ol)
+            occ = jc.occupancy(other_lane, (cx, cy, yaw, ol), float(sim.vehicle.getSpeed(other)), path)
+            if occ is None:
+                continue
+            if occ[0] < time(area[1] - front + length) and occ[1] > time(area[0] - front):
+                out.append((area[0] - front, 0.0))
+        return out
+
+    def _to_next_stop_line(self, lane: str, d: float) -> float:
+        """From ``d`` m before the end of internal lane ``lane``: the distance to the end of the
+        normal lane its movement leads to (the stop line of the vehicle's next link), through the
+        movement's later internal lanes."""
+        sim = self.sim
+        for _ in range(8):
+            links = sim.lane.getLinks(lane)
+            if not links:
+                break
+            to, via = links[0][0], links[0][4]
+            if via:
+                lane = via
+                d += float(sim.lane.getLength(via))
+                continue
+            return d + float(sim.lane.getLength(to))
+        return d
 
     def _link_state(self, lane_id: str) -> str:
         """The signal character (``G g r y m M s =`` ...) now of the link an internal lane belongs to."""
@@ -89,25 +172,30 @@ class Settling:
             pass
         return "?"
 
-    def red_stops(self, vid: str, lane: str) -> list[tuple[float, float]]:
-        """A vehicle inside a junction on a movement whose light is red now (the model, without the
-        lights, puts some there): the start of each area its lane shares with a link that has green
-        (``G g``) is a standing leader, if it is still ahead of the vehicle's front -- SUMO makes it
-        yield to that stream and otherwise brakes it beyond its decel at hand-off."""
-        if lane not in self.junctions.entry or self._link_state(lane) not in "rR":
-            return []
+    def green_crossings(self, lane: str, front: float) -> list[float]:
+        """How far ahead of ``front`` (m along internal lane ``lane`` and its link's lanes after it)
+        each area starts that its path shares with a link of the same junction that has green now
+        (``G g``)."""
         j = self.junctions.link[lane][0]
-        front = float(self.sim.vehicle.getLanePosition(vid))
         out = []
         for other, (jo, _) in self.junctions.link.items():
             if jo != j or other == lane or self.junctions.entry[other][1] != other:
                 continue
             if not self.junctions.foes(lane, other) or self._link_state(other) not in "Gg":
                 continue
-            area = self.junctions._area(lane, other)
+            area = self.junctions.path_area(lane, other)
             if area is not None and area[0] - front > 0.0:
-                out.append((area[0] - front, 0.0))
+                out.append(area[0] - front)
         return out
+
+    def red_stops(self, vid: str, lane: str) -> list[tuple[float, float]]:
+        """A vehicle inside a junction on a movement whose light is red now (the model, without the
+        lights, puts some there): the start of each area its path shares with a link that has green
+        (:meth:`green_crossings`) is a standing leader, if it is still ahead of the vehicle's front --
+        SUMO makes it yield to that stream and otherwise brakes it beyond its decel at hand-off."""
+        if lane not in self.junctions.entry or self._link_state(lane) not in "rR":
+            return []
+        return [(d, 0.0) for d in self.green_crossings(lane, float(self.sim.vehicle.getLanePosition(vid)))]
 
     def settle(self, report, reach: float = 100.0):
         """After the seeding step, against the leaders as SUMO sees them (any vehicle within ``reach``
@@ -118,6 +206,7 @@ class Settling:
         vehicle changes, since slowing a leader can make its follower too fast."""
         sim, present = self.sim, set(self.sim.vehicle.getIDList())
         vids = [(i, v) for i, v in report.ids.items() if v in present]
+        inside = self.inside() if self.junction_leaders_on and vids else {}
         for _ in range(len(vids)):
             changed = False
             for i, vid in vids:
@@ -130,6 +219,8 @@ class Settling:
                           if state in "rR" and d < reach]        # a red light: a standing leader
                 if self.junction_stops:
                     stops += self.link_stops(vid, reach)
+                if self.junction_leaders_on:
+                    stops += self.junction_leaders(vid, inside, reach)
                 if not stops:
                     continue
                 speed = float(sim.vehicle.getSpeed(vid))
@@ -144,4 +235,4 @@ class Settling:
         return report
 
 
-__all__ = ["FOE_VISIBILITY", "LINKS_AHEAD", "MIN_GAP_MARGIN", "Settling", "krauss_safe_speed"]
+__all__ = ["ACCEL", "FOE_VISIBILITY", "LINKS_AHEAD", "MIN_GAP_MARGIN", "Settling", "krauss_safe_speed"]
