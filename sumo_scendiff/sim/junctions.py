@@ -39,6 +39,7 @@ class JunctionConflicts:
         self.link: dict[str, tuple[str, int]] = {}   # internal lane -> (junction, link index)
         self.entry: dict[str, tuple[str, str]] = {}  # internal lane -> (incoming lane, first internal lane)
         self.rest: dict[str, tuple[str, ...]] = {}   # internal lane -> it and its link's internal lanes after it
+        self.lanes_of: dict[str, list[str]] = {}     # junction -> its internal lanes
         self._paths: dict[tuple[str, str], tuple[float, float] | None] = {}
         snet = net.sumo_net
         if snet is None:
@@ -68,6 +69,7 @@ class JunctionConflicts:
                                     if (x.getViaLaneID() or x.getToLane().getID()).startswith(":")), "")
                 for n, lane_id in enumerate(chain):
                     self.rest[lane_id] = tuple(chain[n:])
+                    self.lanes_of.setdefault(node.getID(), []).append(lane_id)
 
     def foes(self, lane_a: str, lane_b: str) -> bool:
         """Whether two internal lanes belong to conflicting links of one junction."""

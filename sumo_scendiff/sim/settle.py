@@ -89,24 +89,23 @@ class Settling:
             d = inner + float(sim.lane.getLength(to))
         return out
 
-    def inside(self) -> dict[str, list[tuple[str, str]]]:
-        """Junction id -> the vehicles (any: the host's and seeded) on its internal lanes now, with
-        their lane."""
-        out: dict[str, list[tuple[str, str]]] = {}
-        for vid in self.sim.vehicle.getIDList():
-            lane = self.sim.vehicle.getLaneID(vid)
-            if lane in self.junctions.link:
-                out.setdefault(self.junctions.link[lane][0], []).append((vid, lane))
-        return out
+    def inside(self, junction: str, cache: dict) -> list[tuple[str, str]]:
+        """The vehicles (any: the host's and seeded) on ``junction``'s internal lanes now, with their
+        lane; read once per settle (``cache``), and only for the junctions a seeded vehicle is in or
+        drives to (a host over TraCI pays a call per lane)."""
+        if junction not in cache:
+            cache[junction] = [(vid, lane) for lane in self.junctions.lanes_of.get(junction, ())
+                               for vid in self.sim.lane.getLastStepVehicleIDs(lane)]
+        return cache[junction]
 
-    def junction_leaders(self, vid: str, inside: dict, reach: float = 100.0) -> list[tuple[float, float]]:
+    def junction_leaders(self, vid: str, cache: dict, reach: float = 100.0) -> list[tuple[float, float]]:
         """Vehicles already inside the junction ahead (or the one this vehicle is in) on a foe link
         that will still hold the area the two links' paths share when this vehicle gets there
         (:meth:`~sumo_scendiff.sim.junctions.JunctionConflicts.occupancy`, each driving on from its
         speed at ``ACCEL``), as standing leaders at the area's start. SUMO treats a foe inside a
         junction as a leader at the conflict (``MSLink::getLeaderInfo``), also one that has
         priority and also one standing short of the area; a vehicle seeded too fast to stop there
-        brakes beyond its decel or collides. ``inside``: :meth:`inside`, once per settle.
+        brakes beyond its decel or collides. ``cache``: for :meth:`inside`, one per settle.
 
         SUMO's own ``vehicle.getJunctionFoes`` would say this, but reports nothing for a vehicle in
         the step it was inserted in, which is when settle runs."""
@@ -128,7 +127,7 @@ class Settling:
         def time(d: float) -> float:        # d = v t + ACCEL t^2 / 2
             return 0.0 if d <= 0 else (-v + np.sqrt(v * v + 2.0 * ACCEL * d)) / ACCEL
         out = []
-        for other, other_lane in inside.get(jc.link[path][0], ()):
+        for other, other_lane in self.inside(jc.link[path][0], cache):
             if other == vid or not jc.foes(path, other_lane):
                 continue
             area = jc.path_area(path, other_lane)
@@ -206,7 +205,7 @@ class Settling:
         vehicle changes, since slowing a leader can make its follower too fast."""
         sim, present = self.sim, set(self.sim.vehicle.getIDList())
         vids = [(i, v) for i, v in report.ids.items() if v in present]
-        inside = self.inside() if self.junction_leaders_on and vids else {}
+        inside: dict[str, list] = {}
         for _ in range(len(vids)):
             changed = False
             for i, vid in vids:
