@@ -137,6 +137,8 @@ def get_options(args=None):
                    help="the tokens' guidance over the whole window, the paper's (default: local and projected)")
     p.add_argument("--steps", type=int, default=None, help="ODE steps (default: generate's)")
     p.add_argument("--sampler", default=None, help="ODE solver (default: generate's)")
+    p.add_argument("--binned-token-values", dest="exact_token_values", action="store_false", default=None,
+                   help="the decoder reads the tokens' speeds and turn as their bins' centres (generate's flag)")
     p.add_argument("--drawn-only", action="store_true", help="only the model's own drawing (no delivery)")
     p.add_argument("--density", action="store_true",
                    help="each window also given its recorded density (the density token: SUMO's own level "
@@ -173,7 +175,7 @@ def row(city: str, kind: str, res: list[dict]) -> str:
 
 def main(o) -> int:
     gen = ScenarioGenerator.load(o.checkpoint)
-    base = replace(gen.config, **{k: getattr(o, k) for k in ("guidance", "local_guidance", "steps", "sampler")
+    base = replace(gen.config, **{k: getattr(o, k) for k in ("guidance", "local_guidance", "steps", "sampler", "exact_token_values")
                                   if getattr(o, k) is not None}).validate()
     modes = (False,) if o.drawn_only else (True, False)
     every: dict[str, list[list[dict]]] = {}

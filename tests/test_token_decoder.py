@@ -70,6 +70,26 @@ def test_a_decoder_with_filled_speeds_reads_one_given_speed_in_both_channels():
     assert torch.equal(filled[TOKEN_CHANNELS.index("speed_given")], plain[TOKEN_CHANNELS.index("speed_given")])
 
 
+def test_the_decoder_reads_the_exact_values_a_token_was_made_from():
+    """Given the dicts the tokens were encoded from (``exact_values``), the raster carries a token's
+    exact speed, final speed and turn instead of its bin's centre (7.4 m/s is bin [6, 8)); a feature
+    the token does not give stays absent, a set whose length does not match its tokens is ignored,
+    and the one-hot tokens themselves are untouched."""
+    from sumo_scendiff.tokens.raster import exact_values
+    dicts = [{"x": 10.0, "y": -20.0, "speed": 7.4, "heading_to_final": 0.31}, {"x": -10.0, "y": 5.0}]
+    tok, pad = pad_tokens([agent_tokens_from_dicts(dicts)])
+    before = tok.clone()
+    exact = exact_values([dicts], [2])
+    assert exact.shape == (1, 2, 3) and torch.isnan(exact[0, 1]).all() and torch.isnan(exact[0, 0, 1])
+    r, binned = token_raster(tok, pad, res=64, exact=exact)[0], token_raster(tok, pad, res=64)[0]
+    col, row = np.floor(metres_to_pixels(np.array([10.0, -20.0]), 100.0, (64, 64)) + 0.5).astype(int)
+    assert float(channel(r, "speed")[row, col]) == pytest.approx(0.74)
+    assert float(channel(binned, "speed")[row, col]) == pytest.approx(0.7)
+    assert float(channel(r, "heading_to_final")[row, col]) == pytest.approx(0.31 / 0.7)
+    assert not channel(r, "final_speed").any() and torch.equal(tok, before)
+    assert torch.isnan(exact_values([dicts], [3])).all()
+
+
 def test_a_token_at_the_window_edge_is_clipped_and_turns_are_signed():
     tok, pad = pad_tokens([agent_tokens_from_dicts([{"x": -49.9, "y": 49.9, "heading": 0.5, "length": 12.0,
                                                      "width": 2.5, "heading_to_final": -0.3}])])

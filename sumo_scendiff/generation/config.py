@@ -71,6 +71,10 @@ class GenerationConfig:
         "it or absent (default: the generated vehicle matched to it takes the speed, final speed, "
         "turn, heading and size it gives, and a positioned token no vehicle matches is placed on its "
         "lane, generation/deliver.py)", kind=bool, flag="--no-deliver-tokens")
+    exact_token_values: bool = _setting(
+        True, "the decoder reads a token's speed, final speed and turn as the centre of its bin, as in "
+        "training (default: the exact values the token gives; the diffusion model reads the bins "
+        "either way, tokens/raster.py)", kind=bool, flag="--binned-token-values")
     lane_headings: bool = _setting(
         True, "vehicles on a junction keep the decoder's own heading (default: the heading of the "
         "network's lane through them that the heading head finds most probable, lane_heading.py)",
@@ -195,4 +199,4 @@ class GenerationConfig:
                 "deliver_tokens": self.deliver_tokens, "signals": self.signals,
                 "signal_guidance": self.signal_guidance,
                 "match_density": self.match_density, "density_floor": self.density_floor,
-                "infill_passes": self.infill_passes}
+                "infill_passes": self.infill_passes, "exact_token_values": self.exact_token_values}

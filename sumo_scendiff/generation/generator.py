@@ -35,6 +35,7 @@ from ..model import checkpoint as ckpt
 from ..model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from ..model.detection import decode_boxes
 from ..model.diffusion import DiffusionConfig, ScenarioDiffusion
+from ..tokens.raster import exact_values
 from ..tokens.encoding import (
     AGENT_TOKEN_DIM,
     GLOBAL_TOKEN_DIM,
@@ -155,10 +156,11 @@ class ScenarioGenerator:
         return self.scene_guidance_sigma if cfg.scene_guidance_sigma is None else cfg.scene_guidance_sigma
 
     def decode(self, z: torch.Tensor, m: torch.Tensor, tokens: torch.Tensor | None = None,
-               pad: torch.Tensor | None = None) -> torch.Tensor:
+               pad: torch.Tensor | None = None, exact: torch.Tensor | None = None) -> torch.Tensor:
         """y = D(z / latent_scale, m[, the tokens' raster]): a decoder with ``C_t`` also reads the
-        agent tokens (``tokens`` (B, T, AGENT_TOKEN_DIM) and ``pad`` from ``pad_tokens``)."""
-        t = self.ae.token_raster(tokens, pad) if self.ae.cfg.C_t and tokens is not None else None
+        agent tokens (``tokens`` (B, T, AGENT_TOKEN_DIM) and ``pad`` from ``pad_tokens``; ``exact``:
+        their exact speeds and turn, ``tokens.raster.exact_values``)."""
+        t = self.ae.token_raster(tokens, pad, exact) if self.ae.cfg.C_t and tokens is not None else None
         return self.ae.decode(z / self.latent_scale, m, t)
 
     # ---- one batch ------------------------------------------------------------------------
@@ -183,7 +185,8 @@ class ScenarioGenerator:
                                   known=pinned_latent(self.ae, pins, self.latent_scale, self.raster,
                                                       maps=m if cfg.pin_calibration else None)
                                   if cfg.pin_tokens and pins is not None else None)
-        y = self.decode(z, m, tok, pad)
+        exact = exact_values(pins, [len(t) for t in tokens]) if cfg.exact_token_values and pins is not None else None
+        y = self.decode(z, m, tok, pad, exact)
         yaw = junction_yaw(y, windows, net, m[:, MAP_CHANNELS.index("junction")], self.raster.size) \
             if cfg.lane_headings and net is not None else None
         dec = decode_boxes(y, self.raster.size, yaw=yaw)

@@ -193,10 +193,11 @@ class ScenarioAutoencoder(nn.Module):
         """Side of y's grid (and of the token raster): the latent's 16 px doubled per D_up level."""
         return 16 * 2 ** (len(self.cfg.dec_channels) - 1)
 
-    def token_raster(self, tokens: torch.Tensor, pad: torch.Tensor) -> torch.Tensor:
+    def token_raster(self, tokens: torch.Tensor, pad: torch.Tensor, exact: torch.Tensor | None = None) -> torch.Tensor:
         """The decoder's input ``t`` of agent tokens (B, T, AGENT_TOKEN_DIM) and their padding (B, T):
-        ``tokens.raster.token_raster`` at the output resolution, in this decoder's encoding."""
-        return token_raster(tokens, pad, self.out_res, fill_speeds=self.cfg.token_speeds_filled)
+        ``tokens.raster.token_raster`` at the output resolution, in this decoder's encoding
+        (``exact``: the tokens' exact speeds and turn, ``tokens.raster.exact_values``)."""
+        return token_raster(tokens, pad, self.out_res, fill_speeds=self.cfg.token_speeds_filled, exact=exact)
 
     def decode(self, z: torch.Tensor, m: torch.Tensor, t: torch.Tensor | None = None) -> torch.Tensor:
         """y = D(z, m) = D_up(z, D_down(m)), (B, 19 [+ 2 heading_bins], 64, 64). ``t``: the token
