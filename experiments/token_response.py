@@ -49,6 +49,7 @@ from sumo_scendiff.generation.generator import (
 )
 from sumo_scendiff.generation.pinning import _arc, pinned_latent
 from sumo_scendiff.map.raster import render_agents
+from sumo_scendiff.tokens.raster import exact_values
 from sumo_scendiff.model.detection import decode_boxes
 from sumo_scendiff.tokens.encoding import (
     encode_agent_tokens,
@@ -77,6 +78,8 @@ def get_options(args=None):
     p.add_argument("--sampler", default=None, help="ODE solver (default: generate's)")
     p.add_argument("--p-mask", type=float, default=0.0,
                    help="the global token's p_mask (default 0: every agent is a token)")
+    p.add_argument("--binned-token-values", dest="exact_token_values", action="store_false", default=None,
+                   help="the decoder reads the tokens' speeds and turn as their bins' centres (generate's flag)")
     p.add_argument("--no-pin-tokens", dest="pin_tokens", action="store_false",
                    help="tokens as conditions only (the paper), not pinned in the latent")
     p.add_argument("-s", "--seed", type=int, default=0)
@@ -134,7 +137,8 @@ def generate(gen, batch, picked, override: tuple[str, float] | None, cfg, seed: 
         z = gen.diffusion.sample(batch["map"], tok, pad, glob, steps=cfg.steps, sampler=cfg.solver(),
                                  guidance=cfg.guidance, local=cfg.local_guidance,
                                  generator=torch.Generator().manual_seed(seed), known=known)
-        dec = decode_boxes(gen.decode(z, batch["map"], tok, pad))
+        exact = exact_values(dicts, [len(t) for t in toks]) if cfg.exact_token_values else None
+        dec = decode_boxes(gen.decode(z, batch["map"], tok, pad, exact))
     return at_probes(dec, picked, cfg.threshold)
 
 
@@ -300,7 +304,8 @@ class _Index:
 
 def main(o) -> None:
     gen, ae, name, sha = load_models(o.checkpoint, o.autoencoder)
-    cfg = GenerationConfig(pin_tokens=o.pin_tokens, **{k: getattr(o, k) for k in ("guidance", "local_guidance", "steps", "sampler")
+    cfg = GenerationConfig(pin_tokens=o.pin_tokens, **{k: getattr(o, k) for k in ("guidance", "local_guidance", "steps", "sampler",
+                                                                                "exact_token_values")
                                                        if getattr(o, k) is not None}).validate()
     ds = SceneDataset(o.data, rotate=False)
     picked = probes(ds, o.scenes, o.seed)
