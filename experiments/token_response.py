@@ -49,6 +49,7 @@ from sumo_scendiff.generation.generator import (
 )
 from sumo_scendiff.generation.pinning import _arc, pinned_latent
 from sumo_scendiff.map.raster import render_agents
+from sumo_scendiff.tokens.features import is_pinnable
 from sumo_scendiff.tokens.raster import exact_values
 from sumo_scendiff.model.detection import decode_boxes
 from sumo_scendiff.tokens.encoding import (
@@ -137,7 +138,9 @@ def generate(gen, batch, picked, override: tuple[str, float] | None, cfg, seed: 
         z = gen.diffusion.sample(batch["map"], tok, pad, glob, steps=cfg.steps, sampler=cfg.solver(),
                                  guidance=cfg.guidance, local=cfg.local_guidance,
                                  generator=torch.Generator().manual_seed(seed), known=known)
-        exact = exact_values(dicts, [len(t) for t in toks]) if cfg.exact_token_values else None
+        # as the generator: pinned tokens keep their bins (their latent's calibration is the bins')
+        skip = (lambda d: is_pinnable(d)) if cfg.pin_tokens else None
+        exact = exact_values(dicts, [len(t) for t in toks], skip) if cfg.exact_token_values else None
         dec = decode_boxes(gen.decode(z, batch["map"], tok, pad, exact))
     return at_probes(dec, picked, cfg.threshold)
 

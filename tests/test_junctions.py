@@ -220,3 +220,24 @@ def sumo_pose(sim, vid):
     from sumo_scendiff.core.geometry import sumo_to_pose
     x, y = sim.vehicle.getPosition(vid)
     return sumo_to_pose(x, y, sim.vehicle.getAngle(vid), sim.vehicle.getLength(vid))
+
+
+def test_an_agent_seen_only_inside_a_junction_leaves_on_its_movements_lane(cross2_net):
+    """Its route is continued from the lane its movement enters (the successors that lane has), not
+    from any lane of that edge: a turn its route would take from another lane needs a lane change it
+    has no room for."""
+    net = Network.load(cross2_net)
+    jc = JunctionConflicts(net)
+    turn = next(lane for lane, rest in jc.rest.items() if len(rest) > 1 and rest[0] == lane)
+    scene = _scene([_pose(net, turn, 1.0)], [4.0], [0.9])
+    scene.traj_mask[:] = False
+    scene.traj_mask[:, 2] = True              # seen at t = 0 only
+    sim = _start(cross2_net)
+    try:
+        seeder = Seeder(sim, net)
+        world = np.asarray(scene.traj[0, :, :2], np.float64)
+        edges, _, lane, last_lane = seeder.route_for(scene, 0, world, scene.traj[0, :, 2])
+        exit_lane = net.sumo_net.getLane(jc.rest[turn][-1]).getOutgoing()[0].getToLane().getID()
+        assert lane.internal and last_lane == exit_lane and edges[-1] == exit_lane.rsplit("_", 1)[0]
+    finally:
+        sim.close()

@@ -73,8 +73,8 @@ class GenerationConfig:
         "lane, generation/deliver.py)", kind=bool, flag="--no-deliver-tokens")
     exact_token_values: bool = _setting(
         True, "the decoder reads a token's speed, final speed and turn as the centre of its bin, as in "
-        "training (default: the exact values the token gives; the diffusion model reads the bins "
-        "either way, tokens/raster.py)", kind=bool, flag="--binned-token-values")
+        "training (default: the exact values a token that is not pinned gives; the diffusion model "
+        "reads the bins either way, tokens/raster.py)", kind=bool, flag="--binned-token-values")
     lane_headings: bool = _setting(
         True, "vehicles on a junction keep the decoder's own heading (default: the heading of the "
         "network's lane through them that the heading head finds most probable, lane_heading.py)",

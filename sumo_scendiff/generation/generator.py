@@ -35,7 +35,6 @@ from ..model import checkpoint as ckpt
 from ..model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from ..model.detection import decode_boxes
 from ..model.diffusion import DiffusionConfig, ScenarioDiffusion
-from ..tokens.raster import exact_values
 from ..tokens.encoding import (
     AGENT_TOKEN_DIM,
     GLOBAL_TOKEN_DIM,
@@ -44,6 +43,8 @@ from ..tokens.encoding import (
     pad_tokens,
     token_positions,
 )
+from ..tokens.features import is_pinnable
+from ..tokens.raster import exact_values
 from .config import GenerationConfig
 from .deliver import apply_rows, delivered_rows, match_rows, pace_rows, place_rows
 from .infill import add_new_agents, area_mask, in_area, scene_tokens
@@ -185,7 +186,11 @@ class ScenarioGenerator:
                                   known=pinned_latent(self.ae, pins, self.latent_scale, self.raster,
                                                       maps=m if cfg.pin_calibration else None)
                                   if cfg.pin_tokens and pins is not None else None)
-        exact = exact_values(pins, [len(t) for t in tokens]) if cfg.exact_token_values and pins is not None else None
+        # a pinned token keeps its bins: its latent's speeds are calibrated to the decoder reading
+        # the bins (pinning.calibrated_pins), and it is delivered at the token's speeds anyway
+        skip = (lambda d: isinstance(d, Mapping) and is_pinnable(d)) if cfg.pin_tokens else None
+        exact = exact_values(pins, [len(t) for t in tokens], skip) \
+            if cfg.exact_token_values and pins is not None else None
         y = self.decode(z, m, tok, pad, exact)
         yaw = junction_yaw(y, windows, net, m[:, MAP_CHANNELS.index("junction")], self.raster.size) \
             if cfg.lane_headings and net is not None else None

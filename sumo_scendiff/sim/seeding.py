@@ -117,6 +117,15 @@ class Seeder(Settling, StopLines):
                         seen += 1
         return out
 
+    def _exit_lane(self, internal: str) -> str | None:
+        """The normal lane a junction's internal lane leads to (through its link's later lanes)."""
+        last = self.junctions.rest.get(internal, (internal,))[-1]
+        try:
+            out = self.net.sumo_net.getLane(last).getOutgoing()
+        except (KeyError, AttributeError):
+            return None
+        return out[0].getToLane().getID() if out else None
+
     def _edges_at(self, x: float, y: float, yaw: float) -> tuple | None:
         """(route edges for this pose, lane index on the first edge, lane) or None."""
         hit = self.net.lookup(x, y, yaw)
@@ -164,7 +173,11 @@ class Seeder(Settling, StopLines):
         moved = self.moved_from.get(i)
         if moved is not None and moved in self._via and self._via[moved][1] not in edges:
             edges.append(self._via[moved][1])     # the movement it waits for (fit_red_junctions)
-            last_lane = None
+            last_lane = self._exit_lane(moved)
+        elif last_lane is None and lane.internal:
+            # seen only inside the junction: it leaves on its movement's lane, whose successors are
+            # the turns it can take without a lane change it has no room for
+            last_lane = self._exit_lane(lane.id)
         if last_lane is not None and last_lane.rsplit("_", 1)[0] != edges[-1]:
             last_lane = None
         return edges, lane_index, lane, last_lane

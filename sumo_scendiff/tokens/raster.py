@@ -107,16 +107,19 @@ def token_raster(tokens: torch.Tensor, pad: torch.Tensor, res: int = 64, radius:
 EXACT_FEATURES = ("speed", "final_speed", "heading_to_final")
 
 
-def exact_values(token_sets, lengths) -> torch.Tensor:
+def exact_values(token_sets, lengths, skip=None) -> torch.Tensor:
     """(B, Tmax, 3) of :data:`EXACT_FEATURES` per token, NaN where unknown: ``token_sets`` per window
     the feature dicts its encoded tokens were made from, in their order (None, or a set whose
-    length is not the window's token count (``lengths``): all unknown)."""
+    length is not the window's token count (``lengths``): all unknown); ``skip(dict)`` true: that
+    token keeps its bins."""
     b, t = len(lengths), max(lengths, default=0)
     out = torch.full((b, t, len(EXACT_FEATURES)), float("nan"))
     for i, (dicts, n) in enumerate(zip(token_sets, lengths)):
         if dicts is None or len(dicts) != n:
             continue
         for j, d in enumerate(dicts):
+            if skip is not None and skip(d):
+                continue
             for k, name in enumerate(EXACT_FEATURES):
                 v = d.get(name) if hasattr(d, "get") else None
                 if v is not None:
