@@ -319,3 +319,36 @@ def _drive(sim, vid: str, steps: int) -> tuple[float, int]:
         if vid in sim.vehicle.getIDList():
             worst = min(worst, sim.vehicle.getAcceleration(vid) + sim.vehicle.getDecel(vid))
     return worst, collisions
+
+
+def test_a_vehicle_seeded_at_its_red_line_stands_there(cross_net):
+    """Generated at 5 m/s with its nose at a red stop line, the drawn geometry and SUMO's differ by a
+    few decimetres and SUMO puts it 0.3 m inside the junction: settle takes it as at the line
+    (``AT_THE_LINE``), moves it back behind it, and it departs standing there for the light, never
+    braking beyond its decel."""
+    import libsumo as sim
+
+    from sumo_scendiff.sim.seeding import SeedReport
+    net = Network.load(cross_net)
+    snet = net.sumo_net
+    red = snet.getEdge("wc").getOutgoing()[snet.getEdge("ce")][0]
+    sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--step-length", "0.5",
+               "--collision.check-junctions", "true"])
+    try:
+        tls = sim.trafficlight.getIDList()[0]
+        state = ["G"] * len(sim.trafficlight.getRedYellowGreenState(tls))
+        state[red.getTLLinkIndex()] = "r"
+        sim.trafficlight.setRedYellowGreenState(tls, "".join(state))
+        sim.route.add("east", ["wc", "ce"])
+        sim.vehicle.add("v", "east", depart="now", departPos="base", departSpeed="5")
+        via = red.getViaLaneID()
+        x, y = sim.simulation.convert2D(via.rsplit("_", 1)[0], 0.3, 0)
+        sim.vehicle.moveToXY("v", "", -1, x, y, 90.0, keepRoute=1)
+        sim.simulationStep()
+        assert sim.vehicle.getLaneID("v") == via
+        report = Seeder(sim, net).settle(SeedReport(ids={0: "v"}))
+        assert report.slowed[0][1] == pytest.approx(0.0)
+        worst, collisions = _drive(sim, "v", 8)
+        assert worst >= -0.05 and collisions == 0 and sim.vehicle.getLaneID("v") == "wc_0"
+    finally:
+        sim.close()

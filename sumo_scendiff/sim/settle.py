@@ -19,6 +19,7 @@ from ..core.geometry import sumo_to_pose
 MIN_GAP_MARGIN = 0.2   # m: a seeded vehicle's minGap stays this much below its bumper gap
 FOE_VISIBILITY = 4.5   # m: netconvert's default foe visibility distance of a link without priority
 LINKS_AHEAD = 2        # links (a turn's entry and its internal junction) settle looks at
+AT_THE_LINE = 0.5      # m: a nose this far past a red stop line is a vehicle at the line (Seeder's POS_TOLERANCE)
 ACCEL = 2.6            # m/s^2: SUMO's default passenger car accel, how a seeded vehicle drives on to a conflict
 
 
@@ -191,10 +192,23 @@ class Settling:
         """A vehicle inside a junction on a movement whose light is red now (the model, without the
         lights, puts some there): the start of each area its path shares with a link that has green
         (:meth:`green_crossings`) is a standing leader, if it is still ahead of the vehicle's front --
-        SUMO makes it yield to that stream and otherwise brakes it beyond its decel at hand-off."""
+        SUMO makes it yield to that stream and otherwise brakes it beyond its decel at hand-off. One
+        whose nose is within :data:`AT_THE_LINE` of the line was generated at it (the seeder's pose
+        tolerance; the drawn and SUMO's geometry differ by that much): it is moved back behind the
+        line and stands there."""
         if lane not in self.junctions.entry or self._link_state(lane) not in "rR":
             return []
-        return [(d, 0.0) for d in self.green_crossings(lane, float(self.sim.vehicle.getLanePosition(vid)))]
+        front = float(self.sim.vehicle.getLanePosition(vid))
+        inc, first = self.junctions.entry[lane]
+        if lane == first and front <= AT_THE_LINE:
+            # generated at its red line, SUMO put the nose just past it: back behind the line, where
+            # SUMO keeps it for the light (standing on the junction it would start into the streams)
+            try:
+                self.sim.vehicle.moveTo(vid, inc, float(self.sim.lane.getLength(inc)) - 0.1)
+                return [(0.0, 0.0)]
+            except Exception:        # a host that cannot: as any vehicle on red inside
+                pass
+        return [(d, 0.0) for d in self.green_crossings(lane, front)]
 
     def settle(self, report, reach: float = 100.0):
         """After the seeding step, against the leaders as SUMO sees them (any vehicle within ``reach``
@@ -234,4 +248,4 @@ class Settling:
         return report
 
 
-__all__ = ["ACCEL", "FOE_VISIBILITY", "LINKS_AHEAD", "MIN_GAP_MARGIN", "Settling", "krauss_safe_speed"]
+__all__ = ["ACCEL", "AT_THE_LINE", "FOE_VISIBILITY", "LINKS_AHEAD", "MIN_GAP_MARGIN", "Settling", "krauss_safe_speed"]
