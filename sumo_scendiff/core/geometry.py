@@ -65,6 +65,9 @@ def box_corners(x, y, yaw, length, width):
     return np.stack([cx, cy], axis=-1)
 
 
+OVERLAP_AREA = 0.01   # m^2: two boxes sharing more than this overlap
+
+
 def box_polygons(boxes) -> np.ndarray:
     """Boxes (N, >= 5: x, y, yaw, length, width, ...) as an (N,) array of shapely polygons."""
     if not len(boxes):

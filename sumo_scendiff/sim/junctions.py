@@ -32,6 +32,11 @@ ACCEL = 2.6    # m/s^2: SUMO's default passenger car accel, how an agent drives 
 MARGIN = 0.0   # s: two agents closer in time than this in a shared area conflict
 
 
+def time_to_cover(d: float, v: float) -> float:
+    """Seconds to drive ``d`` m from ``v`` m/s accelerating at ``ACCEL``: d = v t + ACCEL t^2 / 2."""
+    return 0.0 if d <= 0 else (-v + np.sqrt(v * v + 2.0 * ACCEL * d)) / ACCEL
+
+
 class JunctionConflicts:
     def __init__(self, net: Network, margin: float = MARGIN):
         self.net, self.margin = net, margin
@@ -135,10 +140,7 @@ class JunctionConflicts:
         if rear > area[1]:
             return None
         v = max(float(speed), 0.0)
-
-        def time(d: float) -> float:      # d = v t + ACCEL t^2 / 2
-            return 0.0 if d <= 0 else (-v + np.sqrt(v * v + 2.0 * ACCEL * d)) / ACCEL
-        return time(area[0] - front), time(area[1] - rear)
+        return time_to_cover(area[0] - front, v), time_to_cover(area[1] - rear, v)
 
     def conflict(self, lane_a: str, box_a, v_a: float, lane_b: str, box_b, v_b: float):
         """Foe links whose shared area the two agents would hold within ``margin`` s of each other:
@@ -196,4 +198,4 @@ class JunctionConflicts:
         return keep, hold & keep
 
 
-__all__ = ["JunctionConflicts"]
+__all__ = ["ACCEL", "JunctionConflicts", "time_to_cover"]

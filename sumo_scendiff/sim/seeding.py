@@ -36,19 +36,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.geometry import T0, box_polygons, pose_to_sumo, wrap_angle
+from ..core.geometry import OVERLAP_AREA, T0, box_polygons, pose_to_sumo, wrap_angle
 from ..core.scene import VEHICLE_CLASSES, Scene
 from ..map.network import Network
 from .junctions import JunctionConflicts
 from .routes import RouteChooser
-from .settle import MIN_GAP_MARGIN, Settling, krauss_safe_speed
+from .settle import DEFAULT_MIN_GAP, MIN_GAP_MARGIN, Settling, krauss_safe_speed
 from .stop_lines import StopLines
 
 POS_TOLERANCE, YAW_TOLERANCE = 0.5, 0.1   # m, rad: "present where it was generated"
 GAP_EDGES = 3          # at most this many edges between two generated poses' edges are filled in
-DEFAULT_MIN_GAP = 2.5
 LANE_END_MARGIN = 0.05  # m: a nose further than this past its lane's end is moved back behind it
-OVERLAP_AREA = 0.01     # m^2: boxes sharing more than this overlap
 
 
 @dataclass

@@ -15,12 +15,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.geometry import sumo_to_pose
+from .junctions import time_to_cover
 
 MIN_GAP_MARGIN = 0.2   # m: a seeded vehicle's minGap stays this much below its bumper gap
 FOE_VISIBILITY = 4.5   # m: netconvert's default foe visibility distance of a link without priority
 LINKS_AHEAD = 2        # links (a turn's entry and its internal junction) settle looks at
 AT_THE_LINE = 0.5      # m: a nose this far past a red stop line is a vehicle at the line (Seeder's POS_TOLERANCE)
-ACCEL = 2.6            # m/s^2: SUMO's default passenger car accel, how a seeded vehicle drives on to a conflict
+DEFAULT_MIN_GAP = 2.5  # m: SUMO's default minGap
 
 
 def krauss_safe_speed(gap: float, v_leader: float, decel: float, tau: float) -> float:
@@ -103,7 +104,7 @@ class Settling:
         """Vehicles already inside the junction ahead (or the one this vehicle is in) on a foe link
         that will still hold the area the two links' paths share when this vehicle gets there
         (:meth:`~sumo_scendiff.sim.junctions.JunctionConflicts.occupancy`, each driving on from its
-        speed at ``ACCEL``), as standing leaders at the area's start. SUMO treats a foe inside a
+        speed at ``junctions.ACCEL``), as standing leaders at the area's start. SUMO treats a foe inside a
         junction as a leader at the conflict (``MSLink::getLeaderInfo``), also one that has
         priority and also one standing short of the area; a vehicle seeded too fast to stop there
         brakes beyond its decel or collides. ``cache``: for :meth:`inside`, one per settle.
@@ -124,9 +125,6 @@ class Settling:
             return []
         v = max(float(sim.vehicle.getSpeed(vid)), 0.0)
         length = float(sim.vehicle.getLength(vid))
-
-        def time(d: float) -> float:        # d = v t + ACCEL t^2 / 2
-            return 0.0 if d <= 0 else (-v + np.sqrt(v * v + 2.0 * ACCEL * d)) / ACCEL
         out = []
         for other, other_lane in self.inside(jc.link[path][0], cache):
             if other == vid or not jc.foes(path, other_lane):
@@ -140,7 +138,7 @@ class Settling:
             occ = jc.occupancy(other_lane, (cx, cy, yaw, ol), float(sim.vehicle.getSpeed(other)), path)
             if occ is None:
                 continue
-            if occ[0] < time(area[1] - front + length) and occ[1] > time(area[0] - front):
+            if occ[0] < time_to_cover(area[1] - front + length, v) and occ[1] > time_to_cover(area[0] - front, v):
                 out.append((area[0] - front, 0.0))
         return out
 
@@ -248,4 +246,4 @@ class Settling:
         return report
 
 
-__all__ = ["ACCEL", "AT_THE_LINE", "FOE_VISIBILITY", "LINKS_AHEAD", "MIN_GAP_MARGIN", "Settling", "krauss_safe_speed"]
+__all__ = ["AT_THE_LINE", "DEFAULT_MIN_GAP", "FOE_VISIBILITY", "LINKS_AHEAD", "MIN_GAP_MARGIN", "Settling", "krauss_safe_speed"]

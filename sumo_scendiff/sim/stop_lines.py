@@ -24,12 +24,11 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
-from ..core.geometry import T0, box_polygons
+from ..core.geometry import OVERLAP_AREA, T0, box_polygons
+from .settle import DEFAULT_MIN_GAP as QUEUE_GAP   # kept between a moved vehicle and the one ahead
 
 CLEARING_SPEED = 3.0   # m/s: slower than this on a red movement inside a junction, it is waiting
 STOP_LINE_GAP = 0.1    # m: a vehicle moved to its stop line stands this far behind it
-OVERLAP_AREA = 0.01    # m^2: boxes sharing more than this overlap
-QUEUE_GAP = 2.5        # m: SUMO's default minGap, kept between a moved vehicle and the one ahead
 QUEUE_REACH = 60.0     # m: how far behind its stop line a moved vehicle may stand (the queue's end)
 
 
