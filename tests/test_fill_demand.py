@@ -171,18 +171,3 @@ def test_demand_level_only(tmp_path):
     doc = _fill(tmp_path / "o", "-r", str(demand), "--begin", "120", "--demand-level-only")
     assert doc["density"]["kind"] == "demand" and "vehicles" not in doc["density"]
     assert doc["agents"] and not any("demand" in a for a in doc["agents"])
-
-
-def test_signal_delays_of_the_demand_estimate(tmp_path):
-    """A light's program gives each link its green share (amber half) and Webster's uniform delay;
-    an additional file's program replaces the network's, as in SUMO."""
-    from sumo_scendiff.fill.demand import green_shares
-    a = tmp_path / "a.add.xml"
-    a.write_text('<additional><tlLogic id="J" type="static" programID="1" offset="0">'
-                 '<phase duration="30" state="Gr"/><phase duration="4" state="yr"/>'
-                 '<phase duration="26" state="rG"/></tlLogic></additional>')
-    cycle, green = green_shares([str(a)])["J"]
-    assert cycle == 60 and green == pytest.approx([32 / 60, 26 / 60])
-    b = tmp_path / "b.add.xml"
-    b.write_text(a.read_text().replace('duration="26"', 'duration="56"'))
-    assert green_shares([str(a), str(b)])["J"][0] == 90

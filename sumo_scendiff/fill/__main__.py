@@ -141,9 +141,10 @@ def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | No
         targets = [est.region_density(net, shapely.box(*t.core)) for t in tiles]
         src = {"kind": "demand", "time": begin, "en_route": est.vehicles, "departed": est.departed,
                "unrouted": est.unrouted, "applied": gen.has_density,
-               "method": "each departure up to --begin laid on its route (trips: shortest path) at "
-                         "0.7 x the speed limits, waiting at each traffic light for its mean (Webster "
-                         "uniform) delay; no simulation"}
+               "method": "each departure up to --begin laid on its route (trips: shortest path) and moved by "
+                         "fill/travel.py's clock: its vType's desired speed (x 0.9), the junctions' internal "
+                         "lanes, each traffic light's uniform delay at the demand's own load, the start from "
+                         "standing; no simulation"}
         if not gen.has_density:
             src["note"] = (f"{name} has no density condition: the demand's density is recorded per tile "
                            f"(target) but generation uses the model's prior scaled by --p-mask {o.p_mask:g}")

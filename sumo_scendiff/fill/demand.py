@@ -1,18 +1,17 @@
 """How much traffic a demand has on the road at time T, without simulating it.
 
     est = DemandEstimate.at(net, ["city.rou.xml"], begin=28800.0)
-    est.vehicles                       # en route at T: departed, not yet arrived at free flow
+    est.vehicles                       # en route at T: departed, not yet arrived
     est.window_density(net, window)    # vehicles per km of car lane, weighted as EdgeData's
 
 Each vehicle, trip and flow departure of the route files up to ``begin`` is laid on its route
 (a trip's: the shortest path by free-flow time, sumolib's Dijkstra, per from/to pair once) and
-moved along it at :data:`TYPICAL_SPEED_FACTOR` of each edge's speed limit, waiting at the end of an
-edge whose link to the next one a traffic light controls for that link's mean signal delay
-(Webster's uniform delay at low saturation, C (1 - g/C)^2 / 2, from the light's program: the
-network's, or an additional file's); those not yet at their end at ``begin`` count on the edge they
-are on (a vehicle waiting at a red light on the edge it waits on). No simulation, as the issue
-allows; it misses the queues of saturated links (Webster's other terms: a congested demand holds
-more vehicles than this counts) and vTypes' own speed factors.
+moved along it by the clock of :mod:`.travel` (its vType's desired speed, the junctions' internal
+lanes and the time lost slowing for them, each traffic light's uniform delay at the degree of
+saturation the demand's own flows give it, the start from standing); those not yet at their end
+at ``begin`` count on the edge they are on (a vehicle waiting at a red light on the edge it waits
+on, one crossing a junction at the start of the edge it enters). No simulation, as the issue
+allows: it misses what :mod:`.travel` leaves out (yielding without a light, queues spilling back).
 """
 from __future__ import annotations
 
@@ -22,8 +21,8 @@ import numpy as np
 
 from ..map.network import window_square
 
-TYPICAL_SPEED_FACTOR = 0.7   # urban traffic averages well below the limit (signals, turns)
 HORIZON_S = 7200.0           # departures longer ago than this are not followed (none is en route)
+FLOW_SPAN_S = 3600.0         # the lights' load is the demand's flow over this long before --begin
 
 
 @dataclass(frozen=True)
@@ -37,6 +36,7 @@ class EnRoute:
     travel: float                  # s the edge takes at the typical speed (then it waits, if signalised)
     speed: float                   # m/s on that edge while moving
     behind: str | None = None      # the route's edge before it (where a queue that does not fit stands)
+    offset: float = 0.0            # m along the edge where it began moving on it (its departPos)
 
     @property
     def waiting(self) -> bool:
@@ -56,12 +56,12 @@ class DemandEstimate:
     @classmethod
     def at(cls, net, route_files, begin: float, additional=()) -> DemandEstimate:
         from sumolib.xml import parse
+
+        from .travel import DEFAULT_DRIVER, TravelTimes, link_flows, vtype_drivers
         snet = net.sumo_net
-        delay = signal_delays(net, additional)
+        drivers = vtype_drivers([*route_files, *additional])
         named: dict[str, list[str]] = {}
         paths: dict[tuple[str, str], list[str] | None] = {}
-        on_edge: dict[str, int] = {}
-        en_route: list[EnRoute] = []
         counts = {"unrouted": 0, "departed": 0}
 
         def edges_of(el) -> list[str] | None:
@@ -78,35 +78,53 @@ class DemandEstimate:
                 paths[(a, b)] = [e.getID() for e in path] if path else None
             return paths[(a, b)]
 
-        def lay(vid, vtype, edges, depart):
-            counts["departed"] += 1
-            if not edges:
-                counts["unrouted"] += 1
-                return
-            t = begin - depart
-            for k, (e, nxt) in enumerate(zip(edges, edges[1:] + [None])):
-                if not snet.hasEdge(e):
-                    return
-                edge = snet.getEdge(e)
-                speed = max(edge.getSpeed() * TYPICAL_SPEED_FACTOR, 0.1)
-                travel = edge.getLength() / speed
-                if t < travel + delay.get((e, nxt), 0.0):
-                    on_edge[e] = on_edge.get(e, 0) + 1
-                    en_route.append(EnRoute(vid, vtype, tuple(edges[k:]), t, travel, speed,
-                                            edges[k - 1] if k else None))
-                    return
-                t -= travel + delay.get((e, nxt), 0.0)
-
         for path in route_files:       # named routes first: vehicles may refer to them
             for el in parse(path, "route"):
                 if getattr(el, "id", None) and getattr(el, "edges", None):
                     named[el.id] = el.edges.split()
+        departures: list[tuple[str, str | None, list[str] | None, float, bool, str | None]] = []
         for path in route_files:       # (one pass per kind: sumolib empties a child it also yields)
             for el in parse(path, ["vehicle", "trip", "flow"]):
+                standing, pos = _departs_standing(el), getattr(el, "departPos", None)
                 for k, depart in enumerate(_departures(el, begin)):
                     if begin - depart <= HORIZON_S:
                         vid = f"{el.id}.{k}" if el.name == "flow" else el.id
-                        lay(vid, getattr(el, "type", None), edges_of(el), depart)
+                        departures.append((vid, getattr(el, "type", None), edges_of(el), depart, standing, pos))
+        # the lights' load: the demand's flow through each link over the last hour (or since it began)
+        first = min((dep[3] for dep in departures), default=begin)
+        span = min(FLOW_SPAN_S, begin - first)
+        times = TravelTimes(net, additional, link_flows([(d, e) for _, _, e, d, *_ in departures if e],
+                                                        begin, span))
+        on_edge: dict[str, int] = {}
+        en_route: list[EnRoute] = []
+
+        def lay(vid, vtype, edges, depart, standing, depart_pos):
+            counts["departed"] += 1
+            if not edges:
+                counts["unrouted"] += 1
+                return
+            if not all(snet.hasEdge(e) for e in edges):
+                return
+            driver = drivers.get(vtype, DEFAULT_DRIVER) if vtype else DEFAULT_DRIVER
+            t = begin - depart
+            # the time spent before the edge's cruise: the start, or crossing the junction onto it
+            before = times.start(driver, edges[0]) if standing else 0.0
+            offset = _depart_offset(depart_pos, snet.getEdge(edges[0]).getLength())
+            for k, (e, nxt) in enumerate(zip(edges, edges[1:] + [None])):
+                cruise, v = times.edge(e, driver)
+                wait, cross = times.link(e, nxt, driver)
+                ahead = snet.getEdge(e).getLength() - offset
+                travel = max(before + cruise * ahead / snet.getEdge(e).getLength(), 1e-3)
+                if t < travel + wait:
+                    on_edge[e] = on_edge.get(e, 0) + 1
+                    en_route.append(EnRoute(vid, vtype, tuple(edges[k:]), t, travel, ahead / travel,
+                                            edges[k - 1] if k else None, offset))
+                    return
+                t -= travel + wait
+                before, offset = cross, 0.0
+
+        for dep in departures:
+            lay(*dep)
         return cls(begin, on_edge, sum(on_edge.values()), counts["unrouted"], counts["departed"], en_route)
 
     def edge_density(self, net) -> dict[str, float]:
@@ -138,48 +156,27 @@ class DemandEstimate:
         return num / den if normal and den > 0 else None
 
 
-def green_shares(paths) -> dict[str, tuple[float, np.ndarray]]:
-    """Per traffic light, (cycle s, green share of each link index) of its program in ``paths``
-    (the network, then additional files: a later file's program of a light replaces an earlier
-    one, as SUMO loads them; of several programs in one file, the first). Green: ``G``/``g``/``s``,
-    amber counted half."""
-    from sumolib.xml import parse
-    out: dict[str, tuple[float, np.ndarray]] = {}
-    for path in paths:
-        seen: set[str] = set()
-        for tl in parse(path, "tlLogic"):
-            if tl.id in seen or not tl.hasChild("phase"):
-                continue
-            seen.add(tl.id)
-            phases = [(float(ph.duration), ph.state) for ph in tl.getChild("phase")]
-            cycle = sum(d for d, _ in phases)
-            if cycle <= 0:
-                continue
-            n = max(len(st) for _, st in phases)
-            green = np.zeros(n)
-            for d, st in phases:
-                green[: len(st)] += d * np.array([1.0 if c in "Ggs" else 0.5 if c in "yY" else 0.0 for c in st])
-            out[tl.id] = (cycle, green / cycle)
-    return out
+def _departs_standing(el) -> bool:
+    """Whether the vehicle enters at speed 0 (SUMO's default departSpeed) and accelerates first."""
+    v = getattr(el, "departSpeed", None)
+    if v is None:
+        return True
+    try:
+        return float(v) <= 0.0
+    except ValueError:          # "max", "desired", "speedLimit", "avg", "last", "random": moving
+        return False
 
 
-def signal_delays(net, additional=()) -> dict[tuple[str, str], float]:
-    """Mean delay (s) at the stop line of each signalised (edge, next edge) pair: Webster's uniform
-    delay at low saturation, C (1 - g/C)^2 / 2, averaged over the pair's lane-to-lane links."""
-    if net.sumo_net is None or not getattr(net, "path", None):
-        return {}
-    shares = green_shares([net.path, *additional])
-    sums: dict[tuple[str, str], list[float]] = {}
-    for edge in net.sumo_net.getEdges(withInternal=False):
-        for lane in edge.getLanes():
-            for conn in lane.getOutgoing():
-                tls, idx = conn.getTLSID(), conn.getTLLinkIndex()
-                if not tls or idx < 0 or tls not in shares or idx >= len(shares[tls][1]):
-                    continue
-                cycle, green = shares[tls]
-                d = 0.5 * cycle * (1.0 - green[idx]) ** 2
-                sums.setdefault((edge.getID(), conn.getTo().getID()), []).append(d)
-    return {k: float(np.mean(v)) for k, v in sums.items()}
+def _depart_offset(pos: str | None, length: float) -> float:
+    """m along its first edge where a vehicle with ``departPos`` ``pos`` enters (SUMO's default
+    "base": at the start; "random": on average the middle; a negative number counts from the end)."""
+    if pos is None:
+        return 0.0
+    try:
+        p = float(pos)
+    except ValueError:
+        return 0.5 * length if pos in ("random", "random_free") else 0.0
+    return min(max(p + length if p < 0 else p, 0.0), length)
 
 
 def _departures(el, begin: float) -> list[float]:
@@ -207,4 +204,4 @@ def _departures(el, begin: float) -> list[float]:
     return list(np.arange(start, stop + 1e-9, period)) if stop >= start else []
 
 
-__all__ = ["TYPICAL_SPEED_FACTOR", "DemandEstimate", "EnRoute", "green_shares", "signal_delays"]
+__all__ = ["DemandEstimate", "EnRoute"]

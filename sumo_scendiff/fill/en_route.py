@@ -50,26 +50,13 @@ class Placed:
 
 def vtype_sizes(paths) -> dict[str, tuple[float, float]]:
     """(length, width) of every vType in ``paths`` (route and additional files) by id, and of every
-    vTypeDistribution (its first member's; a distribution lists members or holds vTypes)."""
-    from sumolib.xml import parse
-    sizes: dict[str, tuple[float, float]] = {}
+    vTypeDistribution (its first member's)."""
+    from .travel import vtype_table
 
     def size(el) -> tuple[float, float]:
         cls_len, cls_wid = CLASS_SIZE.get(getattr(el, "vClass", None) or "passenger", DEFAULT_SIZE)
         return (float(getattr(el, "length", None) or cls_len), float(getattr(el, "width", None) or cls_wid))
-
-    dists: dict[str, list[str]] = {}
-    for path in paths:          # (one pass per kind: sumolib empties a child it also yields)
-        for el in parse(path, "vType"):
-            sizes[el.id] = size(el)
-        for el in parse(path, "vTypeDistribution"):
-            members = (getattr(el, "vTypes", None) or "").split()
-            dists[el.id] = members + [c.id for c in (el.getChild("vType") if el.hasChild("vType") else [])]
-    for name, members in dists.items():
-        first = next((m for m in members if m in sizes), None)
-        if first is not None and name not in sizes:
-            sizes[name] = sizes[first]
-    return sizes
+    return vtype_table(paths, size)
 
 
 def write_vtypes(route_files, path: str) -> list[str]:
@@ -133,7 +120,7 @@ def place_en_route(net, est: DemandEstimate, sizes: dict[str, tuple[float, float
 
     # queues first, longest waiting at the front; then the movers, furthest along first; ties by id
     def order(v: EnRoute):
-        return (0, -(v.since - v.travel), v.id) if v.waiting else (1, -v.since * v.speed, v.id)
+        return (0, -(v.since - v.travel), v.id) if v.waiting else (1, -(v.offset + v.since * v.speed), v.id)
 
     room: dict[int, float] = {}                  # lane -> where the next front may be at most
     used: Counter = Counter()                    # lane -> vehicles placed on it
@@ -141,13 +128,13 @@ def place_en_route(net, est: DemandEstimate, sizes: dict[str, tuple[float, float
     skipped: list[EnRoute] = []
     for v in sorted(est.en_route, key=order):
         length, width = sizes.get(v.type, DEFAULT_SIZE) if v.type else DEFAULT_SIZE
-        want = None if v.waiting else v.since * v.speed
+        want = None if v.waiting else v.offset + v.since * v.speed
         best = _fit(lanes_for(v.edges), v.id, want, length, room, used, net)
         if best is None and v.waiting and v.behind:
             # a queue longer than its edge (a short edge before the light) stands on the edge before
             best = _fit(lanes_for((v.behind,) + v.edges), v.id, None, length, room, used, net)
             if best is not None:
-                v = replace(v, edges=(v.behind,) + v.edges, since=0.0, behind=None)
+                v = replace(v, edges=(v.behind,) + v.edges, since=0.0, behind=None, offset=0.0)
         if best is None:
             skipped.append(v)
             continue

@@ -25,8 +25,8 @@ import numpy as np
 from ..sim.export import write_routes
 from ..sim.seeding import Seeder
 from ..sim.sumo import start
-from .demand import TYPICAL_SPEED_FACTOR
 
+TYPICAL_SPEED_FACTOR = 0.7  # a trip time's floor: its routes at this share of the speed limits
 INFLOW_SECONDS = 3600.0     # how long the continuing inflow runs after the start
 SAMPLE_TRIPS = 200          # random trips: their mean route gives the trip time; the probe's replacements
 # The probe (probe_speed) drives the filled network on, keeping its number of vehicles, for

@@ -1,0 +1,225 @@
+"""How long a demand's vehicle takes along its route, without simulating it: the demand estimate's clock.
+
+    times = TravelTimes(net, drivers=vtype_drivers(files), additional=files)
+    times.edge(edge, driver)            # s cruising along the edge
+    times.link(edge, nxt, driver)       # (s waiting at its light, s across the junction incl. slowing down)
+    times.flows = link_flows(routes)    # veh/s per (edge, next): the lights' degree of saturation
+
+A vehicle cruises at its vType's desired speed (speedFactor x the limit, at most its maxSpeed), as
+SUMO's car-following does on a free road. At each junction it crosses the internal lanes of the
+connection at their speed (SUMO lowers it for a turn's radius) and loses the time of braking to it
+and accelerating back. At a traffic light it waits Webster's uniform delay, C (1 - λ)² / (2 (1 - λx)),
+with λ the link's green share and x its degree of saturation (the demand's own flow through the
+link over the capacity of its lanes at green, SATURATION_FLOW per lane, capped at X_MAX: an
+oversaturated queue grows without bound, which a steady-state formula cannot hold); the share of
+vehicles that stop, (1 - λ) / (1 - λx), lose the time of stopping and starting as well. A vehicle
+departing at speed 0 (SUMO's default departSpeed) loses the time of accelerating.
+
+Left out: yielding at unsignalised junctions, lane changes, and queues spilling back over junctions.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+SATURATION_FLOW = 0.5   # veh/s per lane discharging at green (SUMO's Krauss defaults: ~1 800 veh/h)
+# Traffic cruises below its desired speed: car-following behind slower vehicles (speedFactor's spread),
+# SUMO's dawdling (sigma), lane changes. One share for all of it, chosen on the project's held-out
+# generated networks with random demand against SUMO's own counts (docs/fill.md), not on real cities.
+CRUISE_SHARE = 0.9
+X_MAX = 0.95            # the degree of saturation the uniform delay is evaluated at, at most
+# SUMO's vType defaults (sumo.dlr.de "Vehicle Type Parameter Defaults"): maxSpeed per vClass, m/s
+CLASS_MAX_SPEED = {"passenger": 55.56, "private": 55.56, "taxi": 55.56, "evehicle": 55.56,
+                   "delivery": 55.56, "emergency": 55.56, "authority": 55.56, "army": 55.56,
+                   "vip": 55.56, "truck": 36.11, "trailer": 36.11, "bus": 27.78, "coach": 27.78,
+                   "motorcycle": 55.56, "moped": 13.89}
+CLASS_ACCEL = {"truck": 1.3, "trailer": 1.1, "bus": 1.2, "coach": 2.0, "moped": 1.1}
+CLASS_DECEL = {"truck": 4.0, "trailer": 4.0, "bus": 4.0, "coach": 4.0, "moped": 7.0}
+
+
+@dataclass(frozen=True)
+class Driver:
+    """A vType's parameters the travel times need (SUMO's passenger defaults unless given)."""
+
+    speed_factor: float = 1.0
+    max_speed: float = 55.56
+    accel: float = 2.6
+    decel: float = 4.5
+
+    def cruise(self, limit: float) -> float:
+        return max(CRUISE_SHARE * min(limit * self.speed_factor, self.max_speed), 0.1)
+
+    def slowing(self, v: float, u: float) -> float:
+        """s lost braking from v to u and accelerating back: (v - u)² / (2 v) (1/b + 1/a)."""
+        return 0.0 if u >= v else (v - u) ** 2 / (2.0 * v) * (1.0 / self.accel + 1.0 / self.decel)
+
+
+DEFAULT_DRIVER = Driver()
+
+
+def vtype_drivers(paths) -> dict[str, Driver]:
+    """The :class:`Driver` of every vType in ``paths`` (route and additional files) by id, and of
+    every vTypeDistribution (its first member's)."""
+    def driver(el) -> Driver:
+        cls = getattr(el, "vClass", None) or "passenger"
+
+        def num(name, default):
+            v = getattr(el, name, None)
+            try:
+                return float(v) if v is not None else default
+            except ValueError:          # "normc(1,0.1,0.2,2)": its mean
+                head = v.split("(", 1)[-1].split(",")[0]
+                try:
+                    return float(head)
+                except ValueError:
+                    return default
+        return Driver(num("speedFactor", 1.0), num("maxSpeed", CLASS_MAX_SPEED.get(cls, 55.56)),
+                      num("accel", CLASS_ACCEL.get(cls, 2.6)), num("decel", CLASS_DECEL.get(cls, 4.5)))
+
+    return vtype_table(paths, driver)
+
+
+def vtype_table(paths, of) -> dict:
+    """``of(element)`` of every vType in ``paths`` (route and additional files) by id, and of every
+    vTypeDistribution (its first member's; a distribution lists members or holds vTypes)."""
+    from sumolib.xml import parse
+    out: dict = {}
+    dists: dict[str, list[str]] = {}
+    for path in paths:          # (one pass per kind: sumolib empties a child it also yields)
+        for el in parse(path, "vType"):
+            out[el.id] = of(el)
+        for el in parse(path, "vTypeDistribution"):
+            members = (getattr(el, "vTypes", None) or "").split()
+            dists[el.id] = members + [c.id for c in (el.getChild("vType") if el.hasChild("vType") else [])]
+    for name, members in dists.items():
+        first = next((m for m in members if m in out), None)
+        if first is not None and name not in out:
+            out[name] = out[first]
+    return out
+
+
+def green_shares(paths) -> dict[str, tuple[float, np.ndarray]]:
+    """Per traffic light, (cycle s, green share of each link index) of its program in ``paths``
+    (the network, then additional files: a later file's program of a light replaces an earlier
+    one, as SUMO loads them; of several programs in one file, the first). Green: ``G``/``g``/``s``,
+    amber counted half."""
+    from sumolib.xml import parse
+    out: dict[str, tuple[float, np.ndarray]] = {}
+    for path in paths:
+        seen: set[str] = set()
+        for tl in parse(path, "tlLogic"):
+            if tl.id in seen or not tl.hasChild("phase"):
+                continue
+            seen.add(tl.id)
+            phases = [(float(ph.duration), ph.state) for ph in tl.getChild("phase")]
+            cycle = sum(d for d, _ in phases)
+            if cycle <= 0:
+                continue
+            n = max(len(st) for _, st in phases)
+            green = np.zeros(n)
+            for d, st in phases:
+                green[: len(st)] += d * np.array([1.0 if c in "Ggs" else 0.5 if c in "yY" else 0.0 for c in st])
+            out[tl.id] = (cycle, green / cycle)
+    return out
+
+
+@dataclass(frozen=True)
+class Link:
+    """What a vehicle meets going from an edge onto the next: the junction and its light."""
+
+    via_m: float                 # length of the internal lanes crossed
+    via_speed: float             # their speed limit (m/s)
+    cycle: float = 0.0           # the light's cycle (s); 0: no light
+    green: float = 1.0           # green share λ of the link (mean over its lane-to-lane links)
+    lanes: int = 1               # lanes discharging onto the next edge
+
+
+class TravelTimes:
+    """Per edge and per (edge, next edge) the times of :mod:`this module's <.travel>` model."""
+
+    def __init__(self, net, additional=(), flows: dict[tuple[str, str], float] | None = None):
+        self.snet = net.sumo_net
+        self.flows = flows or {}
+        self._links: dict[tuple[str, str], Link | None] = {}
+        path = getattr(net, "path", None)
+        self._shares = green_shares([path, *additional]) if path else {}
+
+    def edge(self, edge: str, driver: Driver = DEFAULT_DRIVER) -> tuple[float, float]:
+        """(s cruising along ``edge``, the cruising speed m/s)."""
+        e = self.snet.getEdge(edge)
+        v = driver.cruise(e.getSpeed())
+        return e.getLength() / v, v
+
+    def link_of(self, edge: str, nxt: str) -> Link | None:
+        if (edge, nxt) not in self._links:
+            self._links[(edge, nxt)] = self._read_link(edge, nxt)
+        return self._links[(edge, nxt)]
+
+    def _read_link(self, edge: str, nxt: str) -> Link | None:
+        a, b = self.snet.getEdge(edge), self.snet.getEdge(nxt)
+        conns = a.getConnections(b)
+        if not conns:
+            return None
+        via_m, via_speed = [], []
+        cycles, greens = [], []
+        for c in conns:
+            m, speed, lane = 0.0, [], c.getViaLaneID()
+            for _ in range(4):            # an internal junction splits a turn into a chain of lanes
+                if not lane:
+                    break
+                ln = self.snet.getLane(lane)
+                m += ln.getLength()
+                speed.append(ln.getSpeed())
+                nxt_conns = ln.getOutgoing()
+                lane = nxt_conns[0].getViaLaneID() if nxt_conns and nxt_conns[0].getViaLaneID() else None
+            via_m.append(m)
+            via_speed.append(min(speed) if speed else b.getSpeed())
+            tls, idx = c.getTLSID(), c.getTLLinkIndex()
+            if tls and tls in self._shares and 0 <= idx < len(self._shares[tls][1]):
+                cycles.append(self._shares[tls][0])
+                greens.append(self._shares[tls][1][idx])
+        lanes = len({c.getFromLane().getIndex() for c in conns})
+        if cycles:
+            return Link(float(np.mean(via_m)), float(np.mean(via_speed)), float(np.mean(cycles)),
+                        float(np.mean(greens)), lanes)
+        return Link(float(np.mean(via_m)), float(np.mean(via_speed)), lanes=lanes)
+
+    def link(self, edge: str, nxt: str | None, driver: Driver = DEFAULT_DRIVER) -> tuple[float, float]:
+        """(s waiting at the light of edge -> nxt, s crossing the junction including the time lost
+        slowing for it and, if stopped, starting again); (0, 0) at a route's end."""
+        link = self.link_of(edge, nxt) if nxt is not None else None
+        if link is None:
+            return 0.0, 0.0
+        v = driver.cruise(self.snet.getEdge(edge).getSpeed())
+        u = min(driver.cruise(link.via_speed), v)
+        cross = link.via_m / u + driver.slowing(v, u)
+        if link.cycle <= 0:
+            return 0.0, cross
+        lam = link.green
+        capacity = SATURATION_FLOW * link.lanes * max(lam, 1e-3)
+        x = min(self.flows.get((edge, nxt), 0.0) / capacity, X_MAX)
+        wait = link.cycle * (1.0 - lam) ** 2 / (2.0 * (1.0 - lam * x))
+        stops = min((1.0 - lam) / (1.0 - lam * x), 1.0)
+        # a stopped vehicle brakes from v to 0 and starts again: the slowing to u is then part of it
+        return wait, cross + stops * (driver.slowing(v, 0.0) - driver.slowing(v, u))
+
+    def start(self, driver: Driver = DEFAULT_DRIVER, edge: str | None = None) -> float:
+        """s lost accelerating from standing to the first edge's cruising speed."""
+        v = driver.cruise(self.snet.getEdge(edge).getSpeed()) if edge else 13.89
+        return v / (2.0 * driver.accel)
+
+
+def link_flows(routes: list[tuple[float, list[str]]], begin: float, span: float) -> dict[tuple[str, str], float]:
+    """veh/s through each (edge, next edge) of the routes departed in the ``span`` s before ``begin``."""
+    counts: dict[tuple[str, str], int] = {}
+    start = begin - span
+    for depart, edges in routes:
+        if start <= depart <= begin:
+            for pair in zip(edges, edges[1:]):
+                counts[pair] = counts.get(pair, 0) + 1
+    return {k: n / max(span, 1.0) for k, n in counts.items()}
+
+
+__all__ = ["DEFAULT_DRIVER", "Driver", "Link", "TravelTimes", "green_shares", "link_flows", "vtype_drivers",
+           "vtype_table"]
