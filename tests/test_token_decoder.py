@@ -189,3 +189,20 @@ def test_misled_and_counterfactual_examples():
     drawn = channel(t[0], "speed")[row, col].numpy() * 10.0
     assert np.all(np.abs(drawn - np.clip(told, 0, 19.9)) <= 1.0 + 1e-4)   # within the 2 m/s bin
     assert (np.abs(told - 10.0) > 1.0).any()
+
+
+def test_a_decoder_trained_on_exact_values_reads_the_counterfactual_speeds_exactly():
+    """With exact values the token raster carries the counterfactual trajectory's own speed, not
+    its 2 m/s bin's centre; the same examples otherwise."""
+    scene = moving_scene()
+    batch = batch_of(*scene)
+    every = TokenMaskConfig(p_keep_all_tokens=1.0, p_all_features=1.0)
+    read = partial(token_raster, res=64)
+    x0, t0, traj0 = decoder_conditioning(batch, 0, 0, 0, every, 1.0, read, p_counterfactual=1.0)
+    x1, t1, traj1 = decoder_conditioning(batch, 0, 0, 0, every, 1.0, read, p_counterfactual=1.0, exact=True)
+    assert torch.equal(x0, x1) and torch.equal(traj0, traj1)
+    told = speeds_from_traj(traj1[0].numpy(), scene[2])[:, T0]
+    col, row = np.floor(metres_to_pixels(scene[0][:, :2].astype(np.float64), 100.0, (64, 64)) + 0.5).astype(int).T
+    drawn = channel(t1[0], "speed")[row, col].numpy() * 10.0
+    assert np.allclose(drawn, np.clip(told, 0, 20.0), atol=1e-3)
+    assert not torch.equal(t0, t1)

@@ -34,6 +34,9 @@ class TrainConfig:
     # the encoder is shown otherwise (train/token_decoder.py), so the decoder learns to follow the token
     p_mislead: float = 0.0
     p_counterfactual: float = 0.0   # ... of those, the share the other way round: the token and loss moved
+    # ... and reads its tokens' exact speeds and turn, as generation gives them (False: their bins'
+    # centres, as the decoders up to round 19 were trained)
+    exact_token_values: bool = False
     token_lr_scale: float = 1.0   # ... and its token inputs learn this many times faster (new, from zero)
     p_no_signals: float = 0.0     # scenes shown with their traffic lights unknown (a model without a host)
     seed: int = 0

@@ -108,7 +108,8 @@ def train_autoencoder(o) -> None:
         x, t, traj = batch["agents"], None, batch["traj"]
         if model.cfg.C_t:
             x, t, traj = decoder_conditioning(batch, cfg.seed, step, rank(), mask_cfg, cfg.p_mislead,
-                                              model.token_raster, p_counterfactual=cfg.p_counterfactual)
+                                              model.token_raster, p_counterfactual=cfg.p_counterfactual,
+                                              exact=cfg.exact_token_values)
         out = module.loss({"x": x, "m": batch["map"], "boxes": batch["boxes"],
                            "traj": traj, "traj_mask": batch["traj_mask"],
                            "valid": batch["valid"], "t": t})

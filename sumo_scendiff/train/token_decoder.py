@@ -25,6 +25,7 @@ from ..core.scene import speeds_from_traj
 from ..map.raster import RasterConfig, render_agents
 from ..tokens.encoding import encode_agent_tokens, features_from_scene, pad_tokens
 from ..tokens.masking import TokenMaskConfig, choose_tokens
+from ..tokens.raster import EXACT_FEATURES
 
 MISLEAD_SCALE = (0.1, 2.0)   # the steps scaled by a factor drawn uniformly in this range
 MISLEAD_TURN = 0.6           # rad: the future turned by an angle drawn uniformly in +- this
@@ -58,13 +59,13 @@ def mislead(traj: np.ndarray, given: dict[str, np.ndarray], rng: np.random.Gener
 
 def decoder_conditioning(batch: dict, seed: int, step: int, rank: int, mask_cfg: TokenMaskConfig,
                          p_mislead: float, read_tokens: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
-                         raster: RasterConfig = RasterConfig(), p_counterfactual: float = 0.0
-                         ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                         raster: RasterConfig = RasterConfig(), p_counterfactual: float = 0.0,
+                         exact: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(x, t, traj)``: the agent raster the encoder sees ((B, C_x, H, W): the batch's own where no
     token misleads it), the tokens' raster as the decoder reads them (``read_tokens(tokens, pad)``:
-    ``ScenarioAutoencoder.token_raster``) and the trajectories the loss asks for (the batch's, but for
-    the counterfactual agents)."""
-    toks, xs = [], []
+    ``ScenarioAutoencoder.token_raster``, given the exact values with ``exact``) and the trajectories
+    the loss asks for (the batch's, but for the counterfactual agents)."""
+    toks, xs, values = [], [], []
     target = batch["traj"].clone()
     for i in range(batch["boxes"].shape[0]):
         v = batch["valid"][i].cpu().numpy()
@@ -82,10 +83,17 @@ def decoder_conditioning(batch: dict, seed: int, step: int, rank: int, mask_cfg:
             feats, present = features_from_scene(boxes, told, mask, speed)
             target[i, torch.from_numpy(np.flatnonzero(v))] = torch.from_numpy(told).to(target.dtype)
             moved = seen
-        toks.append(encode_agent_tokens({k: f[keep] for k, f in feats.items()},
-                                        {k: (g & present[k])[keep] for k, g in given.items()}))
+        told_given = {k: (g & present[k])[keep] for k, g in given.items()}
+        toks.append(encode_agent_tokens({k: f[keep] for k, f in feats.items()}, told_given))
+        values.append(np.stack([np.where(told_given[k], feats[k][keep], np.nan) for k in EXACT_FEATURES], -1)
+                      .reshape(-1, len(EXACT_FEATURES)))
         xs.append(render_agents(boxes, moved, mask, raster) if not np.array_equal(moved, traj)
                   else batch["agents"][i].cpu().numpy())
     tokens, pad = pad_tokens(toks)
     x = torch.from_numpy(np.stack(xs)).to(batch["agents"].device)
-    return x, read_tokens(tokens.to(x.device), pad.to(x.device)), target
+    if not exact:
+        return x, read_tokens(tokens.to(x.device), pad.to(x.device)), target
+    vals = torch.full((len(values), tokens.shape[1], len(EXACT_FEATURES)), float("nan"))
+    for i, v in enumerate(values):
+        vals[i, :len(v)] = torch.from_numpy(v).float()
+    return x, read_tokens(tokens.to(x.device), pad.to(x.device), exact=vals.to(x.device)), target
