@@ -438,7 +438,15 @@ def test_fine_tune_the_exported_model(tmp_path, cross_net):
     assert b["trained"]["diffusion_steps"] == 1 + 2 and b["trained"]["autoencoder_steps"] == 2
     for part in ("autoencoder", "diffusion"):
         assert all(torch.equal(b[part][k].half(), a[part][k]) for k in a[part])
-    bad = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "export", "--autoencoder", src,
-                          "--diffusion", str(model), "-o", str(tmp_path / "x.pt")], capture_output=True, text=True)
+    # a decoder fine-tuned from the run (not from the exported file) keeps the encoder: it fits
+    train("autoencoder", *common, "--init-from", src, "--freeze-encoder", "-o", tmp_path / "dec", "--steps", 1,
+          "--model-config", json.dumps(TINY_AE))
+    train("export", "--autoencoder", tmp_path / "dec" / "last.pt", "--diffusion", model, "-o", tmp_path / "dec.pt")
+    # another encoder does not
+    train("autoencoder", *common, "-o", tmp_path / "other", "--steps", 1, "--seed", 1,
+          "--model-config", json.dumps(TINY_AE))
+    bad = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "export", "--autoencoder",
+                          str(tmp_path / "other" / "last.pt"), "--diffusion", str(model), "-o", str(tmp_path / "x.pt")],
+                         capture_output=True, text=True)
     assert bad.returncode == 2 and "was trained on another autoencoder" in bad.stderr
     assert "Traceback" not in bad.stderr and not (tmp_path / "x.pt").exists()

@@ -6,6 +6,19 @@ from ..model import checkpoint as ckpt
 from .loop import load_training
 
 
+def _same_encoder(state: dict, exported: str) -> bool:
+    """Whether ``state``'s encoder is the one of the exported model ``exported`` (to its float16
+    rounding): a decoder fine-tuned from an earlier run of the same frozen encoder fits its diffusion
+    model as well as one started from the exported file."""
+    ck = ckpt.load(exported, ("autoencoder-train", "diffusion-train", "scenario-diffusion"))
+    if ck["kind"] != "scenario-diffusion":
+        return False
+    theirs = ck["autoencoder"]
+    mine = {k: v for k, v in state.items() if k.startswith("E.")}
+    return bool(mine) and all(k in theirs and v.shape == theirs[k].shape and
+                              bool((v.half() == theirs[k].half()).all()) for k, v in mine.items())
+
+
 def export_model(autoencoder: str, diffusion: str, output: str, fp16: bool = False,
                  scene_guidance: float = 1.0, scene_guidance_sigma: float = 0.0) -> str:
     """Write ``output`` (atomically) from two training checkpoints; returns its SHA-256. Raises
@@ -14,7 +27,8 @@ def export_model(autoencoder: str, diffusion: str, output: str, fp16: bool = Fal
     ae_ck = load_training(autoencoder, "autoencoder-train")
     df_ck = load_training(diffusion, "diffusion-train")
     # a decoder-only fine-tune (--freeze-encoder) keeps the latent space the diffusion was trained in
-    if df_ck["autoencoder_sha256"] not in (ckpt.sha256(autoencoder), ae_ck.get("encoder_from_sha256")):
+    if df_ck["autoencoder_sha256"] not in (ckpt.sha256(autoencoder), ae_ck.get("encoder_from_sha256")) \
+            and not _same_encoder(ae_ck["state"], diffusion):
         raise ckpt.CheckpointError(f"{diffusion}: was trained on another autoencoder than {autoencoder}")
 
     def cast(state):
