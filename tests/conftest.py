@@ -7,7 +7,7 @@ import subprocess
 import pytest
 
 
-def netconvert(nodes: str, edges: str, out: str, *extra: str) -> str:
+def netconvert(nodes: str, edges: str, out: str, *extra: str, turnarounds: bool = False) -> str:
     import sumo
     d = os.path.dirname(out)
     nod, edg = os.path.join(d, "n.nod.xml"), os.path.join(d, "e.edg.xml")
@@ -16,7 +16,7 @@ def netconvert(nodes: str, edges: str, out: str, *extra: str) -> str:
     with open(edg, "w") as f:
         f.write(f"<edges>{edges}</edges>")
     subprocess.run([os.path.join(sumo.SUMO_HOME, "bin", "netconvert"), "-n", nod, "-e", edg, "-o", out,
-                    "--no-turnarounds", "--offset.disable-normalization", "true", *extra],
+                    *([] if turnarounds else ["--no-turnarounds"]), "--offset.disable-normalization", "true", *extra],
                    check=True, capture_output=True)
     return out
 
@@ -30,16 +30,16 @@ def diagonal_net(tmp_path_factory) -> str:
                       str(d / "diag.net.xml"))
 
 
-def crossing(path: str, lanes: int) -> str:
+def crossing(path: str, lanes: int, turnarounds: bool = False) -> str:
     """A traffic-light crossing of two 2-way roads with ``lanes`` lanes a direction, 200 m arms,
-    centred on (0, 0)."""
+    centred on (0, 0); with ``turnarounds`` each arm's U-turn too (netconvert's default)."""
     nodes = ('<node id="c" x="0" y="0" type="traffic_light"/>'
              '<node id="w" x="-200" y="0"/><node id="e" x="200" y="0"/>'
              '<node id="s" x="0" y="-200"/><node id="n" x="0" y="200"/>')
     edges = "".join(f'<edge id="{a}{b}" from="{a}" to="{b}" numLanes="{lanes}" speed="13.89"/>'
                     for a, b in (("w", "c"), ("c", "w"), ("e", "c"), ("c", "e"),
                                  ("s", "c"), ("c", "s"), ("n", "c"), ("c", "n")))
-    return netconvert(nodes, edges, path)
+    return netconvert(nodes, edges, path, turnarounds=turnarounds)
 
 
 @pytest.fixture(scope="session")

@@ -372,6 +372,14 @@ def test_decoder_fine_tune_learns_to_read_the_tokens(tmp_path, cross_net):
     scenes = gen.generate(Network.load(cross_net), [Window(0.0, 0.0, 0.0)], seed=0,
                           tokens=[[{"x": -12.0, "y": -1.6, "speed": 5.0}]])
     assert len(scenes) == 1 and seen and seen[-1] > 0
+    # --token-weights-only with --exact-token-values: only the token inputs' weights move
+    train("autoencoder", *common, "-o", tmp_path / "tw", "--steps", 2, "--init-from", tmp_path / "dec" / "last.pt",
+          "--freeze-encoder", "--p-keep-all-tokens", 1.0, "--token-lr-scale", 10, "--exact-token-values",
+          "--token-weights-only", "--model-config", json.dumps({"C_t": C_T}))
+    c, d = (ckpt.load(str(p), "autoencoder-train")["state"] for p in (tmp_path / "dec" / "last.pt",
+                                                                       tmp_path / "tw" / "last.pt"))
+    moved = {k for k in c if not torch.equal(c[k], d[k])}
+    assert moved and all(k.startswith("D_up.tokens.") and k.endswith(".weight") for k in moved)
     bad = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "autoencoder", *map(str, common), "-o",
                           str(tmp_path / "x"), "--steps", "1", "--model-config", '{"C_t": 5}'],
                          capture_output=True, text=True)

@@ -133,14 +133,15 @@ def test_the_recipes_are_what_the_shipped_model_records():
     """The shipped model is configs/fast.json's autoencoder and its diffusion model fine-tuned by
     configs/density.json (the density condition), then by configs/signals.json (the traffic lights'
     channels, the token-weighted loss), its decoder then trained on by configs/token_decoder.json's
-    stages (the decoder reads the tokens) and configs/token_speed.json's (a token's one given speed
-    read in both channels, more partial tokens, the speed term)."""
+    stages (the decoder reads the tokens), configs/token_speed.json's (a token's one given speed
+    read in both channels, more partial tokens, the speed term) and configs/token_exact.json's (its
+    token inputs reading the tokens' exact values)."""
     shipped = ckpt.load(os.path.join(REPO, "sumo_scendiff", "weights", "scendiff.pt"), "scenario-diffusion")
     fast, density = rc.load(FAST), rc.load(os.path.join(REPO, "configs", "density.json"))
     signals = rc.load(os.path.join(REPO, "configs", "signals.json"))
     ae, decoder, diffusion = (rc.stage(fast, n) for n in ("autoencoder", "decoder", "diffusion"))
     tuned, lit = rc.stage(density, "diffusion"), rc.stage(signals, "diffusion")
-    reads = [st for name in ("token_decoder.json", "token_speed.json")
+    reads = [st for name in ("token_decoder.json", "token_speed.json", "token_exact.json")
              for st in rc.load(os.path.join(REPO, "configs", name))["stages"] if st["run"] == "autoencoder"]
     # the decoder stages continue the autoencoder's config with their own overrides on top
     config = _merge(ae["model_config"], decoder["model_config"])

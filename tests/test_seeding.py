@@ -203,8 +203,7 @@ def test_a_nose_over_the_stop_line_is_moved_back_onto_its_lane(cross_net, tmp_pa
     import libsumo as sim
     import numpy as np
 
-    from sumo_scendiff.core.geometry import Window, pose_to_sumo
-    from sumo_scendiff.core.scene import Scene
+    from sumo_scendiff.core.geometry import pose_to_sumo
     net = Network.load(cross_net)
     east = next(ln for ln in net.lanes if ln.edge == "wc")
     west = next(ln for ln in net.lanes if ln.edge == "ec")
@@ -213,9 +212,7 @@ def test_a_nose_over_the_stop_line_is_moved_back_onto_its_lane(cross_net, tmp_pa
     boxes = np.array([[x_end + 1.2 - 2.3, y_e, 0.0, 4.6, 1.8],           # nose 1.2 m over the line
                       [x_wend - 1.2 + 2.3, y_w, math.pi, 4.6, 1.8],      # the same, westbound ...
                       [x_wend - 1.2 + 2.3 + 5.4, y_w, math.pi, 4.6, 1.8]])  # ... with a car 0.8 m behind
-    traj = np.repeat(boxes[:, None, :3], 5, 1)
-    scene = Scene(Window(0.0, 0.0, 0.0), boxes.copy(), traj.copy(), np.ones((3, 5), bool), np.zeros((3, 5)),
-                  np.zeros(3), "cross")
+    scene = standing(boxes)
     sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--lateral-resolution", "0.8"])
     try:
         seeder = Seeder(sim, net)
@@ -309,6 +306,17 @@ def test_settle_sees_a_foe_standing_inside_the_junction(cross_net):
     assert not unslowed and rough < -0.05
 
 
+def standing(boxes):
+    """A scene on the crossing of ``boxes`` (N, 5), each vehicle standing there for the 4 s."""
+    import numpy as np
+
+    from sumo_scendiff.core.geometry import Window
+    from sumo_scendiff.core.scene import Scene
+    n = len(boxes)
+    return Scene(Window(0.0, 0.0, 0.0), boxes.copy(), np.repeat(boxes[:, None, :3], 5, 1), np.ones((n, 5), bool),
+                 np.zeros((n, 5)), np.zeros(n), "cross")
+
+
 def _drive(sim, vid: str, steps: int) -> tuple[float, int]:
     """Step ``steps`` times: (the most ``vid`` braked beyond its decel, as a negative number or 0;
     the collisions SUMO counted)."""
@@ -350,5 +358,47 @@ def test_a_vehicle_seeded_at_its_red_line_stands_there(cross_net):
         assert report.slowed[0][1] == pytest.approx(0.0)
         worst, collisions = _drive(sim, "v", 8)
         assert worst >= -0.05 and collisions == 0 and sim.vehicle.getLaneID("v") == "wc_0"
+    finally:
+        sim.close()
+
+
+def test_a_vehicle_clamped_onto_a_junctions_start_is_put_back_on_its_lane(tmp_path):
+    """A car 1.4 m before its stop line whose route turns around: on some networks (cologne3's
+    364065) SUMO's moveToXY matches such a car onto the turnaround's internal lane, which starts
+    beside the lane, clamped at that lane's start, and would save and drive it from there. Found
+    there after the seeding step (put there here with moveTo), the seeder puts it back on the lane
+    it stands on, at its front, so the state SUMO saves keeps its pose."""
+    import math
+
+    import libsumo as sim
+    import numpy as np
+
+    from sumo_scendiff.core.geometry import pose_to_sumo
+
+    from .conftest import crossing
+    cross_net = crossing(str(tmp_path / "turn.net.xml"), 1, turnarounds=True)
+    net = Network.load(cross_net)
+    east = next(ln for ln in net.lanes if ln.edge == "wc")
+    uturn = net.sumo_net.getEdge("wc").getConnections(net.sumo_net.getEdge("cw"))[0].getViaLaneID()
+    x_end, y_e = (float(v) for v in east.shape[-1])
+    boxes = np.array([[x_end - 1.4 - 2.3, y_e, 0.0, 4.6, 1.8]])
+    scene = standing(boxes)
+    sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--lateral-resolution", "0.8"])
+    try:
+        seeder = Seeder(sim, net)
+        report = seeder.seed(scene)
+        vid = report.ids[0]
+        assert report.lanes[0] == (east.id, pytest.approx(east.length - 1.4, abs=0.05))
+        sim.vehicle.setRoute(vid, ["wc", "cw"])          # a destination drawn behind the vehicle
+        sim.simulationStep()
+        sim.vehicle.moveTo(vid, uturn, 0.0)              # where SUMO put it on cologne3
+        seeder.verify(report)
+        assert sim.vehicle.getLaneID(vid) == east.id and not report.misplaced
+        state = str(tmp_path / "state.xml")
+        sim.simulation.saveState(state)
+        sim.simulation.loadState(state)
+        fx, fy, _ = pose_to_sumo(*scene.boxes[0, :3], 4.6)
+        x, y = sim.vehicle.getPosition(vid)
+        assert math.hypot(x - fx, y - fy) < 0.1
     finally:
         sim.close()

@@ -35,6 +35,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import shapely
 
 from ..core.geometry import OVERLAP_AREA, T0, box_polygons, pose_to_sumo, wrap_angle
 from ..core.scene import VEHICLE_CLASSES, Scene
@@ -46,6 +47,7 @@ from .stop_lines import StopLines
 
 POS_TOLERANCE, YAW_TOLERANCE = 0.5, 0.1   # m, rad: "present where it was generated"
 GAP_EDGES = 3          # at most this many edges between two generated poses' edges are filled in
+CLAMPED = 0.01         # m: a position on an internal lane this near its start is SUMO's clamp, not a pose
 LANE_END_MARGIN = 0.05  # m: a nose further than this past its lane's end is moved back behind it
 
 
@@ -62,6 +64,7 @@ class SeedReport:
     narrowed: dict[int, tuple] = field(default_factory=dict)  # agent index -> (generated, SUMO width), width_cap
     to_stop_line: dict[int, float] = field(default_factory=dict)  # agent index -> m moved from a red junction
     own_route: dict[int, str] = field(default_factory=dict)  # agent index -> how its given route went (RouteChooser.along)
+    lanes: dict[int, tuple] = field(default_factory=dict)     # agent index -> (normal lane id, front pos) seeded on
 
     @property
     def placed(self) -> int:
@@ -375,12 +378,36 @@ class Seeder(Settling, StopLines):
                 continue
             report.ids[i] = vid
             report.targets[i] = (float(fx), float(fy), float(angle))
+            if not lane.internal:
+                report.lanes[i] = (lane.id, self._front_pos(lane, fx, fy))
             if slowed is not None:
                 report.slowed[i] = slowed
         return report
 
+    def _front_pos(self, lane, fx: float, fy: float) -> float:
+        """m along ``lane`` (a :class:`~sumo_scendiff.map.network.Lane`) of the front point (fx, fy)."""
+        return float(shapely.LineString(lane.shape).project(shapely.Point(fx, fy)))
+
+    def keep_on_seeded_lanes(self, report: SeedReport) -> None:
+        """After the seeding step: a vehicle SUMO matched onto the very start of a junction's
+        internal lane (its position there clamped at 0; e.g. a route that turns around, whose
+        internal lane starts beside the lane) while its front stands on the normal lane it was
+        seeded on is moved onto that lane at its front (``moveTo``). SUMO shows it where asked for
+        the step, but would save and drive it from the internal lane's start, metres away."""
+        sim = self.sim
+        for i, (lane_id, pos) in report.lanes.items():
+            vid = report.ids.get(i)
+            try:
+                if not sim.vehicle.getLaneID(vid).startswith(":") or sim.vehicle.getLanePosition(vid) > CLAMPED:
+                    continue
+                sim.vehicle.moveTo(vid, lane_id, pos)
+            except Exception:   # gone, or the lane is not on its route: it stays as SUMO has it
+                continue
+
     def verify(self, report: SeedReport) -> SeedReport:
-        """After a simulation step: which seeded agents are not where they were generated."""
+        """After a simulation step: which seeded agents are not where they were generated (those
+        SUMO clamped onto a junction's start first put back on their lane, :meth:`keep_on_seeded_lanes`)."""
+        self.keep_on_seeded_lanes(report)
         present = set(self.sim.vehicle.getIDList())
         for i, vid in report.ids.items():
             fx, fy, angle = report.targets[i]

@@ -37,6 +37,9 @@ class TrainConfig:
     # ... and reads its tokens' exact speeds and turn, as generation gives them (False: their bins'
     # centres, as the decoders up to round 19 were trained)
     exact_token_values: bool = False
+    # ... and only its token inputs' weights learn (their biases and the rest frozen): a scene
+    # without tokens decodes exactly as the decoder it started from
+    token_weights_only: bool = False
     token_lr_scale: float = 1.0   # ... and its token inputs learn this many times faster (new, from zero)
     p_no_signals: float = 0.0     # scenes shown with their traffic lights unknown (a model without a host)
     seed: int = 0

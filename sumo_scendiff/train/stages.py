@@ -93,6 +93,11 @@ def train_autoencoder(o) -> None:
         o.parser.exit(2, f"{o.parser.prog}: error: --freeze-encoder needs --init-from (a trained encoder to keep)\n")
     if o.freeze_encoder:
         model.E.requires_grad_(False)
+    if cfg.token_weights_only:
+        if not model.cfg.C_t:
+            o.parser.exit(2, f"{o.parser.prog}: error: --token-weights-only: the decoder reads no tokens (C_t 0)\n")
+        for k, p in model.named_parameters():
+            p.requires_grad_(k.startswith("D_up.tokens.") and k.endswith(".weight"))
     # the token inputs of a token-reading decoder learning faster: a group of their own, after the
     # first (whose rate the loop reports); one group otherwise, as runs saved before resume
     fast = cfg.token_lr_scale != 1.0
