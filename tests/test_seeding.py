@@ -169,10 +169,7 @@ def test_settle_stops_a_vehicle_inside_the_junction_on_red_before_a_green_stream
         sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--step-length", "0.5",
                    "--lateral-resolution", "0.8", "--collision.check-junctions", "true"])
         try:
-            tls = sim.trafficlight.getIDList()[0]
-            state = ["r"] * len(sim.trafficlight.getRedYellowGreenState(tls))
-            state[green.getTLLinkIndex()] = "G"
-            sim.trafficlight.setRedYellowGreenState(tls, "".join(state))
+            _lights(sim, "r", green, "G")
             sim.route.add("east", ["wc", "ce"])
             sim.route.add("north", ["sc", "cn"])
             sim.vehicle.add("host", "north", depart="now", departPos=f"{sim.lane.getLength('sc_0') - 15:.1f}",
@@ -306,6 +303,14 @@ def test_settle_sees_a_foe_standing_inside_the_junction(cross_net):
     assert not unslowed and rough < -0.05
 
 
+def _lights(sim, others: str, link, state: str) -> None:
+    """The crossing's light showing ``state`` to ``link`` (a sumolib connection) and ``others`` to the rest."""
+    tls = sim.trafficlight.getIDList()[0]
+    states = [others] * len(sim.trafficlight.getRedYellowGreenState(tls))
+    states[link.getTLLinkIndex()] = state
+    sim.trafficlight.setRedYellowGreenState(tls, "".join(states))
+
+
 def standing(boxes):
     """A scene on the crossing of ``boxes`` (N, 5), each vehicle standing there for the 4 s."""
     import numpy as np
@@ -343,10 +348,7 @@ def test_a_vehicle_seeded_at_its_red_line_stands_there(cross_net):
     sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--step-length", "0.5",
                "--collision.check-junctions", "true"])
     try:
-        tls = sim.trafficlight.getIDList()[0]
-        state = ["G"] * len(sim.trafficlight.getRedYellowGreenState(tls))
-        state[red.getTLLinkIndex()] = "r"
-        sim.trafficlight.setRedYellowGreenState(tls, "".join(state))
+        _lights(sim, "G", red, "r")
         sim.route.add("east", ["wc", "ce"])
         sim.vehicle.add("v", "east", depart="now", departPos="base", departSpeed="5")
         via = red.getViaLaneID()

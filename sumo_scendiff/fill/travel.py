@@ -204,10 +204,9 @@ class TravelTimes:
         # a stopped vehicle brakes from v to 0 and starts again: the slowing to u is then part of it
         return wait, cross + stops * (driver.slowing(v, 0.0) - driver.slowing(v, u))
 
-    def start(self, driver: Driver = DEFAULT_DRIVER, edge: str | None = None) -> float:
-        """s lost accelerating from standing to the first edge's cruising speed."""
-        v = driver.cruise(self.snet.getEdge(edge).getSpeed()) if edge else 13.89
-        return v / (2.0 * driver.accel)
+    def start(self, driver: Driver, edge: str) -> float:
+        """s lost accelerating from standing to ``edge``'s cruising speed."""
+        return driver.cruise(self.snet.getEdge(edge).getSpeed()) / (2.0 * driver.accel)
 
 
 def link_flows(routes: list[tuple[float, list[str]]], begin: float, span: float) -> dict[tuple[str, str], float]:
