@@ -13,16 +13,16 @@ NET4 = os.path.join(NETS, "grid4x4_2lane_tls.net.xml")
 def test_green_shares_and_an_additional_program(tmp_path):
     """A light's program gives each link its green share (amber half); an additional file's
     program replaces the network's, as in SUMO."""
-    from sumo_scendiff.fill.travel import green_shares
+    from sumo_scendiff.fill.travel import green_shares, signal_programs
     a = tmp_path / "a.add.xml"
     a.write_text('<additional><tlLogic id="J" type="static" programID="1" offset="0">'
                  '<phase duration="30" state="Gr"/><phase duration="4" state="yr"/>'
                  '<phase duration="26" state="rG"/></tlLogic></additional>')
-    cycle, green = green_shares([str(a)])["J"]
+    cycle, green = green_shares(signal_programs([str(a)]))["J"]
     assert cycle == 60 and green == pytest.approx([32 / 60, 26 / 60])
     b = tmp_path / "b.add.xml"
     b.write_text(a.read_text().replace('duration="26"', 'duration="56"'))
-    assert green_shares([str(a), str(b)])["J"][0] == 90
+    assert green_shares(signal_programs([str(a), str(b)]))["J"][0] == 90
 
 
 def _signalised_pairs(net):
@@ -36,9 +36,10 @@ def _signalised_pairs(net):
 
 
 def test_a_lights_wait_is_webster_and_grows_with_its_load():
-    """Unloaded, the wait at a light is Webster's C (1 - λ)² / 2; the demand's flow through the link
-    lengthens it (1 / (1 - λx)), never without bound."""
-    from sumo_scendiff.fill.travel import SATURATION_FLOW, X_MAX, TravelTimes
+    """Unloaded, the wait at a light is Webster's uniform delay C (1 - λ)² / 2; the demand's flow
+    through the link lengthens it (1 / (1 - λx), and the random arrivals' x² / (2q (1 - x)) less
+    Webster's correction), never without bound."""
+    from sumo_scendiff.fill.travel import SATURATION_FLOW, X_MAX, TravelTimes, webster
     from sumo_scendiff.map.network import Network
     net = Network.load(NET4)
     (e, nxt), *_ = _signalised_pairs(net)[0]
@@ -47,12 +48,19 @@ def test_a_lights_wait_is_webster_and_grows_with_its_load():
     assert 0 < link.green < 1 and link.cycle > 0
     wait, _ = free.link(e, nxt)
     assert wait == pytest.approx(link.cycle * (1 - link.green) ** 2 / 2)
-    half = TravelTimes(net, flows={(e, nxt): 0.5 * SATURATION_FLOW * link.lanes * link.green})
+    q = 0.5 * SATURATION_FLOW * link.lanes * link.green
+    half = TravelTimes(net, flows={(e, nxt): q})
     over = TravelTimes(net, flows={(e, nxt): 10 * SATURATION_FLOW * link.lanes})
     w_half, w_over = half.link(e, nxt)[0], over.link(e, nxt)[0]
-    assert wait < w_half < w_over
-    assert w_half == pytest.approx(wait / (1 - 0.5 * link.green))
-    assert w_over == pytest.approx(wait / (1 - X_MAX * link.green))
+    assert wait < w_half < w_over < 1e4
+    uniform = wait / (1 - 0.5 * link.green)
+    random = 0.25 / (2 * q * 0.5)
+    correction = 0.65 * (link.cycle / q ** 2) ** (1 / 3) * 0.5 ** (2 + 5 * link.green)
+    assert w_half == pytest.approx(webster(link.cycle, link.green, 0.5, q))
+    assert w_half == pytest.approx(max(uniform + random - correction, uniform))
+    assert w_over == pytest.approx(webster(link.cycle, link.green, X_MAX, 10 * SATURATION_FLOW * link.lanes))
+    # Webster's correction never takes the wait below the uniform delay
+    assert webster(90.0, 0.45, 0.3, 0.4) >= 90.0 * 0.55 ** 2 / (2 * (1 - 0.45 * 0.3))
 
 
 def test_a_turn_takes_longer_across_the_junction_than_going_straight():
@@ -103,3 +111,39 @@ def test_depart_pos_and_speed_in_the_estimate(tmp_path):
     moving, _ = remaining('departSpeed="max"')
     assert off == 0 and off_half == pytest.approx(e.getLength() / 2, abs=0.01)
     assert half < base and moving < base
+
+
+def _priority_crossing(tmp_path, kind: str = "priority") -> str:
+    """An unsignalised crossing: the west-east road has the right of way over the south-north one."""
+    from .conftest import netconvert
+    nodes = (f'<node id="c" x="0" y="0" type="{kind}"/><node id="w" x="-200" y="0"/><node id="e" x="200" y="0"/>'
+             '<node id="s" x="0" y="-200"/><node id="n" x="0" y="200"/>')
+    edges = "".join(f'<edge id="{a}{b}" from="{a}" to="{b}" numLanes="1" speed="13.89" priority="{p}"/>'
+                    for a, b, p in (("w", "c", 2), ("c", "w", 2), ("e", "c", 2), ("c", "e", 2),
+                                    ("s", "c", 1), ("c", "s", 1), ("n", "c", 1), ("c", "n", 1)))
+    return netconvert(nodes, edges, str(tmp_path / f"{kind}.net.xml"))
+
+
+def test_a_minor_link_waits_for_a_gap_in_the_flows_it_yields_to(tmp_path):
+    """Crossing the main road from the side road waits Adams' delay for a gap of YIELD_GAP s in the
+    main road's flow (none without it); the main road never waits; at an all-way stop every
+    vehicle stops."""
+    import numpy as np
+
+    from sumo_scendiff.fill.travel import YIELD_GAP, TravelTimes
+    from sumo_scendiff.map.network import Network
+    net = Network.load(_priority_crossing(tmp_path))
+    minor = TravelTimes(net).link_of("sc", "cn")
+    assert {(f, t) for f, t, *_ in minor.foes} >= {("wc", "ce"), ("ec", "cw")} and not minor.stop
+    assert TravelTimes(net).link_of("wc", "ce").foes == ()
+    assert TravelTimes(net).link("sc", "cn")[0] == 0.0          # nobody on the main road
+    q = 0.2
+    times = TravelTimes(net, flows={("wc", "ce"): q, ("sc", "cn"): 1e-9})
+    wait, _ = times.link("sc", "cn")
+    assert wait == pytest.approx((np.exp(q * YIELD_GAP) - q * YIELD_GAP - 1) / q, rel=1e-6)
+    assert times.link("wc", "ce")[0] == 0.0
+    busier = TravelTimes(net, flows={("wc", "ce"): q, ("ec", "cw"): q, ("sc", "cn"): 0.05})
+    assert busier.link("sc", "cn")[0] > wait
+    stop = Network.load(_priority_crossing(tmp_path, "allway_stop"))
+    link = TravelTimes(stop).link_of("sc", "cn")
+    assert link.stop and TravelTimes(stop).yielding(link, "sc", "cn") == (0.0, 1.0)

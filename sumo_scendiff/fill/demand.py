@@ -11,7 +11,7 @@ lanes and the time lost slowing for them, each traffic light's uniform delay at 
 saturation the demand's own flows give it, the start from standing); those not yet at their end
 at ``begin`` count on the edge they are on (a vehicle waiting at a red light on the edge it waits
 on, one crossing a junction at the start of the edge it enters). No simulation, as the issue
-allows: it misses what :mod:`.travel` leaves out (yielding without a light, queues spilling back).
+allows: it misses what :mod:`.travel` leaves out (lane changes, queues spilling back).
 """
 from __future__ import annotations
 

@@ -8,14 +8,23 @@
 A vehicle cruises at its vType's desired speed (speedFactor x the limit, at most its maxSpeed), as
 SUMO's car-following does on a free road. At each junction it crosses the internal lanes of the
 connection at their speed (SUMO lowers it for a turn's radius) and loses the time of braking to it
-and accelerating back. At a traffic light it waits Webster's uniform delay, C (1 - λ)² / (2 (1 - λx)),
-with λ the link's green share and x its degree of saturation (the demand's own flow through the
-link over the capacity of its lanes at green, SATURATION_FLOW per lane, capped at X_MAX: an
-oversaturated queue grows without bound, which a steady-state formula cannot hold); the share of
-vehicles that stop, (1 - λ) / (1 - λx), lose the time of stopping and starting as well. A vehicle
-departing at speed 0 (SUMO's default departSpeed) loses the time of accelerating.
+and accelerating back. At a traffic light it waits Webster's delay (:func:`webster`) at the link's
+green share λ and degree of saturation x (the demand's own flow through the link over the capacity
+of its lanes at green, SATURATION_FLOW per lane, capped at X_MAX: an oversaturated queue grows
+without bound, which a steady-state formula cannot hold); the share of vehicles that stop,
+(1 - λ) / (1 - λx), lose the time of stopping and starting as well. A vehicle departing at speed 0
+(SUMO's default departSpeed) loses the time of accelerating.
 
-Left out: yielding at unsignalised junctions, lane changes, and queues spilling back over junctions.
+A link that yields (a minor link, ``m``; right before left, ``=``; one that must stop, ``s``/``w``;
+a turn at a light through a yielding green, ``g``) waits for a gap of YIELD_GAP s in the flow of
+the links it gives way to (the junction's ``<request response=...>``; at a light, those green at
+once with a phase where the link is a yielding ``g``): Adams' delay, (e^{qT} - qT - 1) / q for a
+Poisson stream of q veh/s (a light's foe flow concentrated into its green share), grown by the
+minor flow's own queue, 1 / (1 - x) at x = its flow over the gap-acceptance capacity
+q e^{-qT} / (1 - e^{-q t_f}); the share that finds no gap, 1 - e^{-qT} (every one at a stop sign),
+stops and starts again.
+
+Left out: lane changes, and queues spilling back over junctions.
 """
 from __future__ import annotations
 
@@ -29,6 +38,14 @@ SATURATION_FLOW = 0.5   # veh/s per lane discharging at green (SUMO's Krauss def
 # generated networks with random demand against SUMO's own counts (docs/fill.md), not on real cities.
 CRUISE_SHARE = 0.9
 X_MAX = 0.95            # the degree of saturation the uniform delay is evaluated at, at most
+# a yielding vehicle's critical gap in its foes' stream (SUMO lets it go when it clears the
+# conflict jmTimegapMinor, 1 s, before a foe arrives), chosen of 3, 4 and 5 s on the project's
+# held-out generated networks as CRUISE_SHARE was (docs/fill.md)
+YIELD_GAP = 5.0
+FOLLOW_UP = 2.0         # s between minor vehicles taking one gap (the saturation headway)
+# net.xml connection states that give way without a light (minor, right before left, stop sign,
+# all-way stop); those that stop first
+YIELDS, STOPS = "m=sw", "sw"
 # SUMO's vType defaults (sumo.dlr.de "Vehicle Type Parameter Defaults"): maxSpeed per vClass, m/s
 CLASS_MAX_SPEED = {"passenger": 55.56, "private": 55.56, "taxi": 55.56, "evehicle": 55.56,
                    "delivery": 55.56, "emergency": 55.56, "authority": 55.56, "army": 55.56,
@@ -99,13 +116,12 @@ def vtype_table(paths, of) -> dict:
     return out
 
 
-def green_shares(paths) -> dict[str, tuple[float, np.ndarray]]:
-    """Per traffic light, (cycle s, green share of each link index) of its program in ``paths``
-    (the network, then additional files: a later file's program of a light replaces an earlier
-    one, as SUMO loads them; of several programs in one file, the first). Green: ``G``/``g``/``s``,
-    amber counted half."""
+def signal_programs(paths) -> dict[str, list[tuple[float, str]]]:
+    """Per traffic light, the (duration s, state) phases of its program in ``paths`` (the network,
+    then additional files: a later file's program of a light replaces an earlier one, as SUMO loads
+    them; of several programs in one file, the first)."""
     from sumolib.xml import parse
-    out: dict[str, tuple[float, np.ndarray]] = {}
+    out: dict[str, list[tuple[float, str]]] = {}
     for path in paths:
         seen: set[str] = set()
         for tl in parse(path, "tlLogic"):
@@ -113,15 +129,31 @@ def green_shares(paths) -> dict[str, tuple[float, np.ndarray]]:
                 continue
             seen.add(tl.id)
             phases = [(float(ph.duration), ph.state) for ph in tl.getChild("phase")]
-            cycle = sum(d for d, _ in phases)
-            if cycle <= 0:
-                continue
-            n = max(len(st) for _, st in phases)
-            green = np.zeros(n)
-            for d, st in phases:
-                green[: len(st)] += d * np.array([1.0 if c in "Ggs" else 0.5 if c in "yY" else 0.0 for c in st])
-            out[tl.id] = (cycle, green / cycle)
+            if sum(d for d, _ in phases) > 0:
+                out[tl.id] = phases
     return out
+
+
+def green_shares(programs: dict[str, list[tuple[float, str]]]) -> dict[str, tuple[float, np.ndarray]]:
+    """Per traffic light of :func:`signal_programs`, (cycle s, green share of each link index).
+    Green: ``G``/``g``/``s``, amber counted half."""
+    out: dict[str, tuple[float, np.ndarray]] = {}
+    for tls, phases in programs.items():
+        cycle = sum(d for d, _ in phases)
+        n = max(len(st) for _, st in phases)
+        green = np.zeros(n)
+        for d, st in phases:
+            green[: len(st)] += d * np.array([1.0 if c in "Ggs" else 0.5 if c in "yY" else 0.0 for c in st])
+        out[tls] = (cycle, green / cycle)
+    return out
+
+
+def minor_green(phases: list[tuple[float, str]], k: int, j: int) -> float:
+    """The share of link ``k``'s green in which it must yield (``g``) while its foe, link ``j`` of
+    the same light, is green too."""
+    green = sum(d for d, st in phases if k < len(st) and st[k] in "Gg")
+    both = sum(d for d, st in phases if k < len(st) and j < len(st) and st[k] == "g" and st[j] in "Gg")
+    return both / green if green > 0 else 0.0
 
 
 @dataclass(frozen=True)
@@ -133,6 +165,8 @@ class Link:
     cycle: float = 0.0           # the light's cycle (s); 0: no light
     green: float = 1.0           # green share λ of the link (mean over its lane-to-lane links)
     lanes: int = 1               # lanes discharging onto the next edge
+    foes: tuple = ()             # the (edge, next edge, their green share, weight) it gives way to
+    stop: bool = False           # every vehicle stops first (a stop sign, all-way stop)
 
 
 class TravelTimes:
@@ -143,7 +177,9 @@ class TravelTimes:
         self.flows = flows or {}
         self._links: dict[tuple[str, str], Link | None] = {}
         path = getattr(net, "path", None)
-        self._shares = green_shares([path, *additional]) if path else {}
+        self._programs = signal_programs([path, *additional]) if path else {}
+        self._shares = green_shares(self._programs)
+        self._index: dict[str, tuple[dict, list]] = {}    # node -> (connection -> link index, index -> edges)
 
     def edge(self, edge: str, driver: Driver = DEFAULT_DRIVER) -> tuple[float, float]:
         """(s cruising along ``edge``, the cruising speed m/s)."""
@@ -180,10 +216,77 @@ class TravelTimes:
                 cycles.append(self._shares[tls][0])
                 greens.append(self._shares[tls][1][idx])
         lanes = len({c.getFromLane().getIndex() for c in conns})
+        foes, stop = self._foes(a.getToNode(), conns)
         if cycles:
             return Link(float(np.mean(via_m)), float(np.mean(via_speed)), float(np.mean(cycles)),
-                        float(np.mean(greens)), lanes)
-        return Link(float(np.mean(via_m)), float(np.mean(via_speed)), lanes=lanes)
+                        float(np.mean(greens)), lanes, foes, stop)
+        return Link(float(np.mean(via_m)), float(np.mean(via_speed)), lanes=lanes, foes=foes, stop=stop)
+
+    def _links_of(self, node) -> tuple[dict, list]:
+        """Link index of each connection of ``node`` (as its request table numbers them) and the
+        (from edge, to edge, connection) of each index."""
+        if node.getID() not in self._index:
+            index, edges = {}, []
+            for lane_id in node._incLanes:      # sumolib's Node.getLinkIndex order, in one pass
+                edge_id, _, n = lane_id.rpartition("_")
+                if not self.snet.hasEdge(edge_id):
+                    continue
+                for c in self.snet.getEdge(edge_id).getLane(int(n)).getOutgoing():
+                    f, t = c.getFromLane().getEdge().getFunction(), c.getToLane().getEdge().getFunction()
+                    if t == "walkingarea" or (f == "walkingarea" and t != "crossing"):
+                        continue
+                    index[c] = len(edges)
+                    edges.append((c.getFrom().getID(), c.getTo().getID(), c))
+            self._index[node.getID()] = (index, edges)
+        return self._index[node.getID()]
+
+    def _foes(self, node, conns) -> tuple[tuple, bool]:
+        """The (edge, next, green share, weight) links that ``conns`` give way to, and whether they
+        stop first. Without a light, the junction's response bits of a yielding state; at a light
+        (whose net.xml states are those of the light switched off), the foes green at once with a
+        phase in which the link is a yielding green ``g``, weighted by the share of its green that is."""
+        index, edges = self._links_of(node)
+        foes: dict[tuple[str, str], list[float]] = {}
+        yielding = 0
+        for c in conns:
+            tls, k = c.getTLSID(), c.getTLLinkIndex()
+            phases = self._programs.get(tls) if tls else None
+            if phases is None and (c.getState() or "") not in YIELDS:
+                continue
+            row = node._prohibits.get(index.get(c, -1), "")
+            mine = False
+            for j in range(min(len(row), len(edges))):
+                if row[len(row) - 1 - j] != "1":
+                    continue
+                f, t, fc = edges[j]
+                weight, share = 1.0, 1.0
+                if phases is not None:
+                    tj = fc.getTLLinkIndex() if fc.getTLSID() == tls else -1
+                    weight = minor_green(phases, k, tj) if tj >= 0 else 0.0
+                    share = float(self._shares[tls][1][tj]) if 0 <= tj < len(self._shares[tls][1]) else 1.0
+                if weight > 0:
+                    mine = True
+                    old = foes.get((f, t), [share, 0.0])
+                    foes[(f, t)] = [share, max(old[1], weight)]
+            yielding += mine or (phases is None and (c.getState() or "") in STOPS)
+        if yielding * 2 <= len(conns):     # most of the link's lanes have the right of way
+            return (), False
+        stop = all((c.getState() or "") in STOPS and not c.getTLSID() for c in conns)
+        return tuple((f, t, g, w) for (f, t), (g, w) in foes.items()), stop
+
+    def yielding(self, link: Link, edge: str, nxt: str) -> tuple[float, float]:
+        """(s waiting for a gap in the foes' flow, share of vehicles that stop) at a yielding link."""
+        if not link.foes and not link.stop:
+            return 0.0, 0.0
+        # a foe behind a light flows only in its green, at its flow over the green share
+        q = sum(w * self.flows.get((f, t), 0.0) / max(g, 0.1) for f, t, g, w in link.foes)
+        if q <= 1e-9:
+            return 0.0, 1.0 if link.stop else 0.0
+        adams = (np.exp(q * YIELD_GAP) - q * YIELD_GAP - 1.0) / q
+        capacity = q * np.exp(-q * YIELD_GAP) / (1.0 - np.exp(-q * FOLLOW_UP)) * link.lanes
+        x = min(self.flows.get((edge, nxt), 0.0) / max(capacity, 1e-9), X_MAX)
+        stops = 1.0 if link.stop else 1.0 - np.exp(-q * YIELD_GAP)
+        return float(adams / (1.0 - x)), float(stops)
 
     def link(self, edge: str, nxt: str | None, driver: Driver = DEFAULT_DRIVER) -> tuple[float, float]:
         """(s waiting at the light of edge -> nxt, s crossing the junction including the time lost
@@ -194,19 +297,33 @@ class TravelTimes:
         v = driver.cruise(self.snet.getEdge(edge).getSpeed())
         u = min(driver.cruise(link.via_speed), v)
         cross = link.via_m / u + driver.slowing(v, u)
-        if link.cycle <= 0:
-            return 0.0, cross
-        lam = link.green
-        capacity = SATURATION_FLOW * link.lanes * max(lam, 1e-3)
-        x = min(self.flows.get((edge, nxt), 0.0) / capacity, X_MAX)
-        wait = link.cycle * (1.0 - lam) ** 2 / (2.0 * (1.0 - lam * x))
-        stops = min((1.0 - lam) / (1.0 - lam * x), 1.0)
+        wait, stops = self.yielding(link, edge, nxt)
+        if link.cycle > 0:
+            lam = link.green
+            capacity = SATURATION_FLOW * link.lanes * max(lam, 1e-3)
+            q = self.flows.get((edge, nxt), 0.0)
+            x = min(q / capacity, X_MAX)
+            wait += webster(link.cycle, lam, x, q)
+            red = min((1.0 - lam) / (1.0 - lam * x), 1.0)
+            stops = red + (1.0 - red) * stops
         # a stopped vehicle brakes from v to 0 and starts again: the slowing to u is then part of it
         return wait, cross + stops * (driver.slowing(v, 0.0) - driver.slowing(v, u))
 
     def start(self, driver: Driver, edge: str) -> float:
         """s lost accelerating from standing to ``edge``'s cruising speed."""
         return driver.cruise(self.snet.getEdge(edge).getSpeed()) / (2.0 * driver.accel)
+
+
+def webster(cycle: float, lam: float, x: float, q: float) -> float:
+    """Webster's mean delay (s) at a light of ``cycle`` s: the uniform delay C (1 - λ)² / (2 (1 - λx)),
+    the random arrivals' x² / (2q (1 - x)) and his empirical correction -0.65 (C / q²)^⅓ x^(2 + 5λ),
+    at green share λ, degree of saturation x and flow q (veh/s)."""
+    uniform = cycle * (1.0 - lam) ** 2 / (2.0 * (1.0 - lam * x))
+    if q <= 0 or x <= 0:
+        return uniform
+    random = x * x / (2.0 * q * (1.0 - x))
+    correction = 0.65 * (cycle / (q * q)) ** (1.0 / 3.0) * x ** (2.0 + 5.0 * lam)
+    return max(uniform + random - correction, uniform)
 
 
 def link_flows(routes: list[tuple[float, list[str]]], begin: float, span: float) -> dict[tuple[str, str], float]:
@@ -220,5 +337,6 @@ def link_flows(routes: list[tuple[float, list[str]]], begin: float, span: float)
     return {k: n / max(span, 1.0) for k, n in counts.items()}
 
 
-__all__ = ["DEFAULT_DRIVER", "Driver", "Link", "TravelTimes", "green_shares", "link_flows", "vtype_drivers",
+__all__ = ["DEFAULT_DRIVER", "Driver", "Link", "TravelTimes", "green_shares", "link_flows", "minor_green",
+           "signal_programs", "vtype_drivers", "webster",
            "vtype_table"]
