@@ -204,11 +204,13 @@ def test_bad_recipe_request_exit_2(args, words):
     assert words in res.stderr and not res.stdout
 
 
-def test_the_density_recipe_parses_with_todays_clis():
-    """Every stage of configs/density.json (the shipped round) is checked by its program's parser."""
-    recipe = rc.load(os.path.join(REPO, "configs", "density.json"))
+@pytest.mark.parametrize("name", sorted(f for f in os.listdir(os.path.join(REPO, "configs")) if f.endswith(".json")))
+def test_every_recipe_parses_with_todays_clis(name):
+    """Every stage of every recipe in configs/ (the shipped rounds and the candidates) is checked by
+    its program's parser."""
+    recipe = rc.load(os.path.join(REPO, "configs", name))
     for stage in recipe["stages"]:
-        res = recipe_cli("configs/density.json", "--print-stage", stage["name"], "--out", "runs/x",
+        res = recipe_cli(f"configs/{name}", "--print-stage", stage["name"], "--out", "runs/x",
                          "--data-dir", "data/x", "--procs", "2")
         assert res.returncode == 0, res.stderr
         assert res.stdout.split("\n")[0] == stage["run"]
