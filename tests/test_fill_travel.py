@@ -84,8 +84,13 @@ def test_vtype_drivers(tmp_path):
     f = tmp_path / "t.add.xml"
     f.write_text('<additional><vType id="slow" speedFactor="normc(0.8,0.1,0.2,2)" accel="1.5"/>'
                  '<vType id="bus" vClass="bus"/><vTypeDistribution id="mix" vTypes="slow bus"/>'
+                 '<vType id="calm" sigma="0"/><vType id="idm" carFollowModel="IDM"/>'
                  '</additional>')
     d = vtype_drivers([str(f)])
+    # Krauss' dawdling takes sigma x accel x U(0, 1) off each step's gain: half of it on average
+    assert d["slow"].sigma == 0.5 and d["slow"].pickup == pytest.approx(1.5 * 0.75)
+    assert d["calm"].pickup == d["calm"].accel and d["idm"].sigma == 0.0
+    assert d["calm"].slowing(10.0, 0.0) < DEFAULT_DRIVER.slowing(10.0, 0.0)     # the same accel, no dawdling
     assert d["slow"].speed_factor == pytest.approx(0.8) and d["slow"].accel == 1.5
     assert d["slow"].decel == DEFAULT_DRIVER.decel
     assert d["bus"].max_speed < DEFAULT_DRIVER.max_speed and d["bus"].accel < DEFAULT_DRIVER.accel

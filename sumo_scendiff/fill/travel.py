@@ -63,13 +63,20 @@ class Driver:
     max_speed: float = 55.56
     accel: float = 2.6
     decel: float = 4.5
+    sigma: float = 0.5           # Krauss' dawdling (SUMO's default car-following model)
 
     def cruise(self, limit: float) -> float:
         return max(CRUISE_SHARE * min(limit * self.speed_factor, self.max_speed), 0.1)
 
+    @property
+    def pickup(self) -> float:
+        """Mean acceleration: Krauss takes sigma x accel x U(0, 1) off each step's speed gain
+        (MSCFModel_Krauss::dawdle2), so a vehicle speeds up at accel (1 - sigma / 2)."""
+        return max(self.accel * (1.0 - self.sigma / 2.0), 0.1)
+
     def slowing(self, v: float, u: float) -> float:
         """s lost braking from v to u and accelerating back: (v - u)² / (2 v) (1/b + 1/a)."""
-        return 0.0 if u >= v else (v - u) ** 2 / (2.0 * v) * (1.0 / self.accel + 1.0 / self.decel)
+        return 0.0 if u >= v else (v - u) ** 2 / (2.0 * v) * (1.0 / self.pickup + 1.0 / self.decel)
 
 
 DEFAULT_DRIVER = Driver()
@@ -91,8 +98,10 @@ def vtype_drivers(paths) -> dict[str, Driver]:
                     return float(head)
                 except ValueError:
                     return default
+        krauss = (getattr(el, "carFollowModel", None) or "Krauss").startswith("Krauss")
         return Driver(num("speedFactor", 1.0), num("maxSpeed", CLASS_MAX_SPEED.get(cls, 55.56)),
-                      num("accel", CLASS_ACCEL.get(cls, 2.6)), num("decel", CLASS_DECEL.get(cls, 4.5)))
+                      num("accel", CLASS_ACCEL.get(cls, 2.6)), num("decel", CLASS_DECEL.get(cls, 4.5)),
+                      num("sigma", 0.5) if krauss else 0.0)
 
     return vtype_table(paths, driver)
 
@@ -311,7 +320,7 @@ class TravelTimes:
 
     def start(self, driver: Driver, edge: str) -> float:
         """s lost accelerating from standing to ``edge``'s cruising speed."""
-        return driver.cruise(self.snet.getEdge(edge).getSpeed()) / (2.0 * driver.accel)
+        return driver.cruise(self.snet.getEdge(edge).getSpeed()) / (2.0 * driver.pickup)
 
 
 def webster(cycle: float, lam: float, x: float, q: float) -> float:
