@@ -13,7 +13,8 @@ green share λ and degree of saturation x (the demand's own flow through the lin
 of its lanes at green, SATURATION_FLOW per lane, capped at X_MAX: an oversaturated queue grows
 without bound, which a steady-state formula cannot hold); the share of vehicles that stop,
 (1 - λ) / (1 - λx), lose the time of stopping and starting as well. A vehicle departing at speed 0
-(SUMO's default departSpeed) loses the time of accelerating.
+(SUMO's default departSpeed) loses the time of accelerating. Every speeding up is at the vType's
+mean acceleration under Krauss' dawdling, accel (1 - sigma / 2) (:attr:`Driver.pickup`).
 
 A link that yields (a minor link, ``m``; right before left, ``=``; one that must stop, ``s``/``w``;
 a turn at a light through a yielding green, ``g``) waits for a gap of YIELD_GAP s in the flow of
