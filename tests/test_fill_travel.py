@@ -152,3 +152,24 @@ def test_a_minor_link_waits_for_a_gap_in_the_flows_it_yields_to(tmp_path):
     stop = Network.load(_priority_crossing(tmp_path, "allway_stop"))
     link = TravelTimes(stop).link_of("sc", "cn")
     assert link.stop and TravelTimes(stop).yielding(link, "sc", "cn") == (0.0, 1.0)
+
+
+def test_a_left_turn_at_a_light_yields_only_to_the_foes_green_with_it(cross_net):
+    """At a light the net.xml states are those of the light switched off; the program says who
+    yields: the left turn, a yielding green g, gives way to the opposing straight stream green at
+    the same time, never to the cross street (red then); the straight link yields to nobody."""
+    from sumo_scendiff.fill.travel import TravelTimes, minor_green, signal_programs
+    from sumo_scendiff.map.network import Network
+    net = Network.load(cross_net)
+    times = TravelTimes(net)
+    left = times.link_of("wc", "cn")
+    assert ("ec", "cw") in {(f, t) for f, t, *_ in left.foes}
+    assert all(f in ("wc", "ec") for f, *_ in left.foes)          # nothing from the cross street
+    assert all(w == 1.0 for *_, w in left.foes)                    # all its green is a yielding g
+    assert times.link_of("wc", "ce").foes == ()
+    busy = TravelTimes(net, flows={("ec", "cw"): 0.2})
+    assert busy.link("wc", "cn")[0] > times.link("wc", "cn")[0]
+    assert busy.link("wc", "ce")[0] == times.link("wc", "ce")[0]
+    [(_, phases)] = signal_programs([cross_net]).items()
+    k = phases[0][1].index("g")
+    assert minor_green(phases, k, 0) == 1.0 and minor_green(phases, 0, k) == 0.0
