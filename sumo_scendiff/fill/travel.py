@@ -33,6 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..map.links import gives_way, junction_links
+
 SATURATION_FLOW = 0.5   # veh/s per lane discharging at green (SUMO's Krauss defaults: ~1 800 veh/h)
 # Traffic cruises below its desired speed: car-following behind slower vehicles (speedFactor's spread),
 # SUMO's dawdling (sigma), lane changes. One share for all of it, chosen on the project's held-out
@@ -233,21 +235,11 @@ class TravelTimes:
         return Link(float(np.mean(via_m)), float(np.mean(via_speed)), lanes=lanes, foes=foes, stop=stop)
 
     def _links_of(self, node) -> tuple[dict, list]:
-        """Link index of each connection of ``node`` (as its request table numbers them) and the
-        (from edge, to edge, connection) of each index."""
+        """Link index of each connection of ``node`` and the (from edge, to edge, connection) of each."""
         if node.getID() not in self._index:
-            index, edges = {}, []
-            for lane_id in node._incLanes:      # sumolib's Node.getLinkIndex order, in one pass
-                edge_id, _, n = lane_id.rpartition("_")
-                if not self.snet.hasEdge(edge_id):
-                    continue
-                for c in self.snet.getEdge(edge_id).getLane(int(n)).getOutgoing():
-                    f, t = c.getFromLane().getEdge().getFunction(), c.getToLane().getEdge().getFunction()
-                    if t == "walkingarea" or (f == "walkingarea" and t != "crossing"):
-                        continue
-                    index[c] = len(edges)
-                    edges.append((c.getFrom().getID(), c.getTo().getID(), c))
-            self._index[node.getID()] = (index, edges)
+            conns = junction_links(self.snet, node)
+            self._index[node.getID()] = ({c: k for k, c in enumerate(conns)},
+                                         [(c.getFrom().getID(), c.getTo().getID(), c) for c in conns])
         return self._index[node.getID()]
 
     def _foes(self, node, conns) -> tuple[tuple, bool]:
@@ -263,10 +255,10 @@ class TravelTimes:
             phases = self._programs.get(tls) if tls else None
             if phases is None and (c.getState() or "") not in YIELDS:
                 continue
-            row = node._prohibits.get(index.get(c, -1), "")
+            own = index.get(c, -1)      # its link index at the junction (k: at the light)
             mine = False
-            for j in range(min(len(row), len(edges))):
-                if row[len(row) - 1 - j] != "1":
+            for j in range(len(edges)):
+                if not gives_way(node, own, j):
                     continue
                 f, t, fc = edges[j]
                 weight, share = 1.0, 1.0

@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
+from ..map.links import gives_way, junction_links
 from ..map.network import Network
 
 ACCEL = 2.6    # m/s^2: SUMO's default passenger car accel, how an agent drives on through a junction
@@ -50,20 +51,7 @@ class JunctionConflicts:
         if snet is None:
             return
         for node in snet.getNodes():
-            index = {}
-            # Node.getLinkIndex walks all incoming lanes per call: one pass here numbers them all
-            k = 0
-            for lane_id in node._incLanes:
-                edge_id, _, n = lane_id.rpartition("_")
-                if not snet.hasEdge(edge_id):
-                    continue
-                for c in snet.getEdge(edge_id).getLane(int(n)).getOutgoing():
-                    f, t = c.getFromLane().getEdge().getFunction(), c.getToLane().getEdge().getFunction()
-                    if t == "walkingarea" or (f == "walkingarea" and t != "crossing"):
-                        continue
-                    index[c] = k
-                    k += 1
-            for c, k in index.items():
+            for k, c in enumerate(junction_links(snet, node)):
                 lane_id, chain = c.getViaLaneID(), []
                 while lane_id and len(chain) < 8:   # a connection's chain of internal lanes (internal junctions)
                     self.link[lane_id] = (node.getID(), k)
@@ -90,8 +78,7 @@ class JunctionConflicts:
     def yields(self, lane_a: str, lane_b: str) -> bool:
         """Whether ``lane_a``'s link must give way to ``lane_b``'s (the junction's response bits)."""
         (j, a), (_, b) = self.link[lane_a], self.link[lane_b]
-        resp = self.net.sumo_net.getNode(j)._prohibits.get(a, "")
-        return 0 <= len(resp) - b - 1 < len(resp) and resp[len(resp) - b - 1] == "1"
+        return gives_way(self.net.sumo_net.getNode(j), a, b)
 
     def _area(self, lane_a: str, lane_b: str) -> tuple[float, float] | None:
         """Where (from, to, metres along ``lane_a``'s centre line) ``lane_a``'s outline overlaps
