@@ -18,7 +18,9 @@ from sumo_scendiff.model.edm import (
     loss_weight,
     num_evaluations,
     sample_dpmpp_2m,
+    sample_dpmpp_2m_sde,
     sample_euler,
+    sample_euler_ancestral,
     sample_heun,
 )
 
@@ -107,7 +109,8 @@ def _point_denoiser(z_star):
     return d
 
 
-@pytest.mark.parametrize("sampler", [sample_euler, sample_heun, sample_dpmpp_2m])
+@pytest.mark.parametrize("sampler", [sample_euler, sample_heun, sample_dpmpp_2m, sample_euler_ancestral,
+                                     sample_dpmpp_2m_sde])
 def test_samplers_converge_to_single_point(sampler):
     z_star = torch.tensor([1.0, -2.0, 0.5, 3.0]).reshape(1, 4, 1, 1)
     g = torch.Generator().manual_seed(0)
@@ -135,6 +138,43 @@ def test_samplers_on_gaussian_data_convergence_order():
     assert 1.6 < err["sample_euler", 20] / err["sample_euler", 40] < 2.5
     assert err["sample_dpmpp_2m", 20] / err["sample_dpmpp_2m", 40] > 3.5
     assert err["sample_heun", 20] / err["sample_heun", 40] > 3.5
+
+
+@pytest.mark.parametrize("sampler", [sample_euler_ancestral, sample_dpmpp_2m_sde])
+@pytest.mark.parametrize("eta", [0.0, 0.5, 1.0])
+def test_stochastic_samplers_draw_the_data_distribution(sampler, eta):
+    """Data N(mu, sd^2) with its exact denoiser: the SDE samplers' samples have the data's mean and
+    spread at any eta (0 is their ODE), though each path gets fresh noise."""
+    mu, sd = 2.0, 0.5
+
+    def d(z, sigma, **cond):
+        s = torch.as_tensor(sigma)
+        return mu + sd**2 / (sd**2 + s**2) * (z - mu)
+
+    g = torch.Generator().manual_seed(3)
+    z_T = mu + initial_noise((20000, 1), generator=g, dtype=torch.float64)   # the marginal at sigma_max
+    out = sampler(d, z_T, karras_sigmas(80, dtype=torch.float64), generator=g, eta=eta)
+    tol = 0.03 if sampler is sample_euler_ancestral else 0.01        # 1st / 2nd order in the step
+    assert abs(out.mean().item() - mu) < tol and abs(out.std().item() - sd) < tol
+
+
+def test_stochastic_samplers_take_each_examples_noise_from_the_noise_sampler():
+    """The fresh noise comes from ``noise_sampler``: an example's result depends on its own draws
+    only (the generator draws each window's from its own seed), not on the rest of the batch."""
+    def d(z, sigma, **cond):
+        return 0.5 * z
+
+    def run(seeds):
+        rngs = [torch.Generator().manual_seed(s) for s in seeds]
+        z_T = torch.cat([initial_noise((1, 2, 4, 4), generator=r) for r in rngs])
+
+        def noise(sigma, sigma_next):
+            return torch.cat([torch.randn((1, 2, 4, 4), generator=r) for r in rngs])
+        return sample_euler_ancestral(d, z_T, karras_sigmas(6), noise_sampler=noise, eta=1.0)
+
+    a, b = run([1, 2, 3]), run([5, 2])
+    torch.testing.assert_close(a[1], b[1], rtol=0, atol=1e-6)
+    assert not torch.allclose(a[0], b[0])
 
 
 def test_determinism_and_cond_forwarding():

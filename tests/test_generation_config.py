@@ -19,17 +19,17 @@ from sumo_scendiff.generation.config import (
 )
 
 # every setting away from its default, as flags and as the config they must give
-FLAGS = ["--steps", "3", "--sampler", "heun", "--threshold", "0.5", "--guidance", "1.5",
+FLAGS = ["--steps", "3", "--sampler", "heun", "--eta", "0.8", "--threshold", "0.5", "--guidance", "1.5",
          "--plain-guidance", "--scene-guidance", "2.0", "--scene-guidance-sigma", "0.7", "--no-pin-tokens",
          "--no-pin-calibration", "--no-pin-speeds", "--no-lane-headings", "--no-lane-snap",
          "--no-deliver-tokens", "--signals", "--signal-guidance", "2.5", "--no-match-density", "--density-floor", "0.2",
          "--infill-passes", "1", "--binned-token-values"]
-CHANGED = GenerationConfig(steps=3, sampler="heun", threshold=0.5, guidance=1.5, local_guidance=False, scene_guidance=2.0,
+CHANGED = GenerationConfig(steps=3, sampler="heun", eta=0.8, threshold=0.5, guidance=1.5, local_guidance=False, scene_guidance=2.0,
                            scene_guidance_sigma=0.7, pin_tokens=False, pin_calibration=False,
                            pin_speeds=False, lane_headings=False, lane_snap=False, deliver_tokens=False,
                            signals=True, signal_guidance=2.5, match_density=False, density_floor=0.2, infill_passes=1,
                            exact_token_values=False)
-RECORD_KEYS = ["sha256", "sampler", "steps", "threshold", "pin_tokens", "pin_speeds", "lane_headings",
+RECORD_KEYS = ["sha256", "sampler", "steps", "eta", "threshold", "pin_tokens", "pin_speeds", "lane_headings",
                "lane_snap", "guidance", "local_guidance", "scene_guidance", "scene_guidance_sigma", "deliver_tokens", "signals", "signal_guidance",
                "match_density", "density_floor", "infill_passes", "exact_token_values"]
 
@@ -51,7 +51,7 @@ def test_flags_round_trip_into_the_config():
 
 def test_help_shows_the_defaults_and_bad_flags_name_the_flag(capsys):
     text = " ".join(_parser().format_help().split())
-    for shown in ("--steps STEPS", "(default: 10)", "{dpmpp-2m,euler,heun}", "(default: dpmpp-2m)",
+    for shown in ("--steps STEPS", "(default: 10)", "{dpmpp-2m,euler,heun,euler-ancestral,dpmpp-2m-sde}", "(default: dpmpp-2m)",
                   "(default: 0.8)", "(default: 3.0)", "--no-pin-calibration", "--no-lane-snap"):
         assert shown in text
     for bad, flag in ((["--steps", "0"], "--steps"), (["--threshold", "0"], "--threshold"),
@@ -95,11 +95,16 @@ def test_from_mapping_reads_numbers_as_their_kind():
 
 
 def test_sampler_names_are_the_models_solvers():
-    from sumo_scendiff.model.edm import SAMPLERS, sample_dpmpp_2m
+    from sumo_scendiff.model.edm import SAMPLERS, STOCHASTIC, sample_dpmpp_2m
     assert sorted(SAMPLER_NAMES) == sorted(SAMPLERS)
     assert GenerationConfig().sampler == SAMPLER_NAMES[0] and GenerationConfig().solver() is sample_dpmpp_2m
     for name in SAMPLER_NAMES:
-        assert GenerationConfig(sampler=name).solver() is SAMPLERS[name]
+        solver = GenerationConfig(sampler=name, eta=0.3).solver()
+        if SAMPLERS[name] in STOCHASTIC:         # with the config's share of fresh noise
+            assert solver.func is SAMPLERS[name] and solver.keywords == {"eta": 0.3}
+            assert solver.__name__ == SAMPLERS[name].__name__
+        else:
+            assert solver is SAMPLERS[name]
 
 
 @pytest.fixture(scope="module")
@@ -117,7 +122,10 @@ def test_record_is_the_scene_records_model_block(generator):
                                                                    generator.scene_guidance_sigma)
     rec = CHANGED.record(generator)
     assert rec["sampler"] == "sample_heun" and (rec["scene_guidance"], rec["scene_guidance_sigma"]) == (2.0, 0.7)
-    assert {k: rec[k] for k in RECORD_KEYS[2:9]} == {k: getattr(CHANGED, k) for k in RECORD_KEYS[2:9]}
+    assert {k: rec[k] for k in RECORD_KEYS[4:10]} == {k: getattr(CHANGED, k) for k in RECORD_KEYS[4:10]}
+    # the share of fresh noise only where the sampler draws it
+    assert rec["steps"] == 3 and rec["eta"] is None
+    assert replace(CHANGED, sampler="dpmpp-2m-sde").record(generator)["eta"] == 0.8
 
 
 def test_the_sampler_name_chooses_the_solver_the_generator_runs(generator, cross_net):

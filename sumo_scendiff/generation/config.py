@@ -15,7 +15,7 @@ import argparse
 from dataclasses import dataclass, field, fields
 
 # model.edm.SAMPLERS' keys (tests/test_generation_config.py holds them equal), default first
-SAMPLER_NAMES = ("dpmpp-2m", "euler", "heun")
+SAMPLER_NAMES = ("dpmpp-2m", "euler", "heun", "euler-ancestral", "dpmpp-2m-sde")
 # the lights' guidance weight, chosen on the held-out generated networks (docs/model.md)
 SIGNAL_GUIDANCE_DEFAULT = 8.0
 
@@ -36,8 +36,11 @@ class GenerationConfig:
     # DPM-Solver++(2M) at 10 steps: the quality of 20 Euler steps (the paper's solver) at half the
     # UNet passes (docs/model.md)
     steps: int = _setting(10, "ODE solver steps", kind=int, minimum=1)
-    sampler: str = _setting(SAMPLER_NAMES[0], "ODE solver of model.edm (dpmpp-2m: DPM-Solver++(2M); "
-                            "euler: the paper's)", kind=str, choices=SAMPLER_NAMES)
+    sampler: str = _setting(SAMPLER_NAMES[0], "solver of model.edm (dpmpp-2m: DPM-Solver++(2M); "
+                            "euler: the paper's; euler-ancestral, dpmpp-2m-sde: stochastic, fresh noise "
+                            "at every step, --eta of it)", kind=str, choices=SAMPLER_NAMES)
+    eta: float = _setting(0.5, "share of fresh noise per step of a stochastic sampler (0: its ODE; 1: "
+                          "ancestral sampling)", kind=float, minimum=0.0, maximum=1.0)
     threshold: float = _setting(0.8, "box probability threshold (paper sec. 4.1)", kind=float,
                                 above=0.0, maximum=1.0)
     batch_size: int = 32         # windows per model call (not a user setting)
@@ -185,13 +188,19 @@ class GenerationConfig:
     # ---- use ------------------------------------------------------------------------------
     def solver(self):
         """The sampler's function (:data:`~sumo_scendiff.model.edm.SAMPLERS`)."""
-        from ..model.edm import SAMPLERS
-        return SAMPLERS[self.sampler]
+        import functools
+
+        from ..model.edm import SAMPLERS, STOCHASTIC
+        fn = SAMPLERS[self.sampler]
+        if fn in STOCHASTIC:
+            return functools.update_wrapper(functools.partial(fn, eta=self.eta), fn)
+        return fn
 
     def record(self, generator) -> dict:
         """The scene record's "model" block: the checkpoint and what this config generates with
         (the global token's guidance resolved against the checkpoint's calibrated values)."""
         return {"sha256": generator.sha256, "sampler": self.solver().__name__, "steps": self.steps,
+                "eta": self.eta if self.sampler in ("euler-ancestral", "dpmpp-2m-sde") else None,
                 "threshold": self.threshold, "pin_tokens": self.pin_tokens, "pin_speeds": self.pin_speeds,
                 "lane_headings": self.lane_headings, "lane_snap": self.lane_snap, "guidance": self.guidance,
                 "local_guidance": self.local_guidance, "scene_guidance": generator.scene_guidance_for(self),

@@ -173,11 +173,15 @@ class ScenarioGenerator:
         tok, pad = pad_tokens(tokens)
         glob = torch.from_numpy(global_token(p_mask, density, dim=self.diffusion.cfg.unet.global_dim)
                                 .reshape(len(maps), -1))
-        noise = torch.stack([torch.randn(self.diffusion.cfg.unet.c_z, self.diffusion.cfg.unet.res,
-                                         self.diffusion.cfg.unet.res,
-                                         generator=torch.Generator().manual_seed(s)) for s in seeds])
+        shape = (self.diffusion.cfg.unet.c_z, self.diffusion.cfg.unet.res, self.diffusion.cfg.unet.res)
+        rngs = [torch.Generator().manual_seed(s) for s in seeds]
+        noise = torch.stack([torch.randn(shape, generator=g) for g in rngs])
+
+        def step_noise(sigma, sigma_next):   # a stochastic sampler's: each window from its own seed
+            return torch.stack([torch.randn(shape, generator=g) for g in rngs])
         z = self.diffusion.sample(m, tok, pad, glob, steps=cfg.steps, sampler=cfg.solver(),
-                                  noise=noise, guidance=cfg.guidance, local=cfg.local_guidance,
+                                  noise=noise, noise_sampler=step_noise, guidance=cfg.guidance,
+                                  local=cfg.local_guidance,
                                   signal_guidance=cfg.signal_guidance,
                                   scene_guidance=self.scene_guidance_for(cfg),
                                   scene_guidance_sigma=self.scene_guidance_sigma_for(cfg),

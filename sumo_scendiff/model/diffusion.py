@@ -25,6 +25,7 @@ from .edm import (
     P_STD,
     EDMLoss,
     EDMPrecond,
+    NoiseSampler,
     condition_guided,
     guided,
     initial_noise,
@@ -137,8 +138,10 @@ class ScenarioDiffusion(nn.Module):
                guidance: float = 1.0, scene_guidance: float = 1.0,
                scene_guidance_sigma: float = 0.0, density_guidance: float | None = None,
                local: bool = True, signal_guidance: float = 1.0,
-               known: Optional[tuple[Tensor, Tensor]] = None) -> Tensor:
-        """Integrate the probability-flow ODE from sigma_max to 0 (paper eq. 3); returns z (scaled).
+               known: Optional[tuple[Tensor, Tensor]] = None,
+               noise_sampler: Optional[NoiseSampler] = None) -> Tensor:
+        """Integrate the probability-flow ODE from sigma_max to 0 (paper eq. 3), or its SDE with a
+        stochastic sampler; returns z (scaled).
 
         ``noise``: standard-normal (B, C_z, R, R) starting noise (scaled by sigma_max here); drawn
         with ``generator`` when not given. Classifier-free guidance (:meth:`null_condition`):
@@ -150,7 +153,8 @@ class ScenarioDiffusion(nn.Module):
         model is trained both ways, ``p_no_signals``), applied to both branches of the guidance
         above: twice the UNet passes, for a batch where some window shows a light's state.
         ``known``: ``(z_known, mask)``, latent cells fixed to z_known where mask is 1 and generated
-        around them (:func:`~.edm.inpainted`; pinned tokens).
+        around them (:func:`~.edm.inpainted`; pinned tokens). ``noise_sampler``: the stochastic
+        samplers' fresh noise per step (:mod:`.edm`; from ``generator`` when not given).
         """
         cfg = self.cfg.unet
         cond = self.cond(m, agent_tokens, agent_pad_mask, global_token)
@@ -176,4 +180,4 @@ class ScenarioDiffusion(nn.Module):
                                 device=m.device)
         else:
             z_t = noise.to(m.device) * sigmas[0]
-        return sampler(denoiser, z_t, sigmas, cond=cond)
+        return sampler(denoiser, z_t, sigmas, cond=cond, generator=generator, noise_sampler=noise_sampler)

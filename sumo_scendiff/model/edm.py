@@ -7,12 +7,15 @@ Layout follows NVlabs/edm (``training/networks.py``, ``training/loss.py``) for t
 and the loss, and k-diffusion for the sampling side: the noise schedule (:func:`karras_sigmas`) is
 separate from the solvers, and every solver has the one signature::
 
-    sample_x(denoiser, z_T, sigmas, *, cond=None, generator=None) -> z_0
+    sample_x(denoiser, z_T, sigmas, *, cond=None, generator=None, noise_sampler=None) -> z_0
 
 where ``denoiser(z, sigma, **cond)`` is the preconditioned D(z; sigma, cond) (an :class:`EDMPrecond`
 or any function with that signature), ``z_T`` is the initial noise already scaled by ``sigmas[0]``
 (see :func:`initial_noise`) and ``sigmas`` is a decreasing 1-D tensor ending in 0. Samplers are
-chosen by passing the function, e.g. ``sampler=sample_heun``.
+chosen by passing the function, e.g. ``sampler=sample_heun``. The stochastic ones (ancestral, SDE)
+draw fresh noise at every step from ``noise_sampler(sigma, sigma_next)`` (k-diffusion's convention:
+a standard-normal tensor shaped like z), which lets a caller draw each example's noise from its own
+seed; without it from ``generator``. The deterministic solvers ignore both.
 """
 from __future__ import annotations
 
@@ -30,6 +33,8 @@ P_MEAN = -0.5
 P_STD = 1.0
 
 Denoiser = Callable[..., Tensor]  # D(z, sigma, **cond) -> denoised z, same shape as z
+NoiseSampler = Callable[[Tensor, Tensor], Tensor]  # (sigma, sigma_next) -> N(0, I) shaped like z
+ETA = 0.5   # the stochastic samplers' share of fresh noise (0: their ODE); chosen in docs/model.md
 
 
 # --------------------------------------------------------------------------------------------
@@ -174,7 +179,8 @@ def initial_noise(shape: tuple[int, ...], sigma_max: float = SIGMA_MAX, *,
 
 @torch.no_grad()
 def sample_euler(denoiser: Denoiser, z_T: Tensor, sigmas: Tensor, *, cond: Optional[dict] = None,
-                 generator: Optional[torch.Generator] = None) -> Tensor:
+                 generator: Optional[torch.Generator] = None, noise_sampler: Optional[NoiseSampler] = None
+                 ) -> Tensor:
     """Euler integration of the reverse ODE from sigmas[0] to sigmas[-1] (the paper's sampler).
 
     One denoiser evaluation per step: len(sigmas) - 1 evaluations. Deterministic; ``generator`` is
@@ -190,7 +196,8 @@ def sample_euler(denoiser: Denoiser, z_T: Tensor, sigmas: Tensor, *, cond: Optio
 
 @torch.no_grad()
 def sample_heun(denoiser: Denoiser, z_T: Tensor, sigmas: Tensor, *, cond: Optional[dict] = None,
-                generator: Optional[torch.Generator] = None) -> Tensor:
+                generator: Optional[torch.Generator] = None, noise_sampler: Optional[NoiseSampler] = None
+                ) -> Tensor:
     """Heun's 2nd-order method, Karras et al. 2022 Algorithm 1 (deterministic, no churn).
 
     Every step is an Euler predictor plus a trapezoidal corrector, except the last step to
@@ -211,7 +218,8 @@ def sample_heun(denoiser: Denoiser, z_T: Tensor, sigmas: Tensor, *, cond: Option
 
 @torch.no_grad()
 def sample_dpmpp_2m(denoiser: Denoiser, z_T: Tensor, sigmas: Tensor, *, cond: Optional[dict] = None,
-                    generator: Optional[torch.Generator] = None) -> Tensor:
+                    generator: Optional[torch.Generator] = None, noise_sampler: Optional[NoiseSampler] = None
+                    ) -> Tensor:
     """DPM-Solver++(2M) (Lu et al. 2022, Algorithm 2; as in k-diffusion's ``sample_dpmpp_2m``).
 
     The ODE in t = -log(sigma) is integrated exactly for a denoised estimate that is linear in t,
@@ -233,6 +241,76 @@ def sample_dpmpp_2m(denoiser: Denoiser, z_T: Tensor, sigmas: Tensor, *, cond: Op
         else:
             d_lin = d
         z = (s_next / s_cur) * z - torch.expm1(-h) * d_lin  # exact step for that estimate
+        d_prev, h_prev = d, h
+    return z
+
+
+def _noise_sampler(z: Tensor, generator: Optional[torch.Generator],
+                   noise_sampler: Optional[NoiseSampler]) -> NoiseSampler:
+    if noise_sampler is not None:
+        return noise_sampler
+    return lambda sigma, sigma_next: torch.randn(z.shape, generator=generator, device=z.device, dtype=z.dtype)
+
+
+def ancestral_step(sigma: Tensor, sigma_next: Tensor, eta: float = 1.0) -> tuple[Tensor, Tensor]:
+    """(sigma_down, sigma_up): a step from sigma to sigma_next split into a deterministic step down
+    to sigma_down and fresh noise of sigma_up, sigma_down^2 + sigma_up^2 = sigma_next^2; eta = 1 is
+    DDPM's ancestral sampling, 0 the ODE (k-diffusion's ``get_ancestral_step``)."""
+    if not eta:
+        return sigma_next, sigma_next * 0.0
+    up = torch.minimum(sigma_next, eta * (sigma_next ** 2 * (sigma ** 2 - sigma_next ** 2) / sigma ** 2) ** 0.5)
+    return (sigma_next ** 2 - up ** 2) ** 0.5, up
+
+
+@torch.no_grad()
+def sample_euler_ancestral(denoiser: Denoiser, z_T: Tensor, sigmas: Tensor, *, cond: Optional[dict] = None,
+                           generator: Optional[torch.Generator] = None,
+                           noise_sampler: Optional[NoiseSampler] = None, eta: float = ETA,
+                           s_noise: float = 1.0) -> Tensor:
+    """Euler steps of the reverse SDE: each step goes down to sigma_down along the ODE and adds
+    fresh noise of sigma_up (:func:`ancestral_step`; k-diffusion's ``sample_euler_ancestral``).
+    The fresh noise lets every step correct what the denoiser got wrong before instead of
+    integrating its errors on (Karras et al. 2022, sec. 4): with an imperfect denoiser the samples
+    fall into the data's modes (a queue stands) rather than between them. len(sigmas) - 1
+    evaluations."""
+    cond = cond or {}
+    noise = _noise_sampler(z_T, generator, noise_sampler)
+    z = z_T
+    for s_cur, s_next in zip(sigmas[:-1], sigmas[1:]):
+        denoised = denoiser(z, s_cur, **cond)
+        if s_next == 0:
+            z = denoised
+            break
+        down, up = ancestral_step(s_cur, s_next, eta)
+        z = z + (z - denoised) / s_cur * (down - s_cur)        # Euler to sigma_down
+        z = z + noise(s_cur, s_next) * s_noise * up
+    return z
+
+
+@torch.no_grad()
+def sample_dpmpp_2m_sde(denoiser: Denoiser, z_T: Tensor, sigmas: Tensor, *, cond: Optional[dict] = None,
+                        generator: Optional[torch.Generator] = None,
+                        noise_sampler: Optional[NoiseSampler] = None, eta: float = ETA,
+                        s_noise: float = 1.0) -> Tensor:
+    """DPM-Solver++(2M) SDE (Lu et al. 2022; k-diffusion's ``sample_dpmpp_2m_sde``, midpoint
+    correction): :func:`sample_dpmpp_2m`'s second-order step of the SDE, with fresh noise of
+    sigma_next sqrt(1 - e^{-2 eta h}) at every step. len(sigmas) - 1 evaluations."""
+    cond = cond or {}
+    noise = _noise_sampler(z_T, generator, noise_sampler)
+    z, d_prev, h_prev = z_T, None, None
+    for s_cur, s_next in zip(sigmas[:-1], sigmas[1:]):
+        d = denoiser(z, s_cur, **cond)
+        if s_next == 0:
+            z = d
+            break
+        h = torch.log(s_cur / s_next)                       # t_next - t, t = -log(sigma)
+        eta_h = eta * h
+        z = (s_next / s_cur) * torch.exp(-eta_h) * z - torch.expm1(-h - eta_h) * d
+        if d_prev is not None:
+            r = h_prev / h
+            z = z - 0.5 * torch.expm1(-h - eta_h) * (1 / r) * (d - d_prev)
+        if eta:
+            z = z + noise(s_cur, s_next) * s_next * (-torch.expm1(-2 * eta_h)).sqrt() * s_noise
         d_prev, h_prev = d, h
     return z
 
@@ -317,7 +395,9 @@ def inpainted(denoiser: Denoiser, z_known: Tensor, mask: Tensor) -> Denoiser:
     return D
 
 
-SAMPLERS = {"euler": sample_euler, "heun": sample_heun, "dpmpp-2m": sample_dpmpp_2m}  # CLI names
+SAMPLERS = {"euler": sample_euler, "heun": sample_heun, "dpmpp-2m": sample_dpmpp_2m,  # CLI names
+            "euler-ancestral": sample_euler_ancestral, "dpmpp-2m-sde": sample_dpmpp_2m_sde}
+STOCHASTIC = (sample_euler_ancestral, sample_dpmpp_2m_sde)   # draw noise at every step
 
 
 def num_evaluations(sampler: Callable, sigmas: Tensor) -> int:
@@ -331,6 +411,7 @@ def num_evaluations(sampler: Callable, sigmas: Tensor) -> int:
 __all__ = [
     "SIGMA_DATA", "SIGMA_MIN", "SIGMA_MAX", "RHO", "P_MEAN", "P_STD",
     "c_skip", "c_out", "c_in", "c_noise", "loss_weight", "EDMPrecond", "EDMLoss",
-    "karras_sigmas", "initial_noise", "sample_euler", "sample_heun", "sample_dpmpp_2m", "SAMPLERS", "guided", "condition_guided",
-    "num_evaluations", "inpainted",
+    "karras_sigmas", "initial_noise", "sample_euler", "sample_heun", "sample_dpmpp_2m",
+    "sample_euler_ancestral", "sample_dpmpp_2m_sde", "ancestral_step", "NoiseSampler", "ETA",
+    "SAMPLERS", "STOCHASTIC", "guided", "condition_guided", "num_evaluations", "inpainted",
 ]
