@@ -77,9 +77,9 @@ def test_en_route_vehicles_on_their_lanes():
     assert fronts["m0"] == pytest.approx(20.0 if lane_of["m0"] != lane_of["m1"] else 21.0 - 5.0 - MIN_GAP)
 
 
-def test_a_queue_longer_than_its_edge_stands_on_the_edge_before():
-    """Waiting vehicles that do not fit on their edge queue back onto the route's edge before it
-    (their route then starts there); without an edge before, they are skipped."""
+def test_a_queue_longer_than_its_edge_stands_back_over_the_route_before_it():
+    """Waiting vehicles that do not fit on their edge queue back onto the route's edges before it,
+    the nearest first (their route then starts there); without an edge before, they are skipped."""
     from sumo_scendiff.fill.demand import DemandEstimate, EnRoute
     from sumo_scendiff.fill.en_route import place_en_route
     from sumo_scendiff.map.network import Network
@@ -87,9 +87,10 @@ def test_a_queue_longer_than_its_edge_stands_on_the_edge_before():
     e, nxt = _edge_pair(net)
     before = next(p for p in e.getIncoming() if p.getFromNode() is not e.getToNode())
     route = (e.getID(), nxt.getID())
-    lanes = len({c.getFromLane().getID() for c in e.getConnections(nxt)})
-    n = int(lanes * e.getLength() / 7.5) + 6      # more than the edge holds at 5 m + 2.5 m each
-    queue = [EnRoute(f"q{k:02d}", None, route, 100.0 + n - k, 10.0, 10.0, before.getID()) for k in range(n)]
+    room = {ed.getID(): len({c.getFromLane().getID() for c in ed.getConnections(to)}) * ed.getLength() / 7.5
+            for ed, to in ((e, nxt), (before, e))}
+    n = int(room[e.getID()]) + 6      # more than the edge holds at 5 m + 2.5 m each
+    queue = [EnRoute(f"q{k:02d}", None, route, 100.0 + n - k, 10.0, 10.0, (before.getID(),)) for k in range(n)]
     placed, skipped = place_en_route(net, DemandEstimate(0.0, {}, n, 0, n, queue))
     assert not skipped and len(placed) == n
     back = [p for p in placed if p.vehicle.edges[0] == before.getID()]
@@ -100,6 +101,16 @@ def test_a_queue_longer_than_its_edge_stands_on_the_edge_before():
     alone = [EnRoute(v.id, None, route, v.since, 10.0, 10.0) for v in queue]
     placed, skipped = place_en_route(net, DemandEstimate(0.0, {}, n, 0, n, alone))
     assert len(placed) == len(on_e) and len(skipped) == n - len(on_e)
+    # longer than both: on to the edge before that one
+    further = next(p for p in before.getIncoming() if p.getFromNode() is not before.getToNode())
+    n = int(room[e.getID()] + room[before.getID()]) + 6
+    queue = [EnRoute(f"q{k:02d}", None, route, 100.0 + n - k, 10.0, 10.0, (before.getID(), further.getID()))
+             for k in range(n)]
+    placed, skipped = place_en_route(net, DemandEstimate(0.0, {}, n, 0, n, queue))
+    assert not skipped and len(placed) == n
+    assert {p.vehicle.edges[0] for p in placed} == {e.getID(), before.getID(), further.getID()}
+    assert all(p.vehicle.edges == (further.getID(), before.getID()) + route
+               for p in placed if p.vehicle.edges[0] == further.getID())
 
 
 def test_vtype_sizes(tmp_path):

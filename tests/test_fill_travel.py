@@ -170,6 +170,60 @@ def test_a_left_turn_at_a_light_yields_only_to_the_foes_green_with_it(cross_net)
     busy = TravelTimes(net, flows={("ec", "cw"): 0.2})
     assert busy.link("wc", "cn")[0] > times.link("wc", "cn")[0]
     assert busy.link("wc", "ce")[0] == times.link("wc", "ce")[0]
-    [(_, phases)] = signal_programs([cross_net]).items()
+    [(_, program)] = signal_programs([cross_net]).items()
+    phases = program.phases
     k = phases[0][1].index("g")
     assert minor_green(phases, k, 0) == 1.0 and minor_green(phases, 0, k) == 0.0
+
+
+def test_a_fixed_program_is_sumos_clock(cross_net):
+    """A static program's phases run from simulation time 0 shifted by its offset, whatever the
+    begin: Program.next_green(k, t) is t exactly when SUMO shows link k green over the step before
+    t (SUMO switches a phase after the step that reaches its end)."""
+    import libsumo
+
+    from sumo_scendiff.fill.travel import Program, signal_programs
+    [(tls, program)] = signal_programs([cross_net]).items()
+    assert program.fixed and program.cycle == 90
+    libsumo.start(["sumo", "-n", cross_net, "--begin", "1234", "--no-step-log", "--no-warnings"])
+    try:
+        for _ in range(200):
+            t = libsumo.simulation.getTime()
+            state = libsumo.trafficlight.getRedYellowGreenState(tls)
+            for k, c in enumerate(state):
+                assert (program.next_green([k], t - 0.5) == t - 0.5) == (c in "Ggs"), (t, k, state)
+            libsumo.simulationStep()
+    finally:
+        libsumo.close()
+    shifted = Program(((30.0, "Gr"), (5.0, "yr"), (30.0, "rG"), (5.0, "ry")), offset=10.0)
+    assert shifted.next_green([0], 10.0) == 10.0 and shifted.next_green([0], 45.0) == 80.0
+    assert shifted.next_green([1], 10.0) == 45.0 and shifted.next_green([1], 76.0) == 115.0
+    assert Program(((30.0, "Gr"),)).next_green([1], 0.0) == float("inf")
+
+
+def test_a_queue_at_a_fixed_light_waits_for_green_and_leaves_one_per_headway(tmp_path, cross_net):
+    """Vehicles reaching a red light wait at its stop line until its green, then go one per
+    saturation headway, first come first served: at each instant the estimate has as many still
+    waiting as have not had their turn."""
+    from sumo_scendiff.fill.demand import DemandEstimate
+    from sumo_scendiff.fill.travel import SATURATION_FLOW, TravelTimes
+    from sumo_scendiff.map.network import Network
+    net = Network.load(cross_net)
+    times = TravelTimes(net)
+    link = times.link_of("wc", "ce")
+    program = times.light(link)
+    routes = tmp_path / "q.rou.xml"
+    # when the first would reach the line, and the green after the last has reached it
+    reach = times.edge("wc")[0]
+    red = next(t for t in range(90) if program.next_green(link.indices, t + reach) > t + reach + 20)
+    green = program.next_green(link.indices, red + 5 + reach)
+    headway = 1.0 / (SATURATION_FLOW * link.lanes)
+    routes.write_text("<routes>" + "".join(
+        f'<vehicle id="v{i}" depart="{red + i}" departSpeed="max"><route edges="wc ce"/></vehicle>'
+        for i in range(6)) + "</routes>")
+    for gone in range(4):
+        est = DemandEstimate.at(net, [str(routes)], begin=green + gone * headway + 0.5 * headway)
+        waiting = [v for v in est.en_route if v.edges[0] == "wc"]
+        assert len(waiting) == 6 - gone - 1 and all(v.waiting for v in waiting)
+        assert sorted(v.id for v in waiting) == [f"v{i}" for i in range(gone + 1, 6)]
+    assert est.on_edge["ce"] == 4

@@ -143,8 +143,9 @@ def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | No
                "unrouted": est.unrouted, "applied": gen.has_density,
                "method": "each departure up to --begin laid on its route (trips: shortest path) and moved by "
                          "fill/travel.py's clock: its vType's desired speed (x 0.9), the junctions' internal "
-                         "lanes, each traffic light's uniform delay at the demand's own load, the start from "
-                         "standing; no simulation"}
+                         "lanes, giving way, fixed lights as SUMO runs their programs (queues first come, "
+                         "first served), actuated ones Webster's delay at the demand's own load, the start "
+                         "from standing; no simulation"}
         if not gen.has_density:
             src["note"] = (f"{name} has no density condition: the demand's density is recorded per tile "
                            f"(target) but generation uses the model's prior scaled by --p-mask {o.p_mask:g}")

@@ -7,14 +7,20 @@
 Each vehicle, trip and flow departure of the route files up to ``begin`` is laid on its route
 (a trip's: the shortest path by free-flow time, sumolib's Dijkstra, per from/to pair once) and
 moved along it by the clock of :mod:`.travel` (its vType's desired speed, the junctions' internal
-lanes and the time lost slowing for them, each traffic light's uniform delay at the degree of
-saturation the demand's own flows give it, the start from standing); those not yet at their end
-at ``begin`` count on the edge they are on (a vehicle waiting at a red light on the edge it waits
-on, one crossing a junction at the start of the edge it enters). No simulation, as the issue
-allows: it misses what :mod:`.travel` leaves out (lane changes, queues spilling back).
+lanes and the time lost slowing for them, giving way, the start from standing). At a light with a
+fixed program (SUMO's ``static``) the vehicles are let through as SUMO's clock runs it: in the
+order they reach its stop line, in its green only, one per lane each saturation headway, so the
+queues stand on the approaches that are red at ``begin``, as long as the demand has made them; at
+an actuated light each waits the expected (Webster's) delay at the degree of saturation the
+demand's own flows give it. Those not yet at their end at ``begin`` count on the edge they are on
+(a vehicle waiting at a light on the edge it waits on, one crossing a junction at the start of the
+edge it enters). No simulation, as the issue allows: it misses what :mod:`.travel` leaves out
+(lane changes, queues spilling back).
 """
 from __future__ import annotations
 
+import heapq
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,6 +29,7 @@ from ..map.network import window_square
 
 HORIZON_S = 7200.0           # departures longer ago than this are not followed (none is en route)
 FLOW_SPAN_S = 3600.0         # the lights' load is the demand's flow over this long before --begin
+SPILL_EDGES = 3              # a queue longer than its edge stands back over this many of the route's edges
 
 
 @dataclass(frozen=True)
@@ -35,7 +42,8 @@ class EnRoute:
     since: float                   # s it has been on that edge
     travel: float                  # s the edge takes at the typical speed (then it waits, if signalised)
     speed: float                   # m/s on that edge while moving
-    behind: str | None = None      # the route's edge before it (where a queue that does not fit stands)
+    behind: tuple[str, ...] = ()   # the route's edges before it, nearest first (where a queue that does
+                                   # not fit its edge stands: :data:`SPILL_EDGES` of them)
     offset: float = 0.0            # m along the edge where it began moving on it (its departPos)
 
     @property
@@ -57,7 +65,7 @@ class DemandEstimate:
     def at(cls, net, route_files, begin: float, additional=()) -> DemandEstimate:
         from sumolib.xml import parse
 
-        from .travel import DEFAULT_DRIVER, TravelTimes, link_flows, vtype_drivers
+        from .travel import DEFAULT_DRIVER, SATURATION_FLOW, TravelTimes, link_flows, vtype_drivers
         snet = net.sumo_net
         drivers = vtype_drivers([*route_files, *additional])
         named: dict[str, list[str]] = {}
@@ -97,34 +105,58 @@ class DemandEstimate:
                                                         begin, span))
         on_edge: dict[str, int] = {}
         en_route: list[EnRoute] = []
+        # vehicles reaching a stop line, in the order they reach it: a fixed light lets them through
+        # first come, first served, one per lane each saturation headway, in its green only
+        at_line: list[tuple[float, int, tuple]] = []
+        order = itertools.count()
+        free_at: dict[tuple[str, str], float] = {}
 
-        def lay(vid, vtype, edges, depart, standing, depart_pos):
+        def place(trip, k, t_enter, travel, offset):
+            e = trip[2][k]
+            on_edge[e] = on_edge.get(e, 0) + 1
+            ahead = snet.getEdge(e).getLength() - offset
+            en_route.append(EnRoute(trip[0], trip[1], tuple(trip[2][k:]), begin - t_enter, travel,
+                                    ahead / travel, tuple(trip[2][max(k - SPILL_EDGES, 0):k][::-1]), offset))
+
+        def enter(trip, k, t_enter, before, offset):
+            """``trip`` enters its k-th edge at ``t_enter`` (``before``: s spent before its cruise)."""
+            edges, driver = trip[2], trip[3]
+            length = snet.getEdge(edges[k]).getLength()
+            cruise, _ = times.edge(edges[k], driver)
+            travel = max(before + cruise * (length - offset) / length, 1e-3)
+            if t_enter + travel > begin:                 # moving along the edge at begin
+                place(trip, k, t_enter, travel, offset)
+            elif k + 1 < len(edges):                     # (else it has arrived)
+                heapq.heappush(at_line, (t_enter + travel, next(order), (trip, k, t_enter, travel, offset)))
+
+        for vid, vtype, edges, depart, standing, depart_pos in departures:
             counts["departed"] += 1
             if not edges:
                 counts["unrouted"] += 1
-                return
+                continue
             if not all(snet.hasEdge(e) for e in edges):
-                return
+                continue
             driver = drivers.get(vtype, DEFAULT_DRIVER) if vtype else DEFAULT_DRIVER
-            t = begin - depart
-            # the time spent before the edge's cruise: the start, or crossing the junction onto it
-            before = times.start(driver, edges[0]) if standing else 0.0
-            offset = _depart_offset(depart_pos, snet.getEdge(edges[0]).getLength())
-            for k, (e, nxt) in enumerate(zip(edges, edges[1:] + [None])):
-                cruise, v = times.edge(e, driver)
-                wait, cross = times.link(e, nxt, driver)
-                ahead = snet.getEdge(e).getLength() - offset
-                travel = max(before + cruise * ahead / snet.getEdge(e).getLength(), 1e-3)
-                if t < travel + wait:
-                    on_edge[e] = on_edge.get(e, 0) + 1
-                    en_route.append(EnRoute(vid, vtype, tuple(edges[k:]), t, travel, ahead / travel,
-                                            edges[k - 1] if k else None, offset))
-                    return
-                t -= travel + wait
-                before, offset = cross, 0.0
-
-        for dep in departures:
-            lay(*dep)
+            enter((vid, vtype, edges, driver), 0, depart, times.start(driver, edges[0]) if standing else 0.0,
+                  _depart_offset(depart_pos, snet.getEdge(edges[0]).getLength()))
+        while at_line:
+            t, _, (trip, k, t_enter, travel, offset) = heapq.heappop(at_line)
+            e, nxt, driver = trip[2][k], trip[2][k + 1], trip[3]
+            link = times.link_of(e, nxt)
+            program = times.light(link) if link is not None else None
+            if program is None:              # no light, or an actuated one: the expected waits
+                wait, before = times.link(e, nxt, driver)
+                go = t + wait
+            else:
+                wait, stops = times.yielding(link, e, nxt)
+                cross, stopping = times.crossing(link, e, driver)
+                go = program.next_green(link.indices, max(t + wait, free_at.get((e, nxt), -np.inf)))
+                free_at[(e, nxt)] = go + 1.0 / (SATURATION_FLOW * link.lanes)
+                before = cross + (1.0 if go > t + wait + 1e-6 else stops) * stopping
+            if go > begin:                   # waiting at the edge's end at begin
+                place(trip, k, t_enter, travel, offset)
+            else:
+                enter(trip, k + 1, go, before, 0.0)
         return cls(begin, on_edge, sum(on_edge.values()), counts["unrouted"], counts["departed"], en_route)
 
     def edge_density(self, net) -> dict[str, float]:

@@ -11,7 +11,9 @@ any car lane on its last edge), the least occupied of those. A vehicle waiting a
 in the queue from the stop line back; a moving one at the distance it has driven (its time on the
 edge at the typical speed). Along a lane no two overlap: each front stays behind the back of the
 vehicle ahead by SUMO's default minGap, queues first (longest waiting at the front), then the movers
-from the furthest on; one that finds no room on any of its lanes is skipped (counted). Sizes are the
+from the furthest on; one that finds no room on any of its lanes stands back on the route's edges
+before it, at the end of the queue there (a queue spilling back, as SUMO's do), else is skipped
+(counted). Sizes are the
 vTypes' (``length``/``width``, else SUMO's defaults for the vClass).
 
 A fill with demand gives these positions to its tiles as tokens (pose and size); the model draws
@@ -130,11 +132,14 @@ def place_en_route(net, est: DemandEstimate, sizes: dict[str, tuple[float, float
         length, width = sizes.get(v.type, DEFAULT_SIZE) if v.type else DEFAULT_SIZE
         want = None if v.waiting else v.offset + v.since * v.speed
         best = _fit(lanes_for(v.edges), v.id, want, length, room, used, net)
-        if best is None and v.waiting and v.behind:
-            # a queue longer than its edge (a short edge before the light) stands on the edge before
-            best = _fit(lanes_for((v.behind,) + v.edges), v.id, None, length, room, used, net)
+        for k in range(len(v.behind) if best is None else 0):
+            # a queue longer than its edge stands back on the route's edges before it, as a queue
+            # spills back in SUMO (a short edge before a light; a long red on a short block)
+            edges = v.behind[k::-1] + v.edges
+            best = _fit(lanes_for(edges), v.id, None, length, room, used, net)
             if best is not None:
-                v = replace(v, edges=(v.behind,) + v.edges, since=0.0, behind=None, offset=0.0)
+                v = replace(v, edges=edges, since=0.0, behind=v.behind[k + 1:], offset=0.0)
+                break
         if best is None:
             skipped.append(v)
             continue

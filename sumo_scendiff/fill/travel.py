@@ -3,6 +3,7 @@
     times = TravelTimes(net, drivers=vtype_drivers(files), additional=files)
     times.edge(edge, driver)            # s cruising along the edge
     times.link(edge, nxt, driver)       # (s waiting at its light, s across the junction incl. slowing down)
+    times.light(times.link_of(edge, nxt)).next_green(indices, t)   # a fixed light's next green after t
     times.flows = link_flows(routes)    # veh/s per (edge, next): the lights' degree of saturation
 
 A vehicle cruises at its vType's desired speed (speedFactor x the limit, at most its maxSpeed), as
@@ -25,11 +26,16 @@ minor flow's own queue, 1 / (1 - x) at x = its flow over the gap-acceptance capa
 q e^{-qT} / (1 - e^{-q t_f}); the share that finds no gap, 1 - e^{-qT} (every one at a stop sign),
 stops and starts again.
 
+A light with a fixed program is also a clock (:class:`Program`, SUMO's phases at simulation time t
+from its offset): :mod:`.demand` lets its queue through in its green only, one vehicle per lane
+each 1 / SATURATION_FLOW s, instead of the expected delay.
+
 Left out: lane changes, and queues spilling back over junctions.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -128,33 +134,65 @@ def vtype_table(paths, of) -> dict:
     return out
 
 
-def signal_programs(paths) -> dict[str, list[tuple[float, str]]]:
-    """Per traffic light, the (duration s, state) phases of its program in ``paths`` (the network,
-    then additional files: a later file's program of a light replaces an earlier one, as SUMO loads
-    them; of several programs in one file, the first)."""
+@dataclass(frozen=True)
+class Program:
+    """A light's program as SUMO runs it: its (duration s, state) phases, its ``offset``, and whether
+    it is ``fixed`` (type "static": SUMO runs its phases as a clock, at simulation time t in
+    position (t - offset) mod cycle whatever the simulation's begin; an actuated program stretches
+    them, so only their shares hold)."""
+
+    phases: tuple[tuple[float, str], ...]
+    offset: float = 0.0
+    fixed: bool = True
+
+    @property
+    def cycle(self) -> float:
+        return sum(d for d, _ in self.phases)
+
+    def next_green(self, links: Sequence[int], t: float) -> float:
+        """The first time >= ``t`` at which one of the link indices ``links`` shows green (``G``,
+        ``g``, ``s``); inf if none ever does."""
+        cycle = self.cycle
+        pos = (t - self.offset) % cycle
+        start = 0.0
+        for turn in range(2):               # this cycle from the current phase, then the next
+            start = -pos if turn == 0 else cycle - pos
+            for d, st in self.phases:
+                end = start + d
+                if end > 0 and any(k < len(st) and st[k] in "Ggs" for k in links):
+                    return t + max(start, 0.0)
+                start = end
+        return float("inf")
+
+
+def signal_programs(paths) -> dict[str, Program]:
+    """Per traffic light, its :class:`Program` in ``paths`` (the network, then additional files: a
+    later file's program of a light replaces an earlier one, as SUMO loads them; of several
+    programs in one file, the first)."""
     from sumolib.xml import parse
-    out: dict[str, list[tuple[float, str]]] = {}
+    out: dict[str, Program] = {}
     for path in paths:
         seen: set[str] = set()
         for tl in parse(path, "tlLogic"):
             if tl.id in seen or not tl.hasChild("phase"):
                 continue
             seen.add(tl.id)
-            phases = [(float(ph.duration), ph.state) for ph in tl.getChild("phase")]
+            phases = tuple((float(ph.duration), ph.state) for ph in tl.getChild("phase"))
             if sum(d for d, _ in phases) > 0:
-                out[tl.id] = phases
+                out[tl.id] = Program(phases, float(getattr(tl, "offset", None) or 0.0),
+                                     (getattr(tl, "type", None) or "static") == "static")
     return out
 
 
-def green_shares(programs: dict[str, list[tuple[float, str]]]) -> dict[str, tuple[float, np.ndarray]]:
+def green_shares(programs: dict[str, Program]) -> dict[str, tuple[float, np.ndarray]]:
     """Per traffic light of :func:`signal_programs`, (cycle s, green share of each link index).
     Green: ``G``/``g``/``s``, amber counted half."""
     out: dict[str, tuple[float, np.ndarray]] = {}
-    for tls, phases in programs.items():
-        cycle = sum(d for d, _ in phases)
-        n = max(len(st) for _, st in phases)
+    for tls, program in programs.items():
+        cycle = program.cycle
+        n = max(len(st) for _, st in program.phases)
         green = np.zeros(n)
-        for d, st in phases:
+        for d, st in program.phases:
             green[: len(st)] += d * np.array([1.0 if c in "Ggs" else 0.5 if c in "yY" else 0.0 for c in st])
         out[tls] = (cycle, green / cycle)
     return out
@@ -179,6 +217,8 @@ class Link:
     lanes: int = 1               # lanes discharging onto the next edge
     foes: tuple = ()             # the (edge, next edge, their green share, weight) it gives way to
     stop: bool = False           # every vehicle stops first (a stop sign, all-way stop)
+    light: str | None = None     # its light, when its program is fixed (a clock: :class:`Program`)
+    indices: tuple = ()          # the link indices of its lanes at that light
 
 
 class TravelTimes:
@@ -210,7 +250,7 @@ class TravelTimes:
         if not conns:
             return None
         via_m, via_speed = [], []
-        cycles, greens = [], []
+        cycles, greens, lights = [], [], []
         for c in conns:
             m, speed, lane = 0.0, [], c.getViaLaneID()
             for _ in range(4):            # an internal junction splits a turn into a chain of lanes
@@ -227,11 +267,15 @@ class TravelTimes:
             if tls and tls in self._shares and 0 <= idx < len(self._shares[tls][1]):
                 cycles.append(self._shares[tls][0])
                 greens.append(self._shares[tls][1][idx])
+                lights.append((tls, idx))
         lanes = len({c.getFromLane().getIndex() for c in conns})
         foes, stop = self._foes(a.getToNode(), conns)
         if cycles:
+            tls = lights[0][0]
+            fixed = self._programs[tls].fixed and all(t == tls for t, _ in lights)
             return Link(float(np.mean(via_m)), float(np.mean(via_speed)), float(np.mean(cycles)),
-                        float(np.mean(greens)), lanes, foes, stop)
+                        float(np.mean(greens)), lanes, foes, stop, tls if fixed else None,
+                        tuple(sorted({k for _, k in lights})) if fixed else ())
         return Link(float(np.mean(via_m)), float(np.mean(via_speed)), lanes=lanes, foes=foes, stop=stop)
 
     def _links_of(self, node) -> tuple[dict, list]:
@@ -252,7 +296,8 @@ class TravelTimes:
         yielding = 0
         for c in conns:
             tls, k = c.getTLSID(), c.getTLLinkIndex()
-            phases = self._programs.get(tls) if tls else None
+            program = self._programs.get(tls) if tls else None
+            phases = program.phases if program is not None else None
             if phases is None and (c.getState() or "") not in YIELDS:
                 continue
             own = index.get(c, -1)      # its link index at the junction (k: at the light)
@@ -296,9 +341,7 @@ class TravelTimes:
         link = self.link_of(edge, nxt) if nxt is not None else None
         if link is None:
             return 0.0, 0.0
-        v = driver.cruise(self.snet.getEdge(edge).getSpeed())
-        u = min(driver.cruise(link.via_speed), v)
-        cross = link.via_m / u + driver.slowing(v, u)
+        cross, stopping = self.crossing(link, edge, driver)
         wait, stops = self.yielding(link, edge, nxt)
         if link.cycle > 0:
             lam = link.green
@@ -308,8 +351,19 @@ class TravelTimes:
             wait += webster(link.cycle, lam, x, q)
             red = min((1.0 - lam) / (1.0 - lam * x), 1.0)
             stops = red + (1.0 - red) * stops
-        # a stopped vehicle brakes from v to 0 and starts again: the slowing to u is then part of it
-        return wait, cross + stops * (driver.slowing(v, 0.0) - driver.slowing(v, u))
+        return wait, cross + stops * stopping
+
+    def crossing(self, link: Link, edge: str, driver: Driver = DEFAULT_DRIVER) -> tuple[float, float]:
+        """(s crossing the junction, slowing for its internal lanes, without stopping; s more if
+        stopped first). A stopped vehicle brakes from v to 0 and starts again: the slowing to the
+        internal lanes' speed u is then part of it."""
+        v = driver.cruise(self.snet.getEdge(edge).getSpeed())
+        u = min(driver.cruise(link.via_speed), v)
+        return link.via_m / u + driver.slowing(v, u), driver.slowing(v, 0.0) - driver.slowing(v, u)
+
+    def light(self, link: Link) -> Program | None:
+        """The fixed program of the light ``link`` passes (None: no light, or an actuated one)."""
+        return self._programs.get(link.light) if link.light else None
 
     def start(self, driver: Driver, edge: str) -> float:
         """s lost accelerating from standing to ``edge``'s cruising speed."""
@@ -339,6 +393,5 @@ def link_flows(routes: list[tuple[float, list[str]]], begin: float, span: float)
     return {k: n / max(span, 1.0) for k, n in counts.items()}
 
 
-__all__ = ["DEFAULT_DRIVER", "Driver", "Link", "TravelTimes", "green_shares", "link_flows", "minor_green",
-           "signal_programs", "vtype_drivers", "webster",
-           "vtype_table"]
+__all__ = ["DEFAULT_DRIVER", "Driver", "Link", "Program", "TravelTimes", "green_shares", "link_flows",
+           "minor_green", "signal_programs", "vtype_drivers", "webster", "vtype_table"]
