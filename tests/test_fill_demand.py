@@ -182,3 +182,25 @@ def test_demand_level_only(tmp_path):
     doc = _fill(tmp_path / "o", "-r", str(demand), "--begin", "120", "--demand-level-only")
     assert doc["density"]["kind"] == "demand" and "vehicles" not in doc["density"]
     assert doc["agents"] and not any("demand" in a for a in doc["agents"])
+
+
+def test_times_in_sumos_h_m_s_form(tmp_path):
+    """SUMO reads a time as seconds or h:m:s: a departure at 0:01:40 is one at 100 s, and a light's
+    phases and offset may be written so too."""
+    from sumo_scendiff.fill.demand import DemandEstimate
+    from sumo_scendiff.fill.travel import signal_programs
+    from sumo_scendiff.map.network import Network
+    net = Network.load(NET4)
+    e = max(net.sumo_net.getEdges(), key=lambda x: x.getLength())
+    routes = tmp_path / "t.rou.xml"
+    for depart in ("100", "0:01:40"):
+        routes.write_text(f'<routes><vehicle id="a" depart="{depart}"><route edges="{e.getID()}"/></vehicle>'
+                          f'<flow id="f" begin="0:01:00" end="0:02:00" period="30"><route edges="{e.getID()}"/></flow></routes>')
+        est = DemandEstimate.at(net, [str(routes)], begin=101.0)
+        assert est.departed == 3 and {v.id for v in est.en_route} >= {"a", "f.1"}   # (f.0 at 60 s)
+        assert [v.since for v in est.en_route if v.id == "a"] == [pytest.approx(1.0)]
+    add = tmp_path / "tls.add.xml"
+    add.write_text('<additional><tlLogic id="J" type="static" programID="p" offset="0:00:10">'
+                   '<phase duration="0:00:30" state="Gr"/><phase duration="30" state="rG"/></tlLogic></additional>')
+    program = signal_programs([str(add)])["J"]
+    assert program.offset == 10.0 and program.cycle == 60.0

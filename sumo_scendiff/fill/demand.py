@@ -213,10 +213,12 @@ def _depart_offset(pos: str | None, length: float) -> float:
 
 def _departures(el, begin: float) -> list[float]:
     """The departure times up to ``begin`` of a vehicle, trip or flow element."""
+    from sumolib.miscutils import parseTime
+
     def num(name):
         v = getattr(el, name, None)
         try:
-            return None if v is None else float(v)
+            return None if v is None else parseTime(v)     # seconds or SUMO's h:m:s
         except ValueError:      # "triggered", "now", ...: not a timed departure
             return None
     if el.name != "flow":

@@ -169,6 +169,7 @@ def signal_programs(paths) -> dict[str, Program]:
     """Per traffic light, its :class:`Program` in ``paths`` (the network, then additional files: a
     later file's program of a light replaces an earlier one, as SUMO loads them; of several
     programs in one file, the first)."""
+    from sumolib.miscutils import parseTime     # SUMO's times: seconds or h:m:s
     from sumolib.xml import parse
     out: dict[str, Program] = {}
     for path in paths:
@@ -177,9 +178,9 @@ def signal_programs(paths) -> dict[str, Program]:
             if tl.id in seen or not tl.hasChild("phase"):
                 continue
             seen.add(tl.id)
-            phases = tuple((float(ph.duration), ph.state) for ph in tl.getChild("phase"))
+            phases = tuple((parseTime(ph.duration), ph.state) for ph in tl.getChild("phase"))
             if sum(d for d, _ in phases) > 0:
-                out[tl.id] = Program(phases, float(getattr(tl, "offset", None) or 0.0),
+                out[tl.id] = Program(phases, parseTime(getattr(tl, "offset", None) or "0"),
                                      (getattr(tl, "type", None) or "static") == "static")
     return out
 
