@@ -62,3 +62,15 @@ def test_bad_edgedata_files_are_one_line(measured, tmp_path):
         EdgeData.read(str(other), net)
     with pytest.raises(EdgeDataError, match="no such file"):
         EdgeData.read(str(tmp_path / "missing.xml"), net)
+
+
+def test_human_readable_times_are_read(measured, tmp_path):
+    """SUMO's --human-readable-time writes the intervals as h:m:s: the same intervals."""
+    import re
+    net, path = measured
+    text = open(path).read()
+    hms = re.sub(r'(begin|end)="([\d.]+)"',
+                 lambda m: f'{m.group(1)}="0:{int(float(m.group(2))) // 60:02d}:{int(float(m.group(2))) % 60:02d}"', text)
+    (tmp_path / "hms.xml").write_text(hms)
+    iv = EdgeData.read(str(tmp_path / "hms.xml"), net).at(150.0)
+    assert (iv.begin, iv.end) == (120.0, 180.0) and iv.density == EdgeData.read(path, net).at(150.0).density

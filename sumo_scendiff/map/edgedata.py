@@ -40,6 +40,7 @@ class EdgeData:
         """Read ``path``; with ``net``, it must name at least one of the network's edges."""
         import xml.sax
 
+        from sumolib.miscutils import parseTime    # seconds, or h:m:s (--human-readable-time)
         from sumolib.xml import parse
         if not os.path.isfile(path):
             raise EdgeDataError(f"{path}: no such file")
@@ -47,7 +48,7 @@ class EdgeData:
         intervals = []
         try:
             for iv in parse(path, "interval"):
-                begin, end = float(iv.begin), float(iv.end)
+                begin, end = parseTime(iv.begin), parseTime(iv.end)
                 dens = {}
                 for e in iv.getChild("edge") if iv.hasChild("edge") else ():
                     d = _lane_density(e, end - begin, lanes.get(e.id))
