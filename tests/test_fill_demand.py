@@ -204,3 +204,29 @@ def test_times_in_sumos_h_m_s_form(tmp_path):
                    '<phase duration="0:00:30" state="Gr"/><phase duration="30" state="rG"/></tlLogic></additional>')
     program = signal_programs([str(add)])["J"]
     assert program.offset == 10.0 and program.cycle == 60.0
+
+
+def test_a_full_edge_holds_the_queue_back_and_the_insertions(tmp_path):
+    """An edge holds its car lanes' length over JAM_SPACING vehicles: behind a light that stays red
+    (an additional file's program) the block before it fills, the queue spills back onto the edge
+    before, and departures onto a full first edge wait to be inserted (not on the network yet)."""
+    from sumo_scendiff.fill.demand import DemandEstimate
+    from sumo_scendiff.fill.queues import JAM_SPACING
+    from sumo_scendiff.map.network import Network
+    net = Network.load(NET4)
+    red = tmp_path / "red.add.xml"
+    red.write_text('<additional><tlLogic id="B1" type="static" programID="red" offset="0">'
+                   f'<phase duration="90" state="{"r" * 20}"/></tlLogic></additional>')
+    routes = tmp_path / "q.rou.xml"
+    routes.write_text("<routes>" + "".join(
+        f'<vehicle id="v{i:02d}" depart="{i}" departSpeed="max"><route edges="A0A1 A1B1 B1B0"/></vehicle>'
+        for i in range(90)) + "</routes>")
+    hold = {e: math.ceil(net.edge_car_km[e] * 1000 / JAM_SPACING) for e in ("A0A1", "A1B1")}
+    est = DemandEstimate.at(net, [str(routes)], begin=600.0, additional=[str(red)])
+    assert est.on_edge == hold and est.vehicles == sum(hold.values()) < 90
+    first = sorted(v.id for v in est.en_route if v.edges[0] == "A1B1")
+    assert first == [f"v{i:02d}" for i in range(hold["A1B1"])]       # first come, in front
+    assert all(v.waiting for v in est.en_route)
+    # the light as the network has it: the queue goes on, nobody waits to be inserted
+    est = DemandEstimate.at(net, [str(routes)], begin=600.0)
+    assert est.vehicles < 20

@@ -6,21 +6,20 @@
 
 Each vehicle, trip and flow departure of the route files up to ``begin`` is laid on its route
 (a trip's: the shortest path by free-flow time, sumolib's Dijkstra, per from/to pair once) and
-moved along it by the clock of :mod:`.travel` (its vType's desired speed, the junctions' internal
-lanes and the time lost slowing for them, giving way, the start from standing). At a light with a
-fixed program (SUMO's ``static``) the vehicles are let through as SUMO's clock runs it: in the
-order they reach its stop line, in its green only, one per lane each saturation headway, so the
-queues stand on the approaches that are red at ``begin``, as long as the demand has made them; at
-an actuated light each waits the expected (Webster's) delay at the degree of saturation the
-demand's own flows give it. Those not yet at their end at ``begin`` count on the edge they are on
-(a vehicle waiting at a light on the edge it waits on, one crossing a junction at the start of the
-edge it enters). No simulation, as the issue allows: it misses what :mod:`.travel` leaves out
-(lane changes, queues spilling back).
+run along it as queues (:mod:`.queues`) by the clock of :mod:`.travel` (its vType's desired
+speed, the junctions' internal lanes and the time lost slowing for them, giving way, the start
+from standing): a light with a fixed program (SUMO's ``static``) lets its vehicles through as
+SUMO's clock runs it, in the order they reach its stop line, in its green only, so the queues
+stand at ``begin`` on the approaches that are red then; an actuated light holds each vehicle its
+expected (Webster's) delay at the degree of saturation the demand's own flows give it; an edge
+holds what its lanes hold, and a queue that fills it spills back. Those not yet at their end at
+``begin`` count on the edge they are on (a vehicle waiting at a light on the edge it waits on,
+one crossing a junction at the start of the edge it enters; one still waiting to be inserted
+not at all). No simulation of the cars, as the issue allows: it misses what :mod:`.travel` and
+:mod:`.queues` leave out (lane changes, the choice of lanes).
 """
 from __future__ import annotations
 
-import heapq
-import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -65,7 +64,8 @@ class DemandEstimate:
     def at(cls, net, route_files, begin: float, additional=()) -> DemandEstimate:
         from sumolib.xml import parse
 
-        from .travel import DEFAULT_DRIVER, SATURATION_FLOW, TravelTimes, link_flows, vtype_drivers
+        from .queues import Trip, run_to
+        from .travel import DEFAULT_DRIVER, TravelTimes, link_flows, vtype_drivers
         snet = net.sumo_net
         drivers = vtype_drivers([*route_files, *additional])
         named: dict[str, list[str]] = {}
@@ -103,32 +103,7 @@ class DemandEstimate:
         span = min(FLOW_SPAN_S, begin - first)
         times = TravelTimes(net, additional, link_flows([(d, e) for _, _, e, d, *_ in departures if e],
                                                         begin, span))
-        on_edge: dict[str, int] = {}
-        en_route: list[EnRoute] = []
-        # vehicles reaching a stop line, in the order they reach it: a fixed light lets them through
-        # first come, first served, one per lane each saturation headway, in its green only
-        at_line: list[tuple[float, int, tuple]] = []
-        order = itertools.count()
-        free_at: dict[tuple[str, str], float] = {}
-
-        def place(trip, k, t_enter, travel, offset):
-            e = trip[2][k]
-            on_edge[e] = on_edge.get(e, 0) + 1
-            ahead = snet.getEdge(e).getLength() - offset
-            en_route.append(EnRoute(trip[0], trip[1], tuple(trip[2][k:]), begin - t_enter, travel,
-                                    ahead / travel, tuple(trip[2][max(k - SPILL_EDGES, 0):k][::-1]), offset))
-
-        def enter(trip, k, t_enter, before, offset):
-            """``trip`` enters its k-th edge at ``t_enter`` (``before``: s spent before its cruise)."""
-            edges, driver = trip[2], trip[3]
-            length = snet.getEdge(edges[k]).getLength()
-            cruise, _ = times.edge(edges[k], driver)
-            travel = max(before + cruise * (length - offset) / length, 1e-3)
-            if t_enter + travel > begin:                 # moving along the edge at begin
-                place(trip, k, t_enter, travel, offset)
-            elif k + 1 < len(edges):                     # (else it has arrived)
-                heapq.heappush(at_line, (t_enter + travel, next(order), (trip, k, t_enter, travel, offset)))
-
+        trips: list[Trip] = []
         for vid, vtype, edges, depart, standing, depart_pos in departures:
             counts["departed"] += 1
             if not edges:
@@ -137,26 +112,17 @@ class DemandEstimate:
             if not all(snet.hasEdge(e) for e in edges):
                 continue
             driver = drivers.get(vtype, DEFAULT_DRIVER) if vtype else DEFAULT_DRIVER
-            enter((vid, vtype, edges, driver), 0, depart, times.start(driver, edges[0]) if standing else 0.0,
-                  _depart_offset(depart_pos, snet.getEdge(edges[0]).getLength()))
-        while at_line:
-            t, _, (trip, k, t_enter, travel, offset) = heapq.heappop(at_line)
-            e, nxt, driver = trip[2][k], trip[2][k + 1], trip[3]
-            link = times.link_of(e, nxt)
-            program = times.light(link) if link is not None else None
-            if program is None:              # no light, or an actuated one: the expected waits
-                wait, before = times.link(e, nxt, driver)
-                go = t + wait
-            else:
-                wait, stops = times.yielding(link, e, nxt)
-                cross, stopping = times.crossing(link, e, driver)
-                go = program.next_green(link.indices, max(t + wait, free_at.get((e, nxt), -np.inf)))
-                free_at[(e, nxt)] = go + 1.0 / (SATURATION_FLOW * link.lanes)
-                before = cross + (1.0 if go > t + wait + 1e-6 else stops) * stopping
-            if go > begin:                   # waiting at the edge's end at begin
-                place(trip, k, t_enter, travel, offset)
-            else:
-                enter(trip, k + 1, go, before, 0.0)
+            trips.append(Trip(vid, vtype, tuple(edges), driver, depart,
+                              times.start(driver, edges[0]) if standing else 0.0,
+                              _depart_offset(depart_pos, snet.getEdge(edges[0]).getLength())))
+        on_edge: dict[str, int] = {}
+        en_route: list[EnRoute] = []
+        for pos in run_to(trips, times, net, begin):
+            edges, k = pos.trip.edges, pos.k
+            on_edge[edges[k]] = on_edge.get(edges[k], 0) + 1
+            ahead = snet.getEdge(edges[k]).getLength() - pos.offset
+            en_route.append(EnRoute(pos.trip.id, pos.trip.type, edges[k:], begin - pos.t_enter, pos.travel,
+                                    ahead / pos.travel, edges[max(k - SPILL_EDGES, 0):k][::-1], pos.offset))
         return cls(begin, on_edge, sum(on_edge.values()), counts["unrouted"], counts["departed"], en_route)
 
     def edge_density(self, net) -> dict[str, float]:

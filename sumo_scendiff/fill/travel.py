@@ -27,10 +27,11 @@ q e^{-qT} / (1 - e^{-q t_f}); the share that finds no gap, 1 - e^{-qT} (every on
 stops and starts again.
 
 A light with a fixed program is also a clock (:class:`Program`, SUMO's phases at simulation time t
-from its offset): :mod:`.demand` lets its queue through in its green only, one vehicle per lane
-each 1 / SATURATION_FLOW s, instead of the expected delay.
+from its offset): :mod:`.queues` lets its queue through in its green only, one vehicle per lane
+each 1 / SATURATION_FLOW s, instead of the expected delay, and holds queues back where an edge is
+full.
 
-Left out: lane changes, and queues spilling back over junctions.
+Left out: lane changes.
 """
 from __future__ import annotations
 

@@ -1,0 +1,153 @@
+"""The demand's departures run through the network as queues, without simulating the cars.
+
+    trips = [Trip(id, type, edges, driver, depart, start_s, offset), ...]
+    for pos in run_to(trips, times, net, begin):       # where each trip is at ``begin``
+        pos.trip, pos.k, pos.t_enter, pos.travel, pos.offset
+
+Each trip enters its first edge at its departure and moves edge by edge by :mod:`.travel`'s clock
+(its cruise along an edge, then the link to the next: giving way, crossing the junction). The
+events are taken in the order of time, so what one vehicle does holds up the next:
+
+* a fixed light (:class:`~.travel.Program`) lets each link's vehicles through in the order they
+  reached its stop line, in its green only, one per lane every 1 / SATURATION_FLOW s; an actuated
+  one holds each its expected (Webster's) delay;
+* an edge holds at most its car lanes' length over JAM_SPACING vehicles: a vehicle whose next edge
+  is full waits at its stop line until one leaves it (the queue spills back over the junction), a
+  departure onto a full edge waits to be inserted (not yet on the network, as SUMO counts it). A
+  vehicle already on the network goes before a waiting insertion, as in SUMO's step.
+
+What it leaves out: lane changes and the choice of lanes (an edge's storage is shared by all its
+lanes and links), vehicles passing at amber, a blocked junction's foes.
+"""
+from __future__ import annotations
+
+import heapq
+import itertools
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from .travel import SATURATION_FLOW, Driver, TravelTimes
+
+JAM_SPACING = 7.5    # m of lane per standing vehicle: SUMO's default length 5 m + minGap 2.5 m
+MIN_STORAGE_M = 30.0  # m: a shorter edge holds no queue of its own (:func:`run_to`)
+
+
+@dataclass(frozen=True)
+class Trip:
+    id: str
+    type: str | None
+    edges: tuple[str, ...]
+    driver: Driver
+    depart: float
+    start_s: float                 # s spent before its first cruise (accelerating from standing)
+    offset: float = 0.0            # m along its first edge where it enters (departPos)
+
+
+@dataclass(frozen=True)
+class OnEdge:
+    """Where a trip is at the time run to: on its ``k``-th edge since ``t_enter``, which takes it
+    ``travel`` s to its end (past that, it waits there), having entered at ``offset`` m."""
+
+    trip: Trip
+    k: int
+    t_enter: float
+    travel: float
+    offset: float
+
+
+def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnEdge]:
+    """Every trip on the network at ``begin`` (those arrived, or still waiting to be inserted, are
+    not); deterministic: ties in time go in the order of ``trips``."""
+    snet = net.sumo_net
+    km = net.edge_car_km
+    occupied: dict[str, int] = {}
+    cap: dict[str, float] = {}
+    waiting_for: dict[str, deque] = {}     # edge -> vehicles at an upstream stop line wanting onto it
+    inserting: dict[str, deque] = {}       # edge -> departures waiting to be inserted onto it
+    free_at: dict[tuple[str, str], float] = {}   # a fixed light's link: when it lets the next through
+    where: dict[str, OnEdge] = {}
+    events: list = []
+    order = itertools.count()
+    DEPART, LINE, GO = 0, 1, 2
+
+    def storage(e: str) -> float:
+        """Vehicles the edge holds; a short one (netconvert's stubs before a light, a block of a few
+        metres) holds no queue of its own: SUMO's vehicles stand across it and the junction."""
+        if e not in cap:
+            short = snet.getEdge(e).getLength() < MIN_STORAGE_M
+            cap[e] = np.inf if short else max(1.0, km.get(e, 0.0) * 1000.0 / JAM_SPACING)
+        return cap[e]
+
+    def push(t: float, kind: int, trip: Trip, k: int = 0) -> None:
+        heapq.heappush(events, (t, next(order), kind, trip, k))
+
+    def enter(trip: Trip, k: int, t: float, before: float, offset: float) -> None:
+        e = trip.edges[k]
+        occupied[e] = occupied.get(e, 0) + 1
+        length = snet.getEdge(e).getLength()
+        cruise, _ = times.edge(e, trip.driver)
+        travel = max(before + cruise * (length - offset) / length, 1e-3)
+        where[trip.id] = OnEdge(trip, k, t, travel, offset)
+        push(t + travel, LINE, trip, k)
+
+    def leave(e: str, t: float) -> None:
+        """A place on ``e`` is free: everyone waiting for one tries again now, in the order they
+        came, the network's vehicles before the insertions (one held by its light lets the next
+        have it; whoever finds it taken waits on)."""
+        occupied[e] -= 1
+        for trip, k in waiting_for.pop(e, ()):
+            push(t, GO, trip, k)
+        for trip in inserting.pop(e, ()):
+            push(t, DEPART, trip)
+
+    for trip in trips:
+        push(trip.depart, DEPART, trip)
+    while events and events[0][0] <= begin:
+        t, _, kind, trip, k = heapq.heappop(events)
+        if kind == DEPART:
+            e = trip.edges[0]
+            if occupied.get(e, 0) < storage(e):
+                enter(trip, 0, t, trip.start_s, trip.offset)
+            else:
+                inserting.setdefault(e, deque()).append(trip)
+            continue
+        e = trip.edges[k]
+        if k + 1 == len(trip.edges):         # at its route's end: it leaves the network
+            del where[trip.id]
+            leave(e, t)
+            continue
+        nxt = trip.edges[k + 1]
+        link = times.link_of(e, nxt)
+        program = times.light(link) if link is not None else None
+        if kind == LINE:                     # reached the stop line: ready after giving way
+            if program is None:
+                wait, _ = times.link(e, nxt, trip.driver)
+            else:
+                wait, _ = times.yielding(link, e, nxt)
+            push(t + wait, GO, trip, k)
+            continue
+        # GO: through the junction if the light and the next edge let it
+        if program is not None:
+            go = program.next_green(link.indices, max(t, free_at.get((e, nxt), -np.inf)))
+            if go > t:
+                push(go, GO, trip, k)
+                continue
+        if occupied.get(nxt, 0) >= storage(nxt):
+            waiting_for.setdefault(nxt, deque()).append((trip, k))
+            continue
+        at_line = where[trip.id].t_enter + where[trip.id].travel
+        if program is None:
+            _, before = times.link(e, nxt, trip.driver)
+        else:
+            free_at[(e, nxt)] = t + 1.0 / (SATURATION_FLOW * link.lanes)
+            wait, stops = times.yielding(link, e, nxt)
+            cross, stopping = times.crossing(link, e, trip.driver)
+            before = cross + (1.0 if t > at_line + wait + 1e-6 else stops) * stopping
+        leave(e, t)
+        enter(trip, k + 1, t, before, 0.0)
+    return list(where.values())
+
+
+__all__ = ["JAM_SPACING", "MIN_STORAGE_M", "OnEdge", "Trip", "run_to"]
