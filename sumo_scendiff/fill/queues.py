@@ -67,7 +67,7 @@ def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnE
     waiting_for: dict[str, deque] = {}     # edge -> vehicles at an upstream stop line wanting onto it
     inserting: dict[str, deque] = {}       # edge -> departures waiting to be inserted onto it
     free_at: dict[tuple[str, str], float] = {}   # a fixed light's link: when it lets the next through
-    where: dict[str, OnEdge] = {}
+    where: dict[int, OnEdge] = {}          # id(trip) -> where it is (ids may repeat across files)
     events: list = []
     order = itertools.count()
     DEPART, LINE, GO = 0, 1, 2
@@ -89,7 +89,7 @@ def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnE
         length = snet.getEdge(e).getLength()
         cruise, _ = times.edge(e, trip.driver)
         travel = max(before + cruise * (length - offset) / length, 1e-3)
-        where[trip.id] = OnEdge(trip, k, t, travel, offset)
+        where[id(trip)] = OnEdge(trip, k, t, travel, offset)
         push(t + travel, LINE, trip, k)
 
     def leave(e: str, t: float) -> None:
@@ -115,7 +115,7 @@ def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnE
             continue
         e = trip.edges[k]
         if k + 1 == len(trip.edges):         # at its route's end: it leaves the network
-            del where[trip.id]
+            del where[id(trip)]
             leave(e, t)
             continue
         nxt = trip.edges[k + 1]
@@ -137,7 +137,7 @@ def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnE
         if occupied.get(nxt, 0) >= storage(nxt):
             waiting_for.setdefault(nxt, deque()).append((trip, k))
             continue
-        at_line = where[trip.id].t_enter + where[trip.id].travel
+        at_line = where[id(trip)].t_enter + where[id(trip)].travel
         if program is None:
             _, before = times.link(e, nxt, trip.driver)
         else:
