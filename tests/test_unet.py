@@ -103,6 +103,21 @@ def test_zero_agent_tokens(net):
                                atol=1e-5, rtol=1e-5)
 
 
+def test_a_batch_without_tokens_gives_every_weight_a_gradient():
+    """DistributedDataParallel waits for a gradient of every weight on every process: a process
+    whose share of a batch holds no agent token must still give the token layers one (zero), and
+    the output is the same as without them."""
+    torch.manual_seed(0)
+    n = UNet(UNetConfig(channels=(16, 32, 64), d_model=32, c_map=8, splat_ch=4))
+    z, cn, m, _, _, g = _inputs()
+    empty, pad = pad_tokens([torch.zeros(0, AGENT_TOKEN_DIM)] * 2)
+    n(z, cn, m, empty, pad, g).pow(2).mean().backward()
+    assert all(p.grad is not None for p in n.parameters())
+    assert all(float(p.grad.abs().sum()) == 0.0 for p in n.agent_mlp.parameters())
+    with torch.no_grad():
+        torch.testing.assert_close(n(z, cn, m, empty, pad, g), n.eval()(z, cn, m, empty, pad, g))
+
+
 def test_edm_training_step_reduces_loss():
     torch.manual_seed(0)
     den = EDMPrecond(UNet(CFG))

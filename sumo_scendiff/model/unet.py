@@ -108,6 +108,15 @@ def token_mlp(in_dim: int, d: int) -> nn.Sequential:
     return nn.Sequential(nn.Linear(in_dim, d), nn.SiLU(), nn.Linear(d, d), nn.LayerNorm(d))
 
 
+def unused(module: nn.Module) -> Tensor | float:
+    """0, depending on every weight of ``module`` while gradients are on: a batch without agent
+    tokens leaves the token layers out, and DistributedDataParallel waits for a gradient of every
+    weight on every process (a process whose share of a batch had no token stopped a run)."""
+    if not torch.is_grad_enabled():
+        return 0.0
+    return sum(p.sum() for p in module.parameters()) * 0.0
+
+
 class TokenSplat(nn.Module):
     """Agent tokens -> (B, ch, res, res): each positioned token's embedding added at its cell."""
 
@@ -123,6 +132,8 @@ class TokenSplat(nn.Module):
             cell, placed = token_cells(agent_tokens, agent_pad_mask, res)
             e = self.mlp(agent_tokens) * placed[..., None].to(agent_tokens.dtype)   # (B, T, ch)
             out.scatter_add_(2, cell[:, None, :].expand(-1, self.ch, -1), e.transpose(1, 2))
+        else:
+            out = out + unused(self.mlp)
         return out.reshape(b, self.ch, res, res)
 
 
@@ -225,7 +236,7 @@ class UNet(nn.Module):
             ctx = torch.cat([g, self.agent_mlp(agent_tokens)], dim=1)
             keep = torch.cat([torch.ones_like(agent_pad_mask[:, :1]), ~agent_pad_mask], dim=1)
         else:
-            ctx = g
+            ctx = g + unused(self.agent_mlp)
             keep = torch.ones(g.shape[0], 1, dtype=torch.bool, device=g.device)
         return ctx, keep[:, None, None, :]
 
