@@ -227,3 +227,59 @@ def test_a_queue_at_a_fixed_light_waits_for_green_and_leaves_one_per_headway(tmp
         assert len(waiting) == 6 - gone - 1 and all(v.waiting for v in waiting)
         assert sorted(v.id for v in waiting) == [f"v{i}" for i in range(gone + 1, 6)]
     assert est.on_edge["ce"] == 4
+
+
+def test_expected_durations_of_an_actuated_program():
+    """Without traffic each actuated green ends at its minDur (amber keeps its time); a phase's
+    green grows with its lanes' flow and stays within maxDur."""
+    from sumo_scendiff.fill.actuated import expected_durations
+    states, durations = ["Gr", "yr", "rG", "ry"], [40.0, 3.0, 40.0, 3.0]
+    bounds = [(5.0, 50.0), (3.0, 3.0), (5.0, 50.0), (3.0, 3.0)]
+    lanes = {"w_0": {0: 0.0}, "s_0": {1: 0.0}}
+    assert expected_durations(states, durations, bounds, lanes, 0.5) == (5.0, 3.0, 5.0, 3.0)
+    greens = [expected_durations(states, durations, bounds, {"w_0": {0: q}, "s_0": {1: 0.05}}, 0.5)[0]
+              for q in (0.1, 0.2, 0.3, 0.45)]
+    assert greens == sorted(greens) and greens[0] > 5.0 and greens[-1] == 50.0
+
+
+def test_an_actuated_light_runs_its_phases_as_sumo_does(tmp_path):
+    """Under a busy west-east and a light south-north stream, the cycle and each green of an
+    actuated light (SUMO's gap control) are what SUMO runs, not its programmed durations."""
+    import libsumo
+
+    from sumo_scendiff.fill.travel import TravelTimes, signal_programs
+    from sumo_scendiff.map.network import Network
+    from .conftest import netconvert
+    nodes = ('<node id="c" x="0" y="0" type="traffic_light"/><node id="w" x="-200" y="0"/>'
+             '<node id="e" x="200" y="0"/><node id="s" x="0" y="-200"/><node id="n" x="0" y="200"/>')
+    edges = "".join(f'<edge id="{a}{b}" from="{a}" to="{b}" numLanes="1" speed="13.89"/>'
+                    for a, b in (("w", "c"), ("c", "w"), ("e", "c"), ("c", "e"),
+                                 ("s", "c"), ("c", "s"), ("n", "c"), ("c", "n")))
+    path = netconvert(nodes, edges, str(tmp_path / "act.net.xml"), "--tls.default-type", "actuated")
+    flows = {("wc", "ce"): 0.25, ("ec", "cw"): 0.25, ("sc", "cn"): 0.03, ("nc", "cs"): 0.03}
+    routes = tmp_path / "act.rou.xml"
+    routes.write_text("<routes>" + "".join(
+        f'<flow id="{a}{b}" begin="0" end="1500" probability="{q}" departSpeed="max"><route edges="{a} {b}"/></flow>'
+        for (a, b), q in flows.items()) + "</routes>")
+    [(tls, program)] = signal_programs([path]).items()
+    assert not program.fixed and program.bounds
+    est = TravelTimes(Network.load(path), flows=flows)._programs[tls]
+    libsumo.start(["sumo", "-n", path, "-r", str(routes), "--seed", "3", "--no-step-log", "--no-warnings"])
+    spans: dict[int, list[float]] = {}
+    try:
+        phase, since = libsumo.trafficlight.getPhase(tls), 0.0
+        while libsumo.simulation.getTime() < 1500:
+            libsumo.simulationStep()
+            t, now = libsumo.simulation.getTime(), libsumo.trafficlight.getPhase(tls)
+            if now != phase:
+                if t > 300:
+                    spans.setdefault(phase, []).append(t - since)
+                phase, since = now, t
+    finally:
+        libsumo.close()
+    sumo = [sum(spans[i]) / len(spans[i]) for i in range(len(program.phases))]
+    mine = [d for d, _ in est.phases]
+    assert sum(mine) == pytest.approx(sum(sumo), rel=0.15), (mine, sumo)
+    assert sum(d for d, _ in program.phases) > 1.5 * sum(sumo)       # the programmed cycle is not it
+    for (d, st), s in zip(est.phases, sumo):
+        assert d == pytest.approx(s, abs=max(2.0, 0.2 * s)), (mine, sumo)

@@ -14,7 +14,9 @@ green share λ and degree of saturation x (the demand's own flow through the lin
 of its lanes at green, SATURATION_FLOW per lane, capped at X_MAX: an oversaturated queue grows
 without bound, which a steady-state formula cannot hold); the share of vehicles that stop,
 (1 - λ) / (1 - λx), lose the time of stopping and starting as well. A vehicle departing at speed 0
-(SUMO's default departSpeed) loses the time of accelerating. Every speeding up is at the vType's
+(SUMO's default departSpeed) loses the time of accelerating. An actuated light's phases are taken
+at the durations its gap control gives them under the demand's flows (:mod:`.actuated`), not at
+their programmed ones. Every speeding up is at the vType's
 mean acceleration under Krauss' dawdling, accel (1 - sigma / 2) (:attr:`Driver.pickup`).
 
 A link that yields (a minor link, ``m``; right before left, ``=``; one that must stop, ``s``/``w``;
@@ -41,6 +43,7 @@ from typing import Sequence
 import numpy as np
 
 from ..map.links import gives_way, junction_links
+from .actuated import MAX_GAP, expected_durations
 
 SATURATION_FLOW = 0.5   # veh/s per lane discharging at green (SUMO's Krauss defaults: ~1 800 veh/h)
 # Traffic cruises below its desired speed: car-following behind slower vehicles (speedFactor's spread),
@@ -140,11 +143,13 @@ class Program:
     """A light's program as SUMO runs it: its (duration s, state) phases, its ``offset``, and whether
     it is ``fixed`` (type "static": SUMO runs its phases as a clock, at simulation time t in
     position (t - offset) mod cycle whatever the simulation's begin; an actuated program stretches
-    them, so only their shares hold)."""
+    them within each phase's ``bounds``, so only their expected durations hold: :func:`under_demand`)."""
 
     phases: tuple[tuple[float, str], ...]
     offset: float = 0.0
     fixed: bool = True
+    bounds: tuple[tuple[float, float], ...] = ()    # each phase's (minDur, maxDur); () for static
+    max_gap: float = MAX_GAP                        # an actuated light's max-gap param (s)
 
     @property
     def cycle(self) -> float:
@@ -180,9 +185,53 @@ def signal_programs(paths) -> dict[str, Program]:
                 continue
             seen.add(tl.id)
             phases = tuple((parseTime(ph.duration), ph.state) for ph in tl.getChild("phase"))
-            if sum(d for d, _ in phases) > 0:
-                out[tl.id] = Program(phases, parseTime(getattr(tl, "offset", None) or "0"),
-                                     (getattr(tl, "type", None) or "static") == "static")
+            if sum(d for d, _ in phases) <= 0:
+                continue
+            kind = getattr(tl, "type", None) or "static"
+            bounds: tuple = ()
+            max_gap = MAX_GAP
+            if kind == "actuated":
+                bounds = tuple((parseTime(getattr(ph, "minDur", None) or ph.duration),
+                                parseTime(getattr(ph, "maxDur", None) or ph.duration)) for ph in tl.getChild("phase"))
+                params = {p.key: p.value for p in tl.getChild("param")} if tl.hasChild("param") else {}
+                max_gap = float(params.get("max-gap", MAX_GAP))
+            out[tl.id] = Program(phases, parseTime(getattr(tl, "offset", None) or "0"), kind == "static",
+                                 bounds, max_gap)
+    return out
+
+
+def under_demand(programs: dict[str, Program], snet, flows: dict[tuple[str, str], float]) -> dict[str, Program]:
+    """``programs`` with each actuated light's phases at their expected durations under ``flows``
+    (veh/s per (edge, next edge); :mod:`.actuated`); the others as they are."""
+    from dataclasses import replace
+
+    lanes: dict[str, dict[str, dict[int, float]]] = {}
+    downstream: dict[str, dict[str, set[str]]] = {}
+    one_lane: set[str] = set()
+    for tls in snet.getTrafficLights():
+        if tls.getID() not in programs or not programs[tls.getID()].bounds:
+            continue
+        per_pair: dict[tuple[str, str], int] = {}
+        for a, b, k in tls.getConnections():
+            key = (a.getEdge().getID(), b.getEdge().getID())
+            per_pair[key] = per_pair.get(key, 0) + 1
+        mine = lanes.setdefault(tls.getID(), {})
+        for a, b, k in tls.getConnections():
+            if sum(ln.allows("passenger") for ln in a.getEdge().getLanes()) == 1:
+                one_lane.add(a.getID())
+            key = (a.getEdge().getID(), b.getEdge().getID())
+            mine.setdefault(a.getID(), {})[k] = flows.get(key, 0.0) / per_pair[key]
+        after = downstream.setdefault(tls.getID(), {})
+        for a, b, k in tls.getConnections():
+            if b.getID() in mine:
+                after.setdefault(a.getID(), set()).add(b.getID())
+    out = dict(programs)
+    for tls, lane_flows in lanes.items():
+        p = programs[tls]
+        states = [st for _, st in p.phases]
+        durations = expected_durations(states, [d for d, _ in p.phases], p.bounds, lane_flows,
+                                       SATURATION_FLOW, p.max_gap, downstream[tls], one_lane)
+        out[tls] = replace(p, phases=tuple(zip(durations, states)))
     return out
 
 
@@ -231,7 +280,7 @@ class TravelTimes:
         self.flows = flows or {}
         self._links: dict[tuple[str, str], Link | None] = {}
         path = getattr(net, "path", None)
-        self._programs = signal_programs([path, *additional]) if path else {}
+        self._programs = under_demand(signal_programs([path, *additional]), self.snet, self.flows) if path else {}
         self._shares = green_shares(self._programs)
         self._index: dict[str, tuple[dict, list]] = {}    # node -> (connection -> link index, index -> edges)
 
