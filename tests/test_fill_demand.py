@@ -113,6 +113,36 @@ def test_a_queue_longer_than_its_edge_stands_back_over_the_route_before_it():
                for p in placed if p.vehicle.edges[0] == further.getID())
 
 
+def test_a_lane_both_directions_share_takes_one_of_them(tmp_path):
+    """On a road whose two edges are each other's ``bidi`` (one lane, both directions on it), the
+    demand's vehicles of one direction are placed there, the oncoming one stands back on the edge
+    before (or is skipped): never face to face on the shared lane, which SUMO counts as a frontal
+    collision in the first step. A lane of an edge's own goes before a shared one."""
+    from sumo_scendiff.fill.demand import DemandEstimate, EnRoute
+    from sumo_scendiff.fill.en_route import place_en_route, shared_lanes
+    from sumo_scendiff.map.network import Network
+    from .conftest import netconvert
+    nodes = ('<node id="ww" x="-400" y="0"/><node id="w" x="-200" y="0"/><node id="c" x="0" y="0"/>'
+             '<node id="e" x="200" y="0"/>')
+    edges = ('<edge id="a" from="w" to="c" numLanes="1" speed="13.89" spreadType="center" bidi="-a"/>'
+             '<edge id="-a" from="c" to="w" numLanes="1" speed="13.89" spreadType="center" bidi="a"/>'
+             '<edge id="in" from="ww" to="w" numLanes="1" speed="13.89"/>'
+             '<edge id="out" from="w" to="ww" numLanes="1" speed="13.89"/>'
+             '<edge id="b" from="c" to="e" numLanes="1" speed="13.89"/>'
+             '<edge id="-b" from="e" to="c" numLanes="1" speed="13.89"/>')
+    net = Network.load(netconvert(nodes, edges, str(tmp_path / "bidi.net.xml")))
+    lane = {ln.id: i for i, ln in enumerate(net.lanes)}
+    assert shared_lanes(net) == {lane["a_0"]: lane["-a_0"], lane["-a_0"]: lane["a_0"]}
+    east = EnRoute("east", None, ("a", "b"), 25.0, 20.0, 10.0)                  # waiting at c
+    west = EnRoute("west", None, ("-a", "out"), 5.0, 20.0, 10.0, ("-b",))        # 50 m into -a
+    placed, skipped = place_en_route(net, DemandEstimate(0.0, {}, 2, 0, 2, [east, west]))
+    where = {p.vehicle.id: net.lanes[p.lane].edge for p in placed}
+    assert where["east"] == "a" and where.get("west") in ("-b", None)
+    assert len(placed) + len(skipped) == 2
+    alone, _ = place_en_route(net, DemandEstimate(0.0, {}, 1, 0, 1, [west]))
+    assert [net.lanes[p.lane].edge for p in alone] == ["-a"]
+
+
 def test_vtype_sizes(tmp_path):
     """A vType's length and width, SUMO's default for its vClass where it gives none, and a
     distribution's first member's."""

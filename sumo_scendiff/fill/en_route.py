@@ -13,7 +13,10 @@ edge at the typical speed). Along a lane no two overlap: each front stays behind
 vehicle ahead by SUMO's default minGap, queues first (longest waiting at the front), then the movers
 from the furthest on; one that finds no room on any of its lanes stands back on the route's edges
 before it, at the end of the queue there (a queue spilling back, as SUMO's do), else is skipped
-(counted). Sizes are the
+(counted). A lane shared by both directions (an edge with a ``bidi`` edge: one road, its lanes on
+top of each other's) takes one direction only, and only where the edge has no lane of its own
+that the route may use: SUMO lets no vehicle onto a bidi lane an oncoming one is on, and two put
+there face to face collide in the first step. Sizes are the
 vTypes' (``length``/``width``, else SUMO's defaults for the vClass).
 
 A fill with demand gives these positions to its tiles as tokens (pose and size); the model draws
@@ -89,10 +92,39 @@ def _stable(text: str) -> int:
     return zlib.crc32(text.encode())
 
 
-def _fit(lanes: list[int], vid: str, want: float | None, length: float, room: dict, used: Counter, net):
+def shared_lanes(net) -> dict[int, int]:
+    """Per car lane of an edge that has a ``bidi`` edge, the bidi edge's car lane it lies on (more
+    than half of its area; indices into Network.lanes)."""
+    snet = net.sumo_net
+    index = {ln.id: i for i, ln in enumerate(net.lanes) if ln.car}
+    out: dict[int, int] = {}
+    for edge in snet.getEdges():
+        bidi = edge.getBidi()
+        if not bidi:
+            continue
+        bidi = snet.getEdge(bidi) if isinstance(bidi, str) else bidi
+        for a in edge.getLanes():
+            i = index.get(a.getID())
+            if i is None:
+                continue
+            area = net.lanes[i].polygon.area
+            overlaps = [(net.lanes[i].polygon.intersection(net.lanes[j].polygon).area, j)
+                        for j in (index.get(b.getID()) for b in bidi.getLanes()) if j is not None]
+            best = max(overlaps, default=(0.0, None))
+            if best[1] is not None and best[0] > 0.5 * area:
+                out[i] = best[1]
+    return out
+
+
+def _fit(lanes: list[int], vid: str, want: float | None, length: float, room: dict, used: Counter, net,
+         shared: dict[int, int], taken: set[int]):
     """(lane, front) for a vehicle of ``length`` whose front would be at ``want`` (None: as far
-    forward as the lane allows) on the least used of ``lanes`` where it fits, else None."""
-    for lane in sorted(lanes, key=lambda i: (used[i], _stable(f"{vid}/{i}"))):
+    forward as the lane allows) on the least used of ``lanes`` where it fits (a lane of its own
+    before one shared with the other direction, never one the other direction has ``taken``),
+    else None."""
+    for lane in sorted(lanes, key=lambda i: (i in shared, used[i], _stable(f"{vid}/{i}"))):
+        if lane in taken:
+            continue
         end = net.lanes[lane].length
         front = min(room.get(lane, end - STOP_MARGIN), end - STOP_MARGIN)
         if want is not None:
@@ -126,17 +158,19 @@ def place_en_route(net, est: DemandEstimate, sizes: dict[str, tuple[float, float
 
     room: dict[int, float] = {}                  # lane -> where the next front may be at most
     used: Counter = Counter()                    # lane -> vehicles placed on it
+    shared = shared_lanes(net)
+    taken: set[int] = set()                      # shared lanes the other direction is on
     placed: list[Placed] = []
     skipped: list[EnRoute] = []
     for v in sorted(est.en_route, key=order):
         length, width = sizes.get(v.type, DEFAULT_SIZE) if v.type else DEFAULT_SIZE
         want = None if v.waiting else v.offset + v.since * v.speed
-        best = _fit(lanes_for(v.edges), v.id, want, length, room, used, net)
+        best = _fit(lanes_for(v.edges), v.id, want, length, room, used, net, shared, taken)
         for k in range(len(v.behind) if best is None else 0):
             # a queue longer than its edge stands back on the route's edges before it, as a queue
             # spills back in SUMO (a short edge before a light; a long red on a short block)
             edges = v.behind[k::-1] + v.edges
-            best = _fit(lanes_for(edges), v.id, None, length, room, used, net)
+            best = _fit(lanes_for(edges), v.id, None, length, room, used, net, shared, taken)
             if best is not None:
                 v = replace(v, edges=edges, since=0.0, behind=v.behind[k + 1:], offset=0.0)
                 break
@@ -146,9 +180,11 @@ def place_en_route(net, est: DemandEstimate, sizes: dict[str, tuple[float, float
         lane, front = best
         room[lane] = front - length - MIN_GAP      # the vehicles come front-most first on each lane
         used[lane] += 1
+        if lane in shared:
+            taken.add(shared[lane])
         xy, heading = net.lane_pose(lane, front - 0.5 * length)
         placed.append(Placed(v, lane, float(front), float(xy[0]), float(xy[1]), heading, length, width))
     return placed, skipped
 
 
-__all__ = ["CLASS_SIZE", "Placed", "place_en_route", "vtype_sizes", "write_vtypes"]
+__all__ = ["CLASS_SIZE", "Placed", "place_en_route", "shared_lanes", "vtype_sizes", "write_vtypes"]
