@@ -23,15 +23,15 @@ FLAGS = ["--steps", "3", "--sampler", "heun", "--eta", "0.8", "--threshold", "0.
          "--plain-guidance", "--scene-guidance", "2.0", "--scene-guidance-sigma", "0.7", "--no-pin-tokens",
          "--no-pin-calibration", "--no-pin-speeds", "--no-lane-headings", "--no-lane-snap",
          "--no-deliver-tokens", "--signals", "--signal-guidance", "2.5", "--no-match-density", "--density-floor", "0.2",
-         "--infill-passes", "1", "--binned-token-values"]
+         "--infill-passes", "1", "--binned-token-values", "--no-red-queues"]
 CHANGED = GenerationConfig(steps=3, sampler="heun", eta=0.8, threshold=0.5, guidance=1.5, local_guidance=False, scene_guidance=2.0,
                            scene_guidance_sigma=0.7, pin_tokens=False, pin_calibration=False,
                            pin_speeds=False, lane_headings=False, lane_snap=False, deliver_tokens=False,
                            signals=True, signal_guidance=2.5, match_density=False, density_floor=0.2, infill_passes=1,
-                           exact_token_values=False)
+                           exact_token_values=False, red_queues=False)
 RECORD_KEYS = ["sha256", "sampler", "steps", "eta", "threshold", "pin_tokens", "pin_speeds", "lane_headings",
                "lane_snap", "guidance", "local_guidance", "scene_guidance", "scene_guidance_sigma", "deliver_tokens", "signals", "signal_guidance",
-               "match_density", "density_floor", "infill_passes", "exact_token_values"]
+               "red_queues", "match_density", "density_floor", "infill_passes", "exact_token_values"]
 
 
 def _parser() -> argparse.ArgumentParser:

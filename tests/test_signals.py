@@ -97,3 +97,37 @@ def test_a_via_lane_without_area_is_skipped_not_a_crash(cross_net):
     state = "".join("G" if ln is link else "r" for ln in sorted(net.signal_links, key=lambda ln: ln.index))
     lit = render_map(net, Window(0.0, 0.0, 0.0, 100.0), signals={"c": state})
     assert _value(lit, GO, approach(net.lanes[link.lane].shape).mean(0)) == 1.0
+
+
+def test_a_queue_at_red_stands_up_to_the_first_vehicle_approaching(cross_net):
+    """Given the lights, the vehicles the model drew slow before a red stop line stand (from -1 s
+    on: SUMO's speed at t = 0 is the last second's displacement), from the line back up to the first
+    one faster than CREEP; that one and those behind it keep their motion, as does a queue at green."""
+    from sumo_scendiff.core.geometry import T0, TIMES
+    from sumo_scendiff.generation.red_queues import CREEP, red_lanes, stand_at_red
+    net = Network.load(cross_net)
+    west = next(ln for ln in net.signal_links if net.lanes[ln.lane].edge == "wc")
+    lane = net.lanes[west.lane]
+    red = "".join("r" if net.lanes[ln.lane].edge == "wc" else "G"
+                  for ln in sorted(net.signal_links, key=lambda ln: ln.index))
+    assert red_lanes(net, {"c": red}) == {west.lane}
+    w = Window(-60.0, 0.0, 0.0, 100.0)
+    speeds = [0.6, 2.0, CREEP + 4.0, 1.0]                 # from the line back: 3, 12, 21, 30 m
+    boxes, traj = [], []
+    for k, v in enumerate(speeds):
+        front = lane.length - 3.0 - 9.0 * k
+        (x, y), yaw = net.lane_pose(west.lane, front - 2.5)
+        sx, sy = w.world_to_scene(np.array([x, y]))
+        boxes.append([sx, sy, yaw, 5.0, 1.8])
+        traj.append([[sx + v * (t - T0), sy, yaw] for t in range(len(TIMES))])
+    mask = np.ones((4, len(TIMES)), bool)
+    from sumo_scendiff.core.scene import speeds_from_traj
+    traj = np.array(traj)
+    scene = Scene(w, np.array(boxes), traj, mask, speeds_from_traj(traj, mask), np.zeros(4))
+    out = stand_at_red(scene, net, {"c": red})
+    assert out.meta["stood_at_red"] == [0, 1]
+    assert np.allclose(out.speed[:2, T0:], 0.0) and np.allclose(out.speed[2:], scene.speed[2:])
+    assert np.allclose(out.traj[:2, 0], scene.traj[:2, 0])            # its -2 s pose is the model's
+    assert np.allclose(out.traj[:2, T0 - 1:], scene.traj[:2, T0:T0 + 1])
+    green = stand_at_red(scene, net, {"c": "G" * len(red)})
+    assert np.array_equal(green.traj, scene.traj) and "stood_at_red" not in green.meta

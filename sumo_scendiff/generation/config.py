@@ -99,6 +99,10 @@ class GenerationConfig:
                                     "reach its count", kind=float, above=0.0, maximum=1.0)
     infill_passes: int = _setting(2, "drawings again, with the vehicles so far pinned, of a window short of "
                                   "its requested count (generation/infill.py; 0: none)", kind=int, minimum=0)
+    red_queues: bool = _setting(
+        True, "with --signals: the vehicles the model draws slowing in a red light's queue keep its "
+        "speeds (default: a queue at red stands, as SUMO's does, red_queues.py)", kind=bool,
+        flag="--no-red-queues")
     lane_snap: bool = _setting(
         True, "vehicles keep their decoded pose (default: a pose within 3 m of an agreeing car lane "
         "moves onto its centre line and takes its heading, as SUMO's traffic drives; a vehicle on no "
@@ -206,6 +210,6 @@ class GenerationConfig:
                 "local_guidance": self.local_guidance, "scene_guidance": generator.scene_guidance_for(self),
                 "scene_guidance_sigma": generator.scene_guidance_sigma_for(self),
                 "deliver_tokens": self.deliver_tokens, "signals": self.signals,
-                "signal_guidance": self.signal_guidance,
+                "signal_guidance": self.signal_guidance, "red_queues": self.red_queues,
                 "match_density": self.match_density, "density_floor": self.density_floor,
                 "infill_passes": self.infill_passes, "exact_token_values": self.exact_token_values}

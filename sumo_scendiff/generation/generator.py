@@ -50,6 +50,7 @@ from .deliver import apply_rows, delivered_rows, match_rows, pace_rows, place_ro
 from .infill import add_new_agents, area_mask, in_area, scene_tokens
 from .lane_heading import junction_yaw
 from .lane_snap import snap_to_lanes
+from .red_queues import stand_at_red
 from .pinning import match_pins, pace_to_pins, pinned_latent, pinned_poses, turn_to_pins
 from .token_resolve import resolve_tokens
 
@@ -360,6 +361,9 @@ class ScenarioGenerator:
             for s in range(0, len(short), cfg.batch_size):
                 self._infill(net, windows, short[s:s + cfg.batch_size], out, counts, areas, tokens, toks,
                              seeds, dens, sig, cfg, p)
+        if sig is not None and cfg.red_queues and net is not None:
+            out = [stand_at_red(scene, net, sig[k] if isinstance(sig, list) else sig)
+                   for k, scene in enumerate(out)]
         return out
 
     def _infill(self, net, windows, ks, out, counts, areas, tokens, toks, seeds, dens, sig, cfg, p):
