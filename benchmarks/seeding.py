@@ -117,6 +117,8 @@ def get_options(args=None):
                    help="generate with the traffic lights' states at T (run's --signals)")
     p.add_argument("--signal-guidance", type=float, default=None,
                    help="with --signals: the lights' guidance weight (default: generate's)")
+    p.add_argument("--no-red-queues", dest="red_queues", action="store_false",
+                   help="with --signals: the model's own speeds in a red light's queue (run's --no-red-queues)")
     p.add_argument("--scene-density", default="auto", metavar="D|auto|model|window",
                    help="the level each window is generated at: veh / km of car lane; 'auto' (default, as run "
                         "seeds with demand): the host's own level around the window at T; 'model': the model's "
@@ -195,6 +197,8 @@ def cached_scenes(path: str | None, name: str, windows: list, o, scenes: list | 
     if not path:
         return None
     key = (name, o.checkpoint, o.seed, getattr(o, "signals", False), getattr(o, "signal_guidance", None), getattr(o, "scene_density", None), o.scene_guidance, o.scene_guidance_sigma, o.lane_snap, tuple((round(w.cx, 3), round(w.cy, 3), round(w.yaw, 4), w.size) for w in windows))
+    if getattr(o, "signals", False):     # the lights' queue rule (keys of runs without lights stay as they were)
+        key += (("red_queues", getattr(o, "red_queues", True)),)
     cache = {}
     if os.path.exists(path):
         with open(path, "rb") as f:
@@ -425,7 +429,7 @@ def main(o) -> int:
         if not loaded:
             loaded.append(ScenarioGenerator.load(o.checkpoint, GenerationConfig(
                 scene_guidance=o.scene_guidance, scene_guidance_sigma=o.scene_guidance_sigma,
-                lane_snap=o.lane_snap, signals=o.signals,
+                lane_snap=o.lane_snap, signals=o.signals, red_queues=o.red_queues,
                 **({} if o.signal_guidance is None else {"signal_guidance": o.signal_guidance}))))
         return loaded[0]
     results = []
