@@ -119,7 +119,7 @@ def test_a_lane_both_directions_share_takes_one_of_them(tmp_path):
     before (or is skipped): never face to face on the shared lane, which SUMO counts as a frontal
     collision in the first step. A lane of an edge's own goes before a shared one."""
     from sumo_scendiff.fill.demand import DemandEstimate, EnRoute
-    from sumo_scendiff.fill.en_route import place_en_route, shared_lanes
+    from sumo_scendiff.fill.en_route import place_en_route
     from sumo_scendiff.map.network import Network
     from .conftest import netconvert
     nodes = ('<node id="ww" x="-400" y="0"/><node id="w" x="-200" y="0"/><node id="c" x="0" y="0"/>'
@@ -132,7 +132,7 @@ def test_a_lane_both_directions_share_takes_one_of_them(tmp_path):
              '<edge id="-b" from="e" to="c" numLanes="1" speed="13.89"/>')
     net = Network.load(netconvert(nodes, edges, str(tmp_path / "bidi.net.xml")))
     lane = {ln.id: i for i, ln in enumerate(net.lanes)}
-    assert shared_lanes(net) == {lane["a_0"]: lane["-a_0"], lane["-a_0"]: lane["a_0"]}
+    assert net.shared_lanes == {lane["a_0"]: lane["-a_0"], lane["-a_0"]: lane["a_0"]}
     east = EnRoute("east", None, ("a", "b"), 25.0, 20.0, 10.0)                  # waiting at c
     west = EnRoute("west", None, ("-a", "out"), 5.0, 20.0, 10.0, ("-b",))        # 50 m into -a
     placed, skipped = place_en_route(net, DemandEstimate(0.0, {}, 2, 0, 2, [east, west]))

@@ -404,3 +404,46 @@ def test_a_vehicle_clamped_onto_a_junctions_start_is_put_back_on_its_lane(tmp_pa
         assert math.hypot(x - fx, y - fy) < 0.1
     finally:
         sim.close()
+
+
+def test_two_facing_each_other_on_a_lane_both_directions_share_are_not_both_seeded(tmp_path):
+    """On a road whose two edges are each other's ``bidi`` (one lane, both directions), of two
+    agents facing each other the more probable is seeded and the report names why the other is not;
+    one facing a host vehicle already there is not seeded. Neither way do they collide."""
+    import libsumo as sim
+    import numpy as np
+
+    from sumo_scendiff.core.geometry import Window
+    from sumo_scendiff.core.scene import Scene
+
+    from .conftest import netconvert
+    path = netconvert('<node id="w" x="-200" y="0"/><node id="c" x="0" y="0"/><node id="ww" x="-400" y="0"/>'
+                      '<node id="e" x="200" y="0"/>',
+                      '<edge id="a" from="w" to="c" numLanes="1" spreadType="center" bidi="-a"/>'
+                      '<edge id="-a" from="c" to="w" numLanes="1" spreadType="center" bidi="a"/>'
+                      '<edge id="in" from="ww" to="w" numLanes="1"/><edge id="out" from="w" to="ww" numLanes="1"/>'
+                      '<edge id="b" from="c" to="e" numLanes="1"/><edge id="-b" from="e" to="c" numLanes="1"/>',
+                      str(tmp_path / "bidi.net.xml"))
+    net = Network.load(path)
+    y = float(net.lanes[net.lane_index["a_0"]].shape[0][1])
+    w = Window(-100.0, 0.0, 0.0)
+    boxes = np.array([[-20.0, y, 0.0, 4.5, 1.8], [40.0, y, np.pi, 4.5, 1.8]])   # scene frame: east on a, west on -a
+    traj = np.repeat(boxes[:, None, :3], 5, 1)
+    for score, dropped in (([0.9, 0.95], 0), ([0.97, 0.85], 1)):
+        scene = Scene(w, boxes, traj, np.ones((2, 5), bool), np.zeros((2, 5)),
+                      np.zeros(2), "t", meta={"score": score})
+        sim.start(["sumo", "-n", path, "--no-step-log", "--no-warnings", "--collision.check-junctions", "true"])
+        try:
+            report = Seeder(sim, net).seed(scene)
+            assert set(report.ids) == {1 - dropped} and "both directions share" in report.conflicts[dropped]
+            for _ in range(10):
+                sim.simulationStep()
+                assert not sim.simulation.getCollisions()
+        finally:
+            sim.close()
+    keep = np.ones(1, bool)
+    seeder = Seeder.__new__(Seeder)          # the rule alone, on world boxes
+    seeder.net = net
+    east, host = np.array([[-120.0, y, 0.0, 4.5, 1.8]]), np.array([[-60.0, y, np.pi, 4.5, 1.8]])
+    assert seeder.facing_on_shared_lanes(east, host, keep, None) == {0: "a_0"}
+    assert seeder.facing_on_shared_lanes(east, np.zeros((0, 5)), keep, None) == {}

@@ -92,30 +92,6 @@ def _stable(text: str) -> int:
     return zlib.crc32(text.encode())
 
 
-def shared_lanes(net) -> dict[int, int]:
-    """Per car lane of an edge that has a ``bidi`` edge, the bidi edge's car lane it lies on (more
-    than half of its area; indices into Network.lanes)."""
-    snet = net.sumo_net
-    index = {ln.id: i for i, ln in enumerate(net.lanes) if ln.car}
-    out: dict[int, int] = {}
-    for edge in snet.getEdges():
-        bidi = edge.getBidi()
-        if not bidi:
-            continue
-        bidi = snet.getEdge(bidi) if isinstance(bidi, str) else bidi
-        for a in edge.getLanes():
-            i = index.get(a.getID())
-            if i is None:
-                continue
-            area = net.lanes[i].polygon.area
-            overlaps = [(net.lanes[i].polygon.intersection(net.lanes[j].polygon).area, j)
-                        for j in (index.get(b.getID()) for b in bidi.getLanes()) if j is not None]
-            best = max(overlaps, default=(0.0, None))
-            if best[1] is not None and best[0] > 0.5 * area:
-                out[i] = best[1]
-    return out
-
-
 def _fit(lanes: list[int], vid: str, want: float | None, length: float, room: dict, used: Counter, net,
          shared: dict[int, int], taken: set[int]):
     """(lane, front) for a vehicle of ``length`` whose front would be at ``want`` (None: as far
@@ -158,7 +134,7 @@ def place_en_route(net, est: DemandEstimate, sizes: dict[str, tuple[float, float
 
     room: dict[int, float] = {}                  # lane -> where the next front may be at most
     used: Counter = Counter()                    # lane -> vehicles placed on it
-    shared = shared_lanes(net)
+    shared = net.shared_lanes
     taken: set[int] = set()                      # shared lanes the other direction is on
     placed: list[Placed] = []
     skipped: list[EnRoute] = []
@@ -187,4 +163,4 @@ def place_en_route(net, est: DemandEstimate, sizes: dict[str, tuple[float, float
     return placed, skipped
 
 
-__all__ = ["CLASS_SIZE", "Placed", "place_en_route", "shared_lanes", "vtype_sizes", "write_vtypes"]
+__all__ = ["CLASS_SIZE", "Placed", "place_en_route", "vtype_sizes", "write_vtypes"]

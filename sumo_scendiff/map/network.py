@@ -248,6 +248,31 @@ class Network:
         return float(m.group(1)) if m else NETCONVERT_VEHICLE_WIDTH
 
     @cached_property
+    def shared_lanes(self) -> dict[int, int]:
+        """Per car lane of an edge that has a ``bidi`` edge (one road, both directions on it), the
+        bidi edge's car lane it lies on (more than half of its area); indices into ``lanes``.
+        SUMO lets no vehicle onto such a lane while an oncoming one is on it."""
+        out: dict[int, int] = {}
+        if self.sumo_net is None:
+            return out
+        car = {ln.id: i for i, ln in enumerate(self.lanes) if ln.car}
+        for edge in self.sumo_net.getEdges():
+            bidi = edge.getBidi()
+            if not bidi:
+                continue
+            bidi = self.sumo_net.getEdge(bidi) if isinstance(bidi, str) else bidi
+            for a in edge.getLanes():
+                i = car.get(a.getID())
+                if i is None:
+                    continue
+                overlaps = [(self.lanes[i].polygon.intersection(self.lanes[j].polygon).area, j)
+                            for j in (car.get(b.getID()) for b in bidi.getLanes()) if j is not None]
+                area, j = max(overlaps, default=(0.0, None))
+                if j is not None and area > 0.5 * self.lanes[i].polygon.area:
+                    out[i] = j
+        return out
+
+    @cached_property
     def signal_links(self) -> list:
         """Every traffic-light-controlled link (:class:`~.signals.SignalLink`), read once."""
         from .signals import signal_links

@@ -201,8 +201,9 @@ class Seeder(Settling, StopLines):
     def resolve(self, scene: Scene, others: np.ndarray, other_speed=None) -> tuple[np.ndarray, np.ndarray, dict]:
         """(keep, hold, why dropped) for agents on conflicting internal lanes of one junction
         (:class:`~sumo_scendiff.sim.junctions.JunctionConflicts`): of two in their shared area one is
-        kept, the later of two still before it departs standing; ``others`` the host's boxes (scene
-        frame), which are never dropped (their speeds: ``other_speed``)."""
+        kept, the later of two still before it departs standing; and for agents facing a vehicle on
+        a lane both directions share (:meth:`facing_on_shared_lanes`). ``others`` the host's boxes
+        (scene frame), which are never dropped (their speeds: ``other_speed``)."""
         n = len(scene)
         if not self.resolve_junctions or not n:
             return np.ones(n, bool), np.zeros(n, bool), {}
@@ -215,16 +216,47 @@ class Seeder(Settling, StopLines):
                 b[:, 2] = np.asarray(w.yaw_to_world(b[:, 2]))
             return b
         mine, theirs = world(scene.boxes[:, :5]), world(others)
-        lanes = self.junction_lanes(scene, mine)
-        if not any(lanes):
-            return np.ones(n, bool), np.zeros(n, bool), {}
-        other_speed = np.zeros(len(theirs)) if other_speed is None else np.asarray(other_speed, np.float64)
-        fixed = [(ln, b, v) for ln, b, v in zip(self.junction_lanes(scene, theirs), theirs, other_speed) if ln]
         score = scene.meta.get("score")
         score = np.asarray(score, np.float64) if score is not None and len(score) == n else None
-        keep, hold = self.junctions.resolve(lanes, mine, scene.speed[:, T0].astype(np.float64), score, fixed)
-        return keep, hold, {int(i): f"on junction {self.junctions.link[lanes[i]][0]}: in the area its link "
-                                    f"shares with another vehicle's" for i in np.flatnonzero(~keep)}
+        keep, hold, why = np.ones(n, bool), np.zeros(n, bool), {}
+        lanes = self.junction_lanes(scene, mine)
+        if any(lanes):
+            other_speed = np.zeros(len(theirs)) if other_speed is None else np.asarray(other_speed, np.float64)
+            fixed = [(ln, b, v) for ln, b, v in zip(self.junction_lanes(scene, theirs), theirs, other_speed) if ln]
+            keep, hold = self.junctions.resolve(lanes, mine, scene.speed[:, T0].astype(np.float64), score, fixed)
+            why = {int(i): f"on junction {self.junctions.link[lanes[i]][0]}: in the area its link "
+                           f"shares with another vehicle's" for i in np.flatnonzero(~keep)}
+        for i, lane in self.facing_on_shared_lanes(mine, theirs, keep, score).items():
+            keep[i] = False
+            why[i] = f"on lane {lane}, which both directions share, facing a vehicle on it"
+        return keep, hold & keep, why
+
+    def facing_on_shared_lanes(self, mine: np.ndarray, theirs: np.ndarray, keep: np.ndarray,
+                               score: np.ndarray | None) -> dict[int, str]:
+        """The kept agents (world boxes ``mine``) to drop because a lane both directions share
+        (:attr:`Network.shared_lanes`) holds a vehicle the other way: a host (``theirs``, never
+        dropped) or a more probable agent. SUMO lets no vehicle onto such a lane while an oncoming
+        one is on it; two seeded face to face on it collide in the first step."""
+        shared = self.net.shared_lanes
+        if not shared or not keep.any():
+            return {}
+        def lanes_of(b):
+            if not len(b):
+                return np.zeros(0, np.int64)
+            return self.net.match_poses(b[:, :2], b[:, 2], allow_internal=False).lane
+        on, host = lanes_of(mine), {int(ln) for ln in lanes_of(theirs) if int(ln) in shared}
+        score = np.zeros(len(mine)) if score is None else score
+        taken = {shared[ln] for ln in host}      # the lanes' other direction, held by a host
+        out: dict[int, str] = {}
+        for i in sorted(np.flatnonzero(keep), key=lambda i: (-score[i], i)):
+            lane = int(on[i])
+            if lane not in shared:
+                continue
+            if lane in taken:
+                out[int(i)] = self.net.lanes[lane].id
+            else:
+                taken.add(shared[lane])
+        return out
 
     # ---- vehicle types ------------------------------------------------------------------------
     def _known_types(self) -> set[str]:
