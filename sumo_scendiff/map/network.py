@@ -260,7 +260,10 @@ class Network:
             bidi = edge.getBidi()
             if not bidi:
                 continue
-            bidi = self.sumo_net.getEdge(bidi) if isinstance(bidi, str) else bidi
+            if isinstance(bidi, str):
+                if not self.sumo_net.hasEdge(bidi):
+                    continue
+                bidi = self.sumo_net.getEdge(bidi)
             for a in edge.getLanes():
                 i = car.get(a.getID())
                 if i is None:
