@@ -1,6 +1,6 @@
 """An actuated light's phases as they run under a demand: SUMO's gap control, in expectation.
 
-    durations = expected_durations(phases, bounds, lane_flows, max_gap=3.0)
+    durations = expected_durations(states, durations, bounds, lane_flows, SATURATION_FLOW, max_gap=3.0)
 
 SUMO's ``actuated`` logic (``MSActuatedTrafficLightLogic``, time gaps, the default) holds a green
 phase for at least ``minDur`` and then prolongs it while the detectors on its green lanes see
@@ -8,13 +8,17 @@ vehicles less than ``max-gap`` s apart, up to ``maxDur``. Its programmed ``durat
 it starts: at a light whose streams are light, every green ends soon after ``minDur`` and the cycle
 is much shorter than the programmed one, so the programmed durations overstate the waiting.
 
-Per green phase, on the lanes SUMO detects for it (those whose green ends with it), in the cycle C
-the other phases give it a red r = C - g: the queue the busiest of them gathered in r clears in
-q r / (s - q) (q its flow per lane, s SATURATION_FLOW), and then their arrivals together (a Poisson
-stream of flow Q) leave a gap of max-gap T after Adams' (e^{QT} - QT - 1) / Q on average (0 for
-lanes with nobody: the phase ends at minDur); the green is that, within [minDur, maxDur]. The cycle
-is the fixed point of these greens and the phases that are not actuated (amber, all-red).
-Left out: phase skipping (``next``), the detectors' distance before the line, delay-based control.
+Per green phase, on the lanes SUMO detects for it (every link of the lane green in it; a yielding
+``g`` only where the link never has a major green and the lane has one, or the lane is its edge's
+only one), in the cycle C the other phases give it a red r = C - g: the queue the busiest of them
+gathered in r clears in q r / (s - q) (q its flow per lane, s the saturation flow); after minDur or
+that, whichever is later, their arrivals together (a Poisson stream of flow Q) leave a gap of T
+after (e^{QT} - 1) / Q - T on average from a random instant (0 on empty lanes: the phase ends at
+minDur), T more from the queue's last vehicle; T is max-gap and the one whole second the
+controller looks again after (its phases last whole seconds). The green is that, within
+[minDur, maxDur]; the cycle is the fixed point of these greens and the phases that are not
+actuated (amber, all-red). Left out: phase skipping (``next``), the detectors' distance before the
+line, the loops SUMO leaves out before a joined light's red, delay-based control.
 """
 from __future__ import annotations
 
