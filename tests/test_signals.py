@@ -125,7 +125,8 @@ def test_a_queue_at_red_stands_up_to_the_first_vehicle_approaching(cross_net):
     traj = np.array(traj)
     scene = Scene(w, np.array(boxes), traj, mask, speeds_from_traj(traj, mask), np.zeros(4))
     out = stand_at_red(scene, net, {"c": red})
-    assert out.meta["stood_at_red"] == [0, 1]
+    assert out.meta["stood_at_red"] == [True, True, False, False]
+    assert out.select([1, 2]).meta["stood_at_red"] == [True, False]
     assert np.allclose(out.speed[:2, T0:], 0.0) and np.allclose(out.speed[2:], scene.speed[2:])
     assert np.allclose(out.traj[:2, 0], scene.traj[:2, 0])            # its -2 s pose is the model's
     assert np.allclose(out.traj[:2, T0 - 1:], scene.traj[:2, T0:T0 + 1])

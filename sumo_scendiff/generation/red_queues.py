@@ -37,8 +37,8 @@ def red_lanes(net, lights: dict[str, str]) -> set[int]:
 
 
 def stand_at_red(scene: Scene, net, lights: dict[str, str] | None) -> Scene:
-    """``scene`` with its red queues standing (module docstring); ``meta["stood_at_red"]`` the
-    agents made to stand."""
+    """``scene`` with its red queues standing (module docstring); ``meta["stood_at_red"]``, per
+    agent, whether it was made to stand (a per-agent list: ``Scene.select`` keeps it aligned)."""
     if not lights or not len(scene):
         return scene
     red = red_lanes(net, lights)
@@ -66,7 +66,7 @@ def stand_at_red(scene: Scene, net, lights: dict[str, str] | None) -> Scene:
     traj = scene.traj.copy()
     k = np.asarray(stood)
     traj[k, T0 - 1:] = traj[k, T0:T0 + 1]
-    meta = {**scene.meta, "stood_at_red": sorted(int(i) for i in k)}
+    meta = {**scene.meta, "stood_at_red": [bool(i in set(stood)) for i in range(len(scene))]}
     return replace(scene, traj=traj, speed=speeds_from_traj(traj, scene.traj_mask), meta=meta)
 
 

@@ -33,6 +33,7 @@ def _agents(seeding, sim) -> list[dict]:
     """Per seeded agent: the generated pose in world coordinates and what became of it."""
     scene, rep = seeding.scene, seeding.report
     score = scene.meta.get("score", [None] * len(scene))
+    stood = scene.meta.get("stood_at_red") or [False] * len(scene)
     out = []
     for i, a in enumerate(scene.world_agents()):
         vid = rep.ids.get(i)
@@ -48,6 +49,8 @@ def _agents(seeding, sim) -> list[dict]:
             a["pulled_back_m"] = round(rep.pulled_back[i], 3)
         if i in rep.to_stop_line:  # waiting inside a junction on red: moved to its stop line (Seeder.fit_red_junctions)
             a["to_stop_line_m"] = round(rep.to_stop_line[i], 3)
+        if stood[i]:               # in a red light's queue, given standing (generation/red_queues.py)
+            a["stood_at_red"] = True
         if i in rep.narrowed:      # wider than the network's junctions assume (Seeder.width_cap)
             a["sumo_width"] = rep.narrowed[i][1]
         out.append(a)
