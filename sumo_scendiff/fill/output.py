@@ -50,6 +50,8 @@ def _agents(result, reports) -> list[dict]:
                 row["to_stop_line_m"] = round(rep.to_stop_line[a], 3)
             if rep is not None and a in rep.narrowed:     # wider than the network's junctions assume (Seeder.width_cap)
                 row["sumo_width"] = rep.narrowed[a][1]
+            if (scene.meta.get("stood_at_red") or [False] * len(rows))[a]:   # a red queue given standing (--signals)
+                row["stood_at_red"] = True
             d = (scene.meta.get("demand") or [None] * len(rows))[a]
             if d is not None:                              # drawn for a vehicle of the demand (fill/en_route.py)
                 v = result.demand[d].vehicle
