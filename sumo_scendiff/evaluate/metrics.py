@@ -148,7 +148,6 @@ def trajectory_metrics(scenes: Sequence[Scene], net) -> dict[str, float]:
 
 STANDING_SPEED = 0.5    # m/s: a vehicle slower than this stands
 QUEUE_REACH = 50.0      # m before the stop line: a vehicle this close is queued at its light (or passes it)
-RED, GREEN = "rRu", "Gg"  # a lane's light is red / green when every link from it shows one of these
 
 
 def signal_standing(scenes: Sequence[Scene], net, signals: Sequence[dict | None]) -> dict[str, float]:
@@ -156,25 +155,17 @@ def signal_standing(scenes: Sequence[Scene], net, signals: Sequence[dict | None]
     :data:`QUEUE_REACH` m of the stop line of a lane whose light is red, and among those whose light
     is green; ``signals[i]`` is the light states (tls id -> state string) at scene ``i``'s time.
     Returns ``standing_red``, ``standing_green`` (nan without such vehicles) and their counts."""
-    from ..map.signals import signal_links
-    by_lane: dict[int, list] = {}
-    for ln in signal_links(net):
-        by_lane.setdefault(ln.lane, []).append(ln)
+    from ..map.signals import lane_lights
     counts = {"red": [0, 0], "green": [0, 0]}
     for scene, states in zip(scenes, signals):
         if not states or not len(scene):
             continue
+        lights = lane_lights(net, states)
         agents = scene.world_agents()
         m = net.match_poses([[a["x"], a["y"]] for a in agents], [a["heading"] for a in agents])
         for i, lane in enumerate(m.lane):
-            links = by_lane.get(int(lane), [])
-            if not links or net.lanes[int(lane)].length - m.pos[i] > QUEUE_REACH:
-                continue
-            chars = [states[ln.tls][ln.index] for ln in links
-                     if ln.tls in states and ln.index < len(states[ln.tls])]
-            kind = ("red" if chars and all(c in RED for c in chars) else
-                    "green" if chars and all(c in GREEN for c in chars) else None)
-            if kind is not None:
+            kind = lights.get(int(lane))
+            if kind is not None and net.lanes[int(lane)].length - m.pos[i] <= QUEUE_REACH:
                 counts[kind][0] += 1
                 counts[kind][1] += float(scene.speed[i, T0]) < STANDING_SPEED
     out = {}

@@ -21,19 +21,14 @@ import numpy as np
 
 from ..core.geometry import T0
 from ..core.scene import Scene, speeds_from_traj
+from ..map.signals import lane_lights
 
 CREEP = 4.0        # m/s: slower than this at t = 0, a vehicle in a red queue is standing in it
-RED = "rRu"
 
 
 def red_lanes(net, lights: dict[str, str]) -> set[int]:
     """The lanes (Network.lanes indices) whose every link to the next edge shows red now."""
-    chars: dict[int, list[str]] = {}
-    for link in net.signal_links:
-        state = lights.get(link.tls)
-        if state is not None and link.index < len(state):
-            chars.setdefault(int(link.lane), []).append(state[link.index])
-    return {lane for lane, cs in chars.items() if cs and all(c in RED for c in cs)}
+    return {lane for lane, kind in lane_lights(net, lights).items() if kind == "red"}
 
 
 def stand_at_red(scene: Scene, net, lights: dict[str, str] | None) -> Scene:

@@ -49,6 +49,27 @@ def signal_links(net) -> list[SignalLink]:
     return out
 
 
+RED, GREEN = "rRu", "Gg"   # a lane's light is red / green when every link from it shows one of these
+
+
+def lane_lights(net, states: dict[str, str]) -> dict[int, str]:
+    """Per lane (Network.lanes index) that a light controls, ``"red"`` or ``"green"`` when every
+    link from it shows one (:data:`RED`, :data:`GREEN`) in ``states`` (tls id -> state string);
+    lanes with mixed or unknown links are left out."""
+    chars: dict[int, list[str]] = {}
+    for link in net.signal_links:
+        state = states.get(link.tls)
+        if state is not None and link.index < len(state):
+            chars.setdefault(int(link.lane), []).append(state[link.index])
+    out = {}
+    for lane, cs in chars.items():
+        if all(c in RED for c in cs):
+            out[lane] = "red"
+        elif all(c in GREEN for c in cs):
+            out[lane] = "green"
+    return out
+
+
 def encode_states(states: dict[str, str]) -> str:
     """``{"J3": "GGrr"}`` -> ``"J3=GGrr"`` (sorted, ``|``-separated): one string per scene in a shard."""
     return "|".join(f"{k}={v}" for k, v in sorted(states.items()))
