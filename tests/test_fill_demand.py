@@ -7,6 +7,7 @@ import os
 import subprocess
 import xml.etree.ElementTree as ET
 
+import numpy as np
 import pytest
 
 from .test_fill import NET, NET4, _fill
@@ -260,3 +261,21 @@ def test_a_full_edge_holds_the_queue_back_and_the_insertions(tmp_path):
     # the light as the network has it: the queue goes on, nobody waits to be inserted
     est = DemandEstimate.at(net, [str(routes)], begin=600.0)
     assert est.vehicles < 20
+
+
+def test_fill_picture_is_framed_on_the_car_lanes(tmp_path):
+    """A footpath running far beyond the roads does not shrink the picture of the fill to a corner."""
+    from sumo_scendiff.fill.picture import draw_fill, frame
+    from sumo_scendiff.map.network import Network
+
+    from .conftest import netconvert
+    path = netconvert('<node id="a" x="0" y="0"/><node id="b" x="200" y="0"/><node id="c" x="200" y="3000"/>',
+                      '<edge id="ab" from="a" to="b" numLanes="1" speed="13.89"/>'
+                      '<edge id="bc" from="b" to="c" numLanes="1" speed="2" allow="pedestrian"/>',
+                      str(tmp_path / "foot.net.xml"))
+    net = Network.load(path)
+    x0, y0, x1, y1 = frame(net)
+    assert net.bounds[3] > 2900 and y1 < 50 and x1 - x0 > 150
+    rows = np.array([[100.0, -1.6, 0.0, 4.5, 1.8]])
+    draw_fill(str(tmp_path / "fill.png"), net, rows, [], "footpath")
+    assert os.path.getsize(tmp_path / "fill.png") > 1000

@@ -5,6 +5,8 @@ import numpy as np
 
 from ..core.geometry import box_corners
 
+BOXES_UP_TO_M = 1500.0   # m across: wider networks get a dot per vehicle (a box would be 1-2 px)
+
 
 def edge_density(net, rows: np.ndarray) -> dict[str, float]:
     """Vehicles per km of lane per normal edge, each vehicle counted on the car lane under it."""
@@ -18,6 +20,15 @@ def edge_density(net, rows: np.ndarray) -> dict[str, float]:
     return {e: counts.get(e, 0) / max(k, 1e-3) for e, k in net.edge_car_km.items()}
 
 
+def frame(net) -> tuple[float, float, float, float]:
+    """(x0, y0, x1, y1) of the network's car lanes: what the picture shows (its rails and footpaths
+    may reach far beyond them)."""
+    if not len(net.car_lane_ids):
+        return net.bounds
+    xy = np.concatenate([net.lanes[i].shape for i in net.car_lane_ids])
+    return (*xy.min(0), *xy.max(0))
+
+
 def draw_fill(path: str, net, rows: np.ndarray, tiles, title: str) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -26,7 +37,7 @@ def draw_fill(path: str, net, rows: np.ndarray, tiles, title: str) -> None:
 
     dens = edge_density(net, rows)
     vmax = max(10.0, float(np.percentile(list(dens.values()), 95))) if dens else 10.0
-    x0, y0, x1, y1 = net.bounds
+    x0, y0, x1, y1 = frame(net)
     span = max(x1 - x0, y1 - y0, 1.0)
     fig, ax = plt.subplots(figsize=(10, 10 * max((y1 - y0) / max(x1 - x0, 1.0), 0.4) + 1))
     # lane widths in points: thin on a city, the real width on a small network
@@ -41,10 +52,13 @@ def draw_fill(path: str, net, rows: np.ndarray, tiles, title: str) -> None:
     for t in tiles:   # the tile cores, faintly: where each tile's vehicles come from
         cx0, cy0, cx1, cy1 = t.core
         ax.plot([cx0, cx1, cx1, cx0, cx0], [cy0, cy0, cy1, cy1, cy0], color="0.85", lw=0.4, zorder=0)
-    if len(rows):
+    if len(rows) and span <= BOXES_UP_TO_M:
         corners = box_corners(rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3], rows[:, 4])
         ax.add_collection(PolyCollection(corners, facecolors="tab:red", edgecolors="black",
                                          linewidths=0.3, zorder=3, label=f"vehicles ({len(rows)})"))
+    elif len(rows):   # a car's box would be a pixel or two: a dot each, so that one sees where they are
+        ax.scatter(rows[:, 0], rows[:, 1], s=7, c="tab:red", edgecolors="black", linewidths=0.3, zorder=3,
+                   label=f"vehicles ({len(rows)})")
     bar = fig.colorbar(lines, ax=ax, fraction=0.04, pad=0.02)
     bar.set_label("density (vehicles per km of lane)")
     unit = 10 ** np.floor(np.log10(span / 5))
@@ -64,4 +78,4 @@ def draw_fill(path: str, net, rows: np.ndarray, tiles, title: str) -> None:
     plt.close(fig)
 
 
-__all__ = ["draw_fill", "edge_density"]
+__all__ = ["draw_fill", "edge_density", "frame"]
