@@ -31,7 +31,8 @@ stops and starts again.
 A light with a fixed program is also a clock (:class:`Program`, SUMO's phases at simulation time t
 from its offset): :mod:`.queues` lets its queue through in its green only, one vehicle per lane
 each 1 / SATURATION_FLOW s, instead of the expected delay, and holds queues back where an edge is
-full.
+full; a yielding green's queue one per gap of QUEUE_GAP s in its foes' flow
+(:meth:`TravelTimes.gap_capacity`), the head of the queue waiting Adams' delay.
 
 Left out: lane changes.
 """
@@ -55,6 +56,10 @@ X_MAX = 0.95            # the degree of saturation the uniform delay is evaluate
 # conflict jmTimegapMinor, 1 s, before a foe arrives), chosen of 3, 4 and 5 s on the project's
 # held-out generated networks as CRUISE_SHARE was (docs/fill.md)
 YIELD_GAP = 5.0
+# the gap a queue at a yielding green takes one vehicle through (:meth:`TravelTimes.gap_capacity`):
+# chosen of 3, 4 and 5 s on the held-out generated networks (docs/fill.md); shorter than
+# YIELD_GAP, the wait of one arriving alone, as a queued vehicle starts from the line
+QUEUE_GAP = 4.0
 FOLLOW_UP = 2.0         # s between minor vehicles taking one gap (the saturation headway)
 # net.xml connection states that give way without a light (minor, right before left, stop sign,
 # all-way stop); those that stop first
@@ -169,6 +174,32 @@ class Program:
                     return t + max(start, 0.0)
                 start = end
         return float("inf")
+
+    def green_end(self, links: Sequence[int], t: float) -> float | None:
+        """When the green that one of ``links`` shows at ``t`` ends (the phases after it in which it
+        stays green included); None if none of them is green at ``t``."""
+        cycle = self.cycle
+        pos = (t - self.offset) % cycle
+        n = len(self.phases)
+        start = 0.0
+        for i, (d, st) in enumerate(self.phases):
+            if start <= pos < start + d:
+                break
+            start += d
+        else:
+            return None
+
+        def green(st: str) -> bool:
+            return any(k < len(st) and st[k] in "Ggs" for k in links)
+        if not green(st):
+            return None
+        end = t + (start + d - pos)
+        for j in range(1, n):           # the phases after it, while it stays green
+            dj, sj = self.phases[(i + j) % n]
+            if not green(sj):
+                break
+            end += dj
+        return end
 
 
 def signal_programs(paths) -> dict[str, Program]:
@@ -372,17 +403,31 @@ class TravelTimes:
         stop = all((c.getState() or "") in STOPS and not c.getTLSID() for c in conns)
         return tuple((f, t, g, w) for (f, t), (g, w) in foes.items()), stop
 
-    def yielding(self, link: Link, edge: str, nxt: str) -> tuple[float, float]:
-        """(s waiting for a gap in the foes' flow, share of vehicles that stop) at a yielding link."""
+    def foe_flow(self, link: Link) -> float:
+        """veh/s of the flows ``link`` gives way to; a foe behind a light flows only in its green, at
+        its flow over its green share."""
+        return sum(w * self.flows.get((f, t), 0.0) / max(g, 0.1) for f, t, g, w in link.foes)
+
+    def gap_capacity(self, link: Link) -> float:
+        """veh/s a yielding link lets through while its foes flow: one vehicle per gap of QUEUE_GAP s,
+        one more per FOLLOW_UP s the gap is longer (Siegloch's), over its lanes; inf if it yields to
+        nothing."""
+        q = self.foe_flow(link)
+        if q <= 1e-9:
+            return float("inf")
+        return float(q * np.exp(-q * QUEUE_GAP) / (1.0 - np.exp(-q * FOLLOW_UP)) * link.lanes)
+
+    def yielding(self, link: Link, edge: str, nxt: str, queued: bool = False) -> tuple[float, float]:
+        """(s waiting for a gap in the foes' flow, share of vehicles that stop) at a yielding link;
+        with ``queued`` the wait of a vehicle at the head of the queue only (Adams' delay), the queue
+        held by the caller."""
         if not link.foes and not link.stop:
             return 0.0, 0.0
-        # a foe behind a light flows only in its green, at its flow over the green share
-        q = sum(w * self.flows.get((f, t), 0.0) / max(g, 0.1) for f, t, g, w in link.foes)
+        q = self.foe_flow(link)
         if q <= 1e-9:
             return 0.0, 1.0 if link.stop else 0.0
         adams = (np.exp(q * YIELD_GAP) - q * YIELD_GAP - 1.0) / q
-        capacity = q * np.exp(-q * YIELD_GAP) / (1.0 - np.exp(-q * FOLLOW_UP)) * link.lanes
-        x = min(self.flows.get((edge, nxt), 0.0) / max(capacity, 1e-9), X_MAX)
+        x = 0.0 if queued else min(self.flows.get((edge, nxt), 0.0) / max(self.gap_capacity(link), 1e-9), X_MAX)
         stops = 1.0 if link.stop else 1.0 - np.exp(-q * YIELD_GAP)
         return float(adams / (1.0 - x)), float(stops)
 
