@@ -36,8 +36,7 @@ from .travel import SATURATION_FLOW, Driver, TravelTimes
 JAM_SPACING = 7.5    # m of lane per standing vehicle: SUMO's default length 5 m + minGap 2.5 m
 MIN_STORAGE_M = 30.0  # m: a shorter edge holds no queue of its own (:func:`run_to`)
 # vehicles per lane of a yielding link that wait inside the junction (netconvert's waiting position
-# of a turn) and leave as the green ends; chosen of 0, 1 and 2 on the held-out generated networks
-# (the same count there) and the real cities (docs/fill.md)
+# of a turn holds one car) and leave as the green ends; 0, 1 and 2 measured (docs/fill.md)
 SNEAKERS = 1
 
 
@@ -134,11 +133,10 @@ def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnE
         if kind == LINE:                     # reached the stop line: ready after giving way
             if program is None:
                 wait, _ = times.link(e, nxt, trip.driver)
-            elif link.foes:                  # a yielding green: its gap is waited for in the GO step
-                ready[id(trip)] = t + times.yielding(link, e, nxt, queued=True)[0]
+            else:                            # a yielding green's gap is waited for in the GO step, in green
                 wait = 0.0
-            else:
-                wait = 0.0
+                if link.foes:
+                    ready[id(trip)] = t + times.yielding(link, e, nxt, queued=True)[0]
             push(t + wait, GO, trip, k)
             continue
         # GO: through the junction if the light and the next edge let it
