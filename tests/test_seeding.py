@@ -72,6 +72,46 @@ def test_no_seeded_vehicle_departs_faster_than_it_can_stop(cross_net, cross_scen
         sim.close()
 
 
+def test_a_queue_behind_a_slowed_vehicle_departs_safe_behind_its_departure_speed(cross_net):
+    """A car at 10 m/s three metres behind a standing one departs slowed; the car behind it, at
+    13 m/s and 17 m back, departs safe behind the slowed speed, not behind the 10 m/s drawn: no
+    one brakes beyond its decel."""
+    import math
+
+    import libsumo as sim
+    import numpy as np
+
+    from sumo_scendiff.core.geometry import Window
+    from sumo_scendiff.core.scene import Scene
+    net = Network.load(cross_net)
+    y = float(next(ln for ln in net.lanes if ln.edge == "wc").shape[0][1])
+    xs, speeds = [-40.0, -48.0, -70.0], [0.0, 10.0, 13.0]
+    boxes = np.array([[x, y, 0.0, 4.6, 1.8] for x in xs])
+    traj = np.zeros((3, 5, 3))
+    for i, x in enumerate(xs):
+        traj[i, :, 0] = x + speeds[i] * np.arange(-2, 3)
+        traj[i, :, 1] = y
+    scene = Scene(Window(0.0, 0.0, 0.0), boxes, traj, np.ones((3, 5), bool),
+                  np.repeat(np.array(speeds)[:, None], 5, 1), np.zeros(3), "cross")
+    sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings", "--step-length", "0.5"])
+    try:
+        seeder = Seeder(sim, net)
+        report = seeder.seed(scene)
+        assert set(report.slowed) == {1, 2}
+        assert report.slowed[2][1] < report.slowed[2][0] - 3.0
+        sim.simulationStep()
+        report = seeder.verify(report)
+        assert report.placed == 3
+        for _ in range(10):
+            for vid in report.ids.values():
+                assert sim.vehicle.getAcceleration(vid) >= -sim.vehicle.getDecel(vid) - 0.05, vid
+            sim.simulationStep()
+        assert sim.simulation.getCollidingVehiclesNumber() == 0
+        assert not math.isnan(report.slowed[2][1])
+    finally:
+        sim.close()
+
+
 @pytest.mark.parametrize("settle", [True, False])
 def test_a_seeded_vehicle_closer_to_its_leader_than_its_min_gap_gets_a_fitting_one(cross_net, cross_scene,
                                                                                     settle):

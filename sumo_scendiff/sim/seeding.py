@@ -366,6 +366,7 @@ class Seeder(Settling, StopLines):
             keep[i], hold[i] = False, False
             report.conflicts[i] = why
         lead_speed[:len(scene)][hold] = 0.0      # a follower of a held agent departs safe behind it
+        depart = self.departure_speeds(lead, bumper_gap - gaps, lead_speed, types)
         self.routes.refresh()
         for i in range(len(scene)):
             if not keep[i]:
@@ -393,13 +394,8 @@ class Seeder(Settling, StopLines):
                     report.own_route[i] = how or "lost"
                 sim.route.add(f"{vid}_route", full or self.routes.complete(edges, last_lane, tid, self.rng))
                 speed, slowed = max(float(scene.speed[i, T0]), 0.0), None
-                if hold[i]:        # waits for a foe on its junction (sim.junctions)
-                    slowed, speed = (speed, 0.0), 0.0
-                if lead[i] >= 0:
-                    safe = krauss_safe_speed(bumper_gap[i] - gaps[i], max(float(lead_speed[lead[i]]), 0.0),
-                                             sim.vehicletype.getDecel(tid), sim.vehicletype.getTau(tid))
-                    if safe < speed:
-                        slowed, speed = (speed, safe), safe
+                if depart[i] < speed:   # held for a foe on its junction, or safe behind the one ahead
+                    slowed, speed = (speed, float(depart[i])), float(depart[i])
                 sim.vehicle.add(vid, f"{vid}_route", typeID=tid, depart="now",
                                 departLane=str(lane_index) if not lane.internal else "best",
                                 departPos="base", departSpeed=f"{speed:.3f}")
@@ -415,6 +411,38 @@ class Seeder(Settling, StopLines):
             if slowed is not None:
                 report.slowed[i] = slowed
         return report
+
+    def departure_speeds(self, lead: np.ndarray, gap: np.ndarray, speed: np.ndarray,
+                         types: list | None = None) -> np.ndarray:
+        """Per agent the speed it departs at: its own (``speed[:n]``: generated, 0 if held), at most
+        Krauss' safe speed for the ``gap`` (m beyond its minGap) to the vehicle ahead (``lead``: an
+        index into the agents and then the host's vehicles, whose speeds follow in ``speed``) at that
+        one's departure speed: a leader slowed at hand-off slows the queue behind it too. The
+        driving parameters are those of the agent's vType's parent (DEFAULT_VEHTYPE or ``types[i]``)."""
+        n, t = len(lead), self.sim.vehicletype
+        known = self._known_types()
+        params: dict[str, tuple[float, float]] = {}
+        out = np.full(n, np.nan)
+
+        def settle(i: int, seen: frozenset) -> float:
+            if not np.isnan(out[i]):
+                return out[i]
+            v = max(float(speed[i]), 0.0)
+            j = int(lead[i])
+            if j >= 0:
+                if j < n and j not in seen:
+                    v_lead = settle(j, seen | {i})
+                else:                    # the host's vehicle, or a ring of agents (taken as drawn)
+                    v_lead = max(float(speed[j]), 0.0)
+                parent = types[i] if types is not None and types[i] in known else "DEFAULT_VEHTYPE"
+                if parent not in params:
+                    params[parent] = (t.getDecel(parent), t.getTau(parent))
+                v = min(v, krauss_safe_speed(float(gap[i]), v_lead, *params[parent]))
+            out[i] = v
+            return v
+        for i in range(n):
+            settle(i, frozenset())
+        return out
 
     def _front_pos(self, lane, fx: float, fy: float) -> float:
         """m along ``lane`` (a :class:`~sumo_scendiff.map.network.Lane`) of the front point (fx, fy)."""
