@@ -57,8 +57,9 @@ def draw_fill(path: str, net, rows: np.ndarray, tiles, title: str) -> None:
         ax.add_collection(PolyCollection(corners, facecolors="tab:red", edgecolors="black",
                                          linewidths=0.3, zorder=3, label=f"vehicles ({len(rows)})"))
     elif len(rows):   # a car's box would be a pixel or two: a dot each, so that one sees where they are
-        ax.scatter(rows[:, 0], rows[:, 1], s=7, c="tab:red", edgecolors="black", linewidths=0.3, zorder=3,
-                   label=f"vehicles ({len(rows)})")
+        size = float(np.clip(4000.0 / len(rows), 1.5, 7.0))   # thousands of dots would hide the density
+        ax.scatter(rows[:, 0], rows[:, 1], s=size, c="tab:red", edgecolors="black", linewidths=0.2 if size < 4 else 0.3,
+                   zorder=3, label=f"vehicles ({len(rows)})")
     bar = fig.colorbar(lines, ax=ax, fraction=0.04, pad=0.02)
     bar.set_label("density (vehicles per km of lane)")
     unit = 10 ** np.floor(np.log10(span / 5))
