@@ -87,3 +87,23 @@ def test_bad_input_one_line_exit_2(pool, tmp_path, capsys):
     assert pool.main(pool.get_options([str(other)])) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "missing.md" in err[0] and "no rollout table" in err[1]
+
+
+def test_bootstrap_over_nets_is_wider_where_one_net_holds_the_events(pool, tmp_path):
+    """Ten nets alike but one whose SUMO traffic collides in every window: the exact interval takes
+    its repeated events as independent, the bootstrap over nets does not."""
+    nets = {f"n{i}": {"SUMO": [(50, 0, 0, 0)], "Scenario Diffusion": [(50, 1 if i < 3 else 0, 0, 0)],
+                      "Lane-uniform": [(50, 0, 0, 0)]} for i in range(10)}
+    nets["hot"] = {"SUMO": [(50, 30, 0, 0)], "Scenario Diffusion": [(50, 1, 0, 0)], "Lane-uniform": [(50, 0, 0, 0)]}
+    path = _run(tmp_path, "hot.md", nets)
+    clusters = list(pool.read_nets(path).values())
+    assert len(clusters) == 11 and clusters[-1]["SUMO"]["collisions"] == 30
+    run = pool.read_run(path)
+    ratio, lo, hi = pool.rate_ratio(run["Scenario Diffusion"]["collisions"], run["Scenario Diffusion"]["agents"],
+                                    run["SUMO"]["collisions"], run["SUMO"]["agents"])
+    blo, bhi = pool.cluster_interval(clusters, "Scenario Diffusion", "collisions")
+    assert ratio == pytest.approx(4 / 30) and hi < 1.0          # exact: "fewer than SUMO's", surely
+    assert blo <= ratio <= bhi and bhi == math.inf               # without the hot net SUMO has none
+    assert pool.cluster_interval(clusters, "Scenario Diffusion", "collisions") == (blo, bhi)   # seeded
+    text = pool.table({"hot.md": run}, 0.95, clusters, 500)
+    assert "bootstrap over the 11 clusters" in text
