@@ -219,7 +219,7 @@ def test_times_in_sumos_h_m_s_form(tmp_path):
     """SUMO reads a time as seconds or h:m:s: a departure at 0:01:40 is one at 100 s, and a light's
     phases and offset may be written so too."""
     from sumo_scendiff.fill.demand import DemandEstimate
-    from sumo_scendiff.fill.travel import signal_programs
+    from sumo_scendiff.fill.programs import signal_programs
     from sumo_scendiff.map.network import Network
     net = Network.load(NET4)
     e = max(net.sumo_net.getEdges(), key=lambda x: x.getLength())

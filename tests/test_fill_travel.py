@@ -14,7 +14,7 @@ NET4 = os.path.join(NETS, "grid4x4_2lane_tls.net.xml")
 def test_green_shares_and_an_additional_program(tmp_path):
     """A light's program gives each link its green share (amber half); an additional file's
     program replaces the network's, as in SUMO."""
-    from sumo_scendiff.fill.travel import green_shares, signal_programs
+    from sumo_scendiff.fill.programs import green_shares, signal_programs
     a = tmp_path / "a.add.xml"
     a.write_text('<additional><tlLogic id="J" type="static" programID="1" offset="0">'
                  '<phase duration="30" state="Gr"/><phase duration="4" state="yr"/>'
@@ -159,7 +159,8 @@ def test_a_left_turn_at_a_light_yields_only_to_the_foes_green_with_it(cross_net)
     """At a light the net.xml states are those of the light switched off; the program says who
     yields: the left turn, a yielding green g, gives way to the opposing straight stream green at
     the same time, never to the cross street (red then); the straight link yields to nobody."""
-    from sumo_scendiff.fill.travel import TravelTimes, minor_green, signal_programs
+    from sumo_scendiff.fill.programs import minor_green, signal_programs
+    from sumo_scendiff.fill.travel import TravelTimes
     from sumo_scendiff.map.network import Network
     net = Network.load(cross_net)
     times = TravelTimes(net)
@@ -183,7 +184,7 @@ def test_a_fixed_program_is_sumos_clock(cross_net):
     t (SUMO switches a phase after the step that reaches its end)."""
     import libsumo
 
-    from sumo_scendiff.fill.travel import Program, signal_programs
+    from sumo_scendiff.fill.programs import Program, signal_programs
     [(tls, program)] = signal_programs([cross_net]).items()
     assert program.fixed and program.cycle == 90
     libsumo.start(["sumo", "-n", cross_net, "--begin", "1234", "--no-step-log", "--no-warnings"])
@@ -231,7 +232,7 @@ def test_a_queue_at_a_fixed_light_waits_for_green_and_leaves_one_per_headway(tmp
 
 
 def test_green_end_is_the_end_of_the_green_a_link_shows():
-    from sumo_scendiff.fill.travel import Program
+    from sumo_scendiff.fill.programs import Program
     p = Program(((30.0, "Gr"), (5.0, "yr"), (30.0, "rG"), (5.0, "ry")), offset=10.0)
     assert p.green_end([0], 10.0) == 40.0 and p.green_end([0], 39.0) == 40.0
     assert p.green_end([0], 40.0) is None and p.green_end([1], 40.0) is None
@@ -317,7 +318,8 @@ def test_an_actuated_light_runs_its_phases_as_sumo_does(tmp_path):
     actuated light (SUMO's gap control) are what SUMO runs, not its programmed durations."""
     import libsumo
 
-    from sumo_scendiff.fill.travel import TravelTimes, signal_programs
+    from sumo_scendiff.fill.programs import signal_programs
+    from sumo_scendiff.fill.travel import TravelTimes
     from sumo_scendiff.map.network import Network
     from .conftest import netconvert
     nodes = ('<node id="c" x="0" y="0" type="traffic_light"/><node id="w" x="-200" y="0"/>'

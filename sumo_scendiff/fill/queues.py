@@ -8,7 +8,7 @@ Each trip enters its first edge at its departure and moves edge by edge by :mod:
 (its cruise along an edge, then the link to the next: giving way, crossing the junction). The
 events are taken in the order of time, so what one vehicle does holds up the next:
 
-* a fixed light (:class:`~.travel.Program`) lets each link's vehicles through in the order they
+* a fixed light (:class:`~.programs.Program`) lets each link's vehicles through in the order they
   reached its stop line, in its green only, one per lane every 1 / SATURATION_FLOW s; where the
   link yields in its green (a left turn through the oncoming stream, ``g``), one per gap in its
   foes' flow (:meth:`~.travel.TravelTimes.gap_capacity`) and, as the green ends, SNEAKERS per lane

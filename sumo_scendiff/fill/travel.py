@@ -28,8 +28,8 @@ minor flow's own queue, 1 / (1 - x) at x = its flow over the gap-acceptance capa
 q e^{-qT} / (1 - e^{-q t_f}); the share that finds no gap, 1 - e^{-qT} (every one at a stop sign),
 stops and starts again.
 
-A light with a fixed program is also a clock (:class:`Program`, SUMO's phases at simulation time t
-from its offset): :mod:`.queues` lets its queue through in its green only, one vehicle per lane
+A light with a fixed program is also a clock (:class:`~.programs.Program`, SUMO's phases at
+simulation time t from its offset): :mod:`.queues` lets its queue through in its green only, one vehicle per lane
 each 1 / SATURATION_FLOW s, instead of the expected delay, and holds queues back where an edge is
 full; a yielding green's queue one per gap of QUEUE_GAP s in its foes' flow
 (:meth:`TravelTimes.gap_capacity`), the head of the queue waiting Adams' delay.
@@ -39,12 +39,11 @@ Left out: lane changes.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
 from ..map.links import gives_way, junction_links
-from .actuated import MAX_GAP, expected_durations
+from .programs import Program, green_shares, minor_green, signal_programs, under_demand
 
 SATURATION_FLOW = 0.5   # veh/s per lane discharging at green (SUMO's Krauss defaults: ~1 800 veh/h)
 # Traffic cruises below its desired speed: car-following behind slower vehicles (speedFactor's spread),
@@ -144,151 +143,6 @@ def vtype_table(paths, of) -> dict:
 
 
 @dataclass(frozen=True)
-class Program:
-    """A light's program as SUMO runs it: its (duration s, state) phases, its ``offset``, and whether
-    it is ``fixed`` (type "static": SUMO runs its phases as a clock, at simulation time t in
-    position (t - offset) mod cycle whatever the simulation's begin; an actuated program stretches
-    them within each phase's ``bounds``, so only their expected durations hold: :func:`under_demand`)."""
-
-    phases: tuple[tuple[float, str], ...]
-    offset: float = 0.0
-    fixed: bool = True
-    bounds: tuple[tuple[float, float], ...] = ()    # each phase's (minDur, maxDur); () for static
-    max_gap: float = MAX_GAP                        # an actuated light's max-gap param (s)
-
-    @property
-    def cycle(self) -> float:
-        return sum(d for d, _ in self.phases)
-
-    def next_green(self, links: Sequence[int], t: float) -> float:
-        """The first time >= ``t`` at which one of the link indices ``links`` shows green (``G``,
-        ``g``, ``s``); inf if none ever does."""
-        cycle = self.cycle
-        pos = (t - self.offset) % cycle
-        start = 0.0
-        for turn in range(2):               # this cycle from the current phase, then the next
-            start = -pos if turn == 0 else cycle - pos
-            for d, st in self.phases:
-                end = start + d
-                if end > 0 and any(k < len(st) and st[k] in "Ggs" for k in links):
-                    return t + max(start, 0.0)
-                start = end
-        return float("inf")
-
-    def green_end(self, links: Sequence[int], t: float) -> float | None:
-        """When the green that one of ``links`` shows at ``t`` ends (the phases after it in which it
-        stays green included); None if none of them is green at ``t``."""
-        cycle = self.cycle
-        pos = (t - self.offset) % cycle
-        n = len(self.phases)
-        start = 0.0
-        for i, (d, st) in enumerate(self.phases):
-            if start <= pos < start + d:
-                break
-            start += d
-        else:
-            return None
-
-        def green(st: str) -> bool:
-            return any(k < len(st) and st[k] in "Ggs" for k in links)
-        if not green(st):
-            return None
-        end = t + (start + d - pos)
-        for j in range(1, n):           # the phases after it, while it stays green
-            dj, sj = self.phases[(i + j) % n]
-            if not green(sj):
-                break
-            end += dj
-        return end
-
-
-def signal_programs(paths) -> dict[str, Program]:
-    """Per traffic light, its :class:`Program` in ``paths`` (the network, then additional files: a
-    later file's program of a light replaces an earlier one, as SUMO loads them; of several
-    programs in one file, the first)."""
-    from sumolib.miscutils import parseTime     # SUMO's times: seconds or h:m:s
-    from sumolib.xml import parse
-    out: dict[str, Program] = {}
-    for path in paths:
-        seen: set[str] = set()
-        for tl in parse(path, "tlLogic"):
-            if tl.id in seen or not tl.hasChild("phase"):
-                continue
-            seen.add(tl.id)
-            phases = tuple((parseTime(ph.duration), ph.state) for ph in tl.getChild("phase"))
-            if sum(d for d, _ in phases) <= 0:
-                continue
-            kind = getattr(tl, "type", None) or "static"
-            bounds: tuple = ()
-            max_gap = MAX_GAP
-            if kind == "actuated":
-                bounds = tuple((parseTime(getattr(ph, "minDur", None) or ph.duration),
-                                parseTime(getattr(ph, "maxDur", None) or ph.duration)) for ph in tl.getChild("phase"))
-                params = {p.key: p.value for p in tl.getChild("param")} if tl.hasChild("param") else {}
-                max_gap = float(params.get("max-gap", MAX_GAP))
-            out[tl.id] = Program(phases, parseTime(getattr(tl, "offset", None) or "0"), kind == "static",
-                                 bounds, max_gap)
-    return out
-
-
-def under_demand(programs: dict[str, Program], snet, flows: dict[tuple[str, str], float]) -> dict[str, Program]:
-    """``programs`` with each actuated light's phases at their expected durations under ``flows``
-    (veh/s per (edge, next edge); :mod:`.actuated`); the others as they are."""
-    from dataclasses import replace
-
-    lanes: dict[str, dict[str, dict[int, float]]] = {}
-    downstream: dict[str, dict[str, set[str]]] = {}
-    one_lane: set[str] = set()
-    for tls in snet.getTrafficLights():
-        if tls.getID() not in programs or not programs[tls.getID()].bounds:
-            continue
-        per_pair: dict[tuple[str, str], int] = {}
-        for a, b, k in tls.getConnections():
-            key = (a.getEdge().getID(), b.getEdge().getID())
-            per_pair[key] = per_pair.get(key, 0) + 1
-        mine = lanes.setdefault(tls.getID(), {})
-        for a, b, k in tls.getConnections():
-            if sum(ln.allows("passenger") for ln in a.getEdge().getLanes()) == 1:
-                one_lane.add(a.getID())
-            key = (a.getEdge().getID(), b.getEdge().getID())
-            mine.setdefault(a.getID(), {})[k] = flows.get(key, 0.0) / per_pair[key]
-        after = downstream.setdefault(tls.getID(), {})
-        for a, b, k in tls.getConnections():
-            if b.getID() in mine:
-                after.setdefault(a.getID(), set()).add(b.getID())
-    out = dict(programs)
-    for tls, lane_flows in lanes.items():
-        p = programs[tls]
-        states = [st for _, st in p.phases]
-        durations = expected_durations(states, [d for d, _ in p.phases], p.bounds, lane_flows,
-                                       SATURATION_FLOW, p.max_gap, downstream[tls], one_lane)
-        out[tls] = replace(p, phases=tuple(zip(durations, states)))
-    return out
-
-
-def green_shares(programs: dict[str, Program]) -> dict[str, tuple[float, np.ndarray]]:
-    """Per traffic light of :func:`signal_programs`, (cycle s, green share of each link index).
-    Green: ``G``/``g``/``s``, amber counted half."""
-    out: dict[str, tuple[float, np.ndarray]] = {}
-    for tls, program in programs.items():
-        cycle = program.cycle
-        n = max(len(st) for _, st in program.phases)
-        green = np.zeros(n)
-        for d, st in program.phases:
-            green[: len(st)] += d * np.array([1.0 if c in "Ggs" else 0.5 if c in "yY" else 0.0 for c in st])
-        out[tls] = (cycle, green / cycle)
-    return out
-
-
-def minor_green(phases: list[tuple[float, str]], k: int, j: int) -> float:
-    """The share of link ``k``'s green in which it must yield (``g``) while its foe, link ``j`` of
-    the same light, is green too."""
-    green = sum(d for d, st in phases if k < len(st) and st[k] in "Gg")
-    both = sum(d for d, st in phases if k < len(st) and j < len(st) and st[k] == "g" and st[j] in "Gg")
-    return both / green if green > 0 else 0.0
-
-
-@dataclass(frozen=True)
 class Link:
     """What a vehicle meets going from an edge onto the next: the junction and its light."""
 
@@ -299,7 +153,7 @@ class Link:
     lanes: int = 1               # lanes discharging onto the next edge
     foes: tuple = ()             # the (edge, next edge, their green share, weight) it gives way to
     stop: bool = False           # every vehicle stops first (a stop sign, all-way stop)
-    light: str | None = None     # its light, when its program is fixed (a clock: :class:`Program`)
+    light: str | None = None     # its light, when its program is fixed (a clock: :class:`~.programs.Program`)
     indices: tuple = ()          # the link indices of its lanes at that light
 
 
@@ -311,7 +165,8 @@ class TravelTimes:
         self.flows = flows or {}
         self._links: dict[tuple[str, str], Link | None] = {}
         path = getattr(net, "path", None)
-        self._programs = under_demand(signal_programs([path, *additional]), self.snet, self.flows) if path else {}
+        self._programs = (under_demand(signal_programs([path, *additional]), self.snet, self.flows,
+                                      SATURATION_FLOW) if path else {})
         self._shares = green_shares(self._programs)
         self._index: dict[str, tuple[dict, list]] = {}    # node -> (connection -> link index, index -> edges)
 
@@ -489,5 +344,5 @@ def link_flows(routes: list[tuple[float, list[str]]], begin: float, span: float)
     return {k: n / max(span, 1.0) for k, n in counts.items()}
 
 
-__all__ = ["DEFAULT_DRIVER", "Driver", "Link", "Program", "TravelTimes", "green_shares", "link_flows",
-           "minor_green", "signal_programs", "vtype_drivers", "webster", "vtype_table"]
+__all__ = ["DEFAULT_DRIVER", "Driver", "Link", "TravelTimes", "link_flows", "vtype_drivers", "webster",
+           "vtype_table"]
