@@ -22,6 +22,7 @@ import shapely
 
 TIMES = (-2.0, -1.0, 0.0, 1.0, 2.0)  # trajectory time stamps (s); index 2 is the box (t = 0)
 T0 = 2  # index of t = 0 in TIMES
+T_FINAL = TIMES.index(2.0)  # index of t = +2 s (the "final" speed and pose)
 
 
 def wrap_angle(a):

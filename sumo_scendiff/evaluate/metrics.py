@@ -26,7 +26,7 @@ import numpy as np
 from scipy.spatial.distance import cdist
 from scipy.stats import wasserstein_distance
 
-from ..core.geometry import T0, TIMES, Window
+from ..core.geometry import T0, T_FINAL, TIMES, Window
 from ..core.matching import MATCH_DISTANCE, MATCH_HEADING, match_agents
 from ..core.scene import Scene
 
@@ -35,7 +35,6 @@ SIGMA_HEADING = 0.5     # heading unit vectors (cos, sin): 0.5 ~ 29 degrees of d
 SIGMA_VELOCITY = 2.0    # m/s: velocity vectors speed * (cos, sin) at t = 0
 SIGMA_JOINT = 1.0       # on (position / 5, heading / 0.5, velocity / 2): the product of the marginals
 LANE_RADIUS = 2.0       # m: "lanes at that location" = car lanes whose polygon is within 2 m
-T_FINAL = TIMES.index(2.0)  # index of t = +2 s ("final speed")
 WINDOW_TOLERANCE = 0.01  # m: generated[i] and ground_truth[i] must share the window centre
 
 

@@ -43,7 +43,7 @@ from typing import Any, Mapping, Optional, Sequence
 import numpy as np
 import torch
 
-from ..core.geometry import T0, TIMES, wrap_angle
+from ..core.geometry import T0, T_FINAL, TIMES, wrap_angle
 from .features import FEATURES, TokenError
 
 FEATURE_DIMS: dict[str, int] = {"x": 64, "y": 64, "heading": 2, "length": 1, "width": 1,
@@ -74,7 +74,6 @@ SPEED_BINS = 10
 H2F_RANGE = (-0.7, 0.7)     # rad
 H2F_BINS = 10
 MIN_DISPLACEMENT = 0.5      # metres in 2 s below which heading_to_final is undefined (absent)
-T_FINAL = TIMES.index(2.0)  # index of t = +2 s
 
 assert AGENT_TOKEN_DIM == 170
 
