@@ -56,6 +56,19 @@ def cross2_net(tmp_path_factory) -> str:
 
 
 @pytest.fixture(scope="session")
+def left_lane_net(tmp_path_factory) -> str:
+    """A light at c whose two-lane approach wc (60 m) turns left from its left lane alone, the
+    edge w0w (240 m) before it, and the crossing's other arms."""
+    nodes = ('<node id="c" x="0" y="0" type="traffic_light"/><node id="w" x="-60" y="0" type="priority"/>'
+             '<node id="w0" x="-300" y="0"/><node id="e" x="200" y="0"/><node id="s" x="0" y="-200"/>'
+             '<node id="n" x="0" y="200"/>')
+    edges = "".join(f'<edge id="{a}{b}" from="{a}" to="{b}" numLanes="2" speed="13.89"/>'
+                    for a, b in (("w0", "w"), ("w", "w0"), ("w", "c"), ("c", "w"), ("e", "c"), ("c", "e"),
+                                 ("s", "c"), ("c", "s"), ("n", "c"), ("c", "n")))
+    return netconvert(nodes, edges, str(tmp_path_factory.mktemp("left") / "left.net.xml"))
+
+
+@pytest.fixture(scope="session")
 def city():
     """networks/city.net.xml, the shipped city, loaded once."""
     from sumo_scendiff.map.network import Network

@@ -238,9 +238,10 @@ def test_times_in_sumos_h_m_s_form(tmp_path):
 
 
 def test_a_full_edge_holds_the_queue_back_and_the_insertions(tmp_path):
-    """An edge holds its car lanes' length over JAM_SPACING vehicles: behind a light that stays red
-    (an additional file's program) the block before it fills, the queue spills back onto the edge
-    before, and departures onto a full first edge wait to be inserted (not on the network yet)."""
+    """A lane holds its length over JAM_SPACING vehicles, and a queue stands on the lanes that lead
+    on along its route: behind a light that stays red (an additional file's program) those lanes of
+    the block before it fill, the queue spills back onto the edge before, and departures onto a full
+    first edge wait to be inserted (not on the network yet)."""
     from sumo_scendiff.fill.demand import DemandEstimate
     from sumo_scendiff.fill.queues import JAM_SPACING
     from sumo_scendiff.map.network import Network
@@ -252,7 +253,12 @@ def test_a_full_edge_holds_the_queue_back_and_the_insertions(tmp_path):
     routes.write_text("<routes>" + "".join(
         f'<vehicle id="v{i:02d}" depart="{i}" departSpeed="max"><route edges="A0A1 A1B1 B1B0"/></vehicle>'
         for i in range(90)) + "</routes>")
-    hold = {e: math.ceil(net.edge_car_km[e] * 1000 / JAM_SPACING) for e in ("A0A1", "A1B1")}
+    snet = net.sumo_net
+    turn = [ln for ln in snet.getEdge("A1B1").getLanes() if any(c.getTo().getID() == "B1B0" for c in ln.getOutgoing())]
+    onto = [ln for ln in snet.getEdge("A0A1").getLanes() if any(c.getToLane() in turn for c in ln.getOutgoing())]
+    assert 1 <= len(turn) < len(snet.getEdge("A1B1").getLanes())     # the right turn leaves from one lane
+    hold = {e: len(lanes) * math.ceil(snet.getEdge(e).getLength() / JAM_SPACING)
+            for e, lanes in (("A0A1", onto), ("A1B1", turn))}
     est = DemandEstimate.at(net, [str(routes)], begin=600.0, additional=[str(red)])
     assert est.on_edge == hold and est.vehicles == sum(hold.values()) < 90
     first = sorted(v.id for v in est.en_route if v.edges[0] == "A1B1")

@@ -355,3 +355,36 @@ def test_an_actuated_light_runs_its_phases_as_sumo_does(tmp_path):
     assert sum(d for d, _ in program.phases) > 1.5 * sum(sumo)       # the programmed cycle is not it
     for (d, st), s in zip(est.phases, sumo):
         assert d == pytest.approx(s, abs=max(2.0, 0.2 * s)), (mine, sumo)
+
+
+def test_a_queue_stands_on_the_lanes_that_lead_to_its_turn(tmp_path, left_lane_net):
+    """Left turns at red on a two-lane approach whose left lane alone turns left: the approach
+    holds one lane of them, the rest stand back on the edge before it, as in SUMO (an edge's whole
+    storage held twice as many there and none upstream)."""
+    import libsumo
+
+    from sumo_scendiff.fill.demand import DemandEstimate
+    from sumo_scendiff.fill.travel import TravelTimes
+    from sumo_scendiff.map.network import Network
+    net = Network.load(left_lane_net)
+    lefts = [ln.getIndex() for ln in net.sumo_net.getEdge("wc").getLanes()
+             if any(c.getTo().getID() == "cn" for c in ln.getOutgoing())]
+    assert lefts == [1]
+    routes = tmp_path / "left.rou.xml"
+    routes.write_text("<routes>" + "".join(
+        f'<vehicle id="l{i}" depart="{2 * i}" departSpeed="max"><route edges="w0w wc cn"/></vehicle>'
+        for i in range(16)) + "</routes>")
+    times = TravelTimes(net)
+    link = times.link_of("wc", "cn")
+    begin = times.light(link).next_green(link.indices, 30.0) - 1.0    # the queue at its longest
+    est = DemandEstimate.at(net, [str(routes)], begin)
+    libsumo.start(["sumo", "-n", left_lane_net, "-r", str(routes), "--seed", "1", "--no-step-log", "--no-warnings"])
+    try:
+        libsumo.simulationStep(begin)
+        sumo = {e: sum(libsumo.vehicle.getRoadID(v) == e for v in libsumo.vehicle.getIDList()) for e in ("wc", "w0w")}
+    finally:
+        libsumo.close()
+    one_lane = net.sumo_net.getEdge("wc").getLength() / 7.5
+    assert est.on_edge["wc"] <= one_lane + 1 and sumo["wc"] <= one_lane + 1, (est.on_edge, sumo)
+    for e in ("wc", "w0w"):
+        assert abs(est.on_edge.get(e, 0) - sumo[e]) <= 2, (e, est.on_edge, sumo)

@@ -14,13 +14,16 @@ events are taken in the order of time, so what one vehicle does holds up the nex
   foes' flow (:meth:`~.travel.TravelTimes.gap_capacity`) and, as the green ends, SNEAKERS per lane
   that waited inside the junction: a turn whose demand exceeds that grows its queue, as SUMO's
   does; an actuated one holds each its expected (Webster's) delay;
-* an edge holds at most its car lanes' length over JAM_SPACING vehicles: a vehicle whose next edge
-  is full waits at its stop line until one leaves it (the queue spills back over the junction), a
-  departure onto a full edge waits to be inserted (not yet on the network, as SUMO counts it). A
-  vehicle already on the network goes before a waiting insertion, as in SUMO's step.
+* a vehicle stands on the lanes of its edge that lead on along its route (SUMO's best lanes: those
+  that reach its next edge, and of them those whose lane there reaches the edge after), the least
+  occupied of them, and a lane holds its length over JAM_SPACING vehicles: a vehicle whose lanes on
+  its next edge are full waits at its stop line until one leaves them (the queue of a turn spills
+  back over the junction while the other lanes flow), a departure onto full lanes waits to be
+  inserted (not yet on the network, as SUMO counts it). A vehicle already on the network goes
+  before a waiting insertion, as in SUMO's step.
 
-What it leaves out: lane changes and the choice of lanes (an edge's storage is shared by all its
-lanes and links), vehicles passing at amber, a blocked junction's foes.
+What it leaves out: a vehicle that stands in another lane waiting to change into its own when that
+is full (blocking that lane's traffic), vehicles passing at amber, a blocked junction's foes.
 """
 from __future__ import annotations
 
@@ -67,9 +70,10 @@ def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnE
     """Every trip on the network at ``begin`` (those arrived, or still waiting to be inserted, are
     not); deterministic: ties in time go in the order of ``trips``."""
     snet = net.sumo_net
-    km = net.edge_car_km
-    occupied: dict[str, int] = {}
+    occupied: dict[tuple[str, int], int] = {}   # (edge, lane index) -> vehicles on it
     cap: dict[str, float] = {}
+    best: dict[tuple[str, tuple[str, ...]], tuple[int, ...]] = {}
+    lane_of: dict[int, int] = {}           # id(trip) -> the lane of its edge it stands on
     waiting_for: dict[str, deque] = {}     # edge -> vehicles at an upstream stop line wanting onto it
     inserting: dict[str, deque] = {}       # edge -> departures waiting to be inserted onto it
     free_at: dict[tuple[str, str], float] = {}   # a fixed light's link: when it lets the next through
@@ -82,30 +86,54 @@ def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnE
     DEPART, LINE, GO = 0, 1, 2
 
     def storage(e: str) -> float:
-        """Vehicles the edge holds; a short one (netconvert's stubs before a light, a block of a few
-        metres) holds no queue of its own: SUMO's vehicles stand across it and the junction."""
+        """Vehicles a lane of the edge holds; a short edge (netconvert's stubs before a light, a block
+        of a few metres) holds no queue of its own: SUMO's vehicles stand across it and the junction."""
         if e not in cap:
-            short = snet.getEdge(e).getLength() < MIN_STORAGE_M
-            cap[e] = np.inf if short else max(1.0, km.get(e, 0.0) * 1000.0 / JAM_SPACING)
+            edge = snet.getEdge(e)
+            short = edge.getLength() < MIN_STORAGE_M
+            cap[e] = np.inf if short else max(1.0, edge.getLength() / JAM_SPACING)
         return cap[e]
+
+    def lanes_for(e: str, rest: tuple[str, ...]) -> tuple[int, ...]:
+        """The lanes of ``e`` a vehicle going on by ``rest`` (its next edge and the one after) queues
+        on: those that lead to its next edge, and of them those whose lane there leads on to the one
+        after where some do (SUMO's best lanes, which a vehicle changes to before it stands)."""
+        key = (e, rest[:2])
+        if key not in best:
+            lanes = [ln for ln in snet.getEdge(e).getLanes() if ln.allows("passenger")] \
+                or list(snet.getEdge(e).getLanes())
+            pick = lanes
+            if rest:
+                to = {ln: [c.getToLane() for c in ln.getOutgoing() if c.getTo().getID() == rest[0]] for ln in lanes}
+                pick = [ln for ln in lanes if to[ln]] or lanes
+                if len(rest) > 1:
+                    onward = set(lanes_for(rest[0], rest[1:2]))
+                    pick = [ln for ln in pick if any(m.getIndex() in onward for m in to[ln])] or pick
+            best[key] = tuple(ln.getIndex() for ln in pick)
+        return best[key]
+
+    def full(e: str, rest: tuple[str, ...]) -> bool:
+        return all(occupied.get((e, i), 0) >= storage(e) for i in lanes_for(e, rest))
 
     def push(t: float, kind: int, trip: Trip, k: int = 0) -> None:
         heapq.heappush(events, (t, next(order), kind, trip, k))
 
     def enter(trip: Trip, k: int, t: float, before: float, offset: float) -> None:
         e = trip.edges[k]
-        occupied[e] = occupied.get(e, 0) + 1
+        lane = min(lanes_for(e, trip.edges[k + 1:k + 3]), key=lambda i: occupied.get((e, i), 0))
+        occupied[(e, lane)] = occupied.get((e, lane), 0) + 1
+        lane_of[id(trip)] = lane
         length = snet.getEdge(e).getLength()
         cruise, _ = times.edge(e, trip.driver)
         travel = max(before + cruise * (length - offset) / length, 1e-3)
         where[id(trip)] = OnEdge(trip, k, t, travel, offset)
         push(t + travel, LINE, trip, k)
 
-    def leave(e: str, t: float) -> None:
-        """A place on ``e`` is free: everyone waiting for one tries again now, in the order they
+    def leave(trip: Trip, e: str, t: float) -> None:
+        """``trip`` leaves ``e``: everyone waiting for a place on it tries again now, in the order they
         came, the network's vehicles before the insertions (one held by its light lets the next
-        have it; whoever finds it taken waits on)."""
-        occupied[e] -= 1
+        have it; whoever finds none on its lanes waits on)."""
+        occupied[(e, lane_of.pop(id(trip)))] -= 1
         for trip, k in waiting_for.pop(e, ()):
             push(t, GO, trip, k)
         for trip in inserting.pop(e, ()):
@@ -117,7 +145,7 @@ def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnE
         t, _, kind, trip, k = heapq.heappop(events)
         if kind == DEPART:
             e = trip.edges[0]
-            if occupied.get(e, 0) < storage(e):
+            if not full(e, trip.edges[1:3]):
                 enter(trip, 0, t, trip.start_s, trip.offset)
             else:
                 inserting.setdefault(e, deque()).append(trip)
@@ -125,7 +153,7 @@ def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnE
         e = trip.edges[k]
         if k + 1 == len(trip.edges):         # at its route's end: it leaves the network
             del where[id(trip)]
-            leave(e, t)
+            leave(trip, e, t)
             continue
         nxt = trip.edges[k + 1]
         link = times.link_of(e, nxt)
@@ -157,7 +185,7 @@ def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnE
                 push(go, GO, trip, k)
                 continue
         ready.pop(id(trip), None)
-        if occupied.get(nxt, 0) >= storage(nxt):
+        if full(nxt, trip.edges[k + 2:k + 4]):
             waiting_for.setdefault(nxt, deque()).append((trip, k))
             continue
         at_line = where[id(trip)].t_enter + where[id(trip)].travel
@@ -171,7 +199,7 @@ def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnE
             wait, stops = times.yielding(link, e, nxt)
             cross, stopping = times.crossing(link, e, trip.driver)
             before = cross + (1.0 if t > at_line + wait + 1e-6 else stops) * stopping
-        leave(e, t)
+        leave(trip, e, t)
         enter(trip, k + 1, t, before, 0.0)
     return list(where.values())
 
