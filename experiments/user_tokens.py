@@ -29,6 +29,7 @@ import sys
 from dataclasses import replace
 
 import numpy as np
+from report import emit
 
 from sumo_scendiff.core.threads import share_cpu
 
@@ -206,11 +207,7 @@ def main(o) -> int:
         bias = (lambda k, res=res: " / ".join(f"{r[k]:+.2f}" for r in res))
         print(f"{kind}: mean signed error of the speed {bias('bias')}, of the final speed {bias('final_bias')} m/s",
               file=sys.stderr)
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if o.output:
-        with open(o.output, "w") as f:
-            f.write(text)
+    emit("\n".join(lines) + "\n", o.output, "Partial tokens as a user writes them")
     return 0
 
 
