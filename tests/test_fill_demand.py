@@ -285,3 +285,51 @@ def test_fill_picture_is_framed_on_the_car_lanes(tmp_path):
     rows = np.array([[100.0, -1.6, 0.0, 4.5, 1.8]])
     draw_fill(str(tmp_path / "fill.png"), net, rows, [], "footpath")
     assert os.path.getsize(tmp_path / "fill.png") > 1000
+
+
+def test_every_form_of_a_route_file_is_routed_as_sumo_does(tmp_path, grid):
+    """Trips through via edges, between junctions and TAZs, flows by rate, number, probability
+    and a random period, vehicles on a routeDistribution or of a vTypeDistribution: SUMO's router
+    gives each its route, so every one of them is en route in the estimate, and as many as SUMO
+    has on the network."""
+    import libsumo
+
+    from sumo_scendiff.fill.demand import DemandEstimate
+    from sumo_scendiff.fill.routing import RoutingError, routed_departures
+    add = tmp_path / "taz.add.xml"
+    add.write_text('<additional><taz id="west" edges="A0A1 A1A2"/>'
+                   '<taz id="east"><tazSource id="C2C1" weight="1"/><tazSink id="C1C0" weight="1"/></taz></additional>')
+    routes = tmp_path / "forms.rou.xml"
+    routes.write_text(
+        '<routes><vTypeDistribution id="mix"><vType id="small" length="4" probability="0.7"/>'
+        '<vType id="lorry" vClass="truck" length="10" probability="0.3"/></vTypeDistribution>'
+        '<routeDistribution id="rd"><route id="rd0" edges="A0B0 B0C0" probability="0.5"/>'
+        '<route id="rd1" edges="A0B0 B0B1" probability="0.5"/></routeDistribution>'
+        '<flow id="dist" route="rd" type="mix" begin="0" end="600" vehsPerHour="240"/>'
+        '<flow id="junc" fromJunction="C2" toJunction="A0" begin="0" end="600" number="60"/>'
+        '<flow id="taz" fromTaz="west" toTaz="east" begin="0" end="600" probability="0.1"/>'
+        '<flow id="exp" from="C0C1" to="A1A0" via="B1A1" begin="0" end="600" period="exp(0.1)"/>'
+        '</routes>')
+    net_path = grid.path
+    deps, unrouted = routed_departures(net_path, [str(routes)], [str(add)], until=300.0)
+    assert unrouted == 0 and all(d.depart <= 300.0 for d in deps)
+    assert {d.id.split(".")[0] for d in deps} == {"dist", "junc", "taz", "exp"}
+    assert {d.type for d in deps if d.id.startswith("dist")} <= {"small", "lorry"}
+    assert all(d.edges in (("A0B0", "B0C0"), ("A0B0", "B0B1")) for d in deps if d.id.startswith("dist"))
+    assert all("B1A1" in d.edges for d in deps if d.id.startswith("exp"))
+    est = DemandEstimate.at(grid, [str(routes)], 300.0, additional=[str(add)])
+    assert {v.id.split(".")[0] for v in est.en_route} == {"dist", "junc", "taz", "exp"}
+    cfg = tmp_path / "forms.sumocfg"
+    cfg.write_text(f'<configuration><input><net-file value="{net_path}"/><route-files value="{routes}"/>'
+                   f'<additional-files value="{add}"/></input><processing><junction-taz value="true"/>'
+                   '</processing></configuration>')
+    libsumo.start(["sumo", "-c", str(cfg), "--no-step-log", "--no-warnings", "--seed", "1"])
+    try:
+        libsumo.simulationStep(300.0)
+        sumo = len(libsumo.vehicle.getIDList())
+    finally:
+        libsumo.close()
+    assert est.vehicles == pytest.approx(sumo, rel=0.3), (est.vehicles, sumo)
+    (tmp_path / "broken.rou.xml").write_text("<routes><trip id='t' depart='0' from='A0B0'")
+    with pytest.raises(RoutingError, match="duarouter"):
+        routed_departures(net_path, [str(tmp_path / "broken.rou.xml")], until=300.0)

@@ -4,9 +4,8 @@
     est.vehicles                       # en route at T: departed, not yet arrived
     est.window_density(net, window)    # vehicles per km of car lane, weighted as EdgeData's
 
-Each vehicle, trip and flow departure of the route files up to ``begin`` is laid on its route
-(a trip's: the shortest path by free-flow time, sumolib's Dijkstra, per from/to pair once) and
-run along it as queues (:mod:`.queues`) by the clock of :mod:`.travel` (its vType's desired
+Each vehicle, trip and flow departure of the route files up to ``begin`` is laid on the route SUMO
+gives it (SUMO's router reads every form of a route file: :mod:`.routing`) and run along it as queues (:mod:`.queues`) by the clock of :mod:`.travel` (its vType's desired
 speed, the junctions' internal lanes and the time lost slowing for them, giving way, the start
 from standing): a light with a fixed program (SUMO's ``static``) lets its vehicles through as
 SUMO's clock runs it, in the order they reach its stop line, in its green only, so the queues
@@ -62,59 +61,26 @@ class DemandEstimate:
 
     @classmethod
     def at(cls, net, route_files, begin: float, additional=()) -> DemandEstimate:
-        from sumolib.xml import parse
-
+        """Raises :class:`~.routing.RoutingError` when SUMO's router cannot read the demand."""
         from .queues import Trip, run_to
+        from .routing import routed_departures
         from .travel import DEFAULT_DRIVER, TravelTimes, link_flows, vtype_drivers
         snet = net.sumo_net
         drivers = vtype_drivers([*route_files, *additional])
-        named: dict[str, list[str]] = {}
-        paths: dict[tuple[str, str], list[str] | None] = {}
-        counts = {"unrouted": 0, "departed": 0}
-
-        def edges_of(el) -> list[str] | None:
-            if el.hasChild("route"):
-                return el.getChild("route")[0].edges.split()
-            if getattr(el, "route", None):
-                return named.get(el.route)
-            # sumolib names the attribute "from" (a Python keyword) attr_from
-            a, b = getattr(el, "attr_from", None) or getattr(el, "from", None), getattr(el, "to", None)
-            if not (a and b and snet.hasEdge(a) and snet.hasEdge(b)):
-                return None
-            if (a, b) not in paths:
-                path, _ = snet.getShortestPath(snet.getEdge(a), snet.getEdge(b), vClass="passenger")
-                paths[(a, b)] = [e.getID() for e in path] if path else None
-            return paths[(a, b)]
-
-        for path in route_files:       # named routes first: vehicles may refer to them
-            for el in parse(path, "route"):
-                if getattr(el, "id", None) and getattr(el, "edges", None):
-                    named[el.id] = el.edges.split()
-        departures: list[tuple[str, str | None, list[str] | None, float, bool, str | None]] = []
-        for path in route_files:       # (one pass per kind: sumolib empties a child it also yields)
-            for el in parse(path, ["vehicle", "trip", "flow"]):
-                standing, pos = _departs_standing(el), getattr(el, "departPos", None)
-                for k, depart in enumerate(_departures(el, begin)):
-                    if begin - depart <= HORIZON_S:
-                        vid = f"{el.id}.{k}" if el.name == "flow" else el.id
-                        departures.append((vid, getattr(el, "type", None), edges_of(el), depart, standing, pos))
+        routed, unrouted = routed_departures(net.path, route_files, additional, until=begin)
+        departures = [d for d in routed if begin - d.depart <= HORIZON_S]
         # the lights' load: the demand's flow through each link over the last hour (or since it began)
-        first = min((dep[3] for dep in departures), default=begin)
+        first = min((d.depart for d in departures), default=begin)
         span = min(FLOW_SPAN_S, begin - first)
-        times = TravelTimes(net, additional, link_flows([(d, e) for _, _, e, d, *_ in departures if e],
-                                                        begin, span))
+        times = TravelTimes(net, additional, link_flows([(d.depart, list(d.edges)) for d in departures], begin, span))
         trips: list[Trip] = []
-        for vid, vtype, edges, depart, standing, depart_pos in departures:
-            counts["departed"] += 1
-            if not edges:
-                counts["unrouted"] += 1
+        for d in departures:
+            if not all(snet.hasEdge(e) for e in d.edges):
                 continue
-            if not all(snet.hasEdge(e) for e in edges):
-                continue
-            driver = drivers.get(vtype, DEFAULT_DRIVER) if vtype else DEFAULT_DRIVER
-            trips.append(Trip(vid, vtype, tuple(edges), driver, depart,
-                              times.start(driver, edges[0]) if standing else 0.0,
-                              _depart_offset(depart_pos, snet.getEdge(edges[0]).getLength())))
+            driver = drivers.get(d.type, DEFAULT_DRIVER) if d.type else DEFAULT_DRIVER
+            trips.append(Trip(d.id, d.type, d.edges, driver, d.depart,
+                              times.start(driver, d.edges[0]) if d.standing else 0.0,
+                              _depart_offset(d.depart_pos, snet.getEdge(d.edges[0]).getLength())))
         on_edge: dict[str, int] = {}
         en_route: list[EnRoute] = []
         for pos in run_to(trips, times, net, begin):
@@ -123,7 +89,7 @@ class DemandEstimate:
             ahead = snet.getEdge(edges[k]).getLength() - pos.offset
             en_route.append(EnRoute(pos.trip.id, pos.trip.type, edges[k:], begin - pos.t_enter, pos.travel,
                                     ahead / pos.travel, edges[max(k - SPILL_EDGES, 0):k][::-1], pos.offset))
-        return cls(begin, on_edge, sum(on_edge.values()), counts["unrouted"], counts["departed"], en_route)
+        return cls(begin, on_edge, sum(on_edge.values()), unrouted, len(departures), en_route)
 
     def edge_density(self, net) -> dict[str, float]:
         """Vehicles per km of car lane, per edge with vehicles (its sidewalks and bike lanes left out:
@@ -154,17 +120,6 @@ class DemandEstimate:
         return num / den if normal and den > 0 else None
 
 
-def _departs_standing(el) -> bool:
-    """Whether the vehicle enters at speed 0 (SUMO's default departSpeed) and accelerates first."""
-    v = getattr(el, "departSpeed", None)
-    if v is None:
-        return True
-    try:
-        return float(v) <= 0.0
-    except ValueError:          # "max", "desired", "speedLimit", "avg", "last", "random": moving
-        return False
-
-
 def _depart_offset(pos: str | None, length: float) -> float:
     """m along its first edge where a vehicle with ``departPos`` ``pos`` enters (SUMO's default
     "base": at the start; "random": on average the middle; a negative number counts from the end)."""
@@ -175,33 +130,6 @@ def _depart_offset(pos: str | None, length: float) -> float:
     except ValueError:
         return 0.5 * length if pos in ("random", "random_free") else 0.0
     return min(max(p + length if p < 0 else p, 0.0), length)
-
-
-def _departures(el, begin: float) -> list[float]:
-    """The departure times up to ``begin`` of a vehicle, trip or flow element."""
-    from sumolib.miscutils import parseTime
-
-    def num(name):
-        v = getattr(el, name, None)
-        try:
-            return None if v is None else parseTime(v)     # seconds or SUMO's h:m:s
-        except ValueError:      # "triggered", "now", ...: not a timed departure
-            return None
-    if el.name != "flow":
-        d = num("depart")
-        return [d] if d is not None and d <= begin else []
-    start, end = num("begin") or 0.0, num("end")
-    period = num("period")
-    if period is None and num("vehsPerHour"):
-        period = 3600.0 / num("vehsPerHour")
-    if period is None and num("number") and end is not None:
-        period = (end - start) / max(num("number"), 1.0)
-    if period is None and num("probability"):
-        period = 1.0 / num("probability")      # the expected spacing of a random flow
-    if period is None or period <= 0:
-        return []
-    stop = min(begin, end if end is not None else begin)
-    return list(np.arange(start, stop + 1e-9, period)) if stop >= start else []
 
 
 __all__ = ["DemandEstimate", "EnRoute"]
