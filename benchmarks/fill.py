@@ -181,7 +181,7 @@ def after(sim, t0: float, o, marks: dict) -> dict:
 def sumo_own(scen, begin: float, T: float, o) -> dict:
     from sumo_scendiff.sim.sumo import SimConfig, close, start
     cfg = SimConfig(net=scen.net, routes=scen.routes, additional=scen.additional, step_length=o.step_length,
-                    seed=o.seed, begin=begin, extra=EXTRA)
+                    seed=o.seed, begin=begin, extra=EXTRA, scenario_options=scen.options)
     sim = start(cfg)
     try:
         t = time.perf_counter()

@@ -255,7 +255,8 @@ def run(o) -> dict:
         raise RunError(str(e)) from None
     # the configuration's begin, else the demand's first departure (before it the network is empty)
     cfg = SimConfig(net=scen.net, routes=routes, additional=scen.additional, step_length=o.step_length,
-                    gui=o.gui, seed=o.seed, begin=scen.begin if scen.begin is not None else first)
+                    gui=o.gui, seed=o.seed, begin=scen.begin if scen.begin is not None else first,
+                    scenario_options=scen.options)
     session = Session(cfg, net, gen, quiet=not o.verbose)
     try:
         session.prepare((lambda sim: _warm_up(sim, o, progress)) if routes else None)

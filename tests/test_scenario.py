@@ -85,3 +85,45 @@ def test_route_files_are_checked_as_a_set(scenario, cross_net):
     foreign.write_text('<routes><vehicle id="x" depart="0"><route edges="nowhere gone"/></vehicle></routes>')
     with pytest.raises(DemandError, match="foreign.rou.xml: does not match the network"):
         check_demand([routes, str(foreign)], edges)
+
+
+def test_a_scenario_sumo_refuses_is_one_line_naming_its_error(tmp_path, cross_net, capfd):
+    """SUMO refusing to load (a light's program that does not fit the junction) raises SimError
+    with SUMO's own first error as the message, and nothing of SUMO's reaches the terminal."""
+    from sumo_scendiff.sim.sumo import SimConfig, SimError, close, start
+    bad = tmp_path / "bad.add.xml"
+    bad.write_text('<additional><tlLogic id="c" type="static" programID="x" offset="0">'
+                   '<phase duration="30" state="Gr"/></tlLogic></additional>')
+    with pytest.raises(SimError, match=r"^SUMO refused to start: Mismatching phase size in tls 'c'"):
+        start(SimConfig(net=cross_net, additional=(str(bad),)))
+    assert "Error" not in capfd.readouterr().err
+    close(start(SimConfig(net=cross_net)))          # libsumo starts again after a refusal
+
+
+def test_the_configurations_run_options_are_carried(tmp_path, grid):
+    """A .sumocfg's options on how SUMO runs its demand (here --junction-taz, which its
+    fromJunction flow needs, a teleport time and rerouting) reach every SUMO run and exported
+    configuration; its outputs, reports, GUI settings, seed and step length do not."""
+    from sumo_scendiff.sim.sumo import SimConfig, close, start
+    routes = tmp_path / "junc.rou.xml"
+    routes.write_text('<routes><flow id="j" fromJunction="A0" toJunction="C2" begin="0" end="60" period="5"/></routes>')
+    cfg = tmp_path / "junc.sumocfg"
+    cfg.write_text(f'<configuration><input><net-file value="{grid.path}"/><route-files value="{routes}"/></input>'
+                   '<output><tripinfo-output value="ti.xml"/></output><time><begin value="0"/><step-length value="1"/>'
+                   '</time><processing><junction-taz value="true"/><time-to-teleport value="120"/></processing>'
+                   '<routing><device.rerouting.probability value="0.5"/></routing><report><verbose value="true"/>'
+                   '</report><random_number><seed value="7"/></random_number><gui_only><start value="true"/>'
+                   '</gui_only></configuration>')
+    scen = scenario_from_files(str(cfg))
+    assert scen.options == (("junction-taz", "true"), ("time-to-teleport", "120"),
+                            ("device.rerouting.probability", "0.5"))
+    sim_cfg = SimConfig(net=scen.net, routes=scen.routes, begin=0.0, scenario_options=scen.options)
+    args = sim_cfg.args()
+    assert args.count("--time-to-teleport") == 1 and args[args.index("--time-to-teleport") + 1] == "120"
+    assert sim_cfg.options()["junction-taz"] == "true" and sim_cfg.options()["step-length"] == "0.5"
+    sim = start(sim_cfg)
+    try:
+        sim.simulationStep(30.0)
+        assert sim.vehicle.getIDCount() > 0
+    finally:
+        close(sim)

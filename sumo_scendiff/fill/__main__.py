@@ -119,6 +119,7 @@ def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | No
     from .demand import DemandEstimate
     from .en_route import place_en_route, vtype_sizes
     from .plan import demand_tiles
+    from .routing import RoutingError
     name = o.checkpoint or "the shipped model"
     if (o.density is not None or o.edge_data) and not gen.has_density:
         flag = "--density" if o.density is not None else "--edge-data"
@@ -135,13 +136,16 @@ def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | No
         return targets, True, {"kind": "edge-data", "file": os.path.abspath(o.edge_data), "time": begin,
                                "applied": True}, None
     if routes:
-        est = DemandEstimate.at(net, routes, begin, additional=additional)
+        try:
+            est = DemandEstimate.at(net, routes, begin, additional=additional)
+        except RoutingError as e:
+            raise FillError(f"{', '.join(routes)}: {e}") from None
         # each tile's count is kept in its core: the core's own density, so the tiles add up to the
         # estimate (a window's would spread a vehicle over every tile whose window sees it)
         targets = [est.region_density(net, shapely.box(*t.core)) for t in tiles]
         src = {"kind": "demand", "time": begin, "en_route": est.vehicles, "departed": est.departed,
                "unrouted": est.unrouted, "applied": gen.has_density,
-               "method": "each departure up to --begin laid on its route (trips: shortest path) and moved by "
+               "method": "each departure up to --begin laid on the route SUMO's duarouter gives it and moved by "
                          "fill/travel.py's clock: its vType's desired speed (x 0.9), the junctions' internal "
                          "lanes, giving way, fixed lights as SUMO runs their programs (queues first come, "
                          "first served), actuated ones Webster's delay at the demand's own load, the start "
@@ -223,7 +227,7 @@ def run(o, folder: str) -> dict:
         timing["load"] = time.perf_counter() - t
 
         cfg = SimConfig(net=scen.net, additional=scen.additional, step_length=o.step_length, seed=o.seed,
-                        begin=begin)
+                        begin=begin, scenario_options=scen.options)
         t = time.perf_counter()
         # with --signals, the lights as SUMO's programs show them at the start: the fill agrees with them
         signals = initial_light_states(cfg) if net.signal_links and gen.config.signals else None

@@ -7,8 +7,11 @@ directly, or both (the flags replace what the configuration names).
     first = check_demand(scen, {ln.edge for ln in net.lanes})     # first departure (s), or None
 
 The configuration is read with sumolib (``sumolib.options.readOptions``); paths in it are relative to
-its folder, as SUMO reads them. Only the inputs and the time window are taken: outputs a
-configuration names (tripinfo, logs, ...) are the user's business, never written beside their files.
+its folder, as SUMO reads them. The inputs and the time window are taken, and the options that say
+how SUMO runs the demand (``processing``, ``routing``, devices, ...: ``--junction-taz``, rerouting,
+teleporting) are carried into every SUMO run and exported configuration; outputs a configuration
+names (tripinfo, logs, ...) are the user's business, never written beside their files, and reports,
+the GUI's settings and the seed are the product's.
 """
 from __future__ import annotations
 
@@ -21,6 +24,9 @@ from typing import Sequence
 _LISTS = {"route-files": "routes", "r": "routes", "additional-files": "additional", "a": "additional"}
 _FILES = {"net-file": "net", "n": "net"}
 _TIMES = {"begin": "begin", "b": "begin", "end": "end", "e": "end"}
+# sections of a .sumocfg whose options are not carried (see the module's doc); an option outside any
+# section is carried unless it names a file or an output
+_NOT_CARRIED = frozenset({"input", "output", "time", "report", "gui_only", "traci_server", "random_number"})
 
 
 class ScenarioError(ValueError):
@@ -35,6 +41,7 @@ class SumoScenario:
     begin: float | None = None       # the configuration's <begin> (s)
     end: float | None = None
     config: str | None = None        # the .sumocfg it came from
+    options: tuple[tuple[str, str], ...] = ()   # its options on how SUMO runs the demand (name, value)
 
 
 def _split(value: str) -> list[str]:
@@ -93,7 +100,29 @@ def read_sumocfg(path: str, skip: frozenset[str] = frozenset()) -> dict:
                 out[_LISTS[opt.name]] = tuple(files)
         elif opt.name in _TIMES:
             out[_TIMES[opt.name]] = _time(path, opt.name, opt.value)
+    out["options"] = run_options(path)
     return out
+
+
+def run_options(path: str) -> tuple[tuple[str, str], ...]:
+    """The options of a ``.sumocfg`` on how SUMO runs its demand, as (name, value): those of every
+    section but inputs, outputs, the time window, reports, the GUI's, TraCI's and the seed, and none
+    that names a file (its path would not travel with the exported scenario)."""
+    import xml.etree.ElementTree as ET
+    out = []
+    for section in ET.parse(path).getroot():
+        if not isinstance(section.tag, str):          # a comment
+            continue
+        opts = [section] if section.get("value") is not None else list(section)
+        if section.get("value") is None and section.tag in _NOT_CARRIED:
+            continue
+        for opt in opts:
+            name, value = opt.tag, opt.get("value")
+            if (not isinstance(name, str) or value is None or name in _LISTS or name in _FILES or name in _TIMES
+                    or "output" in name or name.endswith(("-file", "-files", "-log", ".file"))):
+                continue
+            out.append((name, value))
+    return tuple(out)
 
 
 def scenario_from_files(config: str | None = None, net: str | None = None,

@@ -26,6 +26,15 @@ from .rollout import rollout
 from .sumo import SimConfig, SimError, close, start
 
 
+def _stopped(e: BaseException) -> BaseException:
+    """SUMO stopping on the demand (an unknown vType, a route with no connection) as a SimError of one
+    line; any other exception as it is."""
+    if type(e).__name__ not in ("TraCIException", "FatalTraCIError"):
+        return e
+    msg = str(e).strip().splitlines()
+    return SimError(f"SUMO stopped while running the demand: {msg[-1] if msg else type(e).__name__}")
+
+
 class Session:
     def __init__(self, cfg: SimConfig, net, generator, quiet: bool = True):
         self.cfg, self.net, self.generator, self.quiet = cfg, net, generator, quiet
@@ -44,11 +53,7 @@ class Session:
             try:
                 warm_up(self.sim)
             except Exception as e:   # SUMO stopping on the demand (an unknown vType, a broken route)
-                if type(e).__name__ not in ("TraCIException", "FatalTraCIError"):
-                    raise
-                msg = str(e).strip().splitlines()
-                raise SimError(f"SUMO stopped while running the demand: {msg[-1] if msg else type(e).__name__}"
-                               ) from None
+                raise _stopped(e) from None
             fd, self.base = tempfile.mkstemp(suffix=".xml.gz", prefix="scendiff-base-")
             os.close(fd)
             self.sim.simulation.saveState(self.base)
@@ -122,6 +127,6 @@ class Session:
             writer.finish(row)
             self.timing["export"] += time.perf_counter() - t
             return row
-        except BaseException:
+        except BaseException as e:
             writer.abandon()
-            raise
+            raise _stopped(e) from None

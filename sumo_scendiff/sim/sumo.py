@@ -21,6 +21,12 @@ class SimError(RuntimeError):
     """SUMO refused to start (bad route file, ...): the message is SUMO's first error line."""
 
 
+# what the seeding needs SUMO to do as it does (a scenario's own value is not carried)
+OWN_OPTIONS = frozenset({"step-length", "seed", "no-step-log", "duration-log.disable", "collision.check-junctions",
+                         "save-state.precision", "lateral-resolution", "begin", "end", "net-file", "route-files",
+                         "additional-files", "load-state", "no-warnings", "start", "quit-on-end"})
+
+
 @dataclass
 class SimConfig:
     net: str
@@ -34,13 +40,19 @@ class SimConfig:
     seed: int = 0
     begin: float | None = None          # simulation start (s): a demand's first departure
     extra: tuple[str, ...] = field(default_factory=tuple)
+    # a scenario's own options on how SUMO runs its demand (SumoScenario.options): carried, but for
+    # those the product sets itself (:data:`OWN_OPTIONS`)
+    scenario_options: tuple[tuple[str, str], ...] = ()
 
     def args(self) -> list[str]:
         """Command line (without the binary); also what ``scenario.sumocfg`` repeats."""
+        theirs = {name: value for name, value in self.scenario_options if name not in OWN_OPTIONS}
         a = ["-n", os.path.abspath(self.net), "--step-length", f"{self.step_length:g}",
              "--seed", str(self.seed), "--no-step-log", "true", "--duration-log.disable", "true",
              "--collision.check-junctions", "true" if self.check_junctions else "false",
-             "--time-to-teleport", "300", "--save-state.precision", "6"]
+             "--time-to-teleport", theirs.pop("time-to-teleport", "300"), "--save-state.precision", "6"]
+        for name, value in theirs.items():
+            a += [f"--{name}", value]
         if self.lateral_resolution > 0:
             a += ["--lateral-resolution", f"{self.lateral_resolution:g}"]
         if self.routes:
@@ -75,12 +87,39 @@ def start(cfg: SimConfig, quiet: bool = True):
             binary = sumo_binary("sumo-gui") if cfg.gui else sumo_binary("sumo")
             traci.start([binary] + args + (["--start"] if cfg.gui else []))
             return traci
-        import libsumo
-        libsumo.start([sumo_binary("sumo")] + args)
-        return libsumo
-    except Exception as e:  # libsumo.TraCIException / FatalTraCIError: SUMO prints the cause
+        return _start_libsumo(args)
+    except SimError:
+        raise
+    except Exception as e:  # traci's FatalTraCIError: SUMO printed the cause
         msg = str(e).strip().splitlines()
         raise SimError(msg[-1] if msg else f"SUMO failed to start ({type(e).__name__})") from None
+
+
+def _start_libsumo(args: list[str]):
+    """libsumo, started in-process; what SUMO writes to the terminal while loading (its process's
+    stderr) is caught, so that a refusal is one line: SUMO's first error."""
+    import tempfile
+
+    import libsumo
+    with tempfile.TemporaryFile(mode="w+", errors="replace") as caught:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        os.dup2(caught.fileno(), 2)
+        try:
+            libsumo.start([sumo_binary("sumo")] + args)
+        except Exception as e:  # libsumo.TraCIException: "Process Error"; the cause is in what SUMO wrote
+            os.dup2(saved, 2)
+            caught.seek(0)
+            errors = [ln.strip() for ln in caught if ln.startswith("Error:")]
+            cause = errors[0].removeprefix("Error:").strip() if errors else str(e).strip() or type(e).__name__
+            raise SimError(f"SUMO refused to start: {cause}") from None
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        caught.seek(0)
+        for line in caught:          # its warnings (when not --no-warnings) still reach the terminal
+            sys.stderr.write(line)
+    return libsumo
 
 
 def close(sim) -> None:
