@@ -25,8 +25,10 @@ _LISTS = {"route-files": "routes", "r": "routes", "additional-files": "additiona
 _FILES = {"net-file": "net", "n": "net"}
 _TIMES = {"begin": "begin", "b": "begin", "end": "end", "e": "end"}
 # sections of a .sumocfg whose options are not carried (see the module's doc); an option outside any
-# section is carried unless it names a file or an output
-_NOT_CARRIED = frozenset({"input", "output", "time", "report", "gui_only", "traci_server", "random_number"})
+# section is carried unless it names a file or an output. The mesoscopic model is not carried: the
+# seeding places vehicles on lanes, which only the microscopic model has
+_NOT_CARRIED = frozenset({"input", "output", "time", "report", "gui_only", "traci_server", "random_number",
+                          "mesoscopic"})
 
 
 class ScenarioError(ValueError):

@@ -24,7 +24,7 @@ class SimError(RuntimeError):
 # what the seeding needs SUMO to do as it does (a scenario's own value is not carried)
 OWN_OPTIONS = frozenset({"step-length", "seed", "no-step-log", "duration-log.disable", "collision.check-junctions",
                          "save-state.precision", "lateral-resolution", "begin", "end", "net-file", "route-files",
-                         "additional-files", "load-state", "no-warnings", "start", "quit-on-end"})
+                         "additional-files", "load-state", "no-warnings", "start", "quit-on-end", "mesosim"})
 
 
 @dataclass
