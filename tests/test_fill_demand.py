@@ -333,3 +333,7 @@ def test_every_form_of_a_route_file_is_routed_as_sumo_does(tmp_path, grid):
     (tmp_path / "broken.rou.xml").write_text("<routes><trip id='t' depart='0' from='A0B0'")
     with pytest.raises(RoutingError, match="duarouter"):
         routed_departures(net_path, [str(tmp_path / "broken.rou.xml")], until=300.0)
+    (tmp_path / "typo.rou.xml").write_text('<routes><flow id="f" type="lorri" from="A0B0" to="B0C0" begin="0" '
+                                           'end="60" period="10"/></routes>')
+    with pytest.raises(RoutingError, match="vehicle type 'lorri' for flow 'f' is not known"):
+        routed_departures(net_path, [str(tmp_path / "typo.rou.xml")], until=300.0)

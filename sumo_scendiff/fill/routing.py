@@ -13,10 +13,13 @@ vehicle class. What it cannot route is left out, as SUMO would not drive it.
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import tempfile
 from dataclasses import dataclass
 
+# what SUMO refuses at loading and duarouter, told to ignore errors, only warns of
+_UNKNOWN = re.compile(r"The (vehicle type|route|route distribution) '[^']*' for .* is not known")
 # duarouter's random choices (probability flows, distributions) with SUMO's default seed: the draws
 # a run of the demand without --seed makes
 ROUTER_SEED = 23423
@@ -60,6 +63,9 @@ def routed_departures(net_path: str, route_files, additional=(),
         if done.returncode != 0 or not os.path.exists(out):
             lines = (done.stderr or done.stdout).strip().splitlines() or ["no message"]
             raise RoutingError(f"duarouter could not route the demand: {lines[-1]}")
+        unknown = next((ln for ln in done.stderr.splitlines() if _UNKNOWN.search(ln)), None)
+        if unknown:     # duarouter goes on with a default; SUMO refuses to load such a demand
+            raise RoutingError(f"{unknown.removeprefix('Warning: ').rstrip('.')} (SUMO refuses such a demand)")
         return _read(out, until), sum("has no valid route" in line for line in done.stderr.splitlines())
 
 
