@@ -148,8 +148,9 @@ def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | No
                "method": "each departure up to --begin laid on the route SUMO's duarouter gives it and moved by "
                          "fill/travel.py's clock: its vType's desired speed (x 0.9), the junctions' internal "
                          "lanes, giving way, fixed lights as SUMO runs their programs (queues first come, "
-                         "first served), actuated ones Webster's delay at the demand's own load, the start "
-                         "from standing; no simulation"}
+                         "first served), actuated ones at the cycle their gap control runs, the start from "
+                         "standing; queues on the lanes that lead on along each route, spilling back where "
+                         "they are full (fill/queues.py); no simulation"}
         if not gen.has_density:
             src["note"] = (f"{name} has no density condition: the demand's density is recorded per tile "
                            f"(target) but generation uses the model's prior scaled by --p-mask {o.p_mask:g}")
