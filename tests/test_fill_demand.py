@@ -317,6 +317,8 @@ def test_every_form_of_a_route_file_is_routed_as_sumo_does(tmp_path, grid):
     assert {d.type for d in deps if d.id.startswith("dist")} <= {"small", "lorry"}
     assert all(d.edges in (("A0B0", "B0C0"), ("A0B0", "B0B1")) for d in deps if d.id.startswith("dist"))
     assert all("B1A1" in d.edges for d in deps if d.id.startswith("exp"))
+    later, _ = routed_departures(net_path, [str(routes)], [str(add)], until=300.0, since=100.0)
+    assert [d.id for d in later] == [d.id for d in deps if d.depart >= 100.0]
     est = DemandEstimate.at(grid, [str(routes)], 300.0, additional=[str(add)])
     assert {v.id.split(".")[0] for v in est.en_route} == {"dist", "junc", "taz", "exp"}
     cfg = tmp_path / "forms.sumocfg"

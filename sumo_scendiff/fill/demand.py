@@ -67,8 +67,8 @@ class DemandEstimate:
         from .travel import DEFAULT_DRIVER, TravelTimes, link_flows, vtype_drivers
         snet = net.sumo_net
         drivers = vtype_drivers([*route_files, *additional])
-        routed, unrouted = routed_departures(net.path, route_files, additional, until=begin)
-        departures = [d for d in routed if begin - d.depart <= HORIZON_S]
+        departures, unrouted = routed_departures(net.path, route_files, additional, until=begin,
+                                                 since=begin - HORIZON_S)
         # the lights' load: the demand's flow through each link over the last hour (or since it began)
         first = min((d.depart for d in departures), default=begin)
         span = min(FLOW_SPAN_S, begin - first)

@@ -19,6 +19,7 @@ import tempfile
 from dataclasses import dataclass
 
 # what SUMO refuses at loading and duarouter, told to ignore errors, only warns of
+_PROBABILITY_FLOW = re.compile(rb"<flow\b[^>]*\bprobability=")
 _UNKNOWN = re.compile(r"The (vehicle type|route|route distribution) '[^']*' for .* is not known")
 # duarouter's random choices (probability flows, distributions) with SUMO's default seed: the draws
 # a run of the demand without --seed makes
@@ -40,20 +41,23 @@ class Departure:
     depart_pos: str | None         # its departPos attribute
 
 
-def routed_departures(net_path: str, route_files, additional=(),
-                      until: float = float("inf")) -> tuple[list[Departure], int]:
-    """Every vehicle of ``route_files`` departing at or before ``until``, routed by duarouter, in
-    the order of departure, and how many it found no route for. Raises :class:`RoutingError`."""
+def routed_departures(net_path: str, route_files, additional=(), until: float = float("inf"),
+                      since: float = float("-inf")) -> tuple[list[Departure], int]:
+    """Every vehicle of ``route_files`` departing from ``since`` to ``until``, routed by duarouter,
+    in the order of departure, and how many it found no route for. Raises :class:`RoutingError`."""
     from ..core.tools import sumo_binary
     with tempfile.TemporaryDirectory(prefix="scendiff-route-") as work:
         out = os.path.join(work, "routed.rou.xml")
-        # no --begin: duarouter 1.28 never returns from a probability flow that began before it
         args = [sumo_binary("duarouter"), "-n", os.path.abspath(net_path),
                 "-r", ",".join(os.path.abspath(p) for p in route_files), "-o", out,
                 "--junction-taz", "--ignore-errors", "--no-step-log",
                 "--seed", str(ROUTER_SEED)]
         if until < float("inf"):
             args += ["--end", f"{until + 1.0:.3f}"]
+        # duarouter 1.28 never returns from a probability flow that began before its --begin: with
+        # one, the departures before ``since`` are routed too and left out here
+        if since > float("-inf") and not any(_has_probability_flow(p) for p in route_files):
+            args += ["--begin", f"{since:.3f}"]
         if additional:
             args += ["-a", ",".join(os.path.abspath(p) for p in additional)]
         try:
@@ -66,17 +70,23 @@ def routed_departures(net_path: str, route_files, additional=(),
         unknown = next((ln for ln in done.stderr.splitlines() if _UNKNOWN.search(ln)), None)
         if unknown:     # duarouter goes on with a default; SUMO refuses to load such a demand
             raise RoutingError(f"{unknown.removeprefix('Warning: ').rstrip('.')} (SUMO refuses such a demand)")
-        return _read(out, until), sum("has no valid route" in line for line in done.stderr.splitlines())
+        return _read(out, since, until), sum("has no valid route" in line for line in done.stderr.splitlines())
 
 
-def _read(path: str, until: float) -> list[Departure]:
+def _has_probability_flow(path: str) -> bool:
+    import gzip
+    with (gzip.open if path.endswith(".gz") else open)(path, "rb") as f:
+        return _PROBABILITY_FLOW.search(f.read()) is not None
+
+
+def _read(path: str, since: float, until: float) -> list[Departure]:
     from sumolib.xml import parse
     named = {el.id: tuple(el.edges.split()) for el in parse(path, "route")
              if getattr(el, "id", None) and getattr(el, "edges", None)}
     out = []
     for el in parse(path, "vehicle"):
         depart = float(el.depart)
-        if depart > until:
+        if not since <= depart <= until:
             continue
         if el.hasChild("route"):
             edges = tuple(el.getChild("route")[0].edges.split())
