@@ -69,6 +69,18 @@ def left_lane_net(tmp_path_factory) -> str:
 
 
 @pytest.fixture(scope="session")
+def priority_net(tmp_path_factory) -> str:
+    """A junction without a light: a major road w-e (priority 2) crossed by a minor one s-n
+    (priority 1), one lane each way, 300 m arms."""
+    nodes = ('<node id="c" x="0" y="0" type="priority"/><node id="w" x="-300" y="0"/><node id="e" x="300" y="0"/>'
+             '<node id="s" x="0" y="-300"/><node id="n" x="0" y="300"/>')
+    edges = "".join(f'<edge id="{a}{b}" from="{a}" to="{b}" numLanes="1" speed="13.89" priority="{p}"/>'
+                    for a, b, p in (("w", "c", 2), ("c", "w", 2), ("e", "c", 2), ("c", "e", 2),
+                                    ("s", "c", 1), ("c", "s", 1), ("n", "c", 1), ("c", "n", 1)))
+    return netconvert(nodes, edges, str(tmp_path_factory.mktemp("priority") / "priority.net.xml"))
+
+
+@pytest.fixture(scope="session")
 def city():
     """networks/city.net.xml, the shipped city, loaded once."""
     from sumo_scendiff.map.network import Network

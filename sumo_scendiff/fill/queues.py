@@ -14,6 +14,10 @@ events are taken in the order of time, so what one vehicle does holds up the nex
   foes' flow (:meth:`~.travel.TravelTimes.gap_capacity`) and, as the green ends, SNEAKERS per lane
   that waited inside the junction: a turn whose demand exceeds that grows its queue, as SUMO's
   does; an actuated one holds each its expected (Webster's) delay;
+* a link without a light that gives way (a minor road's) lets its queue through one per gap of
+  MINOR_GAP s in its foes' flow (:meth:`~.travel.TravelTimes.gap_capacity`), its head waiting Adams'
+  delay for its gap: a minor approach whose demand exceeds what the major stream leaves it grows
+  its queue;
 * a vehicle stands on the lanes of its edge that lead on along its route (SUMO's best lanes: those
   that reach its next edge, and of them those whose lane there reaches the edge after), the least
   occupied of them, and a lane holds its length over JAM_SPACING vehicles: a vehicle whose lanes on
@@ -34,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .travel import SATURATION_FLOW, Driver, TravelTimes
+from .travel import MINOR_GAP, SATURATION_FLOW, Driver, TravelTimes
 
 JAM_SPACING = 7.5    # m of lane per standing vehicle: SUMO's default length 5 m + minGap 2.5 m
 MIN_STORAGE_M = 30.0  # m: a shorter edge holds no queue of its own (:func:`run_to`)
@@ -158,8 +162,11 @@ def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnE
         nxt = trip.edges[k + 1]
         link = times.link_of(e, nxt)
         program = times.light(link) if link is not None else None
+        minor = program is None and link is not None and bool(link.foes)
         if kind == LINE:                     # reached the stop line: ready after giving way
-            if program is None:
+            if minor:                        # the head's gap; the queue is the server's (GO)
+                wait = times.yielding(link, e, nxt, queued=True)[0]
+            elif program is None:
                 wait, _ = times.link(e, nxt, trip.driver)
             else:                            # a yielding green's gap is waited for in the GO step, in green
                 wait = 0.0
@@ -168,6 +175,11 @@ def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnE
             push(t + wait, GO, trip, k)
             continue
         # GO: through the junction if the light and the next edge let it
+        if minor:
+            go = free_at.get((e, nxt), -np.inf)
+            if go > t:
+                push(go, GO, trip, k)
+                continue
         if program is not None and not sneaking.pop(id(trip), False):
             go = program.next_green(link.indices, max(t, ready.get(id(trip), t), free_at.get((e, nxt), -np.inf)))
             if go > t:
@@ -189,6 +201,8 @@ def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnE
             waiting_for.setdefault(nxt, deque()).append((trip, k))
             continue
         at_line = where[id(trip)].t_enter + where[id(trip)].travel
+        if minor:
+            free_at[(e, nxt)] = t + 1.0 / min(SATURATION_FLOW * link.lanes, times.gap_capacity(link, MINOR_GAP))
         if program is None:
             _, before = times.link(e, nxt, trip.driver)
         else:
