@@ -273,30 +273,36 @@ def test_a_yielding_green_lets_its_queue_through_as_the_green_ends(tmp_path, cro
     assert 3 <= len(ends) <= 7
 
 
+def _approach_counts(tmp_path, net_path: str, flows: dict, edge: str) -> tuple[list[int], list[int]]:
+    """Vehicles on ``edge`` every minute from 5 to 20 minutes, in SUMO (libsumo, seed 1) running the
+    ``flows`` ((from, to) -> veh/s, random arrivals) and in the estimate; (estimate, SUMO)."""
+    import libsumo
+
+    from sumo_scendiff.fill.demand import DemandEstimate
+    from sumo_scendiff.map.network import Network
+    routes = tmp_path / "flows.rou.xml"
+    routes.write_text("<routes>" + "".join(
+        f'<flow id="{a}{b}" begin="0" end="1500" probability="{q}" departSpeed="max"><route edges="{a} {b}"/></flow>'
+        for (a, b), q in flows.items()) + "</routes>")
+    net = Network.load(net_path)
+    libsumo.start(["sumo", "-n", net_path, "-r", str(routes), "--seed", "1", "--no-step-log", "--no-warnings"])
+    sumo, est = [], []
+    try:
+        for t in range(300, 1201, 60):
+            libsumo.simulationStep(t)
+            sumo.append(sum(libsumo.vehicle.getRoadID(v) == edge for v in libsumo.vehicle.getIDList()))
+            est.append(DemandEstimate.at(net, [str(routes)], float(t)).on_edge.get(edge, 0))
+    finally:
+        libsumo.close()
+    return est, sumo
+
+
 def test_a_left_turns_queue_against_oncoming_traffic_is_as_long_as_sumos(tmp_path, cross2_net):
     """Left turns through a busy oncoming stream (two lanes each way, a fixed light): SUMO's
     approach holds a standing queue of them; the estimate's count on it is SUMO's within 25 % (each
     vehicle waiting Adams' delay grown by the queue's 1 / (1 - x) on its own, before, filled the
     approach to 1.6 times SUMO's)."""
-    import libsumo
-
-    from sumo_scendiff.fill.demand import DemandEstimate
-    from sumo_scendiff.map.network import Network
-    flows = {("wc", "cn"): 0.06, ("ec", "cw"): 0.4, ("wc", "ce"): 0.1}
-    routes = tmp_path / "busy.rou.xml"
-    routes.write_text("<routes>" + "".join(
-        f'<flow id="{a}{b}" begin="0" end="1500" probability="{q}" departSpeed="max"><route edges="{a} {b}"/></flow>'
-        for (a, b), q in flows.items()) + "</routes>")
-    net = Network.load(cross2_net)
-    libsumo.start(["sumo", "-n", cross2_net, "-r", str(routes), "--seed", "1", "--no-step-log", "--no-warnings"])
-    sumo, est = [], []
-    try:
-        for t in range(300, 1201, 60):
-            libsumo.simulationStep(t)
-            sumo.append(sum(libsumo.vehicle.getRoadID(v) == "wc" for v in libsumo.vehicle.getIDList()))
-            est.append(DemandEstimate.at(net, [str(routes)], float(t)).on_edge.get("wc", 0))
-    finally:
-        libsumo.close()
+    est, sumo = _approach_counts(tmp_path, cross2_net, {("wc", "cn"): 0.06, ("ec", "cw"): 0.4, ("wc", "ce"): 0.1}, "wc")
     assert np.mean(est) == pytest.approx(np.mean(sumo), rel=0.25), (est, sumo)
 
 
@@ -395,23 +401,5 @@ def test_a_minor_roads_queue_grows_when_the_major_stream_leaves_it_too_few_gaps(
     across: SUMO's queue on the minor approach grows and fills it; the estimate's, one vehicle let
     through per gap of MINOR_GAP s, as well (within 25 % of SUMO's over 15 minutes). Each vehicle
     waiting its own grown Adams' delay instead held a third of SUMO's queue."""
-    import libsumo
-
-    from sumo_scendiff.fill.demand import DemandEstimate
-    from sumo_scendiff.map.network import Network
-    flows = {("wc", "ce"): 0.2, ("ec", "cw"): 0.2, ("sc", "cn"): 0.1}
-    routes = tmp_path / "minor.rou.xml"
-    routes.write_text("<routes>" + "".join(
-        f'<flow id="{a}{b}" begin="0" end="1500" probability="{q}" departSpeed="max"><route edges="{a} {b}"/></flow>'
-        for (a, b), q in flows.items()) + "</routes>")
-    net = Network.load(priority_net)
-    libsumo.start(["sumo", "-n", priority_net, "-r", str(routes), "--seed", "1", "--no-step-log", "--no-warnings"])
-    sumo, est = [], []
-    try:
-        for t in range(300, 1201, 60):
-            libsumo.simulationStep(t)
-            sumo.append(sum(libsumo.vehicle.getRoadID(v) == "sc" for v in libsumo.vehicle.getIDList()))
-            est.append(DemandEstimate.at(net, [str(routes)], float(t)).on_edge.get("sc", 0))
-    finally:
-        libsumo.close()
+    est, sumo = _approach_counts(tmp_path, priority_net, {("wc", "ce"): 0.2, ("ec", "cw"): 0.2, ("sc", "cn"): 0.1}, "sc")
     assert np.mean(sumo) > 20 and np.mean(est) == pytest.approx(np.mean(sumo), rel=0.25), (est, sumo)
