@@ -1,6 +1,7 @@
 """The demand's departures up to a time, each on the route SUMO would give it.
 
-    for dep in routed_departures(net_path, route_files, additional, until=28800.0):
+    departures, unrouted = routed_departures(net_path, route_files, additional, until=28800.0, since=21600.0)
+    for dep in departures:
         dep.id, dep.type, dep.edges, dep.depart, dep.standing, dep.depart_pos
 
 SUMO's own router (duarouter) reads the route files as SUMO does: trips between edges (through
@@ -18,8 +19,9 @@ import subprocess
 import tempfile
 from dataclasses import dataclass
 
-# what SUMO refuses at loading and duarouter, told to ignore errors, only warns of
+# a flow of random departures (duarouter hangs on one with --begin)
 _PROBABILITY_FLOW = re.compile(rb"<flow\b[^>]*\bprobability=")
+# what SUMO refuses at loading and duarouter, told to ignore errors, only warns of
 _UNKNOWN = re.compile(r"The (vehicle type|route|route distribution) '[^']*' for .* is not known")
 # duarouter's random choices (probability flows, distributions) with SUMO's default seed: the draws
 # a run of the demand without --seed makes
