@@ -1,6 +1,8 @@
 """Does the model take the turn a token asks where the road offers a choice?
 
     python experiments/turn_choice.py [--cities resco_cologne3 ...] [--windows 60] [--guidance G] [-o FILE]
+    python experiments/turn_choice.py --no-lane-snap      # the path as decoded (no lane snap, no lane headings)
+    python experiments/turn_choice.py --decoder-alone     # the decoder on the recorded scene's latent
 
 ``token_response.py`` asks a ±0.5 rad turn of a moving vehicle wherever it is, mostly mid-edge,
 where no lane turns: a model that keeps its vehicles on the road does not follow it. Here the turn
@@ -13,6 +15,10 @@ speed and ``heading_to_final`` as the rightmost of those continuations, then as 
 same noise, the rest of the traffic left to the model at p_mask 0.5, delivery off: the model's own
 drawing, lane snap included). The continuations follow the lanes' centre lines through the
 junction's internal lanes (``Network.successors``) from where the vehicle stands.
+
+``--decoder-alone`` asks the autoencoder instead: the recorded window encoded (its latent says what
+SUMO's vehicle did), decoded with the one token (does the decoder draw the turn the token asks,
+where the latent says the other?), the decoded path as it is.
 
 Reported per city and together: how many probes were matched both times (Hungarian within 2.2 m
 and 0.2 rad, ``core.matching``), the **response** (mean drawn turn at the left ask − at the right
@@ -40,7 +46,10 @@ from sumo_scendiff.data.demand import find_demand
 from sumo_scendiff.data.shards import SceneStore
 from sumo_scendiff.evaluate.__main__ import record_cached
 from sumo_scendiff.generation.generator import ScenarioGenerator
-from sumo_scendiff.tokens.encoding import H2F_RANGE
+from sumo_scendiff.map.raster import render_agents, render_map
+from sumo_scendiff.model.detection import decode_boxes
+from sumo_scendiff.tokens.encoding import H2F_RANGE, agent_tokens_from_dicts, pad_tokens
+from sumo_scendiff.tokens.raster import exact_values
 
 MIN_SPEED, MIN_APART = 3.0, 0.15     # m/s, rad
 
@@ -87,10 +96,27 @@ def token(scene, j: int, turn: float) -> dict:
 
 def drawn_turns(scenes, toks) -> list[float | None]:
     """The ``heading_to_final`` of the agent each scene matched to its one token (None: none)."""
+    return [_turn_at(s.boxes, s.traj, t) for s, t in zip(scenes, toks)]
+
+
+def _turn_at(boxes, traj, t: dict) -> float | None:
+    gi, _ = match_agents(np.asarray(boxes)[:, :3], np.array([[t["x"], t["y"], t["heading"]]]))
+    return heading_to_final(np.asarray(traj)[gi[0]].astype(np.float64)) if len(gi) else None
+
+
+def decoded_turns(gen, net, scenes, toks) -> list[float | None]:
+    """:func:`drawn_turns` of the autoencoder alone: each recorded scene encoded, decoded with its
+    one token (its exact values, as generation gives them), boxes kept at the generator's threshold."""
+    import torch
     out = []
     for s, t in zip(scenes, toks):
-        gi, _ = match_agents(s.boxes[:, :3], np.array([[t["x"], t["y"], t["heading"]]]))
-        out.append(heading_to_final(s.traj[gi[0]].astype(np.float64)) if len(gi) else None)
+        m = torch.from_numpy(render_map(net, s.window, gen.raster, signals=s.meta.get("signals") or None)[None])
+        x = torch.from_numpy(render_agents(s.boxes, s.traj, s.traj_mask, gen.raster)[None])
+        tok, pad = pad_tokens([agent_tokens_from_dicts([t])])
+        with torch.no_grad():
+            d = decode_boxes(gen.ae.decode(gen.ae.encode(x)[0], m, gen.ae.token_raster(tok, pad, exact_values([[t]], [1]))))
+        keep = d.prob[0].numpy() >= gen.config.threshold
+        out.append(_turn_at(d.boxes[0].numpy()[keep], d.traj[0].numpy()[keep], t))
     return out
 
 
@@ -120,6 +146,9 @@ def get_options(args=None):
     p.add_argument("--cache", default=os.path.join(ROOT, ".cache", "eval"))
     p.add_argument("--checkpoint", default=None)
     p.add_argument("--guidance", type=float, default=None, help="token guidance weight (default: generate's)")
+    p.add_argument("--no-lane-snap", action="store_true", help="the paths as decoded: no lane snap, no lane headings")
+    p.add_argument("--decoder-alone", action="store_true",
+                   help="the autoencoder on the recorded window with the one token, not the diffusion model")
     p.add_argument("-o", "--output", default=None, help="also write the table here (markdown)")
     return p.parse_args(args)
 
@@ -127,7 +156,8 @@ def get_options(args=None):
 def main(o) -> int:
     gen = ScenarioGenerator.load(o.checkpoint)
     cfg = replace(gen.config, deliver_tokens=False,
-                  **({} if o.guidance is None else {"guidance": o.guidance})).validate()
+                  **({} if o.guidance is None else {"guidance": o.guidance}),
+                  **({"lane_snap": False, "lane_headings": False} if o.no_lane_snap else {})).validate()
     lines = ["| city | probes | matched both times | asked apart, rad | response | nearer the asked, both times |",
              "|---|---|---|---|---|---|"]
     pooled = [[], [], [], []]
@@ -147,6 +177,9 @@ def main(o) -> int:
         got = {}
         for side in (1, 2):     # the rightmost, then the leftmost continuation
             toks = [token(s, c[0], c[side]) for s, c in probes]
+            if o.decoder_alone:
+                got[side] = decoded_turns(gen, net, [s for s, _ in probes], toks)
+                continue
             scenes = gen.generate(net, [s.window for s, _ in probes], tokens=[[t] for t in toks], p_mask=o.p_mask,
                                   seed=o.seed, signals=[s.meta.get("signals") or None for s, _ in probes],
                                   config=cfg)
