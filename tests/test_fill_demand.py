@@ -45,9 +45,11 @@ def _edge_pair(net):
 def test_en_route_vehicles_on_their_lanes():
     """The demand's vehicles: on a lane that leads to their next edge, waiting ones queued from the
     stop line (longest waiting first), moving ones where they have driven to, none overlapping;
-    sizes from the vTypes."""
+    sizes and gaps from the vTypes."""
     from sumo_scendiff.fill.demand import DemandEstimate, EnRoute
-    from sumo_scendiff.fill.en_route import MIN_GAP, STOP_MARGIN, place_en_route
+    from sumo_scendiff.fill.en_route import STOP_MARGIN, place_en_route
+    from sumo_scendiff.fill.vtypes import DEFAULT_MIN_GAP as MIN_GAP
+    from sumo_scendiff.fill.vtypes import Body
     from sumo_scendiff.map.network import Network
     net = Network.load(NET4)
     e, nxt = _edge_pair(net)
@@ -56,7 +58,7 @@ def test_en_route_vehicles_on_their_lanes():
     vehicles = [EnRoute(f"w{k}", "truck" if k == 1 else None, route, travel + 5.0 * (3 - k), travel, 10.0)
                 for k in range(3)] + [EnRoute("m0", None, route, 2.0, travel, 10.0),
                                       EnRoute("m1", None, route, 2.1, travel, 10.0)]
-    placed, skipped = place_en_route(net, DemandEstimate(0.0, {}, 5, 0, 5, vehicles), {"truck": (10.0, 2.5)})
+    placed, skipped = place_en_route(net, DemandEstimate(0.0, {}, 5, 0, 5, vehicles), {"truck": Body(10.0, 2.5, 1.0)})
     assert not skipped and [p.vehicle.id for p in placed] == ["w0", "w1", "w2", "m1", "m0"]
     ok_lanes = {c.getFromLane().getID() for c in e.getConnections(nxt)}
     by_lane = {}
@@ -68,9 +70,9 @@ def test_en_route_vehicles_on_their_lanes():
         assert math.hypot(p.x - xy[0], p.y - xy[1]) < 1e-6
     assert {p.vehicle.id: (p.length, p.width) for p in placed}["w1"] == (10.0, 2.5)
     fronts = {p.vehicle.id: p.pos for p in placed}
-    for ps in by_lane.values():   # along each lane: in order, a minGap apart
+    for ps in by_lane.values():   # along each lane: in order, the one behind its minGap back
         for a, b in zip(ps, ps[1:]):
-            assert b.pos <= a.pos - a.length - MIN_GAP + 1e-9
+            assert b.pos <= a.pos - a.length - (1.0 if b.vehicle.id == "w1" else MIN_GAP) + 1e-9
     first = max(fronts[f"w{k}"] for k in range(3))
     assert first == pytest.approx(net.lanes[placed[0].lane].length - STOP_MARGIN)
     lane_of = {p.vehicle.id: p.lane for p in placed}
@@ -144,16 +146,17 @@ def test_a_lane_both_directions_share_takes_one_of_them(tmp_path):
     assert [net.lanes[p.lane].edge for p in alone] == ["-a"]
 
 
-def test_vtype_sizes(tmp_path):
-    """A vType's length and width, SUMO's default for its vClass where it gives none, and a
+def test_vtype_bodies(tmp_path):
+    """A vType's length, width and minGap, SUMO's default for its vClass where it gives none, and a
     distribution's first member's."""
-    from sumo_scendiff.fill.en_route import vtype_sizes
+    from sumo_scendiff.fill.vtypes import Body, vtype_bodies
     f = tmp_path / "t.add.xml"
-    f.write_text('<additional><vType id="a" length="4.2" width="1.7"/><vType id="b" vClass="bus"/>'
+    f.write_text('<additional><vType id="a" length="4.2" width="1.7" minGap="1.5"/><vType id="b" vClass="bus"/>'
                  '<vTypeDistribution id="d"><vType id="c" vClass="truck" probability="1"/></vTypeDistribution>'
-                 '<vTypeDistribution id="e" vTypes="b a"/></additional>')
-    assert vtype_sizes([str(f)]) == {"a": (4.2, 1.7), "b": (12.0, 2.5), "c": (7.1, 2.4), "d": (7.1, 2.4),
-                                     "e": (12.0, 2.5)}
+                 '<vTypeDistribution id="e" vTypes="b a"/><vType id="f" vClass="bicycle"/></additional>')
+    assert vtype_bodies([str(f)]) == {"a": Body(4.2, 1.7, 1.5), "b": Body(12.0, 2.5), "c": Body(7.1, 2.4),
+                                      "d": Body(7.1, 2.4), "e": Body(12.0, 2.5), "f": Body(1.6, 0.65, 0.5)}
+    assert Body(4.2, 1.7, 1.5).spacing == pytest.approx(5.7)
 
 
 def test_fill_with_demand(tmp_path):

@@ -117,7 +117,8 @@ def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | No
 
     from ..map.edgedata import EdgeData, EdgeDataError
     from .demand import DemandEstimate
-    from .en_route import place_en_route, vtype_sizes
+    from .en_route import place_en_route
+    from .vtypes import vtype_bodies
     from .plan import demand_tiles
     from .routing import RoutingError
     name = o.checkpoint or "the shipped model"
@@ -156,7 +157,7 @@ def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | No
                            f"(target) but generation uses the model's prior scaled by --p-mask {o.p_mask:g}")
         if o.demand_level_only:
             return targets, gen.has_density, src, None
-        placed, skipped = place_en_route(net, est, vtype_sizes([*routes, *additional]))
+        placed, skipped = place_en_route(net, est, vtype_bodies([*routes, *additional]))
         # each core keeps the vehicles placed in it: an edge's queue stands in the core of its stop
         # line, not spread over the edge as the per-edge density has it
         owner = demand_tiles(tiles, placed, o.area)

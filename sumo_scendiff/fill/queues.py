@@ -39,8 +39,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from .travel import MINOR_GAP, SATURATION_FLOW, Driver, TravelTimes
+from .vtypes import DEFAULT_BODY
 
-JAM_SPACING = 7.5    # m of lane per standing vehicle: SUMO's default length 5 m + minGap 2.5 m
+# m of lane per standing vehicle: SUMO's default car's length and minGap, whatever the vTypes (each
+# vType's own spacing held the clock worse on the real cities, docs/fill.md)
+JAM_SPACING = DEFAULT_BODY.spacing
 MIN_STORAGE_M = 30.0  # m: a shorter edge holds no queue of its own (:func:`run_to`)
 # vehicles per lane of a yielding link that wait inside the junction (netconvert's waiting position
 # of a turn holds one car) and leave as the green ends; 0, 1 and 2 measured (docs/fill.md)

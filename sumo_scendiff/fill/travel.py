@@ -44,6 +44,7 @@ import numpy as np
 
 from ..map.links import gives_way, junction_links
 from .programs import Program, green_shares, minor_green, signal_programs, under_demand
+from .vtypes import CLASS_ACCEL, CLASS_DECEL, CLASS_MAX_SPEED, number, vtype_table
 
 SATURATION_FLOW = 0.5   # veh/s per lane discharging at green (SUMO's Krauss defaults: ~1 800 veh/h)
 # Traffic cruises below its desired speed: car-following behind slower vehicles (speedFactor's spread),
@@ -67,14 +68,6 @@ FOLLOW_UP = 2.0         # s between minor vehicles taking one gap (the saturatio
 # net.xml connection states that give way without a light (minor, right before left, stop sign,
 # all-way stop); those that stop first
 YIELDS, STOPS = "m=sw", "sw"
-# SUMO's vType defaults (sumo.dlr.de "Vehicle Type Parameter Defaults"): maxSpeed per vClass, m/s
-CLASS_MAX_SPEED = {"passenger": 55.56, "private": 55.56, "taxi": 55.56, "evehicle": 55.56,
-                   "delivery": 55.56, "emergency": 55.56, "authority": 55.56, "army": 55.56,
-                   "vip": 55.56, "truck": 36.11, "trailer": 36.11, "bus": 27.78, "coach": 27.78,
-                   "motorcycle": 55.56, "moped": 13.89}
-CLASS_ACCEL = {"truck": 1.3, "trailer": 1.1, "bus": 1.2, "coach": 2.0, "moped": 1.1}
-CLASS_DECEL = {"truck": 4.0, "trailer": 4.0, "bus": 4.0, "coach": 4.0, "moped": 7.0}
-
 
 @dataclass(frozen=True)
 class Driver:
@@ -108,42 +101,12 @@ def vtype_drivers(paths) -> dict[str, Driver]:
     every vTypeDistribution (its first member's)."""
     def driver(el) -> Driver:
         cls = getattr(el, "vClass", None) or "passenger"
-
-        def num(name, default):
-            v = getattr(el, name, None)
-            try:
-                return float(v) if v is not None else default
-            except ValueError:          # "normc(1,0.1,0.2,2)": its mean
-                head = v.split("(", 1)[-1].split(",")[0]
-                try:
-                    return float(head)
-                except ValueError:
-                    return default
         krauss = (getattr(el, "carFollowModel", None) or "Krauss").startswith("Krauss")
-        return Driver(num("speedFactor", 1.0), num("maxSpeed", CLASS_MAX_SPEED.get(cls, 55.56)),
-                      num("accel", CLASS_ACCEL.get(cls, 2.6)), num("decel", CLASS_DECEL.get(cls, 4.5)),
-                      num("sigma", 0.5) if krauss else 0.0)
+        return Driver(number(el, "speedFactor", 1.0), number(el, "maxSpeed", CLASS_MAX_SPEED.get(cls, 55.56)),
+                      number(el, "accel", CLASS_ACCEL.get(cls, 2.6)), number(el, "decel", CLASS_DECEL.get(cls, 4.5)),
+                      number(el, "sigma", 0.5) if krauss else 0.0)
 
     return vtype_table(paths, driver)
-
-
-def vtype_table(paths, of) -> dict:
-    """``of(element)`` of every vType in ``paths`` (route and additional files) by id, and of every
-    vTypeDistribution (its first member's; a distribution lists members or holds vTypes)."""
-    from sumolib.xml import parse
-    out: dict = {}
-    dists: dict[str, list[str]] = {}
-    for path in paths:          # (one pass per kind: sumolib empties a child it also yields)
-        for el in parse(path, "vType"):
-            out[el.id] = of(el)
-        for el in parse(path, "vTypeDistribution"):
-            members = (getattr(el, "vTypes", None) or "").split()
-            dists[el.id] = members + [c.id for c in (el.getChild("vType") if el.hasChild("vType") else [])]
-    for name, members in dists.items():
-        first = next((m for m in members if m in out), None)
-        if first is not None and name not in out:
-            out[name] = out[first]
-    return out
 
 
 @dataclass(frozen=True)
@@ -347,5 +310,4 @@ def link_flows(routes: list[tuple[float, list[str]]], begin: float, span: float)
     return {k: n / max(span, 1.0) for k, n in counts.items()}
 
 
-__all__ = ["DEFAULT_DRIVER", "Driver", "Link", "TravelTimes", "link_flows", "vtype_drivers", "webster",
-           "vtype_table"]
+__all__ = ["DEFAULT_DRIVER", "Driver", "Link", "TravelTimes", "link_flows", "vtype_drivers", "webster"]
