@@ -10,7 +10,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-from .test_fill import NET, NET4, _fill
+from .test_fill import NET, NET4, _fail, _fill
 
 pytestmark = pytest.mark.slow   # real runs of the CLIs: the fast tier is -m "not slow"
 
@@ -204,6 +204,21 @@ def test_fill_with_demand(tmp_path):
         run = subprocess.run([sumo_binary(), "-c", str(tmp_path / "o" / cfg), "--end", "130"],
                              check=False, capture_output=True, text=True, timeout=60)
         assert run.returncode == 0 and "Error" not in run.stderr, run.stderr
+
+
+@pytest.mark.parametrize("begin, asked", [("30", "30 s (0:00:30)"), ("0:11:00", "660 s (0:11:00)")])
+def test_a_start_outside_the_demand_is_refused(tmp_path, capsys, begin, asked):
+    """--begin before the first departure or after the last (seconds or SUMO's clock time): one
+    line naming the flag and the demand's span, exit 2, no folder."""
+    from sumo_scendiff.map.network import Network
+    edges = sorted(e.getID() for e in Network.load(NET).sumo_net.getEdges())
+    demand = tmp_path / "demand.rou.xml"
+    demand.write_text(f'<routes><flow id="f" begin="0:01:00" end="600" period="4" from="{edges[0]}" '
+                      f'to="{edges[-1]}"/></routes>')
+    err = _fail(capsys, "-n", NET, "-r", str(demand), "--begin", begin, "-o", str(tmp_path / "o"))
+    assert err.endswith(f"--begin {asked} lies outside the demand ({demand}: departures from 60 s (0:01:00) "
+                        "to 600 s (0:10:00)); give a --begin within it")
+    assert not os.path.exists(tmp_path / "o")
 
 
 def test_demand_level_only(tmp_path):

@@ -6,7 +6,7 @@ import shutil
 
 import pytest
 
-from sumo_scendiff.data.demand import DemandError, check_demand
+from sumo_scendiff.data.demand import DemandError, check_demand, demand_span
 from sumo_scendiff.sim.scenario import ScenarioError, scenario_from_files
 
 VTYPES = '<additional>\n  <vType id="slow" vClass="passenger" maxSpeed="8"/>\n</additional>\n'
@@ -85,6 +85,21 @@ def test_route_files_are_checked_as_a_set(scenario, cross_net):
     foreign.write_text('<routes><vehicle id="x" depart="0"><route edges="nowhere gone"/></vehicle></routes>')
     with pytest.raises(DemandError, match="foreign.rou.xml: does not match the network"):
         check_demand([routes, str(foreign)], edges)
+
+
+def test_the_demands_span_in_every_form_sumo_reads(tmp_path, cross_net):
+    """Departures as seconds or clock time, attributes with spaces around '=', a flow departing
+    until its end; a flow without an end leaves the span open."""
+    from sumo_scendiff.map.network import Network
+    edges = sorted({ln.edge for ln in Network.load(cross_net).lanes})
+    f = tmp_path / "d.rou.xml"
+    f.write_text(f'<routes><flow id="f" begin= "15:00:00" end ="16:00:00" number="9" from="{edges[0]}" '
+                 f'to="{edges[-1]}"/><vehicle id="v" depart="triggered"><route edges="{edges[0]}"/></vehicle>'
+                 f'<trip id="t" depart="54300.5" from="{edges[0]}" to="{edges[-1]}"/></routes>')
+    assert demand_span([str(f)], set(edges)) == (54000.0, 57600.0)
+    assert check_demand([str(f)], set(edges)) == 54000.0
+    f.write_text(f'<routes><flow id="f" begin="10" period="5" from="{edges[0]}" to="{edges[-1]}"/></routes>')
+    assert demand_span([str(f)], set(edges)) == (10.0, float("inf"))
 
 
 def test_a_scenario_sumo_refuses_is_one_line_naming_its_error(tmp_path, cross_net, capfd):

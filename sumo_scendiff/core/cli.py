@@ -32,3 +32,23 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
                 or not action.option_strings:
             return text
         return f"{text} (default: %(default)s)" if text else "(default: %(default)s)"
+
+
+def sumo_time(value: str) -> float:
+    """An argparse type: a time as SUMO reads one, seconds or clock time ``[[D:]H:]M:S``."""
+    try:
+        parts = [float(p) for p in value.split(":")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a time in seconds or H:M:S: {value!r}") from None
+    if len(parts) > 4 or any(p < 0 for p in parts):
+        raise argparse.ArgumentTypeError(f"not a time in seconds or H:M:S: {value!r}")
+    return sum(p * f for p, f in zip(reversed(parts), (1, 60, 3600, 86400)))
+
+
+def clock(seconds: float) -> str:
+    """``seconds`` as SUMO's human-readable time, ``H:MM:SS`` (``D:HH:MM:SS`` past a day)."""
+    s = int(round(seconds))
+    d, s = divmod(s, 86400)
+    h, s = divmod(s, 3600)
+    m, s = divmod(s, 60)
+    return f"{d}:{h:02d}:{m:02d}:{s:02d}" if d else f"{h}:{m:02d}:{s:02d}"

@@ -70,8 +70,10 @@ def random_trips(net_path: str, out_path: str, spec: RandomDemand) -> str:
     return out_path
 
 
-_EDGE_ATTRS = re.compile(rb'\b(?:edges|from|to)="([^"]*)"')
-_DEPART = re.compile(rb'<(?:vehicle|trip|flow|person|personFlow)\b[^>]*?\b(?:depart|begin)="([0-9.]+)"')
+_EDGE_ATTRS = re.compile(rb'\b(?:edges|from|to)\s*=\s*"([^"]*)"')
+_DEPART = re.compile(rb'<(?:vehicle|trip|flow|person|personFlow)\b[^>]*?\b(?:depart|begin)\s*=\s*"([^"]*)"')
+_FLOW_END = re.compile(rb'<(?:flow|personFlow)\b[^>]*?\bend\s*=\s*"([^"]*)"')
+_FLOW = re.compile(rb'<(?:flow|personFlow)\b')
 _DEMAND = re.compile(rb'<(?:vehicle|trip|flow|person|personFlow|container|containerFlow)\b')
 
 
@@ -92,18 +94,35 @@ def _read_xml(path: str, roots: tuple[bytes, ...]) -> bytes:
     return data
 
 
+def _seconds(value: bytes) -> float | None:
+    """A SUMO time attribute (seconds, or clock time ``[D:]HH:MM:SS``) in s; None for the
+    non-times a depart may be (``triggered``, ``now``, ...)."""
+    from sumolib.miscutils import parseTime
+    try:
+        return float(parseTime(value.decode()))
+    except (ValueError, TypeError):
+        return None
+
+
 def check_demand(route_files: Sequence[str], edge_ids: set[str], additional: Sequence[str] = (),
                  sample: int = 2000) -> float:
     """Check route files as the set SUMO loads: each is a closed ``<routes>`` (or ``<additional>``)
     file, the set (with the additional files, which may hold vTypes or routes too) has vehicles,
     trips or flows, and the edges they use are the network's. A file of vTypes alone is legal.
     Returns the first departure (s). Raises :class:`DemandError` naming the file."""
+    return demand_span(route_files, edge_ids, additional, sample)[0]
+
+
+def demand_span(route_files: Sequence[str], edge_ids: set[str], additional: Sequence[str] = (),
+                sample: int = 2000) -> tuple[float, float]:
+    """:func:`check_demand`'s checks; returns the first and the last departure (s; a flow departs
+    until its ``end``, one without an end or a file past its first 2 MB: ``inf``)."""
     data = {p: _read_xml(p, (b"routes", b"additional")) for p in route_files}
     data.update({p: _read_xml(p, (b"additional", b"routes")) for p in additional})
     if not any(_DEMAND.search(d) for d in data.values()):
         raise DemandError(f"{', '.join(route_files) or ', '.join(additional)}: no vehicle routes or "
                           "trips found")
-    departs = []
+    departs, ends, open_ended = [], [], False
     for path, d in data.items():
         used = []
         for m in _EDGE_ATTRS.finditer(d):
@@ -114,8 +133,13 @@ def check_demand(route_files: Sequence[str], edge_ids: set[str], additional: Seq
         if len(unknown) > 0.01 * len(used):
             raise DemandError(f"{path}: does not match the network ({len(unknown)} of {len(used)} "
                               f"edges referenced are unknown, e.g. '{unknown[0]}')")
-        departs += [float(m.group(1)) for m in _DEPART.finditer(d, 0, min(len(d), 2_000_000))]
-    return min(departs) if departs else 0.0
+        head = min(len(d), 2_000_000)
+        departs += [t for m in _DEPART.finditer(d, 0, head) for t in [_seconds(m.group(1))] if t is not None]
+        ends += [t for m in _FLOW_END.finditer(d, 0, head) for t in [_seconds(m.group(1))] if t is not None]
+        open_ended |= head < len(d) or len(_FLOW.findall(d, 0, head)) > len(_FLOW_END.findall(d, 0, head))
+    if not departs:
+        return 0.0, float("inf")
+    return min(departs), float("inf") if open_ended else max(departs + ends)
 
 
 def check_routes(routes_path: str, edge_ids: set[str], sample: int = 2000) -> float:

@@ -30,7 +30,7 @@ class FillError(Exception):
 
 
 def get_options(args=None):
-    from ..core.cli import HelpFormatter, description, epilog
+    from ..core.cli import HelpFormatter, description, epilog, sumo_time
     from ..generation.config import GenerationConfig, SettingError
     p = argparse.ArgumentParser(prog=PROG, description=description(__doc__), epilog=epilog(__doc__),
                                 formatter_class=HelpFormatter)
@@ -42,8 +42,10 @@ def get_options(args=None):
                         "density, and it continues after the start")
     p.add_argument("-a", "--additional-files", dest="additional", default=None,
                    help="comma-separated additional files (vTypes, TLS programs)")
-    p.add_argument("-b", "--begin", type=float, default=None, metavar="TIME",
-                   help="the time of the filled start (s); with demand default: its first departure + 600")
+    p.add_argument("-b", "--begin", type=sumo_time, default=None, metavar="TIME",
+                   help="the time of the filled start (s, or clock time HH:MM:SS as SUMO reads it); with "
+                        "demand default: its first departure + 600, and it must lie within the demand's "
+                        "departures")
     p.add_argument("--area", metavar="X0,Y0,X1,Y1", help="fill only this rectangle (network coordinates)")
     p.add_argument("--stride", type=float, default=75.0, help="metres between tile centres (default 75)")
     amount = p.add_mutually_exclusive_group()
@@ -182,7 +184,8 @@ def run(o, folder: str) -> dict:
 
     from ..core.threads import GENERATION_THREADS, share_cpu
     share_cpu(default=GENERATION_THREADS)   # before torch is imported (core/threads.py: why one)
-    from ..data.demand import DemandError, check_demand
+    from ..core.cli import clock
+    from ..data.demand import DemandError, demand_span
     from ..generation.generator import GenerationConfig, ScenarioGenerator
     from ..map.network import Network
     from ..map.raster import RasterConfig
@@ -205,11 +208,19 @@ def run(o, folder: str) -> dict:
     begin = o.begin if o.begin is not None else 0.0
     if routes:
         try:
-            first = check_demand(routes, {ln.edge for ln in net.lanes}, scen.additional)
+            first, last = demand_span(routes, {ln.edge for ln in net.lanes}, scen.additional)
         except DemandError as e:
             raise FillError(str(e)) from None
         if o.begin is None:
-            begin = (scen.begin if scen.begin is not None else first) + DEFAULT_WARM_UP
+            begin = max(scen.begin if scen.begin is not None else first, first) + DEFAULT_WARM_UP
+        # a start before the first departure or after the last would be an empty or emptying network
+        # that looks filled; the demand's own times say which start the user meant
+        when = f"{', '.join(routes)}: departures from {first:g} s ({clock(first)})" + \
+            ("" if last == float("inf") else f" to {last:g} s ({clock(last)})")
+        if begin < first or begin > last:
+            flag = "--begin" if o.begin is not None else f"the default start (first departure + {DEFAULT_WARM_UP:g} s)"
+            raise FillError(f"{flag} {begin:g} s ({clock(begin)}) lies outside the demand ({when}); "
+                            f"give a --begin within it")
     try:
         tiles = tile_grid(net, o.area, o.stride, RasterConfig().size)
     except TileError as e:
@@ -282,8 +293,8 @@ def main(o) -> int:
     finally:
         signal.signal(signal.SIGTERM, on_sigterm)
     s = doc["summary"]
-    print(f"filled {len(doc['tiles'])} tiles: {s['vehicles']} vehicles seeded ({s['placed']} at their pose, "
-          f"{s['refused']} refused), {s['density_veh_per_km']} veh/km of car lane; "
+    print(f"filled {len(doc['tiles'])} tiles: {s['vehicles']} of {s['kept']} drawn vehicles seeded ({s['placed']} at "
+          f"their pose; {s['refused']} refused, fill.json says why), {s['density_veh_per_km']} veh/km of car lane; "
           f"density source: {doc['density']['kind']}" + ("" if doc["density"]["applied"] else " (not applied)"))
     print("timing (s): " + ", ".join(f"{k} {v:.1f}" for k, v in doc["timing_s"].items())
           + (f" ({o.workers} workers)" if o.workers > 1 else ""))
