@@ -102,6 +102,37 @@ def test_the_demands_span_in_every_form_sumo_reads(tmp_path, cross_net):
     assert demand_span([str(f)], set(edges)) == (10.0, float("inf"))
 
 
+def test_a_saved_state_starts_without_the_flows_it_has_finished(tmp_path):
+    """A flow whose vehicles have all departed is no longer in a saved state, but is in the route
+    file SUMO loads with it: started from the state (SimConfig.state, --load-state) SUMO goes on
+    with the flows still running; simulation.loadState after the start would insert the finished
+    flow's first vehicle again, on the from/to it kept as a route (SUMO stops: no valid route)."""
+    from dataclasses import replace
+
+    from sumo_scendiff.sim.sumo import SimConfig, close, start
+    net = os.path.join(os.path.dirname(__file__), "..", "networks", "grid3x3_1lane.net.xml")
+    routes = tmp_path / "flows.rou.xml"
+    routes.write_text('<routes><flow id="done" begin="0" end="5" number="1" from="A0A1" to="C1C2"/>'
+                      '<flow id="going" begin="0" end="1000" period="10" from="A1A2" to="C2C1"/></routes>')
+    cfg = SimConfig(net=net, routes=(str(routes),), begin=0.0)
+    sim = start(cfg)
+    try:
+        for _ in range(240):
+            sim.simulationStep()
+        sim.simulation.saveState(str(tmp_path / "state.xml.gz"))
+    finally:
+        close(sim)
+    sim = start(replace(cfg, state=str(tmp_path / "state.xml.gz")))
+    try:
+        departed = []
+        for _ in range(40):
+            sim.simulationStep()
+            departed += sim.simulation.getDepartedIDList()
+        assert sim.simulation.getTime() == 140.0 and departed == ["going.12", "going.13"]
+    finally:
+        close(sim)
+
+
 def test_a_scenario_sumo_refuses_is_one_line_naming_its_error(tmp_path, cross_net, capfd):
     """SUMO refusing to load (a light's program that does not fit the junction) raises SimError
     with SUMO's own first error as the message, and nothing of SUMO's reaches the terminal."""

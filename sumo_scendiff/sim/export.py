@@ -193,7 +193,9 @@ class ScenarioWriter:
         """Everything that describes the seeded start (call right after the verification step)."""
         sim.simulation.saveState(self.path("state.xml.gz"))
         exact = write_routes(self.path("scenario.rou.xml"), sim, list(seeding.agent_ids) + list(extra_vehicles), net)
-        write_sumocfg(self.path("scenario.sumocfg"), options, "state.xml.gz")
+        # begun where the state was saved (SUMO warns of a configuration that begins elsewhere)
+        write_sumocfg(self.path("scenario.sumocfg"), {**options, "b": f"{sim.simulation.getTime():g}"},
+                      "state.xml.gz")
         doc = scene_document(seeding, net, sim, info)
         for a in doc["agents"]:
             a["replay_exact"] = exact.get(a["vehicle"]) if a["vehicle"] else None

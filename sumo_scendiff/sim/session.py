@@ -8,10 +8,13 @@
 Every scene runs in a freshly started SUMO (that loads the base state when there is demand), so a
 scene's rollout never depends on which scenes came before it (SUMO's random streams are not part of
 a saved state: reusing one simulation made the same scene drive differently after different
-predecessors, measured). Without demand the rollout is exactly reproducible for a seed. With demand,
-libsumo 1.28's ``loadState`` makes the following steps depend on where SUMO's objects lie in memory
-(measured by ``benchmarks/seeding.py``, which runs SUMO without address randomisation to compare
-methods), so those rollouts can differ slightly between runs; the generated scenes do not.
+predecessors, measured). The state is loaded as SUMO starts (``--load-state``), not by
+``simulation.loadState`` after it, which inserts a finished flow's first vehicle again
+(``SimConfig.state``). Without demand the rollout is exactly reproducible for a seed. With demand,
+libsumo 1.28 continuing from a loaded state made the following steps depend on where SUMO's objects
+lie in memory (measured with ``loadState`` by ``benchmarks/seeding.py``, which runs SUMO without
+address randomisation to compare methods), so those rollouts can differ slightly between runs; the
+generated scenes do not.
 """
 from __future__ import annotations
 
@@ -64,9 +67,7 @@ class Session:
         if not self._at_base:
             if self.sim is not None:
                 close(self.sim)
-            self.sim = start(self.cfg, quiet=self.quiet)
-            if self.base:
-                self.sim.simulation.loadState(self.base)
+            self.sim = start(replace(self.cfg, state=self.base), quiet=self.quiet)
             self._at_base = True
         return self.sim
 
@@ -98,9 +99,7 @@ class Session:
         writer = ScenarioWriter(out_dir, name, force=force)
         try:
             t = time.perf_counter()
-            sim = self.sim = start(replace(self.cfg, seed=seed), quiet=self.quiet)
-            if self.base:
-                sim.simulation.loadState(self.base)
+            sim = self.sim = start(replace(self.cfg, seed=seed, state=self.base), quiet=self.quiet)
             cosim = CoSimulation(sim, self.net, self.generator, seed=seed, prefix="sd")
             seeding = cosim.place(scene, tokens, sources, existing, seed=seed, p_mask=p_mask)
             sim.simulationStep()

@@ -39,6 +39,10 @@ class SimConfig:
     traci: bool = False                 # sumo through traci (a separate process) instead of libsumo
     seed: int = 0
     begin: float | None = None          # simulation start (s): a demand's first departure
+    # a saved state SUMO starts from (--load-state; it begins at the state's time). Loaded so, not by
+    # simulation.loadState after the start: that re-inserts a flow whose vehicles have all departed
+    # (the state no longer holds it, the route file does), from the from/via/to its state kept as a route
+    state: str | None = None
     extra: tuple[str, ...] = field(default_factory=tuple)
     # a scenario's own options on how SUMO runs its demand (SumoScenario.options): carried, but for
     # those the product sets itself (:data:`OWN_OPTIONS`)
@@ -59,7 +63,9 @@ class SimConfig:
             a += ["-r", ",".join(os.path.abspath(r) for r in self.routes)]
         if self.additional:
             a += ["-a", ",".join(os.path.abspath(f) for f in self.additional)]
-        if self.begin is not None:
+        if self.state is not None:
+            a += ["--load-state", os.path.abspath(self.state)]
+        elif self.begin is not None:
             a += ["-b", f"{self.begin:g}"]
         return a + list(self.extra)
 
