@@ -309,3 +309,8 @@ def test_speed_term_is_the_l1_of_decoded_step_lengths():
     assert float(out["speed"].detach()) == pytest.approx(0.5 * (0 + 0 + 2 + 2) / 4, abs=1e-4)
     out["speed"].backward()
     assert fast.grad[0, 7 + 6:7 + 12].abs().sum() > 0
+    # a box whose token gives its speed weighs 1 + told_speed_weight; the others as before
+    told = replace(cfg, told_speed_weight=3.0)
+    for flag, factor in ((True, 4.0), (False, 1.0)):
+        got = detection_loss(fast.detach(), *args, told, told=torch.tensor([[flag]]))["speed"]
+        assert float(got) == pytest.approx(factor * 0.5 * (0 + 0 + 2 + 2) / 4, abs=1e-4)

@@ -177,10 +177,11 @@ def test_misled_and_counterfactual_examples():
     scene = moving_scene()
     batch = batch_of(*scene)
     every = TokenMaskConfig(p_keep_all_tokens=1.0, p_all_features=1.0)
-    x, t, traj = decoder_conditioning(batch, 0, 0, 0, every, 1.0, partial(token_raster, res=64))
+    x, t, traj, told = decoder_conditioning(batch, 0, 0, 0, every, 1.0, partial(token_raster, res=64))
+    assert told.shape == batch["valid"].shape and told.all()     # every agent a token giving its speed
     assert not torch.equal(x, batch["agents"]) and torch.equal(traj, batch["traj"])
     assert torch.allclose(channel(t[0], "speed")[channel(t[0], "speed_given") > 0], torch.tensor(1.1))  # 10 m/s bin
-    x, t, traj = decoder_conditioning(batch, 0, 0, 0, every, 1.0, partial(token_raster, res=64),
+    x, t, traj, _ = decoder_conditioning(batch, 0, 0, 0, every, 1.0, partial(token_raster, res=64),
                                       p_counterfactual=1.0)
     assert torch.equal(x, batch["agents"]) and not torch.equal(traj, batch["traj"])
     assert torch.equal(traj[:, :, T0], batch["traj"][:, :, T0])
@@ -198,8 +199,8 @@ def test_a_decoder_trained_on_exact_values_reads_the_counterfactual_speeds_exact
     batch = batch_of(*scene)
     every = TokenMaskConfig(p_keep_all_tokens=1.0, p_all_features=1.0)
     read = partial(token_raster, res=64)
-    x0, t0, traj0 = decoder_conditioning(batch, 0, 0, 0, every, 1.0, read, p_counterfactual=1.0)
-    x1, t1, traj1 = decoder_conditioning(batch, 0, 0, 0, every, 1.0, read, p_counterfactual=1.0, exact=True)
+    x0, t0, traj0, _ = decoder_conditioning(batch, 0, 0, 0, every, 1.0, read, p_counterfactual=1.0)
+    x1, t1, traj1, _ = decoder_conditioning(batch, 0, 0, 0, every, 1.0, read, p_counterfactual=1.0, exact=True)
     assert torch.equal(x0, x1) and torch.equal(traj0, traj1)
     told = speeds_from_traj(traj1[0].numpy(), scene[2])[:, T0]
     col, row = np.floor(metres_to_pixels(scene[0][:, :2].astype(np.float64), 100.0, (64, 64)) + 0.5).astype(int).T

@@ -247,14 +247,15 @@ class ScenarioAutoencoder(nn.Module):
 
     def loss(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         """Batch with keys x, m, boxes, traj, traj_mask, valid (and t, the token raster, for a
-        decoder with C_t) -> dict of loss terms.
+        decoder with C_t; told, the boxes whose token gives a speed) -> dict of loss terms.
 
         Keys: the detection terms (cls_pos, cls_neg, box, vertex, traj_pos, traj_yaw, rec), the
         diagnostic ``matched``, ``kl`` (unweighted) and ``total`` = rec + kl_weight * kl.
         """
         y, mu, logvar = self(batch["x"], batch["m"], t=batch.get("t"))
         out = detection_loss(y, batch["boxes"], batch["traj"], batch["traj_mask"], batch["valid"],
-                             self.cfg.loss, junction=batch["m"][:, MAP_CHANNELS.index("junction")])
+                             self.cfg.loss, junction=batch["m"][:, MAP_CHANNELS.index("junction")],
+                             told=batch.get("told"))
         out["kl"] = self.kl(mu, logvar)
         out["total"] = out["rec"] + self.cfg.kl_weight * out["kl"]
         return out

@@ -55,6 +55,9 @@ class DetectionLossConfig:
     heading_bin_weight: float = 1.0  # cross-entropy of the MultiBin heading head (if the decoder has one)
     heading_res_weight: float = 1.0  # L1 (radians) on its residuals
     speed_weight: float = 0.0  # L1 (m/s) on the 1 s step lengths |p(t) - p(t-1)| (0: off, the paper)
+    # ... of a vehicle whose token gives a speed (``told``): 1 + this many times (a decoder that reads
+    # tokens; the scene's other vehicles, whose speed only the map and latent suggest, dominate it else)
+    told_speed_weight: float = 0.0
     neg_near_distance: float = 3.0  # m, cell centre to the GT box outline (0 inside)
     match_radius: float = 4.0  # m, candidate cells for a GT box lie within this of its centre
     min_edge_distance: float = 0.1  # m, GT edge distances are at least this (see box_targets)
@@ -315,7 +318,7 @@ def junction_weights(boxes: torch.Tensor, scene: torch.Tensor, junction: torch.T
 
 def detection_loss(y: torch.Tensor, boxes: torch.Tensor, traj: torch.Tensor, traj_mask: torch.Tensor,
                    valid: torch.Tensor, cfg: DetectionLossConfig,
-                   junction: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+                   junction: torch.Tensor | None = None, told: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
     """Reconstruction loss L_rec (appendix C.2) of ``y`` (B, 19 [+ 2K], H, W) against padded GT.
 
     Normalisation: every term is *summed* over the matched GT boxes (resp. over all unmatched
@@ -329,7 +332,8 @@ def detection_loss(y: torch.Tensor, boxes: torch.Tensor, traj: torch.Tensor, tra
     ``heading_res`` (residual L1) per matched box. ``cfg.speed_weight`` > 0 adds ``speed``: the L1
     between decoded and GT step lengths |p(t) - p(t-1)| over the 1 s steps with both ends observed
     (the speeds ``generate.speeds_from_traj`` reports), mean per box, without the category weight
-    that scales straight-driving boxes' positions by 0.3. Works with N = 0.
+    that scales straight-driving boxes' positions by 0.3; ``told`` (B, N), the GT boxes whose token
+    gives a speed or final speed, weighs theirs ``1 + cfg.told_speed_weight``. Works with N = 0.
     """
     bsz, _, h, w = y.shape
     cells = cell_centres(cfg.size, (h, w), y.device)
@@ -368,6 +372,8 @@ def detection_loss(y: torch.Tensor, boxes: torch.Tensor, traj: torch.Tensor, tra
         v = (rel[:, 1:, 0:2] - rel[:, :-1, 0:2]).norm(dim=-1)
         v_gt = (rel_gt[:, 1:, 0:2] - rel_gt[:, :-1, 0:2]).norm(dim=-1)
         err = ((v - v_gt).abs() * both).sum(-1) / both.sum(-1).clamp_min(1.0)
+        if told is not None and cfg.told_speed_weight:
+            err = err * (1.0 + cfg.told_speed_weight * told[b, n].to(y.dtype))
         out["speed"] = cfg.speed_weight * (jw * err).sum() / bsz
     if y.shape[1] > C_Y:  # MultiBin heading head
         ce, res = heading_loss(pred[:, C_Y:], gt[:, 2])

@@ -110,14 +110,14 @@ def train_autoencoder(o) -> None:
     mask_cfg = token_mask_config(cfg)
 
     def step_loss(module, batch, step):
-        x, t, traj = batch["agents"], None, batch["traj"]
+        x, t, traj, told = batch["agents"], None, batch["traj"], None
         if model.cfg.C_t:
-            x, t, traj = decoder_conditioning(batch, cfg.seed, step, rank(), mask_cfg, cfg.p_mislead,
+            x, t, traj, told = decoder_conditioning(batch, cfg.seed, step, rank(), mask_cfg, cfg.p_mislead,
                                               model.token_raster, p_counterfactual=cfg.p_counterfactual,
                                               exact=cfg.exact_token_values)
         out = module.loss({"x": x, "m": batch["map"], "boxes": batch["boxes"],
                            "traj": traj, "traj_mask": batch["traj_mask"],
-                           "valid": batch["valid"], "t": t})
+                           "valid": batch["valid"], "t": t, "told": told})
         return out["total"], {k: float(v.detach()) for k, v in out.items() if v.ndim == 0}
 
     Loop("autoencoder", o, cfg, model, opt, step_loss, extra=extra).run()

@@ -60,13 +60,15 @@ def mislead(traj: np.ndarray, given: dict[str, np.ndarray], rng: np.random.Gener
 def decoder_conditioning(batch: dict, seed: int, step: int, rank: int, mask_cfg: TokenMaskConfig,
                          p_mislead: float, read_tokens: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
                          raster: RasterConfig = RasterConfig(), p_counterfactual: float = 0.0,
-                         exact: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``(x, t, traj)``: the agent raster the encoder sees ((B, C_x, H, W): the batch's own where no
-    token misleads it), the tokens' raster as the decoder reads them (``read_tokens(tokens, pad)``:
-    ``ScenarioAutoencoder.token_raster``, given the exact values with ``exact``) and the trajectories
-    the loss asks for (the batch's, but for the counterfactual agents)."""
+                         exact: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(x, t, traj, told)``: the agent raster the encoder sees ((B, C_x, H, W): the batch's own
+    where no token misleads it), the tokens' raster as the decoder reads them (``read_tokens(tokens,
+    pad)``: ``ScenarioAutoencoder.token_raster``, given the exact values with ``exact``), the
+    trajectories the loss asks for (the batch's, but for the counterfactual agents) and which agents
+    ((B, N) bool) a token gives a speed or final speed of."""
     toks, xs, values = [], [], []
     target = batch["traj"].clone()
+    speed_given = torch.zeros(batch["valid"].shape, dtype=torch.bool)
     for i in range(batch["boxes"].shape[0]):
         v = batch["valid"][i].cpu().numpy()
         boxes, traj, mask, speed = (batch[k][i].cpu().numpy()[v] for k in ("boxes", "traj", "traj_mask", "speed"))
@@ -84,6 +86,8 @@ def decoder_conditioning(batch: dict, seed: int, step: int, rank: int, mask_cfg:
             target[i, torch.from_numpy(np.flatnonzero(v))] = torch.from_numpy(told).to(target.dtype)
             moved = seen
         told_given = {k: (g & present[k])[keep] for k, g in given.items()}
+        gives = keep & ((given["speed"] & present["speed"]) | (given["final_speed"] & present["final_speed"]))
+        speed_given[i, torch.from_numpy(np.flatnonzero(v)[gives])] = True
         toks.append(encode_agent_tokens({k: f[keep] for k, f in feats.items()}, told_given))
         values.append(np.stack([np.where(told_given[k], feats[k][keep], np.nan) for k in EXACT_FEATURES], -1)
                       .reshape(-1, len(EXACT_FEATURES)))
@@ -91,9 +95,10 @@ def decoder_conditioning(batch: dict, seed: int, step: int, rank: int, mask_cfg:
                   else batch["agents"][i].cpu().numpy())
     tokens, pad = pad_tokens(toks)
     x = torch.from_numpy(np.stack(xs)).to(batch["agents"].device)
+    speed_given = speed_given.to(x.device)
     if not exact:
-        return x, read_tokens(tokens.to(x.device), pad.to(x.device)), target
+        return x, read_tokens(tokens.to(x.device), pad.to(x.device)), target, speed_given
     vals = torch.full((len(values), tokens.shape[1], len(EXACT_FEATURES)), float("nan"))
     for i, v in enumerate(values):
         vals[i, :len(v)] = torch.from_numpy(v).float()
-    return x, read_tokens(tokens.to(x.device), pad.to(x.device), exact=vals.to(x.device)), target
+    return x, read_tokens(tokens.to(x.device), pad.to(x.device), exact=vals.to(x.device)), target, speed_given
