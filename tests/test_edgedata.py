@@ -11,6 +11,8 @@ from sumo_scendiff.core.tools import sumo_binary
 from sumo_scendiff.map.edgedata import EdgeData, EdgeDataError
 from sumo_scendiff.map.network import Network
 
+from .conftest import netconvert
+
 
 @pytest.fixture(scope="module")
 def measured(cross_net, tmp_path_factory):
@@ -32,6 +34,50 @@ def test_the_window_density_is_what_sumo_measured(measured):
     assert iv.density["wc"] > 5.0 and iv.density["sc"] == 0.0      # the flow's road, an empty one
     on_road = data.window_density(net, Window(-100.0, 0.0, 0.0), 150.0)
     assert on_road == pytest.approx(np.mean([iv.density["wc"], iv.density["cw"]]), rel=0.05)
+
+
+def test_an_edge_sumo_did_not_write_is_empty(measured, tmp_path):
+    """SUMO's --edgedata-output writes only the edges a vehicle used: a window none of whose edges
+    the file lists is empty (0 veh/km), not unknown (the model's own level filled such windows)."""
+    net, path = measured
+    data = EdgeData.read(path, net)
+    south = Window(0.0, -100.0, np.pi / 2)
+    assert data.window_density(net, south, 150.0) == 0.0                 # listed, at 0 veh/km
+    import re
+    text = open(path).read()
+    only_flow = re.sub(r'<edge id="(?!wc"|ce")[^"]*"[^>]*/>', "", text)  # as SUMO writes it: used edges
+    thin = tmp_path / "used.xml"
+    thin.write_text(only_flow)
+    used = EdgeData.read(str(thin), net)
+    assert set(used.at(150.0).density) == {"wc", "ce"}
+    assert used.window_density(net, south, 150.0) == 0.0
+    assert used.window_density(net, Window(-100.0, 0.0, 0.0), 150.0) > 2.0
+
+
+def test_an_edge_with_a_bike_lane_counts_its_vehicles_on_its_car_lane(tmp_path):
+    """SUMO's laneDensity is the edge's density over its lanes open to vehicles: on a road with a
+    bike lane, half. The density per km of car lane is the edge's, whichever attribute the file
+    gives (taken per lane, a city whose roads have bike lanes was filled with half its traffic)."""
+    net_path = netconvert('<node id="a" x="0" y="0"/><node id="b" x="300" y="0"/>',
+                          '<edge id="ab" from="a" to="b" numLanes="1" bikeLaneWidth="1.5"/>',
+                          str(tmp_path / "bike.net.xml"))
+    (tmp_path / "r.rou.xml").write_text('<routes><flow id="f" begin="0" end="300" period="3" from="ab" '
+                                        'to="ab" departSpeed="max"/></routes>')
+    subprocess.run([sumo_binary(), "-n", net_path, "-r", str(tmp_path / "r.rou.xml"), "--end", "300",
+                    "--edgedata-output", str(tmp_path / "out.xml"), "--no-step-log", "true"],
+                   check=True, capture_output=True)
+    net = Network.load(net_path)
+    assert [ln.car for ln in net.lanes if ln.edge == "ab"].count(True) == 1 and len(
+        [ln for ln in net.lanes if ln.edge == "ab"]) == 2
+    text = open(tmp_path / "out.xml").read()
+    import re
+    density = float(re.search(r' density="([^"]+)"', text).group(1))
+    assert float(re.search(r' laneDensity="([^"]+)"', text).group(1)) == pytest.approx(density / 2, abs=0.01)
+    only_lane = tmp_path / "lane.xml"
+    only_lane.write_text(re.sub(r' density="[^"]*"', "", text))
+    for path in (tmp_path / "out.xml", only_lane):
+        got = EdgeData.read(str(path), net).window_density(net, Window(150.0, 0.0, 0.0), 150.0)
+        assert got == pytest.approx(density, rel=0.05), path
 
 
 def test_sampled_seconds_alone_give_sumos_lane_density(measured, tmp_path):

@@ -1,13 +1,15 @@
 """Traffic density from SUMO's own edgeData (meandata) files: a user's counts or a calibrated run.
 
     data = EdgeData.read("counts.xml", net)                   # checked against the network
-    d = data.window_density(net, window, time=28800.0)        # vehicles per km of car lane, or None
+    d = data.window_density(net, window, time=28800.0)        # vehicles per km of car lane
 
-Per edge and interval, the density per lane in vehicles per km: ``laneDensity`` where the file has
-it, else ``density`` divided by the edge's lanes, else ``sampledSeconds`` over the interval's
-duration and the edge's lane-kilometres (SUMO's own definitions, "Lane- or Edge-based Traffic
-Measures"). A window's density weighs its edges by the car-lane length they have inside it; edges
-the file does not list are not counted (a counts file may cover only some roads).
+Per edge and interval, the density per car lane in vehicles per km: the edge's ``density``
+divided by its car lanes, else SUMO's ``laneDensity`` (the density over its lanes open to vehicles,
+bike lanes too) times those lanes over its car lanes, else ``sampledSeconds`` over the interval's
+duration and the edge's car-lane kilometres (SUMO's own definitions, "Lane- or Edge-based Traffic
+Measures"; read per lane, an edge with a bike lane counted half its vehicles). A window's density weighs its edges by the car-lane length they have inside it; an edge
+the file does not list in the interval holds no vehicle (SUMO's ``--edgedata-output`` writes only
+the edges a vehicle used), so a window none of whose edges is listed is empty, not unknown.
 """
 from __future__ import annotations
 
@@ -79,30 +81,27 @@ class EdgeData:
 
     def region_density(self, net, region, time: float) -> float | None:
         """Vehicles per km of car lane in a shapely region at ``time``: the listed edges' densities
-        times their car-lane length inside it, per km of all its car lane (junctions and unlisted
-        edges included, as a window's count is taken: round(D x car-lane km)); None where the file
-        lists none of its edges."""
+        times their car-lane length inside it, per km of all its car lane (junctions and unlisted,
+        empty edges included, as a window's count is taken: round(D x car-lane km)); None where the
+        region has no car lane."""
         iv = self.at(time)
         idx, km = net.car_lanes_in_region(region)
         num = den = 0.0
-        listed = False
         for i, k in zip(idx, km):
             if k <= 0:
                 continue
             den += k
-            d = iv.density.get(net.lanes[i].edge)
-            if d is not None:
-                listed = True
-                num += d * k
-        return num / den if listed and den > 0 else None
+            num += iv.density.get(net.lanes[i].edge, 0.0) * k
+        return num / den if den > 0 else None
 
 
-def _lanes_per_edge(net) -> dict[str, tuple[int, float]]:
-    """edge id -> (lanes, lane-kilometres)."""
-    out: dict[str, tuple[int, float]] = {}
+def _lanes_per_edge(net) -> dict[str, tuple[int, int, float]]:
+    """edge id -> (lanes open to vehicles, car lanes, car-lane kilometres)."""
+    out: dict[str, tuple[int, int, float]] = {}
     for ln, line in zip(net.lanes, net.lines):
-        n, km = out.get(ln.edge, (0, 0.0))
-        out[ln.edge] = (n + 1, km + (shapely.length(line) / 1000.0 if line is not None else 0.0))
+        n, cars, km = out.get(ln.edge, (0, 0, 0.0))
+        car_km = shapely.length(line) / 1000.0 if line is not None and ln.car else 0.0
+        out[ln.edge] = (n + int(not ln.pedestrian_only), cars + int(ln.car), km + car_km)
     return out
 
 
@@ -111,13 +110,16 @@ def _number(e, name: str) -> float | None:
     return None if v in (None, "") else float(v)
 
 
-def _lane_density(e, duration: float, lanes: tuple[int, float] | None) -> float | None:
-    """Vehicles per km of lane of one edge element (None when it says nothing about density)."""
-    if _number(e, "laneDensity") is not None:
-        return _number(e, "laneDensity")
-    n, km = lanes or (1, 0.0)
+def _lane_density(e, duration: float, lanes: tuple[int, int, float] | None) -> float | None:
+    """Vehicles per km of car lane of one edge element (None when it says nothing about density;
+    without the network, each lane taken for a car lane)."""
+    n, cars, km = lanes or (1, 1, 0.0)
+    if lanes is not None and cars == 0:
+        return None
     if _number(e, "density") is not None:
-        return _number(e, "density") / max(n, 1)
+        return _number(e, "density") / cars
+    if _number(e, "laneDensity") is not None:
+        return _number(e, "laneDensity") * n / cars
     samples = _number(e, "sampledSeconds")
     if samples is not None and duration > 0 and km > 0:
         return samples / duration / km
