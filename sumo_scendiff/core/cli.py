@@ -35,14 +35,13 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
 
 
 def sumo_time(value: str) -> float:
-    """An argparse type: a time as SUMO reads one, seconds or clock time ``[[D:]H:]M:S``."""
+    """An argparse type: a time as SUMO reads one, seconds or clock time ``[[D:]H:]M:S``
+    (sumolib's ``parseTime``, as the route files' times are read)."""
+    from sumolib.miscutils import parseTime
     try:
-        parts = [float(p) for p in value.split(":")]
-    except ValueError:
+        return float(parseTime(value))
+    except (ValueError, TypeError):
         raise argparse.ArgumentTypeError(f"not a time in seconds or H:M:S: {value!r}") from None
-    if len(parts) > 4 or any(p < 0 for p in parts):
-        raise argparse.ArgumentTypeError(f"not a time in seconds or H:M:S: {value!r}")
-    return sum(p * f for p, f in zip(reversed(parts), (1, 60, 3600, 86400)))
 
 
 def clock(seconds: float) -> str:
