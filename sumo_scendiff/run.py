@@ -7,7 +7,7 @@
 
 Without ``--center`` or ``--ego`` the windows are busy, varied places of the network (junctions,
 roundabouts, merges; :mod:`~sumo_scendiff.map.locations`). With ``-r`` SUMO first runs that demand
-(until the ego appears, or ``--begin`` seconds) and the vehicles already in a window become agent
+(until the ego appears, or up to ``--begin``) and the vehicles already in a window become agent
 tokens: the model fills in around them. Each scene is written to ``OUT/scene_NNN/`` (see the
 README, "The scenario folder"): scene.json, scenario.rou.xml, scenario.sumocfg, state.xml.gz,
 rollout.json, scene.png; ``OUT/run.json`` sums the run up. One run at a time writes into an output
@@ -29,7 +29,7 @@ EGO_AHEAD_M = 25.0   # the ego window's centre ahead of the ego: it sees its own
 
 
 def get_options(args=None):
-    from .core.cli import HelpFormatter, description, epilog
+    from .core.cli import HelpFormatter, description, epilog, sumo_time
     from .generation.config import GenerationConfig, SettingError
     p = argparse.ArgumentParser(prog=PROG, description=description(__doc__), epilog=epilog(__doc__),
                                 formatter_class=HelpFormatter)
@@ -48,9 +48,11 @@ def get_options(args=None):
                        "the demand, once it has driven --ego-after seconds")
     p.add_argument("--ego-after", type=float, default=20.0, metavar="SECONDS",
                    help="with --ego: seconds the ego drives after it departs before seeding (default 20)")
-    p.add_argument("--begin", type=float, default=None,
-                   help="with -r and no --ego: seconds of demand to run (from its first departure) "
-                        "before seeding (default 600)")
+    p.add_argument("-b", "--begin", type=sumo_time, default=None, metavar="TIME",
+                   help="the time to seed at, on SUMO's clock (s, or clock time HH:MM:SS as SUMO reads "
+                        "it); with demand (-r/-c) and no --ego SUMO runs the demand up to it (default: its "
+                        "first departure, or the configuration's begin, + 600 s; it must lie within the "
+                        "demand's departures); without demand the time --edge-data is read at")
     p.add_argument("--tokens", metavar="FILE", help="agent tokens and global token (TOML/JSON, docs/tokens.md)")
     p.add_argument("--p-mask", type=float, default=None, help="global scene token (overrides the token file)")
     amount = p.add_mutually_exclusive_group()
@@ -95,6 +97,11 @@ def get_options(args=None):
         p.error("--edge-data: needs --density auto (it sets the level --density auto reads)")
     if not o.ego_after >= 0:
         p.error(f"--ego-after must be >= 0 seconds, got {o.ego_after}")
+    if o.begin is not None and not o.begin >= 0:
+        p.error(f"--begin must be >= 0 seconds, got {o.begin:g}")
+    if o.begin is not None and o.ego:
+        p.error("--begin: with --ego the scene is seeded when the ego has driven --ego-after seconds; "
+                "give one of them")
     if o.scenes < 1:
         p.error("--scenes must be >= 1")
     if o.rollout < 0 or o.step_length <= 0:
@@ -167,7 +174,7 @@ def _targets(o, net, windows, session, edge_data, host: bool, has_density: bool)
     the host's own level where there is demand, ``sim.density.default_density``), or None."""
     from .map.edgedata import EdgeDataError
     from .sim.density import default_density, host_has_traffic, window_target
-    when = session.sim.simulation.getTime() if host else (o.begin or 0.0)
+    when = session.sim.simulation.getTime()
     density = default_density(o.density, o.vehicles, host and host_has_traffic(session.sim), has_density)
     o.level = (f"vehicles {o.vehicles}" if o.vehicles is not None else "model" if density is None
                else density if o.density is not None else f"{density} (default with demand)")
@@ -178,8 +185,8 @@ def _targets(o, net, windows, session, edge_data, host: bool, has_density: bool)
         raise RunError(f"--edge-data: {e}") from None
 
 
-def _warm_up(sim, o, progress: bool) -> None:
-    """Run the demand until the ego is on the road, or for --begin seconds."""
+def _warm_up(sim, o, at: float | None, progress: bool) -> None:
+    """Run the demand until the ego is on the road, or up to the seeding time ``at``."""
     from tqdm import tqdm
     if o.ego:
         dt = sim.simulation.getDeltaT()
@@ -200,8 +207,7 @@ def _warm_up(sim, o, progress: bool) -> None:
                                f"it departed; give a smaller --ego-after")
         bar.close()
         return
-    begin = 600.0 if o.begin is None else o.begin
-    steps = int(round(begin / sim.simulation.getDeltaT()))
+    steps = int(round((at - sim.simulation.getTime()) / sim.simulation.getDeltaT()))
     for _ in tqdm(range(steps), desc="warming up the demand", disable=not progress, leave=False):
         sim.simulationStep()
 
@@ -223,7 +229,7 @@ def run(o) -> dict:
     import numpy as np
 
     from .core.outputs import partial_path
-    from .data.demand import DemandError, check_demand
+    from .data.demand import DemandError, demand_span, seeding_time
     from .generation.generator import GenerationConfig, ScenarioGenerator
     from .generation.token_check import heading_warnings
     from .generation.token_resolve import resolve_tokens
@@ -243,23 +249,27 @@ def run(o) -> dict:
     except ScenarioError as e:
         raise RunError(str(e)) from None
     net = Network.load(scen.net)
+    routes = scen.routes
+    try:  # the route files as the set SUMO loads, against this network
+        span = demand_span(routes, {ln.edge for ln in net.lanes}, scen.additional) if routes else None
+        at = seeding_time(o.begin, scen.begin, span, routes) if span and not o.ego else None
+    except DemandError as e:
+        raise RunError(str(e)) from None
+    first = span[0] if span else None
     edge_data = _edge_data(o, net)
     spec = load_tokens(o.tokens) if o.tokens else None
     kept = _check_output(o)
     gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig.from_options(o))
-    routes = scen.routes
-    edges = {ln.edge for ln in net.lanes}
-    try:  # the route files as the set SUMO loads, against this network
-        first = check_demand(routes, edges, scen.additional) if routes else None
-    except DemandError as e:
-        raise RunError(str(e)) from None
-    # the configuration's begin, else the demand's first departure (before it the network is empty)
+    # with demand SUMO starts at the configuration's begin, else the demand's first departure (before
+    # it the network is empty), and runs up to the seeding time; without, it starts at --begin
+    start = (scen.begin if scen.begin is not None else first) if routes else \
+        (o.begin if o.begin is not None else scen.begin)
     cfg = SimConfig(net=scen.net, routes=routes, additional=scen.additional, step_length=o.step_length,
-                    gui=o.gui, seed=o.seed, begin=scen.begin if scen.begin is not None else first,
+                    gui=o.gui, seed=o.seed, begin=start,
                     scenario_options=scen.options)
     session = Session(cfg, net, gen, quiet=not o.verbose)
     try:
-        session.prepare((lambda sim: _warm_up(sim, o, progress)) if routes else None)
+        session.prepare((lambda sim: _warm_up(sim, o, at, progress)) if routes else None)
         places = _windows(o, net, session.sim, session.cosim())
         windows = [w for w, _ in places]
         _check_kept(o, kept, windows)

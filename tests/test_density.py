@@ -123,14 +123,16 @@ def test_run_counts_the_vehicles_already_in_the_window(cross_net, tmp_path):
     """With demand, the summary says how many vehicles were kept and how many generated, and their
     density over the window's car lanes."""
     rou = tmp_path / "r.rou.xml"
-    rou.write_text('<routes><flow id="f" begin="0" end="300" period="3" from="wc" to="ce"/>'
-                   '<flow id="g" begin="0" end="300" period="5" from="sc" to="cn"/></routes>')
+    rou.write_text('<routes><flow id="f" begin="7:00:00" end="7:05:00" period="3" from="wc" to="ce"/>'
+                   '<flow id="g" begin="25200" end="25500" period="5" from="sc" to="cn"/></routes>')
     out = tmp_path / "out"
-    res = subprocess.run([sys.executable, "-m", "sumo_scendiff.run", "-n", cross_net, "-r", str(rou), "--begin", "60",
+    # --begin is the time on SUMO's clock, as fill's and sumo's -b: a minute into the demand
+    res = subprocess.run([sys.executable, "-m", "sumo_scendiff.run", "-n", cross_net, "-r", str(rou), "--begin", "7:01:00",
                           "--center", "0,0", "--scenes", "1", "--rollout", "0", "-o", str(out)],
                          capture_output=True, text=True, cwd=ROOT, env={**os.environ, "OMP_NUM_THREADS": "1"})
     assert res.returncode == 0, res.stderr
     summary = json.load(open(out / "run.json"))
+    assert json.load(open(out / "scene_000" / "scene.json"))["time"] == 25260.5   # after the step seeding it
     assert summary["density"] == "auto (default with demand)"    # the host's level, not the model's
     row = summary["scenes"][0]
     assert row["existing_vehicles"] >= 3

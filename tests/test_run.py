@@ -102,6 +102,7 @@ def test_run_ego_infill(cross_net, demand, tmp_path, capsys):
     ("ego-never", "never appears"),
     ("unwritable", "not writable"),
     ("foreign-routes", "does not match the network"),
+    ("begin-outside", "--begin 3600 s (1:00:00) lies outside the demand ("),
 ])
 def test_bad_input_one_line_exit_2(case, expect, cross_net, demand, tmp_path, capsys):
     bad = tmp_path / "bad.toml"
@@ -118,6 +119,7 @@ def test_bad_input_one_line_exit_2(case, expect, cross_net, demand, tmp_path, ca
             "ego-never": ["-n", cross_net, "-r", demand, "--ego", "nobody"],
             "unwritable": ["-n", cross_net, "--center", "0,0", "-o", str(tmp_path / "file" / "sub")],
             "foreign-routes": ["-n", cross_net, "-r", str(foreign), "--center", "0,0"],
+            "begin-outside": ["-n", cross_net, "-r", demand, "--center", "0,0", "--begin", "1:00:00"],
             }[case]
     out = tmp_path / "out"
     code, _, err = _run(args + (["-o", str(out)] if "-o" not in args else []) + ["--rollout", "0"], capsys)

@@ -6,7 +6,7 @@ import shutil
 
 import pytest
 
-from sumo_scendiff.data.demand import DemandError, check_demand, demand_span
+from sumo_scendiff.data.demand import DemandError, check_demand, demand_span, seeding_time
 from sumo_scendiff.sim.scenario import ScenarioError, scenario_from_files
 
 VTYPES = '<additional>\n  <vType id="slow" vClass="passenger" maxSpeed="8"/>\n</additional>\n'
@@ -100,6 +100,27 @@ def test_the_demands_span_in_every_form_sumo_reads(tmp_path, cross_net):
     assert check_demand([str(f)], set(edges)) == 54000.0
     f.write_text(f'<routes><flow id="f" begin="10" period="5" from="{edges[0]}" to="{edges[-1]}"/></routes>')
     assert demand_span([str(f)], set(edges)) == (10.0, float("inf"))
+
+
+def test_the_seeding_time_is_on_sumos_clock_within_the_demand():
+    """run, sweep and fill seed at one time on SUMO's clock (as sumo's -b): given, or 600 s after
+    SUMO's start (the configuration's begin, not before the first departure), or at the last
+    departure of a shorter demand; outside the departures (an empty or emptying network) or
+    before the configuration's begin: one line naming the flag and the demand's span."""
+    span, files = (25200.0, 28800.0), ["d.rou.xml"]
+    assert seeding_time(None, None, span, files) == 25800.0
+    assert seeding_time(None, 25000.0, span, files) == 25800.0      # the network is empty before 25200
+    assert seeding_time(None, 26000.0, span, files) == 26600.0
+    assert seeding_time(27000.0, None, span, files) == 27000.0
+    assert seeding_time(None, None, (0.0, 200.0), files) == 200.0    # all its traffic has departed
+    with pytest.raises(DemandError, match=r"^--begin 600 s \(0:10:00\) lies outside the demand \(d.rou.xml: "
+                       r"departures from 25200 s \(7:00:00\) to 28800 s \(8:00:00\)\); give a --begin within it$"):
+        seeding_time(600.0, None, span, files)
+    with pytest.raises(DemandError, match=r"^begin 25500 s \(7:05:00\) lies before the configuration's begin "
+                       r"26000 s \(7:13:20\); give a later begin$"):
+        seeding_time(25500.0, 26000.0, span, files, flag="begin")
+    with pytest.raises(DemandError, match=r"^the default start \(first departure \+ 600 s\) 30000 s"):
+        seeding_time(None, 30000.0, span, files)
 
 
 def test_a_saved_state_starts_without_the_flows_it_has_finished(tmp_path):

@@ -122,6 +122,14 @@ def test_unset_sampler_settings_are_the_generators_defaults(cross_net, tmp_path)
     assert s.lane_snap is False and s.lane_headings is True and s.pin_speeds is False
 
 
+def test_a_networks_begin_is_a_time_on_sumos_clock(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text('networks = [{net = "x.net.xml", routes = "x.rou.xml", begin = "8:00:00"}, '
+                    '{net = "y.net.xml", begin = 600}]\nlocations = [{auto = 1}]\n')
+    nets = load_spec(str(path)).networks
+    assert (nets["x"].begin, nets["y"].begin) == (28800.0, 600.0)
+
+
 def test_batches_depend_on_the_plan_alone(spec_file):
     from sumo_scendiff.sweep.engines import tasks
     sc = load_spec(spec_file).scenarios()
@@ -163,6 +171,8 @@ def test_batches_depend_on_the_plan_alone(spec_file):
      "scenarios[0].density: values must be"),
     ('networks = ["x.net.xml"]\n[[scenarios]]\nlocation = "auto:0"\ndensity = 3\nvehicles = 2\n',
      "scenarios[0].vehicles: give either"),
+    ('networks = [{net = "x.net.xml", begin = "soon"}]\nlocations = [{auto = 1}]\n', "networks[0].begin: must be a time"),
+    ('networks = [{net = "x.net.xml", begin = -5}]\nlocations = [{auto = 1}]\n', "networks[0].begin: must be a time"),
 ])
 def test_bad_spec_names_file_and_key(body, message, tmp_path, capsys):
     path = tmp_path / "bad.toml"

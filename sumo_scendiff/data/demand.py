@@ -29,6 +29,9 @@ VEHICLE_MIX = (
 )
 
 
+WARM_UP_S = 600.0   # s of demand SUMO runs before seeding when no time is given
+
+
 class DemandError(ValueError):
     """A demand file that cannot be used with its network; the message names the file."""
 
@@ -140,6 +143,31 @@ def demand_span(route_files: Sequence[str], edge_ids: set[str], additional: Sequ
     if not departs:
         return 0.0, float("inf")
     return min(departs), float("inf") if open_ended else max(departs + ends)
+
+
+def seeding_time(begin: float | None, config_begin: float | None, span: tuple[float, float],
+                 route_files: Sequence[str], flag: str = "--begin") -> float:
+    """The time to seed a demand's network at, on SUMO's clock: ``begin`` when given, else
+    :data:`WARM_UP_S` after SUMO's start (the configuration's begin, not before the first departure)
+    or the last departure if that comes sooner.
+    Raises :class:`DemandError` when it lies outside the demand's departures (``span``, from
+    :func:`demand_span`: before them the network is empty, after them it empties, and either would
+    look like a filled network that is not) or before the configuration's begin (SUMO cannot go back)."""
+    from ..core.cli import clock
+    first, last = span
+    start = first if config_begin is None else config_begin
+    # a demand shorter than the warm-up is seeded at its last departure, when it has all its traffic
+    t = min(max(start, first) + WARM_UP_S, max(last, start)) if begin is None else begin
+    name = flag if begin is not None else f"the default start (first departure + {WARM_UP_S:g} s)"
+    if t < first or t > last:
+        when = f"departures from {first:g} s ({clock(first)})" + \
+            ("" if last == float("inf") else f" to {last:g} s ({clock(last)})")
+        raise DemandError(f"{name} {t:g} s ({clock(t)}) lies outside the demand ({', '.join(route_files)}: "
+                          f"{when}); give a {flag} within it")
+    if t < start:
+        raise DemandError(f"{name} {t:g} s ({clock(t)}) lies before the configuration's begin "
+                          f"{start:g} s ({clock(start)}); give a later {flag}")
+    return t
 
 
 def check_routes(routes_path: str, edge_ids: set[str], sample: int = 2000) -> float:

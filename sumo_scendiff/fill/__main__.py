@@ -22,7 +22,6 @@ import sys
 import time
 
 PROG = "python -m sumo_scendiff.fill"
-DEFAULT_WARM_UP = 600.0   # s after the demand's first departure when --begin is not given
 
 
 class FillError(Exception):
@@ -184,8 +183,7 @@ def run(o, folder: str) -> dict:
 
     from ..core.threads import GENERATION_THREADS, share_cpu
     share_cpu(default=GENERATION_THREADS)   # before torch is imported (core/threads.py: why one)
-    from ..core.cli import clock
-    from ..data.demand import DemandError, demand_span
+    from ..data.demand import DemandError, demand_span, seeding_time
     from ..generation.generator import GenerationConfig, ScenarioGenerator
     from ..map.network import Network
     from ..map.raster import RasterConfig
@@ -208,19 +206,10 @@ def run(o, folder: str) -> dict:
     begin = o.begin if o.begin is not None else 0.0
     if routes:
         try:
-            first, last = demand_span(routes, {ln.edge for ln in net.lanes}, scen.additional)
+            span = demand_span(routes, {ln.edge for ln in net.lanes}, scen.additional)
+            begin = seeding_time(o.begin, scen.begin, span, routes)
         except DemandError as e:
             raise FillError(str(e)) from None
-        if o.begin is None:
-            begin = max(scen.begin if scen.begin is not None else first, first) + DEFAULT_WARM_UP
-        # a start before the first departure or after the last would be an empty or emptying network
-        # that looks filled; the demand's own times say which start the user meant
-        when = f"{', '.join(routes)}: departures from {first:g} s ({clock(first)})" + \
-            ("" if last == float("inf") else f" to {last:g} s ({clock(last)})")
-        if begin < first or begin > last:
-            flag = "--begin" if o.begin is not None else f"the default start (first departure + {DEFAULT_WARM_UP:g} s)"
-            raise FillError(f"{flag} {begin:g} s ({clock(begin)}) lies outside the demand ({when}); "
-                            f"give a --begin within it")
     try:
         tiles = tile_grid(net, o.area, o.stride, RasterConfig().size)
     except TileError as e:

@@ -27,7 +27,7 @@ KEYS = {"name": str, "networks": list, "locations": list, "token_sets": list, "p
         "seeds": (list, int), "rollout": float, "step_length": float, "replay": float, "scenarios": list,
         "density": list, "vehicles": list}
 SWEEP_DEFAULTS = {"rollout": 60.0, "step_length": 0.5, "replay": 0.0}
-NET_KEYS = {"net": str, "routes": str, "begin": float}
+NET_KEYS = {"net": str, "routes": str, "begin": (int, float, str)}
 LOC_KEYS = {"auto": int, "center": list, "yaw": float}
 SET_KEYS = {"name": str, "frame": str, "p_mask": float, "agents": list, "vary": dict}
 SCENARIO_KEYS = {"network": str, "location": str, "token_set": str, "p_mask": float, "seed": int,
@@ -43,7 +43,7 @@ class NetworkEntry:
     name: str                    # file name without .net.xml (unique within the sweep)
     net: str                     # absolute path
     routes: str | None = None
-    begin: float | None = None
+    begin: float | None = None   # the seeding time on SUMO's clock (default: first departure + 600 s)
 
 
 @dataclass(frozen=True)
@@ -150,7 +150,16 @@ def _networks(source: str, raw: list, here: str) -> dict[str, NetworkEntry]:
         name = os.path.basename(path).split(".net.xml")[0]
         if name in out:
             name = f"{name}_{i}"
-        out[name] = NetworkEntry(name, path, routes, e.get("begin"))
+        begin = e.get("begin")
+        if begin is not None:
+            from sumolib.miscutils import parseTime
+            try:
+                begin = float(parseTime(str(begin)))
+            except (ValueError, TypeError):
+                begin = -1.0
+            if not begin >= 0:
+                raise _err(source, f"networks[{i}].begin", f"must be a time >= 0 (s or H:MM:SS), got {e['begin']!r}")
+        out[name] = NetworkEntry(name, path, routes, begin)
     return out
 
 

@@ -11,8 +11,6 @@ import os
 
 from .spec import NetworkEntry, Scenario, Spec
 
-DEFAULT_BEGIN = 600.0   # seconds of a network's demand before seeding (when it has routes)
-
 
 def noise_seed(s: Scenario) -> int:
     """The initial-noise seed: network, location and seed only, so the variants of a token set or
@@ -78,7 +76,7 @@ class Worker:
         return self._nets[entry.name]
 
     def session(self, entry: NetworkEntry, step_length: float):
-        from ..data.demand import check_routes
+        from ..data.demand import demand_span, seeding_time
         from ..sim.session import Session
         from ..sim.sumo import SimConfig
         key = (entry.name, step_length)
@@ -88,10 +86,13 @@ class Worker:
             self._sessions.clear()
             routes = (entry.routes,) if entry.routes else ()
             net = self.network(entry)
-            first = check_routes(entry.routes, {ln.edge for ln in net.lanes}) if routes else None
-            cfg = SimConfig(net=entry.net, routes=routes, step_length=step_length, begin=first)
-            begin = DEFAULT_BEGIN if entry.begin is None else entry.begin
-            warm = (lambda sim: [sim.simulationStep() for _ in range(int(round(begin / step_length)))]) \
+            span = demand_span(routes, {ln.edge for ln in net.lanes}) if routes else None
+            # SUMO starts at the first departure and runs the demand up to the seeding time
+            at = seeding_time(entry.begin, None, span, routes, flag="begin") if span else None
+            cfg = SimConfig(net=entry.net, routes=routes, step_length=step_length,
+                            begin=span[0] if span else entry.begin)
+            warm = (lambda sim: [sim.simulationStep() for _ in
+                                 range(int(round((at - sim.simulation.getTime()) / step_length)))]) \
                 if routes else None
             self._sessions[key] = Session(cfg, net, self.generator).prepare(warm)
         return self._sessions[key]
