@@ -77,6 +77,27 @@ def test_map_skips_join_the_decoder_at_their_resolution():
         assert torch.equal(skips.D_down.pyramid(m)[0], skips.D_down(m))
 
 
+def test_a_token_branch_changes_only_the_cells_a_token_covers():
+    """token_branch > 0: the head's outputs corrected where the token raster's token channel is set;
+    with the branch's weights anything, a raster without tokens (or none) decodes exactly as the
+    decoder without the branch, and with one token only its (2 RADIUS + 1)^2 cells change."""
+    from sumo_scendiff.tokens.raster import C_T
+    cfg = {**TINY.__dict__, "C_t": C_T}
+    plain, branched = (ScenarioAutoencoder(AutoencoderConfig(**{**cfg, "token_branch": b})).eval() for b in (0, 8))
+    branched.load_state_dict({**branched.state_dict(), **plain.state_dict()})
+    with torch.no_grad():
+        for p in branched.D_up.branch.parameters():
+            p.normal_(std=0.1)
+        z, m = torch.randn(2, TINY.C_z, 16, 16), torch.rand(2, TINY.C_m, 128, 128)
+        t = torch.zeros(2, C_T, 64, 64)
+        assert torch.equal(plain.decode(z, m, t), branched.decode(z, m, t))
+        assert torch.equal(plain.decode(z, m, None), branched.decode(z, m, None))
+        t[1, :, 30:33, 40:43] = 0.5
+        t[1, 0, 30:33, 40:43] = 1.0
+        changed = (plain.decode(z, m, t) != branched.decode(z, m, t)).any(1)
+        assert changed[1, 30:33, 40:43].all() and changed.sum() == 9
+
+
 def test_no_map_decoder_ignores_the_map():
     """use_map=False (the paper's no-map ablation, `train autoencoder --no-map`): D(z, m) = D(z, 0)."""
     ae = ScenarioAutoencoder(AutoencoderConfig(**{**TINY.__dict__, "map_skips": True, "use_map": False})).eval()

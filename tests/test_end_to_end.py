@@ -380,11 +380,31 @@ def test_decoder_fine_tune_learns_to_read_the_tokens(tmp_path, cross_net):
                                                                        tmp_path / "tw" / "last.pt"))
     moved = {k for k in c if not torch.equal(c[k], d[k])}
     assert moved and all(k.startswith("D_up.tokens.") and k.endswith(".weight") for k in moved)
+    # --token-branch-only: a token branch added to the decoder and only it learning; a scene
+    # without tokens decodes exactly as the decoder it was added to
+    train("autoencoder", *common, "-o", tmp_path / "tb", "--steps", 2, "--init-from", tmp_path / "dec" / "last.pt",
+          "--freeze-encoder", "--p-keep-all-tokens", 1.0, "--lr", 0.01, "--token-branch-only",
+          "--model-config", json.dumps({"C_t": C_T, "token_branch": 8}))
+    e = ckpt.load(str(tmp_path / "tb" / "last.pt"), "autoencoder-train")["state"]
+    moved = {k for k in e if k not in c or not torch.equal(c[k], e[k])}
+    assert any(k.startswith("D_up.branch.conv_out.") for k in moved)
+    assert all(k.startswith("D_up.branch.") for k in moved)
+    train("export", "--autoencoder", tmp_path / "tb" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
+          "-o", tmp_path / "branch.pt")
+    with_branch = ScenarioGenerator.load(str(tmp_path / "branch.pt"), GenerationConfig(steps=2))
+    assert with_branch.ae.D_up.branch is not None
+    (a_scene,), (b_scene,) = (g.generate(Network.load(cross_net), [Window(0.0, 0.0, 0.0)], seed=1)
+                              for g in (gen, with_branch))
+    assert np.array_equal(a_scene.boxes, b_scene.boxes) and np.array_equal(a_scene.traj, b_scene.traj)
     bad = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "autoencoder", *map(str, common), "-o",
                           str(tmp_path / "x"), "--steps", "1", "--model-config", '{"C_t": 5}'],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "C_t 5: the token raster has 13 channels" in bad.stderr
     assert "Traceback" not in bad.stderr
+    bad = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "autoencoder", *map(str, common), "-o",
+                          str(tmp_path / "y"), "--steps", "1", "--token-branch-only", "--model-config",
+                          json.dumps({"C_t": C_T})], capture_output=True, text=True)
+    assert bad.returncode == 2 and "--token-branch-only: the decoder has no token branch" in bad.stderr
 
 
 def test_grown_latent_warm_starts_both_stages(tmp_path, cross_net):

@@ -66,6 +66,12 @@ class AutoencoderConfig:
     # the two channels' difference as the vehicle's acceleration and draws a token that gives only
     # its speed braking from too fast (docs/tokens.md)
     token_speeds_filled: bool = False
+    # with C_t: channels of a token branch (0: none), a small stack at the output resolution that
+    # reads the decoder's last features beside the token raster and corrects the head's outputs in
+    # the cells a token covers only (gated by the raster's token channel, its last convolution
+    # zero-initialised): a scene without tokens, and every cell away from one, decodes exactly as
+    # the decoder it was added to, while a token's own vehicle gets layers of its own to follow it
+    token_branch: int = 0
     loss: DetectionLossConfig = field(default_factory=DetectionLossConfig)
 
 
@@ -144,6 +150,8 @@ class DetectionDecoder(nn.Module):
         self.norm_out = group_norm(prev)
         k = cfg.heading_bins
         self.conv_out = nn.Conv2d(prev, C_Y + 2 * k, 3, padding=1)
+        self.branch = TokenBranch(prev, cfg.C_t, cfg.token_branch, C_Y + 2 * k, cfg.dropout) \
+            if cfg.C_t and cfg.token_branch else None
         scale = torch.ones(C_Y + 2 * k)
         scale[7:C_Y] = torch.tensor(cfg.delta_scale).repeat(4)
         if k:
@@ -166,7 +174,32 @@ class DetectionDecoder(nn.Module):
                 f = self.token_at[k]
                 h = h + self.tokens[str(k)](F.avg_pool2d(t, f) if f > 1 else t)
             h = layer(h)
-        return self.conv_out(F.silu(self.norm_out(h))) * self.out_scale
+        y = self.conv_out(F.silu(self.norm_out(h)))
+        if self.branch is not None and t is not None:
+            y = self.branch(y, h, t)
+        return y * self.out_scale
+
+
+class TokenBranch(nn.Module):
+    """The head's outputs corrected where a token stands (``AutoencoderConfig.token_branch``):
+    conv over [features, token raster], two ResnetBlocks, GN-SiLU-conv (zero-initialised), added to
+    the head's raw outputs in the cells whose token channel is set and nowhere else."""
+
+    def __init__(self, feat_ch: int, c_t: int, ch: int, out_ch: int, dropout: float = 0.0):
+        super().__init__()
+        self.conv_in = nn.Conv2d(feat_ch + c_t, ch, 3, padding=1)
+        self.blocks = nn.Sequential(ResnetBlock(ch, ch, dropout=dropout), ResnetBlock(ch, ch, dropout=dropout))
+        self.norm_out = group_norm(ch)
+        self.conv_out = nn.Conv2d(ch, out_ch, 3, padding=1)
+        nn.init.zeros_(self.conv_out.weight)
+        nn.init.zeros_(self.conv_out.bias)
+
+    def forward(self, y: torch.Tensor, h: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        gate = t[:, :1] > 0          # tokens.raster: channel 0 is 1 in the cells around each token
+        if not self.training and not bool(gate.any()):   # (in training always run: DDP wants every weight used)
+            return y
+        d = self.conv_out(F.silu(self.norm_out(self.blocks(self.conv_in(torch.cat([h, t], dim=1))))))
+        return torch.where(gate, y + d, y)     # exactly y away from the tokens
 
 
 class ScenarioAutoencoder(nn.Module):

@@ -40,6 +40,9 @@ class TrainConfig:
     # ... and only its token inputs' weights learn (their biases and the rest frozen): a scene
     # without tokens decodes exactly as the decoder it started from
     token_weights_only: bool = False
+    # ... or only its token branch learns (model_config token_branch > 0): every cell away from a
+    # token, and a scene without tokens, decodes exactly as the decoder it started from
+    token_branch_only: bool = False
     token_lr_scale: float = 1.0   # ... and its token inputs learn this many times faster (new, from zero)
     p_no_signals: float = 0.0     # scenes shown with their traffic lights unknown (a model without a host)
     seed: int = 0

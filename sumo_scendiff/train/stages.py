@@ -70,8 +70,9 @@ def train_autoencoder(o) -> None:
         o.freeze_encoder = o.freeze_encoder or "encoder_from_sha256" in saved
     elif init is not None:
         state = init["state"]
-        if all(k.startswith(("D_up.skips.", "D_up.tokens.")) for k in set(model.state_dict()) - set(state)):
-            state = {**model.state_dict(), **state}  # map skips or token inputs the source lacks start at zero
+        if all(k.startswith(("D_up.skips.", "D_up.tokens.", "D_up.branch.")) for k in set(model.state_dict()) - set(state)):
+            # map skips, token inputs or a token branch the source lacks start as new (adding nothing)
+            state = {**model.state_dict(), **state}
         # map channels the source lacks (a larger C_m) start at zero
         state = widen_input(state, "D_down.conv_in.weight", model.D_down.conv_in.weight)
         for key in ("D_up.conv_out.weight", "D_up.conv_out.bias"):  # a heading head the source lacks
@@ -98,6 +99,12 @@ def train_autoencoder(o) -> None:
             o.parser.exit(2, f"{o.parser.prog}: error: --token-weights-only: the decoder reads no tokens (C_t 0)\n")
         for k, p in model.named_parameters():
             p.requires_grad_(k.startswith("D_up.tokens.") and k.endswith(".weight"))
+    if cfg.token_branch_only:
+        if model.D_up.branch is None:
+            o.parser.exit(2, f"{o.parser.prog}: error: --token-branch-only: the decoder has no token branch "
+                             f"(--model-config token_branch 0)\n")
+        for k, p in model.named_parameters():
+            p.requires_grad_(k.startswith("D_up.branch."))
     # the token inputs of a token-reading decoder learning faster: a group of their own, after the
     # first (whose rate the loop reports); one group otherwise, as runs saved before resume
     fast = cfg.token_lr_scale != 1.0
