@@ -152,10 +152,12 @@ def _networks(source: str, raw: list, here: str) -> dict[str, NetworkEntry]:
             name = f"{name}_{i}"
         begin = e.get("begin")
         if begin is not None:
-            from sumolib.miscutils import parseTime
-            try:
-                begin = float(parseTime(str(begin)))
-            except (ValueError, TypeError):
+            from argparse import ArgumentTypeError
+
+            from ..core.cli import sumo_time
+            try:   # read as the CLIs' --begin
+                begin = sumo_time(str(begin))
+            except ArgumentTypeError:
                 begin = -1.0
             if not begin >= 0:
                 raise _err(source, f"networks[{i}].begin", f"must be a time >= 0 (s or H:MM:SS), got {e['begin']!r}")
