@@ -97,8 +97,6 @@ def get_options(args=None):
         p.error("--edge-data: needs --density auto (it sets the level --density auto reads)")
     if not o.ego_after >= 0:
         p.error(f"--ego-after must be >= 0 seconds, got {o.ego_after}")
-    if o.begin is not None and not o.begin >= 0:
-        p.error(f"--begin must be >= 0 seconds, got {o.begin:g}")
     if o.begin is not None and o.ego:
         p.error("--begin: with --ego the scene is seeded when the ego has driven --ego-after seconds; "
                 "give one of them")

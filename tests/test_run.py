@@ -133,6 +133,19 @@ def test_negative_guidance_is_a_usage_error(cross_net, tmp_path, capsys):
     assert code == 2 and "--guidance: must be >= 0" in err and not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("begin", ["-5", "nan", "inf", "0:08:00"])
+def test_a_begin_is_a_time_at_or_after_zero(cross_net, tmp_path, capsys, begin):
+    """--begin is read as SUMO reads a time (s or H:M:S; "0:08:00" is 8 minutes, a valid time the
+    demandless run accepts); a negative, NaN or infinite one stops in the argument parser."""
+    args = ["-n", cross_net, "--center", "0,0", "--begin", begin, "--rollout", "0", "--steps", "2",
+            "-o", str(tmp_path / "o")]
+    if begin == "0:08:00":
+        assert run_cli.get_options(args).begin == 480.0
+        return
+    code, _, err = _run(args, capsys)
+    assert code == 2 and "--begin" in err and "a time must be >= 0" in err and not (tmp_path / "o").exists()
+
+
 def test_cli_defaults_are_the_generators():
     from sumo_scendiff.generation.generator import GenerationConfig
     o = run_cli.get_options(["-n", "x.net.xml"])

@@ -36,12 +36,15 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
 
 def sumo_time(value: str) -> float:
     """An argparse type: a time as SUMO reads one, seconds or clock time ``[[D:]H:]M:S``
-    (sumolib's ``parseTime``, as the route files' times are read)."""
+    (sumolib's ``parseTime``, as the route files' times are read), at or after 0."""
     from sumolib.miscutils import parseTime
     try:
-        return float(parseTime(value))
+        t = float(parseTime(value))
     except (ValueError, TypeError):
         raise argparse.ArgumentTypeError(f"not a time in seconds or H:M:S: {value!r}") from None
+    if not 0 <= t < float("inf"):     # NaN too
+        raise argparse.ArgumentTypeError(f"a time must be >= 0 seconds, got {value!r}")
+    return t
 
 
 def clock(seconds: float) -> str:

@@ -96,8 +96,6 @@ def get_options(args=None):
             p.error(str(e))
     if o.step_length <= 0:
         p.error("--step-length must be > 0")
-    if o.begin is not None and not o.begin >= 0:
-        p.error(f"--begin must be >= 0 seconds, got {o.begin:g}")
     try:
         GenerationConfig.from_options(o)
     except SettingError as e:

@@ -158,9 +158,7 @@ def _networks(source: str, raw: list, here: str) -> dict[str, NetworkEntry]:
             try:   # read as the CLIs' --begin
                 begin = sumo_time(str(begin))
             except ArgumentTypeError:
-                begin = -1.0
-            if not begin >= 0:
-                raise _err(source, f"networks[{i}].begin", f"must be a time >= 0 (s or H:MM:SS), got {e['begin']!r}")
+                raise _err(source, f"networks[{i}].begin", f"must be a time >= 0 (s or H:MM:SS), got {e['begin']!r}") from None
         out[name] = NetworkEntry(name, path, routes, begin)
     return out
 
