@@ -21,7 +21,8 @@ the vehicles per window beside SUMO's in the same windows (the traffic left to t
 and how many tokens the delivered scenes name in a warning (``meta["token_warnings"]``: a token
 that could not be placed, or a turn no lane makes). The stop tokens' speed error is also given
 apart for those asked to stop from at most 9 m/s (a car's 4.5 m/s^2 stands it within the 2 s the
-trajectory runs) and from faster (a harder stop than SUMO's default decel).
+trajectory runs) and from faster (a harder stop than SUMO's default decel); and the drawn speed's
+mean signed error by the asked speed's band, every kind together (where the map's limits pull).
 """
 from __future__ import annotations
 
@@ -126,6 +127,18 @@ def gentle(raw: dict, label: str) -> str:
             f"from faster (more than 4.5 m/s² to stand in 2 s) {part(asked > GENTLE_STOP)}.  ")
 
 
+BANDS = (0.0, 4.0, 9.0, 12.0, np.inf)   # m/s: standing and slow, a city street's, near its limit, beyond
+
+
+def by_speed(raw: dict, label: str) -> str:
+    """The mean signed speed error (drawn - asked) by the asked speed's band: where the model's own
+    speed prior (the map's limits) pulls a token's vehicle, and which way."""
+    err, asked = np.array(raw["signed"]), np.array(raw["asked"])
+    parts = [f"[{lo:g}, {hi:g}) {err[k].mean():+.2f} over {int(k.sum())}"
+             for lo, hi in zip(BANDS[:-1], BANDS[1:]) for k in [(asked >= lo) & (asked < hi)] if k.any()]
+    return f"Speed error by the asked speed ({label}), m/s: " + ", ".join(parts) + ".  "
+
+
 def pooled(results: list[dict]) -> dict:
     """One :func:`summary` of several cities' results."""
     lists = ("speed", "final", "turn", "signed", "signed_final", "asked")
@@ -227,6 +240,8 @@ def main(o) -> int:
             stops = [gentle(r["raw"], m) for m, r in zip(("delivered", "drawn")[-len(modes):], res)]
     stops += [gentle(r[-1]["raw"], f"drawn, {name}") for r, kind, name in cities if kind.startswith("stop")]
     lines += [""] + stops if stops else []
+    drawn = pooled([r[-1] for res in every.values() for r in res])     # every kind, the model's own
+    lines += ["", by_speed(drawn["raw"], "drawn, every kind and city")]
     emit("\n".join(lines) + "\n", o.output, "Partial tokens as a user writes them")
     return 0
 
