@@ -72,11 +72,6 @@ class AutoencoderConfig:
     # zero-initialised): a scene without tokens, and every cell away from one, decodes exactly as
     # the decoder it was added to, while a token's own vehicle gets layers of its own to follow it
     token_branch: int = 0
-    # with token_branch: the branch also adds an affine map of the token raster alone, y * a(t) + b(t)
-    # (1x1, zero-initialised). A speed is a length in the head's own units (dx at t = -1 is -speed),
-    # which the branch's group-normalised layers carry only roughly and, on a map unlike the training
-    # networks', not at all; a path that does not read the decoder's features cannot be pulled off it
-    token_branch_affine: bool = False
     loss: DetectionLossConfig = field(default_factory=DetectionLossConfig)
 
 
@@ -155,8 +150,7 @@ class DetectionDecoder(nn.Module):
         self.norm_out = group_norm(prev)
         k = cfg.heading_bins
         self.conv_out = nn.Conv2d(prev, C_Y + 2 * k, 3, padding=1)
-        self.branch = TokenBranch(prev, cfg.C_t, cfg.token_branch, C_Y + 2 * k, cfg.dropout,
-                                  affine=cfg.token_branch_affine) \
+        self.branch = TokenBranch(prev, cfg.C_t, cfg.token_branch, C_Y + 2 * k, cfg.dropout) \
             if cfg.C_t and cfg.token_branch else None
         scale = torch.ones(C_Y + 2 * k)
         scale[7:C_Y] = torch.tensor(cfg.delta_scale).repeat(4)
@@ -189,12 +183,9 @@ class DetectionDecoder(nn.Module):
 class TokenBranch(nn.Module):
     """The head's outputs corrected where a token stands (``AutoencoderConfig.token_branch``):
     conv over [features, token raster], two ResnetBlocks, GN-SiLU-conv (zero-initialised), added to
-    the head's raw outputs in the cells whose token channel is set and nowhere else. With ``affine``
-    (``token_branch_affine``) also y * a(t) + b(t), 1x1 convolutions of the token raster alone
-    (zero-initialised): a = -1, b = the token's value replaces an output by what the token gives."""
+    the head's raw outputs in the cells whose token channel is set and nowhere else."""
 
-    def __init__(self, feat_ch: int, c_t: int, ch: int, out_ch: int, dropout: float = 0.0,
-                 affine: bool = False):
+    def __init__(self, feat_ch: int, c_t: int, ch: int, out_ch: int, dropout: float = 0.0):
         super().__init__()
         self.conv_in = nn.Conv2d(feat_ch + c_t, ch, 3, padding=1)
         self.blocks = nn.Sequential(ResnetBlock(ch, ch, dropout=dropout), ResnetBlock(ch, ch, dropout=dropout))
@@ -202,20 +193,12 @@ class TokenBranch(nn.Module):
         self.conv_out = nn.Conv2d(ch, out_ch, 3, padding=1)
         nn.init.zeros_(self.conv_out.weight)
         nn.init.zeros_(self.conv_out.bias)
-        self.scale = self.shift = None
-        if affine:
-            self.scale, self.shift = nn.Conv2d(c_t, out_ch, 1), nn.Conv2d(c_t, out_ch, 1)
-            for conv in (self.scale, self.shift):
-                nn.init.zeros_(conv.weight)
-                nn.init.zeros_(conv.bias)
 
     def forward(self, y: torch.Tensor, h: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         gate = t[:, :1] > 0          # tokens.raster: channel 0 is 1 in the cells around each token
         if not self.training and not bool(gate.any()):   # (in training always run: DDP wants every weight used)
             return y
         d = self.conv_out(F.silu(self.norm_out(self.blocks(self.conv_in(torch.cat([h, t], dim=1))))))
-        if self.scale is not None:
-            d = d + y * self.scale(t) + self.shift(t)
         return torch.where(gate, y + d, y)     # exactly y away from the tokens
 
 
