@@ -23,6 +23,8 @@ where the latent says the other?), the decoded path as it is.
 Reported per city and together: how many probes were matched both times (Hungarian within 2.2 m
 and 0.2 rad, ``core.matching``), the **response** (mean drawn turn at the left ask − at the right
 ask) / (mean asked left − asked right) (1: follows, 0: ignores; ``token_response.py``'s measure),
+with its 90 % interval over the probes (a percentile bootstrap, :data:`BOOTSTRAP` resamples: a city
+offers from a handful of probes to a few dozen, ``--windows 240`` for 20 or more on each shared city),
 and the share of probes whose drawn turn is nearer the asked continuation than the other, both times.
 """
 from __future__ import annotations
@@ -52,6 +54,7 @@ from sumo_scendiff.tokens.encoding import H2F_RANGE, agent_tokens_from_dicts, pa
 from sumo_scendiff.tokens.raster import exact_values
 
 MIN_SPEED, MIN_APART = 3.0, 0.15     # m/s, rad
+BOOTSTRAP = 2000                     # resamples of the probes for the response's interval
 
 
 def continuations(net, lane: int, pos: float, dist: float, depth: int = 6) -> list[np.ndarray]:
@@ -127,12 +130,19 @@ def summary(asked_lo, asked_hi, got_lo, got_hi) -> dict:
     a_lo, a_hi = np.array([asked_lo[k] for k in both]), np.array([asked_hi[k] for k in both])
     g_lo, g_hi = np.array([got_lo[k] for k in both]), np.array([got_hi[k] for k in both])
     took = (np.abs(g_lo - a_lo) < np.abs(g_lo - a_hi)) & (np.abs(g_hi - a_hi) < np.abs(g_hi - a_lo))
+    # the response's spread over the probes (a city offers a handful to a few dozen): a percentile
+    # bootstrap, seeded, so the same probes give the same interval
+    pick = np.random.default_rng(0).integers(len(both), size=(BOOTSTRAP, len(both)))
+    boot = (g_hi - g_lo)[pick].mean(1) / np.maximum((a_hi - a_lo)[pick].mean(1), 1e-9)
+    lo, hi = np.percentile(boot, [5, 95])
     return {"n": len(asked_lo), "both": len(both), "apart": float(np.mean(a_hi - a_lo)),
-            "response": float(np.mean(g_hi - g_lo) / np.mean(a_hi - a_lo)), "took": float(took.mean())}
+            "response": float(np.mean(g_hi - g_lo) / np.mean(a_hi - a_lo)), "interval": (float(lo), float(hi)),
+            "took": float(took.mean())}
 
 
 def row(city: str, r: dict) -> str:
-    return (f"| {city} | {r['n']} | {r['both']} | {r['apart']:.2f} | {r['response']:.2f} | {r['took']:.2f} |")
+    ci = " (–)" if np.isnan(r["response"]) else f" ({r['interval'][0]:.2f}–{r['interval'][1]:.2f})"
+    return (f"| {city} | {r['n']} | {r['both']} | {r['apart']:.2f} | {r['response']:.2f}{ci} | {r['took']:.2f} |")
 
 
 def get_options(args=None):
@@ -158,7 +168,7 @@ def main(o) -> int:
     cfg = replace(gen.config, deliver_tokens=False,
                   **({} if o.guidance is None else {"guidance": o.guidance}),
                   **({"lane_snap": False, "lane_headings": False} if o.no_lane_snap else {})).validate()
-    lines = ["| city | probes | matched both times | asked apart, rad | response | nearer the asked, both times |",
+    lines = ["| city | probes | matched both times | asked apart, rad | response (90 % interval) | nearer the asked, both times |",
              "|---|---|---|---|---|---|"]
     pooled = [[], [], [], []]
     for city in o.cities or cities_with_demand():
