@@ -77,12 +77,13 @@ def test_map_skips_join_the_decoder_at_their_resolution():
         assert torch.equal(skips.D_down.pyramid(m)[0], skips.D_down(m))
 
 
-def test_a_token_branch_changes_only_the_cells_a_token_covers():
+@pytest.mark.parametrize("mix", [False, True])
+def test_a_token_branch_changes_only_the_cells_a_token_covers(mix):
     """token_branch > 0: the head's outputs corrected where the token raster's token channel is set;
     with the branch's weights anything, a raster without tokens (or none) decodes exactly as the
     decoder without the branch, and with one token only its (2 RADIUS + 1)^2 cells change."""
     from sumo_scendiff.tokens.raster import C_T
-    cfg = {**TINY.__dict__, "C_t": C_T}
+    cfg = {**TINY.__dict__, "C_t": C_T, "token_branch_mix": mix}
     plain, branched = (ScenarioAutoencoder(AutoencoderConfig(**{**cfg, "token_branch": b})).eval() for b in (0, 8))
     branched.load_state_dict({**branched.state_dict(), **plain.state_dict()})
     with torch.no_grad():
@@ -96,6 +97,41 @@ def test_a_token_branch_changes_only_the_cells_a_token_covers():
         t[1, 0, 30:33, 40:43] = 1.0
         changed = (plain.decode(z, m, t) != branched.decode(z, m, t)).any(1)
         assert changed[1, 30:33, 40:43].all() and changed.sum() == 9
+
+
+def test_the_branchs_gate_draws_a_tokens_speeds_whatever_the_latent():
+    """token_branch_mix: each step's dx drawn (1 - g) y + g v toward the step a vehicle at the
+    token's speeds drives. Closed (g -> 0) the branch is as without it; open (g -> 1) every token cell
+    decodes the token's speed now and at +2 s (straight on), whatever the latent and the map."""
+    from sumo_scendiff.model.autoencoder import MIX_GAIN, MIX_GATE_START
+    from sumo_scendiff.tokens.encoding import agent_tokens_from_dicts, pad_tokens
+    from sumo_scendiff.tokens.raster import C_T, exact_values
+    cfg = AutoencoderConfig(**{**TINY.__dict__, "C_t": C_T, "token_branch": 8, "token_branch_mix": True,
+                               "token_speeds_filled": True})
+    ae = ScenarioAutoencoder(cfg).eval()
+    assert float(torch.sigmoid(MIX_GAIN * ae.D_up.branch.mix.bias[0].detach())) == pytest.approx(1 / (1 + math.exp(-MIX_GATE_START)))
+    asked = {"x": 6.0, "y": -2.0, "speed": 7.3, "final_speed": 3.1}
+    tok, pad = pad_tokens([agent_tokens_from_dicts([asked])])
+    t = ae.token_raster(tok, pad, exact_values([[asked]], [1]))
+    plain = ScenarioAutoencoder(AutoencoderConfig(**{**cfg.__dict__, "token_branch_mix": False})).eval()
+    plain.load_state_dict({k: v for k, v in ae.state_dict().items() if k in plain.state_dict()})
+    with torch.no_grad():
+        for p in (ae.D_up.branch.conv_out.weight, ae.D_up.branch.conv_out.bias):
+            p.normal_(std=0.05)                        # the branch's own correction: anything
+        plain.load_state_dict({k: v for k, v in ae.state_dict().items() if k in plain.state_dict()})
+        for bias, speeds in ((-50.0, None), (50.0, (7.3, 7.3, 5.2, 3.1))):
+            ae.D_up.branch.mix.bias.fill_(bias)
+            for seed in (0, 1):
+                torch.manual_seed(seed)
+                z, m = torch.randn(1, TINY.C_z, 16, 16) * 3, torch.rand(1, TINY.C_m, 128, 128)
+                y = ae.decode(z, m, t)
+                if speeds is None:                     # closed: the branch as without the gate
+                    assert torch.allclose(y, plain.decode(z, m, t), atol=1e-6)
+                    continue
+                cells = t[0, 0] > 0
+                dx = y[0, [7, 10, 13, 16]][:, cells].T     # metres, each step's along the t = 0 heading
+                assert int(cells.sum()) == 9 and torch.allclose(dx.abs(), torch.tensor(speeds), atol=1e-4)
+                assert (dx[:, :2] < 0).all() and (dx[:, 2:] > 0).all()     # past steps backward
 
 
 def test_no_map_decoder_ignores_the_map():

@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..map.raster import MAP_CHANNELS
-from ..tokens.raster import token_raster
+from ..tokens.raster import SPEED_SCALE, TOKEN_CHANNELS, token_raster
 from .blocks import Downsample, ResnetBlock, Upsample, group_norm, grow_segments
 from .detection import C_Y, DetectionLossConfig, detection_loss
 from .heading import bin_width
@@ -72,6 +72,13 @@ class AutoencoderConfig:
     # zero-initialised): a scene without tokens, and every cell away from one, decodes exactly as
     # the decoder it was added to, while a token's own vehicle gets layers of its own to follow it
     token_branch: int = 0
+    # with token_branch: the branch also draws each 1 s step's length toward the token's speeds,
+    # y' = (1 - g) y + g v, v the step a vehicle at the token's speed (now, +2 s) drives straight on
+    # and g in (0, 1) a gate the branch learns (starting near 0). A correction added to y must know
+    # y to undo it; the decoder's latent and map pull a token's vehicle toward the lane's limit by an
+    # amount the branch's normalised layers cannot read, and a gate's gradient has one sign whether
+    # the latent's speed is above or below the token's
+    token_branch_mix: bool = False
     loss: DetectionLossConfig = field(default_factory=DetectionLossConfig)
 
 
@@ -150,7 +157,8 @@ class DetectionDecoder(nn.Module):
         self.norm_out = group_norm(prev)
         k = cfg.heading_bins
         self.conv_out = nn.Conv2d(prev, C_Y + 2 * k, 3, padding=1)
-        self.branch = TokenBranch(prev, cfg.C_t, cfg.token_branch, C_Y + 2 * k, cfg.dropout) \
+        self.branch = TokenBranch(prev, cfg.C_t, cfg.token_branch, C_Y + 2 * k, cfg.dropout,
+                                  mix_scale=cfg.delta_scale[0] if cfg.token_branch_mix else None) \
             if cfg.C_t and cfg.token_branch else None
         scale = torch.ones(C_Y + 2 * k)
         scale[7:C_Y] = torch.tensor(cfg.delta_scale).repeat(4)
@@ -180,12 +188,19 @@ class DetectionDecoder(nn.Module):
         return y * self.out_scale
 
 
+MIX_STEPS = (-2, -1, 1, 2)                      # s: the 1 s steps a token's speeds give
+DX_CHANNEL = {-2: 7, -1: 10, 1: 13, 2: 16}      # each step's dx in y (model/detection.py's layout)
+MIX_GAIN = 10.0                                 # gate logits = MIX_GAIN x the conv: Adam's steps move it 10x
+MIX_GATE_START = -2.0                           # sigmoid(-2) = 0.12: open enough to learn from, closed enough to start near the branch
+
+
 class TokenBranch(nn.Module):
     """The head's outputs corrected where a token stands (``AutoencoderConfig.token_branch``):
     conv over [features, token raster], two ResnetBlocks, GN-SiLU-conv (zero-initialised), added to
     the head's raw outputs in the cells whose token channel is set and nowhere else."""
 
-    def __init__(self, feat_ch: int, c_t: int, ch: int, out_ch: int, dropout: float = 0.0):
+    def __init__(self, feat_ch: int, c_t: int, ch: int, out_ch: int, dropout: float = 0.0,
+                 mix_scale: float | None = None):
         super().__init__()
         self.conv_in = nn.Conv2d(feat_ch + c_t, ch, 3, padding=1)
         self.blocks = nn.Sequential(ResnetBlock(ch, ch, dropout=dropout), ResnetBlock(ch, ch, dropout=dropout))
@@ -193,13 +208,37 @@ class TokenBranch(nn.Module):
         self.conv_out = nn.Conv2d(ch, out_ch, 3, padding=1)
         nn.init.zeros_(self.conv_out.weight)
         nn.init.zeros_(self.conv_out.bias)
+        # token_branch_mix: one gate per 1 s step, read from the branch's features; near 0 at first
+        self.mix_scale, self.mix = mix_scale, None
+        if mix_scale is not None:
+            self.mix = nn.Conv2d(ch, len(MIX_STEPS), 3, padding=1)
+            nn.init.zeros_(self.mix.weight)
+            nn.init.constant_(self.mix.bias, MIX_GATE_START / MIX_GAIN)
 
     def forward(self, y: torch.Tensor, h: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         gate = t[:, :1] > 0          # tokens.raster: channel 0 is 1 in the cells around each token
         if not self.training and not bool(gate.any()):   # (in training always run: DDP wants every weight used)
             return y
-        d = self.conv_out(F.silu(self.norm_out(self.blocks(self.conv_in(torch.cat([h, t], dim=1))))))
-        return torch.where(gate, y + d, y)     # exactly y away from the tokens
+        f = F.silu(self.norm_out(self.blocks(self.conv_in(torch.cat([h, t], dim=1)))))
+        out = y + self.conv_out(f)
+        if self.mix is not None:
+            out = self._mixed(out, t, torch.sigmoid(MIX_GAIN * self.mix(f)))
+        return torch.where(gate, out, y)     # exactly y away from the tokens
+
+    def _mixed(self, y: torch.Tensor, t: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+        """dx of each step drawn toward the step a vehicle at the token's speeds drives straight on:
+        the past steps at its speed now, the future ones from it to its speed at +2 s (with
+        ``token_speeds_filled`` an absent one reads the other's); the token raster's speeds are in
+        ``SPEED_SCALE`` m/s, the head's dx in ``mix_scale`` m."""
+        now = t[:, TOKEN_CHANNELS.index("speed")] * SPEED_SCALE / self.mix_scale
+        final = t[:, TOKEN_CHANNELS.index("final_speed")] * SPEED_SCALE / self.mix_scale
+        # past deltas are pose(t) - pose(t + 1): backward along the heading
+        steps = {-2: -now, -1: -now, 1: 0.5 * (now + final), 2: final}
+        chans = list(y.unbind(1))
+        for k, step in enumerate(MIX_STEPS):
+            ch = DX_CHANNEL[step]
+            chans[ch] = (1 - g[:, k]) * chans[ch] + g[:, k] * steps[step]
+        return torch.stack(chans, 1)
 
 
 class ScenarioAutoencoder(nn.Module):
