@@ -137,14 +137,15 @@ def test_the_recipes_are_what_the_shipped_model_records():
     read in both channels, more partial tokens, the speed term), configs/token_exact.json's (its
     token inputs reading the tokens' exact values), configs/token_turns.json's (a turning
     vehicle's trajectory weighted 40), configs/token_told.json's (the speed of a vehicle whose
-    token gives it weighted 11) and configs/token_branch.json's (a token branch added)."""
+    token gives it weighted 11), configs/token_branch.json's (a token branch added) and
+    configs/token_mix.json's (the branch's gate toward the token's speeds)."""
     shipped = ckpt.load(os.path.join(REPO, "sumo_scendiff", "weights", "scendiff.pt"), "scenario-diffusion")
     fast, density = rc.load(FAST), rc.load(os.path.join(REPO, "configs", "density.json"))
     signals = rc.load(os.path.join(REPO, "configs", "signals.json"))
     ae, decoder, diffusion = (rc.stage(fast, n) for n in ("autoencoder", "decoder", "diffusion"))
     tuned, lit = rc.stage(density, "diffusion"), rc.stage(signals, "diffusion")
     reads = [st for name in ("token_decoder.json", "token_speed.json", "token_exact.json", "token_turns.json",
-                             "token_told.json", "token_branch.json")
+                             "token_told.json", "token_branch.json", "token_mix.json")
              for st in rc.load(os.path.join(REPO, "configs", name))["stages"] if st["run"] == "autoencoder"]
     # the decoder stages continue the autoencoder's config with their own overrides on top
     config = _merge(ae["model_config"], decoder["model_config"])
@@ -156,6 +157,7 @@ def test_the_recipes_are_what_the_shipped_model_records():
     assert shipped["autoencoder_config"]["loss"]["category_weights"][2] == 40.0   # ... the turns weighted
     assert shipped["autoencoder_config"]["loss"]["told_speed_weight"] == 10.0     # ... a told speed too
     assert shipped["autoencoder_config"]["token_branch"] == 32        # ... corrected where a token stands
+    assert shipped["autoencoder_config"]["token_branch_mix"]          # ... drawn toward its speeds
     assert_recorded(_merge(_merge(diffusion["model_config"], tuned["model_config"]), lit["model_config"]),
                     shipped["diffusion_config"], "diffusion_config")
     assert shipped["diffusion_config"]["unet"]["global_dim"] == 23    # p_mask, density, its presence bit

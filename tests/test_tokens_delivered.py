@@ -133,8 +133,8 @@ def test_network_references_resolve_to_poses(diagonal_net):
 
 def test_a_stopping_token_stands_in_sumo_after_the_replayed_future(city, gen):
     """End to end: the partial token (x, y, heading, speed 8, manoeuvre "stop") seeded into SUMO
-    and held on its generated future for 2 s stands then; the model's own drawing (delivery off)
-    does not stop."""
+    and held on its generated future for 2 s stands then, delivered and as the model alone draws it
+    (delivery off: the decoder's gate toward the token's speeds, round 24; round 23 left it moving)."""
     from sumo_scendiff.sim.cosim import CoSimulation
     from sumo_scendiff.sim.sumo import SimConfig, start
     w = road_window(city)
@@ -157,7 +157,7 @@ def test_a_stopping_token_stands_in_sumo_after_the_replayed_future(city, gen):
             speeds.append(sim.vehicle.getSpeed(vid))
         finally:
             sim.close()
-    assert speeds[0] < 0.5 and speeds[1] > 0.5
+    assert speeds[0] < 0.5 and speeds[1] < 0.5
 
 
 def heading_to_final(traj) -> float:
