@@ -103,7 +103,7 @@ def test_the_branchs_gate_draws_a_tokens_speeds_whatever_the_latent():
     """token_branch_mix: each step's dx drawn (1 - g) y + g v toward the step a vehicle at the
     token's speeds drives. Closed (g -> 0) the branch is as without it; open (g -> 1) every token cell
     decodes the token's speed now and at +2 s (straight on), whatever the latent and the map."""
-    from sumo_scendiff.model.autoencoder import MIX_GAIN, MIX_GATE_START
+    from sumo_scendiff.model.autoencoder import DX_CHANNEL, MIX_GAIN, MIX_GATE_START, MIX_STEPS
     from sumo_scendiff.tokens.encoding import agent_tokens_from_dicts, pad_tokens
     from sumo_scendiff.tokens.raster import C_T, exact_values
     cfg = AutoencoderConfig(**{**TINY.__dict__, "C_t": C_T, "token_branch": 8, "token_branch_mix": True,
@@ -129,7 +129,7 @@ def test_the_branchs_gate_draws_a_tokens_speeds_whatever_the_latent():
                     assert torch.allclose(y, plain.decode(z, m, t), atol=1e-6)
                     continue
                 cells = t[0, 0] > 0
-                dx = y[0, [7, 10, 13, 16]][:, cells].T     # metres, each step's along the t = 0 heading
+                dx = y[0, [DX_CHANNEL[st] for st in MIX_STEPS]][:, cells].T   # m, along the t = 0 heading
                 assert int(cells.sum()) == 9 and torch.allclose(dx.abs(), torch.tensor(speeds), atol=1e-4)
                 assert (dx[:, :2] < 0).all() and (dx[:, 2:] > 0).all()     # past steps backward
 

@@ -188,8 +188,8 @@ class DetectionDecoder(nn.Module):
         return y * self.out_scale
 
 
-MIX_STEPS = (-2, -1, 1, 2)                      # s: the 1 s steps a token's speeds give
-DX_CHANNEL = {-2: 7, -1: 10, 1: 13, 2: 16}      # each step's dx in y (model/detection.py's layout)
+MIX_STEPS = (-2, -1, 1, 2)                      # s: the 1 s steps, in model/detection.py's order
+DX_CHANNEL = {s: 7 + 3 * i for i, s in enumerate(MIX_STEPS)}   # each step's dx: (dx, dy, dyaw) from channel 7
 MIX_GAIN = 10.0                                 # gate logits = MIX_GAIN x the conv: Adam's steps move it 10x
 MIX_GATE_START = -2.0                           # sigmoid(-2) = 0.12: open enough to learn from, closed enough to start near the branch
 
@@ -197,7 +197,9 @@ MIX_GATE_START = -2.0                           # sigmoid(-2) = 0.12: open enoug
 class TokenBranch(nn.Module):
     """The head's outputs corrected where a token stands (``AutoencoderConfig.token_branch``):
     conv over [features, token raster], two ResnetBlocks, GN-SiLU-conv (zero-initialised), added to
-    the head's raw outputs in the cells whose token channel is set and nowhere else."""
+    the head's raw outputs in the cells whose token channel is set and nowhere else. With
+    ``mix_scale`` (``token_branch_mix``) each step's dx is then drawn toward the token's speeds
+    through a gate read from the same features (:meth:`_mixed`)."""
 
     def __init__(self, feat_ch: int, c_t: int, ch: int, out_ch: int, dropout: float = 0.0,
                  mix_scale: float | None = None):
