@@ -129,7 +129,8 @@ def launch(args: list[str]):
 
 
 def snapshot(sim) -> dict:
-    """Vehicles on the network now: per normal edge their count, per vehicle its box (cx, cy, yaw, l, w)."""
+    """Vehicles on the network now: per normal edge their count, per vehicle its box (cx, cy, yaw, l, w),
+    and how many wait to enter (loaded, their departure due, not inserted)."""
     from sumo_scendiff.core.geometry import sumo_to_pose
     ids = list(sim.vehicle.getIDList())
     edges = Counter(e for e in map(sim.vehicle.getRoadID, ids) if not e.startswith(":"))
@@ -139,7 +140,7 @@ def snapshot(sim) -> dict:
         length = sim.vehicle.getLength(v)
         cx, cy, yaw = sumo_to_pose(x, y, sim.vehicle.getAngle(v), length)
         boxes[v] = (float(cx), float(cy), float(yaw), length, sim.vehicle.getWidth(v))
-    return {"n": len(ids), "edges": edges, "boxes": boxes}
+    return {"n": len(ids), "edges": edges, "boxes": boxes, "waiting": len(sim.simulation.getPendingVehicles())}
 
 
 def overlaps(boxes: dict) -> int:
@@ -358,6 +359,7 @@ def density_table(r: dict, o) -> list[str]:
              f"{d0:.1f} ({rel0}; {f['at']['n']} vehicles on {km:.1f} km)", "±10 %", _met(ok0)),
             (f"density after {o.hold:g} s with the inflow", f"{o.density:g}",
              f"{d1:.1f} ({rel1}; {f['hold']['n']} vehicles)", "±15 %", _met(ok1)),
+            (f"waiting to enter at {o.hold:g} s", "–", f"{f['hold']['waiting']}", "–", "–"),
             ("inflow", "–", f"period {inflow.get('period_s', '–')} s, trip {inflow.get('trip_s', '–')} s, "
              f"from {inflow.get('from', inflow.get('reason', '–'))}", "–", "–"),
             (f"collisions / teleports per 100 in the first {ROLLOUT:g} s", "–",

@@ -82,10 +82,31 @@ def test_inflow_rate_from_the_filled_network(filled):
     assert inflow["max_num_vehicles"] == n
     for cfg in ("scenario.sumocfg", "start.sumocfg"):
         assert f'<max-num-vehicles value="{n}"/>' in (out / cfg).read_text()
+        assert f'<max-depart-delay value="{inflow["max_depart_delay_s"]:g}"/>' in (out / cfg).read_text()
     text = (out / "inflow.rou.xml").read_text()
     assert text.count("<vehicle ") == inflow["probe_departures"] == probe["replaced"]
     trips = [float(t.split('depart="')[1].split('"')[0]) for t in text.split("<trip ")[1:]]
     assert trips and min(trips) >= inflow["steady_from"] > doc["state_time"]
+
+
+def test_inflow_surplus_waits_a_while_only(filled, tmp_path):
+    """Stock SUMO on the folder for 450 s: the network stays at the filled number while the surplus
+    offered beyond it waits to enter, and SUMO drops a vehicle that waited MAX_DEPART_DELAY_S, so the
+    waiting list stays within what arrives in that time instead of growing with the hour."""
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.fill.seed import MAX_DEPART_DELAY_S
+    out, doc = filled
+    summary = tmp_path / "summary.xml"
+    run = subprocess.run([sumo_binary(), "-c", str(out / "scenario.sumocfg"), "--no-warnings",
+                          "--end", f"{doc['state_time'] + 450:g}", "--summary-output", str(summary)],
+                         check=False, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    steps = [line for line in summary.read_text().splitlines() if "<step " in line]
+    value = lambda line, k: float(line.split(f'{k}="')[1].split('"')[0])   # noqa: E731
+    waiting = [value(line, "waiting") for line in steps]
+    assert max(waiting) <= MAX_DEPART_DELAY_S / doc["inflow"]["period_s"] + 2
+    assert value(steps[-1], "discarded") > 0                 # the cap was reached: the surplus is dropped
+    assert value(steps[-1], "running") >= 0.85 * doc["summary"]["vehicles"]
 
 
 def test_inflow_period_follows_the_measured_speed(tmp_path):

@@ -96,8 +96,9 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
         close(sim)
     onward = list(routes) + ([os.path.join(folder, inflow["file"])] if inflow.get("file") else [])
     options = cfg.options()
-    if inflow.get("max_num_vehicles"):   # the inflow's surplus waits to enter (seed.SUPPLY)
+    if inflow.get("max_num_vehicles"):   # the inflow's surplus waits to enter (seed.SUPPLY), a while
         options["max-num-vehicles"] = str(inflow["max_num_vehicles"])
+        options["max-depart-delay"] = f"{inflow['max_depart_delay_s']:g}"
     # SUMO starts a loaded state at the state's own time (one seeding step after --begin)
     write_sumocfg(os.path.join(folder, "scenario.sumocfg"), {**options, "b": f"{state_time:g}"},
                   "state.xml.gz", routes=onward)

@@ -47,6 +47,10 @@ PROBE_SECONDS = 90.0
 # to gridlock, a little too low and it drains (grid4x4 at 25 veh/km, three seeds: -24 % to +21 %
 # after 30 min); with the cap an estimate up to SUPPLY times too low still holds the count.
 SUPPLY = 1.5
+# The supply beyond what leaves waits to enter; SUMO drops a vehicle that has waited this long
+# (--max-depart-delay, in both configurations), so the waiting list stays bounded (about
+# (SUPPLY - 1) x the leaving rate x this) instead of growing over the hour.
+MAX_DEPART_DELAY_S = 60.0
 
 
 class InflowError(RuntimeError):
@@ -247,7 +251,8 @@ def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: 
     """inflow.rou.xml: randomTrips.py trips from the fringe (or anywhere, for a network without
     one) at the rate that holds ``vehicles`` on the network: in a steady state as many enter as
     leave, ``vehicles / trip time`` per second (Little's law), offered :data:`SUPPLY` times over, the
-    configurations capping the network at ``vehicles`` (``max_num_vehicles`` in the result).
+    configurations capping the network at ``vehicles`` (``max_num_vehicles`` in the result) and
+    dropping a vehicle that waited :data:`MAX_DEPART_DELAY_S` to enter (``max_depart_delay_s``).
 
     The trip time is the mean route length of a first sample of the same random trips (``sample``,
     else drawn here: :func:`inflow_sample`) over ``speed`` (m/s; default the ``probe``'s), the
@@ -281,10 +286,12 @@ def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: 
             "supply": SUPPLY,
             "method": "period = trip_s / vehicles / supply (Little's law, offered supply times); trip_s = the "
                       "slower of route_m / the filled network's measured mean speed and the routes at 0.7 x the "
-                      "speed limits; SUMO's max-num-vehicles holds the network at vehicles"}
+                      "speed limits; SUMO's max-num-vehicles holds the network at vehicles, its max-depart-delay "
+                      "drops a surplus vehicle that waited max_depart_delay_s to enter"}
     out = {"file": os.path.basename(path), "period_s": round(period, 3), "trip_s": round(trip_s, 1),
            "from": "fringe" if sources else "anywhere (the network has no fringe)",
-           "fringe_sources": len(sources), "seconds": INFLOW_SECONDS, "max_num_vehicles": vehicles, "rate": rate}
+           "fringe_sources": len(sources), "seconds": INFLOW_SECONDS, "max_num_vehicles": vehicles,
+           "max_depart_delay_s": MAX_DEPART_DELAY_S, "rate": rate}
     if probe is not None:
         rate["probe"] = probe.record
         out["probe_departures"] = len(probe.departures)
@@ -292,5 +299,5 @@ def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: 
     return out
 
 
-__all__ = ["PROBE_SECONDS", "SETTLE_SECONDS", "InflowError", "Probe", "fringe_sources", "inflow_sample", "probe_speed",
+__all__ = ["MAX_DEPART_DELAY_S", "PROBE_SECONDS", "SETTLE_SECONDS", "InflowError", "Probe", "fringe_sources", "inflow_sample", "probe_speed",
            "route_metres", "seed_fill", "trip_seconds", "write_inflow", "write_start_routes"]
