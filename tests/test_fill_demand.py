@@ -31,6 +31,52 @@ def test_demand_estimate(tmp_path):
     assert est.on_edge == {e: 1} and est.departed == 2
 
 
+def test_departures_before_the_state_are_the_fills(tmp_path):
+    """With ``due`` (the state's time, a seeding step after T) the departures before it count as
+    departing at T; one at ``due`` is left to the route file, as SUMO started from the state loads it."""
+    from sumo_scendiff.fill.demand import DemandEstimate
+    from sumo_scendiff.map.network import Network
+    net = Network.load(NET)
+    e = [e.getID() for e in net.sumo_net.getEdges() if e.getFromNode().getID() != e.getToNode().getID()]
+    routes = tmp_path / "d.rou.xml"
+    routes.write_text("<routes>" + "".join(f'<vehicle id="{v}" depart="{t}"><route edges="{e[k]}"/></vehicle>'
+                                           for k, (v, t) in enumerate([("at", 100), ("within", 100.25),
+                                                                       ("due", 100.5)])) + "</routes>")
+    assert {r.id for r in DemandEstimate.at(net, [str(routes)], begin=100.0).en_route} == {"at"}
+    est = DemandEstimate.at(net, [str(routes)], begin=100.0, due=100.5)
+    assert {r.id for r in est.en_route} == {"at", "within"} and all(r.since == 0.0 for r in est.en_route)
+
+
+def test_no_demand_vehicle_twice(tmp_path):
+    """A fill at T carries the demand's departures before its state's time (T + one step), and both
+    configurations start at that time, so SUMO loads none of them again from the route files: each
+    demand vehicle departs once, a later one from its file."""
+    import libsumo
+
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.map.network import Network
+    edges = [e.getID() for e in Network.load(NET).sumo_net.getEdges() if e.getLength() > 40]
+    demand = tmp_path / "demand.rou.xml"
+    times = [("early", 60), ("at", 120), ("within", 120.25), ("due", 120.5), ("later", 125)]
+    demand.write_text("<routes>" + "".join(f'<vehicle id="{v}" depart="{t}"><route edges="{edges[k]}"/></vehicle>'
+                                           for k, (v, t) in enumerate(times)) + "</routes>")
+    doc = _fill(tmp_path / "o", "-r", str(demand), "--begin", "120")
+    carried = {a["demand"]["id"] for a in doc["agents"] if a.get("demand") and a["vehicle"]}
+    assert {"at", "within"} <= carried and not carried & {"due", "later"}
+    for cfg in ("scenario.sumocfg", "start.sumocfg"):
+        libsumo.start([sumo_binary(), "-c", str(tmp_path / "o" / cfg), "--no-step-log", "true"])
+        try:
+            assert libsumo.simulation.getTime() == pytest.approx(doc["state_time"], abs=0.51)
+            departed = []
+            while libsumo.simulation.getTime() < 130:
+                libsumo.simulationStep()
+                departed += libsumo.simulation.getDepartedIDList()
+        finally:
+            libsumo.close()
+        from_file = [v for v in departed if v in dict(times)]
+        assert sorted(from_file) == ["due", "later"], cfg
+
+
 def _edge_pair(net):
     """An edge with two car lanes or more and a successor, from a lane that leads there."""
     for e in net.sumo_net.getEdges():

@@ -137,7 +137,8 @@ def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | No
                                "applied": True}, None
     if routes:
         try:
-            est = DemandEstimate.at(net, routes, begin, additional=additional)
+            # the state is saved one seeding step after begin: the departures before then are the fill's
+            est = DemandEstimate.at(net, routes, begin, additional=additional, due=begin + o.step_length)
         except RoutingError as e:
             raise FillError(f"{', '.join(routes)}: {e}") from None
         # each tile's count is kept in its core: the core's own density, so the tiles add up to the
@@ -145,7 +146,7 @@ def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | No
         targets = [est.region_density(net, shapely.box(*t.core)) for t in tiles]
         src = {"kind": "demand", "time": begin, "en_route": est.vehicles, "departed": est.departed,
                "unrouted": est.unrouted, "applied": gen.has_density,
-               "method": "each departure up to --begin laid on the route SUMO's duarouter gives it and moved by "
+               "method": "each departure before the state's time (--begin + one step) laid on the route SUMO's duarouter gives it and moved by "
                          "fill/travel.py's clock: its vType's desired speed (x 0.9), the junctions' internal "
                          "lanes, giving way, fixed lights as SUMO runs their programs (queues first come, "
                          "first served), actuated ones at the cycle their gap control runs, the start from "

@@ -78,8 +78,10 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
         present = set(sim.vehicle.getIDList())
         ids = [a["vehicle"] for a in agents if a["vehicle"] in present]
         sim.simulation.saveState(os.path.join(folder, "state.xml.gz"))
-        exact = write_start_routes(os.path.join(folder, "start.rou.xml"), sim, ids, net, cfg.begin or 0.0)
         state_time = float(sim.simulation.getTime())
+        # the portable start departs its vehicles where the state has them, at the state's time: the
+        # demand's departures before it are the fill's, and SUMO skips them from the route files
+        exact = write_start_routes(os.path.join(folder, "start.rou.xml"), sim, ids, net, state_time)
         inflow = {"file": None, "reason": "the demand continues (its route files are in the configurations)"}
         if not routes:
             # the state and start routes are written: now drive the filled network on, with the
@@ -102,7 +104,7 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
     # SUMO starts a loaded state at the state's own time (one seeding step after --begin)
     write_sumocfg(os.path.join(folder, "scenario.sumocfg"), {**options, "b": f"{state_time:g}"},
                   "state.xml.gz", routes=onward)
-    write_sumocfg(os.path.join(folder, "start.sumocfg"), options, None,
+    write_sumocfg(os.path.join(folder, "start.sumocfg"), {**options, "b": f"{state_time:g}"}, None,
                   routes=[os.path.join(folder, "start.rou.xml")] + onward)
 
     seeded = [a for a in agents if a["vehicle"] is not None]
