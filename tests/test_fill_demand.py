@@ -290,7 +290,8 @@ def test_times_in_sumos_h_m_s_form(tmp_path):
     routes = tmp_path / "t.rou.xml"
     for depart in ("100", "0:01:40"):
         routes.write_text(f'<routes><vehicle id="a" depart="{depart}"><route edges="{e.getID()}"/></vehicle>'
-                          f'<flow id="f" begin="0:01:00" end="0:02:00" period="30"><route edges="{e.getID()}"/></flow></routes>')
+                          f'<flow id="f" begin="0:01:00" end="0:02:00" period="30" departSpeed="0">'
+                          f'<route edges="{e.getID()}"/></flow></routes>')
         est = DemandEstimate.at(net, [str(routes)], begin=101.0)
         assert est.departed == 3 and {v.id for v in est.en_route} >= {"a", "f.1"}   # (f.0 at 60 s)
         assert [v.since for v in est.en_route if v.id == "a"] == [pytest.approx(1.0)]
@@ -403,3 +404,26 @@ def test_every_form_of_a_route_file_is_routed_as_sumo_does(tmp_path, grid):
                                            'end="60" period="10"/></routes>')
     with pytest.raises(RoutingError, match="vehicle type 'lorri' for flow 'f' is not known"):
         routed_departures(net_path, [str(tmp_path / "typo.rou.xml")], until=300.0)
+
+
+@pytest.mark.parametrize("given", [None, "0", "max"])
+def test_departs_as_sumo_inserts(grid, tmp_path, given):
+    """Whether a demand's vehicle starts from standing is what SUMO does with it: its departSpeed,
+    else SUMO's default (``default.departspeed``, which the installed SUMO's version sets), checked
+    against the speed SUMO itself inserts it at on an empty road."""
+    import libsumo
+
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.fill.routing import routed_departures
+    attr = f' departSpeed="{given}"' if given else ""
+    routes = tmp_path / "one.rou.xml"
+    routes.write_text(f'<routes><vehicle id="v" depart="5"{attr}><route edges="A0B0 B0C0"/></vehicle></routes>')
+    (dep,), _ = routed_departures(grid.path, [str(routes)], until=10.0)
+    libsumo.start([sumo_binary(), "-n", grid.path, "-r", str(routes), "--no-step-log", "--no-warnings"])
+    try:
+        while "v" not in libsumo.simulation.getDepartedIDList():
+            libsumo.simulationStep()
+        speed = libsumo.vehicle.getSpeed("v")
+    finally:
+        libsumo.close()
+    assert dep.standing == (speed == 0.0), (given, speed)

@@ -101,7 +101,8 @@ def test_vtype_drivers(tmp_path):
 
 def test_depart_pos_and_speed_in_the_estimate(tmp_path):
     """A vehicle entering halfway along its edge (departPos) is through it sooner than one entering
-    at its start; one entering at speed (departSpeed="max") sooner than one from standing."""
+    at its start; one entering at speed (departSpeed="max") sooner than one from standing
+    (departSpeed="0"; without one, SUMO's default decides: test_fill_demand.py)."""
     from sumo_scendiff.fill.demand import DemandEstimate
     from sumo_scendiff.map.network import Network
     net = Network.load(NET4)
@@ -112,8 +113,8 @@ def test_depart_pos_and_speed_in_the_estimate(tmp_path):
         routes.write_text(f'<routes><vehicle id="a" depart="0" {attrs}><route edges="{e.getID()}"/></vehicle></routes>')
         [v] = DemandEstimate.at(net, [str(routes)], begin=1.0).en_route
         return v.travel - v.since, v.offset
-    base, off = remaining("")
-    half, off_half = remaining(f'departPos="{e.getLength() / 2:.2f}"')
+    base, off = remaining('departSpeed="0"')
+    half, off_half = remaining(f'departPos="{e.getLength() / 2:.2f}" departSpeed="0"')
     moving, _ = remaining('departSpeed="max"')
     assert off == 0 and off_half == pytest.approx(e.getLength() / 2, abs=0.01)
     assert half < base and moving < base

@@ -1,6 +1,7 @@
 """Where SUMO's binaries and tools are: the ``eclipse-sumo`` wheel (no ``SUMO_HOME`` set-up)."""
 from __future__ import annotations
 
+import functools
 import os
 
 
@@ -16,3 +17,16 @@ def sumo_binary(name: str = "sumo") -> str:
 def sumo_tool(*path: str) -> str:
     """A script of SUMO's ``tools/`` folder, e.g. ``sumo_tool("randomTrips.py")``."""
     return os.path.join(sumo_home(), "tools", *path)
+
+
+@functools.lru_cache(maxsize=None)
+def sumo_defaults() -> dict[str, str]:
+    """The installed ``sumo``'s option defaults (name -> value), from its configuration template:
+    they change between SUMO versions (``default.departspeed`` was 0 and is "avg" in 1.28)."""
+    import subprocess
+    import tempfile
+    import xml.etree.ElementTree as ET
+    with tempfile.TemporaryDirectory(prefix="scendiff-template-") as work:
+        path = os.path.join(work, "template.sumocfg")
+        subprocess.run([sumo_binary("sumo"), "--save-template", path], capture_output=True, timeout=60, check=True)
+        return {opt.tag: opt.get("value", "") for section in ET.parse(path).getroot() for opt in section}

@@ -108,7 +108,7 @@ def _files(arg: str | None) -> list[str]:
     return [f for f in (arg or "").split(",") if f]
 
 
-def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | None, bool, dict, list | None]:
+def _amount(o, net, gen, tiles, routes, begin, additional=(), options=()) -> tuple[list | None, bool, dict, list | None]:
     """Per tile the density target, whether the model is given it, the source for fill.json, and
     with demand the demand's vehicles placed on their lanes (fill/en_route.py; None: none given)."""
     import numpy as np
@@ -138,7 +138,8 @@ def _amount(o, net, gen, tiles, routes, begin, additional=()) -> tuple[list | No
     if routes:
         try:
             # the state is saved one seeding step after begin: the departures before then are the fill's
-            est = DemandEstimate.at(net, routes, begin, additional=additional, due=begin + o.step_length)
+            est = DemandEstimate.at(net, routes, begin, additional=additional, due=begin + o.step_length,
+                                    depart_speed=dict(options).get("default.departspeed"))
         except RoutingError as e:
             raise FillError(f"{', '.join(routes)}: {e}") from None
         # each tile's count is kept in its core: the core's own density, so the tiles add up to the
@@ -219,7 +220,7 @@ def run(o, folder: str) -> dict:
     gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig.from_options(o))
     # started here, the workers load their model while this process prepares the rest
     with tile_engine(net, gen, o.workers, o.ray_address, o.checkpoint) as engine:
-        targets, applied, source, demand = _amount(o, net, gen, tiles, routes, begin, scen.additional)
+        targets, applied, source, demand = _amount(o, net, gen, tiles, routes, begin, scen.additional, scen.options)
         if applied and targets is not None:
             # the counts the tiles' cores keep (generator: round(D x car-lane km)) add up to the total
             kms = [net.car_lane_km_in(shapely.box(*t.core)) for t in tiles]

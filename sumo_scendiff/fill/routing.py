@@ -44,10 +44,14 @@ class Departure:
 
 
 def routed_departures(net_path: str, route_files, additional=(), until: float = float("inf"),
-                      since: float = float("-inf")) -> tuple[list[Departure], int]:
+                      since: float = float("-inf"), depart_speed: str | None = None) -> tuple[list[Departure], int]:
     """Every vehicle of ``route_files`` departing from ``since`` to ``until``, routed by duarouter,
-    in the order of departure, and how many it found no route for. Raises :class:`RoutingError`."""
-    from ..core.tools import sumo_binary
+    in the order of departure, and how many it found no route for. A vehicle without a
+    ``departSpeed`` departs at ``depart_speed`` (SUMO's ``default.departspeed``: the scenario's, else
+    the installed SUMO's). Raises :class:`RoutingError`."""
+    from ..core.tools import sumo_binary, sumo_defaults
+    if depart_speed is None:
+        depart_speed = sumo_defaults().get("default.departspeed", "0")
     with tempfile.TemporaryDirectory(prefix="scendiff-route-") as work:
         out = os.path.join(work, "routed.rou.xml")
         args = [sumo_binary("duarouter"), "-n", os.path.abspath(net_path),
@@ -72,7 +76,7 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
         unknown = next((ln for ln in done.stderr.splitlines() if _UNKNOWN.search(ln)), None)
         if unknown:     # duarouter goes on with a default; SUMO refuses to load such a demand
             raise RoutingError(f"{unknown.removeprefix('Warning: ').rstrip('.')} (SUMO refuses such a demand)")
-        return _read(out, since, until), sum("has no valid route" in line for line in done.stderr.splitlines())
+        return _read(out, since, until, depart_speed), sum("has no valid route" in line for line in done.stderr.splitlines())
 
 
 def _has_probability_flow(path: str) -> bool:
@@ -81,7 +85,7 @@ def _has_probability_flow(path: str) -> bool:
         return _PROBABILITY_FLOW.search(f.read()) is not None
 
 
-def _read(path: str, since: float, until: float) -> list[Departure]:
+def _read(path: str, since: float, until: float, depart_speed: str = "0") -> list[Departure]:
     from sumolib.xml import parse
     named = {el.id: tuple(el.edges.split()) for el in parse(path, "route")
              if getattr(el, "id", None) and getattr(el, "edges", None)}
@@ -96,18 +100,19 @@ def _read(path: str, since: float, until: float) -> list[Departure]:
             edges = named.get(getattr(el, "route", None) or "", ())
         if edges:
             out.append(Departure(el.id, getattr(el, "type", None), edges, depart,
-                                 _departs_standing(getattr(el, "departSpeed", None)), getattr(el, "departPos", None)))
+                                 _departs_standing(getattr(el, "departSpeed", None) or depart_speed),
+                                 getattr(el, "departPos", None)))
     out.sort(key=lambda d: d.depart)
     return out
 
 
 def _departs_standing(v: str | None) -> bool:
-    """Whether a vehicle with ``departSpeed`` ``v`` enters at speed 0 (SUMO's default) and accelerates first."""
+    """Whether a vehicle with ``departSpeed`` ``v`` enters at speed 0 and accelerates first."""
     if v is None:
         return True
     try:
         return float(v) <= 0.0
-    except ValueError:          # "max", "desired", "speedLimit", "avg", "last", "random": moving
+    except ValueError:          # "max", "desired", "speedLimit", "avg" (the lane's), "last", "random": moving
         return False
 
 

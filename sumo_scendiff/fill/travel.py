@@ -14,7 +14,8 @@ green share λ and degree of saturation x (the demand's own flow through the lin
 of its lanes at green, SATURATION_FLOW per lane, capped at X_MAX: an oversaturated queue grows
 without bound, which a steady-state formula cannot hold); the share of vehicles that stop,
 (1 - λ) / (1 - λx), lose the time of stopping and starting as well. A vehicle departing at speed 0
-(SUMO's default departSpeed) loses the time of accelerating. An actuated light's phases are taken
+(its departSpeed, or SUMO's ``default.departspeed`` where it gives none: 0 in older SUMO, the
+lane's speed, "avg", in 1.28: :func:`~.routing.routed_departures`) loses the time of accelerating. An actuated light's phases are taken
 at the durations its gap control gives them under the demand's flows (:mod:`.actuated`), not at
 their programmed ones. Every speeding up is at the vType's
 mean acceleration under Krauss' dawdling, accel (1 - sigma / 2) (:attr:`Driver.pickup`).
