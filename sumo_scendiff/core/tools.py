@@ -28,5 +28,8 @@ def sumo_defaults() -> dict[str, str]:
     import xml.etree.ElementTree as ET
     with tempfile.TemporaryDirectory(prefix="scendiff-template-") as work:
         path = os.path.join(work, "template.sumocfg")
-        subprocess.run([sumo_binary("sumo"), "--save-template", path], capture_output=True, timeout=60, check=True)
-        return {opt.tag: opt.get("value", "") for section in ET.parse(path).getroot() for opt in section}
+        try:
+            subprocess.run([sumo_binary("sumo"), "--save-template", path], capture_output=True, timeout=60, check=True)
+            return {opt.tag: opt.get("value", "") for section in ET.parse(path).getroot() for opt in section}
+        except (OSError, subprocess.SubprocessError, ET.ParseError):
+            return {}       # no template: the callers' own fallbacks (SUMO itself will say what is wrong)
