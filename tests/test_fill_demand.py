@@ -427,3 +427,15 @@ def test_departs_as_sumo_inserts(grid, tmp_path, given):
     finally:
         libsumo.close()
     assert dep.standing == (speed == 0.0), (given, speed)
+
+
+def test_a_configurations_default_depart_speed(grid, tmp_path):
+    """A configuration's ``default.departspeed`` decides for the vehicles that give no departSpeed,
+    as it does in SUMO: "0" from standing, "max" moving; a vehicle's own attribute still wins."""
+    from sumo_scendiff.fill.routing import routed_departures
+    routes = tmp_path / "two.rou.xml"
+    routes.write_text('<routes><vehicle id="a" depart="5"><route edges="A0B0 B0C0"/></vehicle>'
+                      '<vehicle id="b" depart="6" departSpeed="0"><route edges="A0B0 B0C0"/></vehicle></routes>')
+    for default, standing in (("0", {"a": True, "b": True}), ("max", {"a": False, "b": True})):
+        deps, _ = routed_departures(grid.path, [str(routes)], until=10.0, depart_speed=default)
+        assert {d.id: d.standing for d in deps} == standing, default
