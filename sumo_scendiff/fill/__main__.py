@@ -147,11 +147,12 @@ def _amount(o, net, gen, tiles, routes, begin, additional=(), options=()) -> tup
         targets = [est.region_density(net, shapely.box(*t.core)) for t in tiles]
         src = {"kind": "demand", "time": begin, "en_route": est.vehicles, "departed": est.departed,
                "unrouted": est.unrouted, "applied": gen.has_density,
-               "method": "each departure before the state's time (--begin + one step) laid on the route SUMO's duarouter gives it and moved by "
-                         "fill/travel.py's clock: its vType's desired speed (x 0.9), the junctions' internal "
-                         "lanes, giving way, fixed lights as SUMO runs their programs (queues first come, "
-                         "first served), actuated ones at the cycle their gap control runs, the start from "
-                         "standing; queues on the lanes that lead on along each route, spilling back where "
+               "method": "each departure before the state's time (--begin + one step) laid on the route SUMO's "
+                         "duarouter gives it and moved by fill/travel.py's clock: its vType's desired speed "
+                         "(x 0.9), the junctions' internal lanes, giving way, fixed lights as SUMO runs their "
+                         "programs (queues first come, first served), actuated ones at the cycle their gap "
+                         "control runs, the start from standing where it departs at speed 0 (its departSpeed, "
+                         "else SUMO's default.departspeed); queues on the lanes that lead on along each route, spilling back where "
                          "they are full (fill/queues.py); no simulation"}
         if not gen.has_density:
             src["note"] = (f"{name} has no density condition: the demand's density is recorded per tile "
