@@ -102,3 +102,32 @@ def test_the_first_turn_is_one_the_lane_makes(tmp_path):
         assert rc.complete(["wc", "ce"], "ce_0", "DEFAULT_VEHTYPE", np.random.default_rng(0)) == ["wc", "ce"]
     finally:
         sim.close()
+
+
+def test_a_demand_vehicle_keeps_its_own_route_that_turns_back(tmp_path):
+    """A demand route may turn back at a dead end and pass an edge twice (duarouter's and OSM
+    scenarios' routes do): the vehicle an agent stands for drives it as given, not a destination
+    drawn for it; where its generated part left that route, SUMO's router takes it to its own
+    destination, turning back where that is the way."""
+    import libsumo as sim
+
+    from .conftest import crossing
+    cross_net = crossing(str(tmp_path / "turn.net.xml"), 1, turnarounds=True)
+    net = Network.load(cross_net)
+    snet = net.sumo_net
+    assert "ec" in {c.getTo().getID() for c in snet.getLane("ce_0").getOutgoing()}   # netconvert's turnaround
+    sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings"])
+    try:
+        rc = RouteChooser(sim, net)
+        rc.refresh()
+        wanted = ["wc", "ce", "ec", "cn"]                      # to e's dead end, back, then north
+        assert rc.along(["wc"], "wc_0", wanted, "DEFAULT_VEHTYPE") == (wanted, "followed")
+        looped = ["wc", "ce", "ec", "cw", "wc", "cs"]         # wc twice
+        assert rc.along(["wc"], "wc_0", looped, "DEFAULT_VEHTYPE") == (looped, "followed")
+        # generated into ce, off a route to cs: back through e's turnaround to its destination
+        route, how = rc.along(["wc", "ce"], "ce_0", ["wc", "cn", "nc", "cs"], "DEFAULT_VEHTYPE")
+        assert (route, how) == (["wc", "ce", "ec", "cs"], "rerouted")
+        # a route we choose ourselves still never turns back
+        assert not _turns_back(snet, rc.complete(["wc"], "wc_0", "DEFAULT_VEHTYPE", np.random.default_rng(0)))
+    finally:
+        sim.close()

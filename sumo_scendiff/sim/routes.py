@@ -20,8 +20,9 @@ only among those the agent can reach, drawn with the seeder's random generator (
 seed). An agent that stands for a vehicle of the demand (a fill with demand) drives that vehicle's
 own route (:meth:`RouteChooser.along`): from where its generated part leaves it, or, where that part
 left the route, by the fastest path to the route's end. The first turn after the generated part is one the agent's lane makes where it can (the
-fastest route through the lane's own successors), and no route turns back on itself (a U-turn) or
-visits an edge twice.
+fastest route through the lane's own successors), and no route we choose turns back on itself (a
+U-turn) or visits an edge twice; a demand vehicle's own route, and the router's way to its own
+destination, may (a turnaround at a dead end is how many scenarios' routes end).
 """
 from __future__ import annotations
 
@@ -71,10 +72,13 @@ class RouteChooser:
         else:
             self.targets, self.weights = list(self.fringe), np.ones(len(self.fringe))
 
-    def valid(self, edges: list[str]) -> bool:
-        """No edge twice, no U-turn."""
+    def valid(self, edges: list[str], turn_back: bool = False) -> bool:
+        """No edge twice, no U-turn (unless ``turn_back``: on the way to a demand vehicle's own
+        destination, where SUMO's router may turn back at a dead end)."""
         if len(set(edges)) != len(edges):
             return False
+        if turn_back:
+            return True
         snet = self.net.sumo_net
         es = [snet.getEdge(e) for e in edges]
         return not any(self._reverse(a, b) for a, b in pairwise(es))
@@ -87,39 +91,43 @@ class RouteChooser:
         edges = list(r.edges)
         return (edges, float(r.travelTime)) if edges and edges[0] == a and edges[-1] == b else ([], np.inf)
 
-    def onward(self, last: str, lane_id: str | None, dest: str, vtype: str) -> list[str]:
+    def onward(self, last: str, lane_id: str | None, dest: str, vtype: str, turn_back: bool = False) -> list[str]:
         """The fastest route from edge ``last`` to ``dest`` (``last`` first), through a successor of
-        ``lane_id`` (the agent's lane on ``last``) where one reaches it; [] if none is valid."""
+        ``lane_id`` (the agent's lane on ``last``) where one reaches it; [] if none is valid
+        (:meth:`valid` with ``turn_back``)."""
         snet = self.net.sumo_net
         best, t_best = self._find(last, dest, vtype)
         if lane_id and snet.hasEdge(last) and len(best) > 1:
             lane = snet.getLane(lane_id)
             succ = sorted({c.getTo().getID() for c in lane.getOutgoing() if c.allows("passenger")
-                           and not self._reverse(snet.getEdge(last), c.getTo())})
+                           and (turn_back or not self._reverse(snet.getEdge(last), c.getTo()))})
             if succ and best[1] not in succ:
                 best, t_best = [], np.inf
                 for s in succ:
                     edges, t = ([s], 0.0) if s == dest else self._find(s, dest, vtype)
-                    if edges and t < t_best and self.valid([last] + edges):
+                    if edges and t < t_best and self.valid([last] + edges, turn_back):
                         best, t_best = [last] + edges, t
-        return best if best and self.valid(best) else []
+        return best if best and self.valid(best, turn_back) else []
 
     def along(self, edges: list[str], lane_id: str | None, wanted, vtype: str) -> tuple[list[str], str]:
         """``edges`` (the generated part) continued along ``wanted`` (a route whose vehicle the agent
         stands for, from its edge then): (route, how), how = ``"followed"`` (the rest of ``wanted``
         after the generated part's last edge, through a successor of ``lane_id``), ``"rerouted"``
-        (the fastest path to ``wanted``'s last edge) or ``""`` (neither: ``[]``)."""
+        (the fastest path to ``wanted``'s last edge) or ``""`` (neither: ``[]``).
+
+        Only the generated part is held to :meth:`valid`: the rest is the demand's own, and a route
+        SUMO drives may turn back at a dead end or pass an edge twice (duarouter's and OSM
+        scenarios' routes do), which is the user's to decide."""
         wanted = list(wanted)
         last = edges[-1]
         if last in wanted:
             rest = wanted[wanted.index(last) + 1:]
-            route = edges + rest
-            if self.valid(route) and (not rest or self._leads(last, lane_id, rest[0])):
-                return route, "followed"
+            if self.valid(edges) and (not rest or self._leads(last, lane_id, rest[0])):
+                return edges + rest, "followed"
         if last == wanted[-1]:
             return [], ""
-        on = self.onward(last, lane_id, wanted[-1], vtype)
-        if on and self.valid(edges[:-1] + on):
+        on = self.onward(last, lane_id, wanted[-1], vtype, turn_back=True)
+        if on and self.valid(edges) and self.valid(edges[:-1] + on, turn_back=True):
             return edges[:-1] + on, "rerouted"
         return [], ""
 
