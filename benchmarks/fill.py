@@ -5,8 +5,9 @@ vehicles, where they are, what happens next, and what it costs.
     python benchmarks/fill.py -n ../shared/nets/resco_cologne1/cologne1.net.xml --hold 120   # a minute
     python benchmarks/fill.py -n networks/city.net.xml --density 25 --hold 300
 
-Default networks: every real city of ``benchmarks/seeding.py``'s list under ../shared/nets with demand
-beside its network (``data.demand.find_demand``), and networks/city.net.xml with ``--density``.
+Default networks: every real city under ../shared/nets with demand beside its network
+(``benchmarks/seeding.py``'s list and wildau; ``data.demand.find_demand``), and networks/city.net.xml
+with ``--density``.
 
 **With demand** (a city): its inputs are those of the ``.sumocfg`` beside the network (route files it
 names that are missing are replaced by ``find_demand``'s; no usable configuration: ``-n``/``-r``). The
@@ -91,10 +92,14 @@ def get_options(args=None):
     return o
 
 
+# beyond the hand-off benchmark's cities: wildau's OSM demand (54 km of car lane, no .sumocfg)
+MORE = ("wildau/net.net.xml.gz",)
+
+
 def default_nets() -> list[str]:
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from seeding import REAL
-    return [os.path.normpath(os.path.join(SHARED, r)) for r in REAL
+    return [os.path.normpath(os.path.join(SHARED, r)) for r in REAL + MORE
             if os.path.exists(os.path.join(SHARED, r))] + [CITY]
 
 

@@ -71,7 +71,8 @@ def get_options(args=None):
     p.add_argument("--rollout", type=float, default=60.0, help="seconds SUMO drives after seeding (0: none)")
     p.add_argument("--replay-future", type=float, default=0.0, metavar="SECONDS",
                    help="hold the agents on their generated 0..+2 s future before SUMO takes over (max 2)")
-    p.add_argument("--step-length", type=float, default=0.5)
+    p.add_argument("--step-length", type=float, default=None,
+                   help="SUMO's step (s); default: the configuration's (-c), else 0.5")
     p.add_argument("--gui", action="store_true", help="watch in sumo-gui (traci)")
     p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
     p.add_argument("-o", "--output-dir", dest="out", default="scendiff-out")
@@ -102,7 +103,7 @@ def get_options(args=None):
                 "give one of them")
     if o.scenes < 1:
         p.error("--scenes must be >= 1")
-    if o.rollout < 0 or o.step_length <= 0:
+    if o.rollout < 0 or (o.step_length is not None and o.step_length <= 0):
         p.error("--rollout must be >= 0, --step-length > 0")
     try:
         GenerationConfig.from_options(o)
@@ -246,6 +247,8 @@ def run(o) -> dict:
         scen = scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional))
     except ScenarioError as e:
         raise RunError(str(e)) from None
+    if o.step_length is None:
+        o.step_length = scen.step_length or SimConfig.step_length
     net = Network.load(scen.net)
     routes = scen.routes
     try:  # the route files as the set SUMO loads, against this network

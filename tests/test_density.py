@@ -23,12 +23,12 @@ from sumo_scendiff.sim.density import (
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-@pytest.mark.parametrize("text, want", [("25", 25.0), ("0", 0.0), ("auto", "auto"), ("AUTO", "auto"), (None, None)])
+@pytest.mark.parametrize("text, want", [("25", 25.0), ("0", 0.0), ("133", 133.0), ("auto", "auto"), ("AUTO", "auto"), (None, None)])
 def test_density_flag_values(text, want):
     assert parse_density(text) == want
 
 
-@pytest.mark.parametrize("text", ["-1", "nan", "inf", "lots", ""])
+@pytest.mark.parametrize("text", ["-1", "nan", "inf", "lots", "", "200"])
 def test_bad_density_values_name_the_flag(text):
     with pytest.raises(DensityError, match="^--density: "):
         parse_density(text)

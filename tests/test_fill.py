@@ -115,11 +115,13 @@ def test_inflow_period_follows_the_measured_speed(tmp_path):
     from sumo_scendiff.fill import seed as fs
     from sumo_scendiff.map.network import Network
     net = Network.load(NET4)
-    sample = fs.inflow_sample(net, 0.0, 0)
+    sample, fringe = fs.inflow_sample(net, 0.0, 0, 100)
     free_speed = fs.route_metres(net, sample) / fs.trip_seconds(net, sample)   # m/s over the routes at free flow
-    free = fs.write_inflow(str(tmp_path / "free.rou.xml"), net, 100, 0.0, 0, sample=sample)
-    half = fs.write_inflow(str(tmp_path / "half.rou.xml"), net, 100, 0.0, 0, speed=free_speed / 2, sample=sample)
-    fast = fs.write_inflow(str(tmp_path / "fast.rou.xml"), net, 100, 0.0, 0, speed=free_speed * 2, sample=sample)
+    free = fs.write_inflow(str(tmp_path / "free.rou.xml"), net, 100, 0.0, 0, sample=sample, fringe=fringe)
+    half = fs.write_inflow(str(tmp_path / "half.rou.xml"), net, 100, 0.0, 0, speed=free_speed / 2, sample=sample,
+                           fringe=fringe)
+    fast = fs.write_inflow(str(tmp_path / "fast.rou.xml"), net, 100, 0.0, 0, speed=free_speed * 2, sample=sample,
+                           fringe=fringe)
     assert free["rate"]["trip_s_from"] == "free flow" and half["rate"]["trip_s_from"] == "measured"
     assert half["period_s"] == pytest.approx(2 * free["period_s"], rel=0.01)
     assert fast["period_s"] == free["period_s"]
@@ -136,7 +138,7 @@ def test_probe_keeps_the_filled_number(filled):
     from sumo_scendiff.sim.sumo import SimConfig, close, start
     out, doc = filled
     net = Network.load(NET)
-    sample = inflow_sample(net, 0.0, 0)
+    sample, _ = inflow_sample(net, 0.0, 0)
     sim = start(SimConfig(net=NET, begin=doc["state_time"], extra=("--load-state", str(out / "state.xml.gz"))))
     try:
         n0 = sim.vehicle.getIDCount()
@@ -289,6 +291,16 @@ def test_bad_values(tmp_path, capsys, bad):
     _fail(capsys, "-n", NET, "-o", str(tmp_path / "o"), *bad)
 
 
+def test_an_output_folder_that_cannot_be(tmp_path, capsys):
+    """-o under a file, or where no folder can be made (/proc): one line naming -o, at once."""
+    (tmp_path / "a.txt").write_text("mine")
+    err = _fail(capsys, "-n", NET, "-o", str(tmp_path / "a.txt" / "out"))
+    assert "-o" in err and "a.txt is a file, not a folder" in err
+    assert (tmp_path / "a.txt").read_text() == "mine"
+    if os.path.isdir("/proc/self"):
+        assert "cannot be created" in _fail(capsys, "-n", NET, "-o", "/proc/scendiff-out")
+
+
 @pytest.mark.parametrize("n", ["0", "-2"])
 def test_workers_must_be_positive(tmp_path, capsys, n):
     err = _fail(capsys, "-n", NET, "-o", str(tmp_path / "o"), "--workers", n)
@@ -341,3 +353,21 @@ def test_tile_counts_add_up_to_the_network_total():
     # then the first tile's 0.4) the other 2
     assert counts == [1, 0, 0, 0, None, 2]
     assert whole_counts([None, None], [1.0, 1.0]) == [None, None]
+
+
+def test_the_inflow_enters_at_a_fringe_that_can_take_it(tmp_path):
+    """A crossing whose arms end in netconvert's turnarounds: each arm's edge into the crossing is a
+    way in (the turnaround, an internal edge, leads onto it from its own reverse: not a way in). The
+    inflow enters there while those four lanes can insert its rate, anywhere beyond that."""
+    from sumo_scendiff.fill import seed as fs
+    from sumo_scendiff.map.network import Network
+
+    from .conftest import crossing
+    net = Network.load(crossing(str(tmp_path / "turn.net.xml"), 1, turnarounds=True))
+    assert fs.fringe_sources(net) == ["ec", "nc", "sc", "wc"]
+    few, at_fringe = fs.inflow_sample(net, 0.0, 0, vehicles=4)
+    assert at_fringe and few and all(r[0] in ("ec", "nc", "sc", "wc") for r in few)
+    many, at_fringe = fs.inflow_sample(net, 0.0, 0, vehicles=10_000)
+    assert not at_fringe and many
+    doc = fs.write_inflow(str(tmp_path / "in.rou.xml"), net, 10_000, 0.0, 0)
+    assert doc["from"].startswith("anywhere (the fringe's 4 edges cannot insert")

@@ -192,6 +192,25 @@ def test_a_lane_both_directions_share_takes_one_of_them(tmp_path):
     assert [net.lanes[p.lane].edge for p in alone] == ["-a"]
 
 
+def test_a_bicycle_rides_its_bike_lane_not_a_car_lane(tmp_path):
+    """An edge with a bike lane and a car lane that forbids bicycles: the demand's bicycle is not
+    put on the car lane (SUMO would refuse it there); its car is."""
+    from sumo_scendiff.fill.demand import DemandEstimate, EnRoute
+    from sumo_scendiff.fill.en_route import place_en_route
+    from sumo_scendiff.map.network import Network
+    from .conftest import netconvert
+    nodes = '<node id="w" x="-200" y="0"/><node id="c" x="0" y="0"/><node id="e" x="200" y="0"/>'
+    edges = ('<edge id="a" from="w" to="c" numLanes="2" speed="13.89"><lane index="0" allow="bicycle"/>'
+             '<lane index="1" disallow="bicycle"/></edge><edge id="b" from="c" to="e" numLanes="1" speed="13.89"/>')
+    net = Network.load(netconvert(nodes, edges, str(tmp_path / "bike.net.xml")))
+    bike = EnRoute("bike", "bk", ("a", "b"), 5.0, 20.0, 5.0)
+    car = EnRoute("car", "car", ("a", "b"), 5.0, 20.0, 10.0)
+    est = DemandEstimate(0.0, {"a": 2}, 2, 0, 2, [bike, car])
+    placed, skipped = place_en_route(net, est, classes={"bk": "bicycle", "car": "passenger"})
+    assert [p.vehicle.id for p in placed] == ["car"] and net.lanes[placed[0].lane].id == "a_1"
+    assert [v.id for v in skipped] == ["bike"]
+
+
 def test_vtype_bodies(tmp_path):
     """A vType's length, width and minGap, SUMO's default for its vClass where it gives none, and a
     distribution's first member's."""
@@ -356,7 +375,9 @@ def test_every_form_of_a_route_file_is_routed_as_sumo_does(tmp_path, grid):
     """Trips through via edges, between junctions and TAZs, flows by rate, number, probability
     and a random period, vehicles on a routeDistribution or of a vTypeDistribution: SUMO's router
     gives each its route, so every one of them is en route in the estimate, and as many as SUMO
-    has on the network."""
+    has on the network. Trips between junctions only where the scenario sets junction-taz (SUMO
+    refuses them otherwise); a vehicle departing on a trigger is left out and counted; a public
+    transport vehicle is in; a gzip-compressed route file is read as SUMO reads it."""
     import libsumo
 
     from sumo_scendiff.fill.demand import DemandEstimate
@@ -376,15 +397,17 @@ def test_every_form_of_a_route_file_is_routed_as_sumo_does(tmp_path, grid):
         '<flow id="exp" from="C0C1" to="A1A0" via="B1A1" begin="0" end="600" period="exp(0.1)"/>'
         '</routes>')
     net_path = grid.path
-    deps, unrouted = routed_departures(net_path, [str(routes)], [str(add)], until=300.0)
+    with pytest.raises(RoutingError, match="junction-taz"):
+        routed_departures(net_path, [str(routes)], [str(add)], until=300.0)
+    deps, unrouted = routed_departures(net_path, [str(routes)], [str(add)], until=300.0, junction_taz=True)
     assert unrouted == 0 and all(d.depart <= 300.0 for d in deps)
     assert {d.id.split(".")[0] for d in deps} == {"dist", "junc", "taz", "exp"}
     assert {d.type for d in deps if d.id.startswith("dist")} <= {"small", "lorry"}
     assert all(d.edges in (("A0B0", "B0C0"), ("A0B0", "B0B1")) for d in deps if d.id.startswith("dist"))
     assert all("B1A1" in d.edges for d in deps if d.id.startswith("exp"))
-    later, _ = routed_departures(net_path, [str(routes)], [str(add)], until=300.0, since=100.0)
+    later, _ = routed_departures(net_path, [str(routes)], [str(add)], until=300.0, since=100.0, junction_taz=True)
     assert [d.id for d in later] == [d.id for d in deps if d.depart >= 100.0]
-    est = DemandEstimate.at(grid, [str(routes)], 300.0, additional=[str(add)])
+    est = DemandEstimate.at(grid, [str(routes)], 300.0, additional=[str(add)], junction_taz=True)
     assert {v.id.split(".")[0] for v in est.en_route} == {"dist", "junc", "taz", "exp"}
     cfg = tmp_path / "forms.sumocfg"
     cfg.write_text(f'<configuration><input><net-file value="{net_path}"/><route-files value="{routes}"/>'
@@ -404,6 +427,18 @@ def test_every_form_of_a_route_file_is_routed_as_sumo_does(tmp_path, grid):
                                            'end="60" period="10"/></routes>')
     with pytest.raises(RoutingError, match="vehicle type 'lorri' for flow 'f' is not known"):
         routed_departures(net_path, [str(tmp_path / "typo.rou.xml")], until=300.0)
+    import gzip
+
+    from sumo_scendiff.fill.en_route import write_vtypes
+    packed = tmp_path / "trig.rou.xml.gz"
+    with gzip.open(packed, "wt") as f:
+        f.write('<routes><vType id="coach" vClass="bus"/><vehicle id="bus" type="coach" depart="triggered">'
+                '<route edges="A0B0 B0C0"/></vehicle><vehicle id="v" depart="10"><route edges="A0B0 B0C0"/>'
+                '</vehicle><vehicle id="line" type="coach" line="L1" depart="20"><route edges="A0B0 B0C0"/>'
+                '</vehicle></routes>')
+    deps, unrouted = routed_departures(net_path, [str(packed)], until=300.0)
+    assert [d.id for d in deps] == ["v", "line"] and unrouted == 1      # a line's vehicle too
+    assert write_vtypes([str(packed)], str(tmp_path / "types.add.xml")) == ["coach"]
 
 
 @pytest.mark.parametrize("given", [None, "0", "max"])

@@ -25,7 +25,7 @@ def scenario(tmp_path, cross_net):
     (d / "run.sumocfg").write_text(
         '<configuration>\n <input>\n  <net-file value="cross.net.xml"/>\n'
         '  <route-files value="sub/cars.rou.xml"/>\n  <additional-files value="vtypes.add.xml"/>\n'
-        ' </input>\n <time>\n  <begin value="0:10"/>\n  <end value="3600"/>\n </time>\n'
+        ' </input>\n <time>\n  <begin value="0:10"/>\n  <end value="3600"/>\n  <step-length value="1"/>\n </time>\n'
         ' <output>\n  <tripinfo-output value="trips.xml"/>\n </output>\n</configuration>\n')
     return d
 
@@ -36,6 +36,7 @@ def test_a_sumocfg_gives_its_inputs_relative_to_its_folder(scenario):
     assert s.routes == (str(scenario / "sub" / "cars.rou.xml"),)
     assert s.additional == (str(scenario / "vtypes.add.xml"),)
     assert (s.begin, s.end) == (10.0, 3600.0)       # SUMO's M:S form too
+    assert s.step_length == 1.0                      # run and fill take it unless --step-length
 
 
 def test_flags_replace_what_the_configuration_names(scenario, tmp_path):

@@ -18,12 +18,14 @@ from __future__ import annotations
 import contextlib
 import errno
 import fcntl
+import itertools
 import os
 import re
 import shutil
 import time
 
 LOCK = ".lock"
+RACE_TRIES = 100      # tries to create and lock a directory other processes create or remove meanwhile
 _PARTIAL = re.compile(r"^(?P<final>.+)\.partial(?:-(?P<pid>\d+))?$")
 
 
@@ -81,16 +83,20 @@ def _holder(path: str, wait: float = 2.0) -> str:
 def _lock(directory: str) -> Claim:
     created = False
     path = os.path.join(directory, LOCK)
-    while True:
+    for attempt in itertools.count():
         try:
             if not os.path.isdir(directory):
                 os.makedirs(directory)
                 created = True
             fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        except FileExistsError:
-            continue                     # made by a process that got there first
-        except FileNotFoundError:
-            continue                     # removed by an owner that just released it
+        except (FileExistsError, FileNotFoundError) as e:
+            # made by a process that got there first, or removed by an owner that just released it:
+            # try again; a race ends within a few tries, a path that cannot hold a folder does not
+            if os.path.exists(directory) and not os.path.isdir(directory):
+                raise OutputError(f"{directory}: exists and is not a directory") from None
+            if attempt >= RACE_TRIES:
+                raise OutputError(f"{directory}: cannot be created ({e.strerror or e})") from None
+            continue
         except OSError as e:
             raise OutputError(f"{directory}: not writable ({e.strerror or e})") from None
         try:

@@ -57,7 +57,8 @@ def get_options(args=None):
     p.add_argument("--p-mask", type=float, default=1.0, metavar="P",
                    help="global token of a tile without neighbours (default 1: the model's prior; lower: fewer vehicles)")
     p.add_argument("-s", "--seed", type=int, default=0)
-    p.add_argument("--step-length", type=float, default=0.5)
+    p.add_argument("--step-length", type=float, default=None,
+                   help="SUMO's step (s); default: the configuration's (-c), else 0.5")
     p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
     p.add_argument("--workers", type=int, default=1, metavar="N",
                    help="processes generating a colour's tiles side by side, each loading the model once "
@@ -94,7 +95,7 @@ def get_options(args=None):
             import_ray("--ray-address")
         except EngineError as e:
             p.error(str(e))
-    if o.step_length <= 0:
+    if o.step_length is not None and o.step_length <= 0:
         p.error("--step-length must be > 0")
     try:
         GenerationConfig.from_options(o)
@@ -116,8 +117,8 @@ def _amount(o, net, gen, tiles, routes, begin, additional=(), options=()) -> tup
 
     from ..map.edgedata import EdgeData, EdgeDataError
     from .demand import DemandEstimate
-    from .en_route import place_en_route
-    from .vtypes import vtype_bodies
+    from .en_route import allows, place_en_route
+    from .vtypes import vtype_bodies, vtype_table
     from .plan import demand_tiles
     from .routing import RoutingError
     name = o.checkpoint or "the shipped model"
@@ -139,7 +140,9 @@ def _amount(o, net, gen, tiles, routes, begin, additional=(), options=()) -> tup
         try:
             # the state is saved one seeding step after begin: the departures before then are the fill's
             est = DemandEstimate.at(net, routes, begin, additional=additional, due=begin + o.step_length,
-                                    depart_speed=dict(options).get("default.departspeed"))
+                                    depart_speed=dict(options).get("default.departspeed"),
+                                    junction_taz=str(dict(options).get("junction-taz", "false")).lower()
+                                    in ("true", "1", "on", "yes", "x"))
         except RoutingError as e:
             raise FillError(f"{', '.join(routes)}: {e}") from None
         # each tile's count is kept in its core: the core's own density, so the tiles add up to the
@@ -159,7 +162,9 @@ def _amount(o, net, gen, tiles, routes, begin, additional=(), options=()) -> tup
                            f"(target) but generation uses the model's prior scaled by --p-mask {o.p_mask:g}")
         if o.demand_level_only:
             return targets, gen.has_density, src, None
-        placed, skipped = place_en_route(net, est, vtype_bodies([*routes, *additional]))
+        files = [*routes, *additional]
+        classes = vtype_table(files, lambda el: getattr(el, "vClass", None) or "passenger")
+        placed, skipped = place_en_route(net, est, vtype_bodies(files), classes)
         # each core keeps the vehicles placed in it: an edge's queue stands in the core of its stop
         # line, not spread over the edge as the per-edge density has it
         owner = demand_tiles(tiles, placed, o.area)
@@ -168,7 +173,9 @@ def _amount(o, net, gen, tiles, routes, begin, additional=(), options=()) -> tup
             km = net.car_lane_km_in(shapely.box(*t.core))
             targets[t.index] = float(per_tile[t.index]) / km if km > 0 else None
         placed = [p for p, k in zip(placed, owner) if k is not None]
-        off = sum(net.edge_car_km.get(v.edges[0], 0.0) <= 0 for v in skipped)   # trams, bicycles
+        # trams, bicycles on their bike lanes: no car lane of their edge is theirs
+        off = sum(not any(ln.car and ln.edge == v.edges[0] and allows(net, i, classes.get(v.type, "passenger"))
+                          for i, ln in enumerate(net.lanes)) for v in skipped)
         src["vehicles"] = {"placed": len(placed), "no_room": len(skipped) - off, "no_car_lane": off,
                            "outside": len(owner) - len(placed),
                            "method": "each en-route vehicle on a lane of its edge from which its route goes on, "
@@ -202,8 +209,12 @@ def run(o, folder: str) -> dict:
         scen = scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional))
     except ScenarioError as e:
         raise FillError(str(e)) from None
+    if o.step_length is None:
+        o.step_length = scen.step_length or SimConfig.step_length
     net = Network.load(scen.net)
     routes = list(scen.routes)
+    if o.demand_level_only and not routes:
+        raise FillError("--demand-level-only: there is no demand (give -r, or -c with route files)")
     begin = o.begin if o.begin is not None else 0.0
     if routes:
         try:
@@ -261,11 +272,16 @@ def main(o) -> int:
     from .seed import InflowError
     out = os.path.abspath(o.out.rstrip("/") or o.out)
     on_sigterm = signal.signal(signal.SIGTERM, _interrupt)
-    owner = None
+    owner, complete = None, False
     try:
         if os.path.exists(out) and not o.force and (not os.path.isdir(out) or os.listdir(out)):
             raise FillError(f"-o: {o.out}: exists (choose another output directory or add --force)")
-        os.makedirs(os.path.dirname(out), exist_ok=True)
+        try:
+            os.makedirs(os.path.dirname(out), exist_ok=True)
+        except OSError as e:
+            up = next((d for d in _parents(out) if os.path.exists(d) and not os.path.isdir(d)), None)
+            raise FillError(f"-o: {o.out}: " + (f"{up} is a file, not a folder" if up else
+                                                f"its folder cannot be created ({e.strerror or e})")) from None
         clean_stale(os.path.dirname(out), {os.path.basename(out)})   # what dead runs left half-written
         with claim(partial_path(out)) as owner:
             doc = run(o, owner.directory)
@@ -274,12 +290,14 @@ def main(o) -> int:
                     raise FillError(f"-o: {o.out}: was written by another run meanwhile")
                 shutil.rmtree(out) if os.path.isdir(out) else os.remove(out)
             owner.rename(out)   # complete: only now the folder has its name
+            complete = True
     except (FillError, NetworkError, CheckpointError, SimError, OutputError, InflowError, EngineError) as e:
         _abandon(owner)
         o.parser.exit(2, f"{PROG}: error: {e}\n")
     except KeyboardInterrupt:
         _abandon(owner)
-        o.parser.exit(130, f"{PROG}: interrupted: nothing written to {o.out}\n")
+        o.parser.exit(130, f"{PROG}: interrupted: " + (f"{o.out} was complete and is kept\n" if complete else
+                                                       f"nothing written to {o.out}\n"))
     finally:
         signal.signal(signal.SIGTERM, on_sigterm)
     s = doc["summary"]
@@ -289,8 +307,18 @@ def main(o) -> int:
           f"density source: {doc['density']['kind']}" + ("" if doc["density"]["applied"] else " (not applied)"))
     print("timing (s): " + ", ".join(f"{k} {v:.1f}" for k, v in doc["timing_s"].items())
           + (f" ({o.workers} workers)" if o.workers > 1 else ""))
+    asked = doc["density"].get("veh_per_km")
+    if asked and s["density_veh_per_km"] < 0.9 * asked:
+        print(f"warning: {s['density_veh_per_km']} of the {asked:g} veh/km asked found room (the model "
+              f"draws fewer where lanes are full; fill.json has each tile's)", file=sys.stderr)
     print(f"wrote {o.out} (run it: sumo -c {os.path.join(o.out, 'scenario.sumocfg')})")
     return 0
+
+
+def _parents(path: str):
+    while os.path.dirname(path) != path:
+        path = os.path.dirname(path)
+        yield path
 
 
 def _abandon(owner) -> None:

@@ -52,10 +52,11 @@ def write_vtypes(route_files, path: str) -> list[str]:
     """An additional file at ``path`` with the vType and vTypeDistribution definitions of
     ``route_files`` (top level; a distribution with the vTypes inside it), so that a SUMO started
     without the demand knows its types; returns their ids ([]: none, no file written)."""
+    import gzip
     import xml.etree.ElementTree as ET
     found: list = []
     for f in route_files:
-        for _, el in ET.iterparse(f, events=("end",)):
+        for _, el in ET.iterparse(gzip.open(f) if f.endswith(".gz") else f, events=("end",)):
             if el.tag in ("vType", "vTypeDistribution") and el.get("id") and \
                     el.get("id") not in {e.get("id") for e in found}:
                 found.append(el)
@@ -94,11 +95,18 @@ def _fit(lanes: list[int], vid: str, want: float | None, body: Body, room: dict,
     return None
 
 
-def place_en_route(net, est: DemandEstimate, bodies: dict[str, Body] | None = None
-                   ) -> tuple[list[Placed], list[EnRoute]]:
+def allows(net, lane: int, vclass: str) -> bool:
+    """Whether the lane (index into ``Network.lanes``) permits ``vclass``."""
+    return net.sumo_net.getLane(net.lanes[lane].id).allows(vclass)
+
+
+def place_en_route(net, est: DemandEstimate, bodies: dict[str, Body] | None = None,
+                   classes: dict[str, str] | None = None) -> tuple[list[Placed], list[EnRoute]]:
     """(the placed vehicles, those without room on any of their lanes); deterministic. ``bodies``:
-    per vType id its size and minGap (:func:`~.vtypes.vtype_bodies`; SUMO's default car else)."""
-    snet, bodies = net.sumo_net, bodies or {}
+    per vType id its size and minGap (:func:`~.vtypes.vtype_bodies`; SUMO's default car else);
+    ``classes``: per vType id its vClass, whose vehicles stand only on the car lanes that permit it
+    (a bicycle on an edge whose car lanes forbid bicycles rides its bike lane: not one of ours)."""
+    snet, bodies, classes = net.sumo_net, bodies or {}, classes or {}
     by_edge: dict[str, dict[int, int]] = {}      # edge -> lane index on the edge -> Network.lanes index
     for i, ln in enumerate(net.lanes):
         if ln.car and not ln.internal:
@@ -126,13 +134,17 @@ def place_en_route(net, est: DemandEstimate, bodies: dict[str, Body] | None = No
     for v in sorted(est.en_route, key=order):
         body = bodies.get(v.type, DEFAULT_BODY) if v.type else DEFAULT_BODY
         length, width = body.length, body.width
+        vclass = classes.get(v.type) if v.type else None
+
+        def permitted(lanes: list[int]) -> list[int]:
+            return lanes if vclass is None else [i for i in lanes if allows(net, i, vclass)]
         want = None if v.waiting else v.offset + v.since * v.speed
-        best = _fit(lanes_for(v.edges), v.id, want, body, room, used, net, shared, taken)
+        best = _fit(permitted(lanes_for(v.edges)), v.id, want, body, room, used, net, shared, taken)
         for k in range(len(v.behind) if best is None else 0):
             # a queue longer than its edge stands back on the route's edges before it, as a queue
             # spills back in SUMO (a short edge before a light; a long red on a short block)
             edges = v.behind[k::-1] + v.edges
-            best = _fit(lanes_for(edges), v.id, None, body, room, used, net, shared, taken)
+            best = _fit(permitted(lanes_for(edges)), v.id, None, body, room, used, net, shared, taken)
             if best is not None:
                 v = replace(v, edges=edges, since=0.0, behind=v.behind[k + 1:], offset=0.0)
                 break
@@ -149,4 +161,4 @@ def place_en_route(net, est: DemandEstimate, bodies: dict[str, Body] | None = No
     return placed, skipped
 
 
-__all__ = ["Placed", "place_en_route", "write_vtypes"]
+__all__ = ["Placed", "allows", "place_en_route", "write_vtypes"]

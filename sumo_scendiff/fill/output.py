@@ -88,10 +88,10 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
             # inflow's own trips replacing those that leave, to see how fast it flows when held
             # (seed.probe_speed); those replacements are the inflow's first departures
             t_probe = time.perf_counter()
-            sample = inflow_sample(net, cfg.begin or 0.0, o.seed)
+            sample, fringe = inflow_sample(net, cfg.begin or 0.0, o.seed, len(ids))
             probe = probe_speed(sim, sample) if ids and sample else None
             inflow = write_inflow(os.path.join(folder, "inflow.rou.xml"), net, len(ids), cfg.begin or 0.0,
-                                  o.seed, sample=sample, probe=probe)
+                                  o.seed, sample=sample, probe=probe, fringe=fringe)
             timing["inflow"] = time.perf_counter() - t_probe
             t += timing["inflow"]       # export: the rest
     finally:

@@ -5,11 +5,13 @@
         dep.id, dep.type, dep.edges, dep.depart, dep.standing, dep.depart_pos
 
 SUMO's own router (duarouter) reads the route files as SUMO does: trips between edges (through
-their ``via`` edges), between junctions (``fromJunction``/``toJunction``, as ``--junction-taz``)
-or the TAZs of the additional files; flows by period, rate, number or probability unfolded into
+their ``via`` edges), between junctions (``fromJunction``/``toJunction``, where the scenario sets
+``junction-taz``, as SUMO refuses them otherwise) or the TAZs of the additional files; flows by period, rate, number or probability unfolded into
 their vehicles (SUMO's ids, ``flow.k``); a vehicle on a ``routeDistribution`` given one of its
 routes and one of a ``vTypeDistribution`` one of its types; each routed by free-flow time for its
-vehicle class. What it cannot route is left out, as SUMO would not drive it.
+vehicle class. What it cannot route is left out, as SUMO would not drive it, and so is a vehicle
+that departs on a trigger (``depart="triggered"``: when its person or container boards), whose
+time no estimate without the simulation knows; both are counted as unrouted.
 """
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ from dataclasses import dataclass
 
 # a flow of random departures (duarouter hangs on one with --begin)
 _PROBABILITY_FLOW = re.compile(rb"<flow\b[^>]*\bprobability=")
+_FROM_JUNCTION = re.compile(rb"\b(?:fromJunction|toJunction|viaJunctions)=")
 # what SUMO refuses at loading and duarouter, told to ignore errors, only warns of
 _UNKNOWN = re.compile(r"The (vehicle type|route|route distribution) '[^']*' for .* is not known")
 # duarouter's random choices (probability flows, distributions) with SUMO's default seed: the draws
@@ -44,19 +47,27 @@ class Departure:
 
 
 def routed_departures(net_path: str, route_files, additional=(), until: float = float("inf"),
-                      since: float = float("-inf"), depart_speed: str | None = None) -> tuple[list[Departure], int]:
+                      since: float = float("-inf"), depart_speed: str | None = None,
+                      junction_taz: bool = False) -> tuple[list[Departure], int]:
     """Every vehicle of ``route_files`` departing from ``since`` to ``until``, routed by duarouter,
     in the order of departure, and how many it found no route for. A vehicle without a
     ``departSpeed`` departs at ``depart_speed`` (SUMO's ``default.departspeed``: the scenario's, else
-    the installed SUMO's). Raises :class:`RoutingError`."""
+    the installed SUMO's); ``junction_taz``: the scenario's ``junction-taz`` (trips between
+    junctions). Raises :class:`RoutingError`."""
     from ..core.tools import sumo_binary, sumo_defaults
     if depart_speed is None:
         depart_speed = sumo_defaults().get("default.departspeed", "0")
+    if not junction_taz:
+        if any(_search(p, _FROM_JUNCTION) for p in route_files):
+            raise RoutingError("trips from or to junctions (fromJunction/toJunction) need SUMO's junction-taz "
+                               "option, which the scenario does not set (SUMO refuses them too)")
     with tempfile.TemporaryDirectory(prefix="scendiff-route-") as work:
         out = os.path.join(work, "routed.rou.xml")
         args = [sumo_binary("duarouter"), "-n", os.path.abspath(net_path),
                 "-r", ",".join(os.path.abspath(p) for p in route_files), "-o", out,
-                "--junction-taz", "--ignore-errors", "--no-step-log",
+                *(["--junction-taz"] if junction_taz else []), "--ignore-errors", "--no-step-log",
+                # a public transport vehicle (one with a line) is left out of duarouter's output otherwise
+                "--ptline-routing",
                 "--seed", str(ROUTER_SEED)]
         if until < float("inf"):
             args += ["--end", f"{until + 1.0:.3f}"]
@@ -76,22 +87,34 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
         unknown = next((ln for ln in done.stderr.splitlines() if _UNKNOWN.search(ln)), None)
         if unknown:     # duarouter goes on with a default; SUMO refuses to load such a demand
             raise RoutingError(f"{unknown.removeprefix('Warning: ').rstrip('.')} (SUMO refuses such a demand)")
-        return _read(out, since, until, depart_speed), sum("has no valid route" in line for line in done.stderr.splitlines())
+        departures, triggered = _read(out, since, until, depart_speed)
+        return departures, triggered + sum("has no valid route" in line for line in done.stderr.splitlines())
+
+
+def _search(path: str, pattern: re.Pattern) -> bool:
+    import gzip
+    with (gzip.open if path.endswith(".gz") else open)(path, "rb") as f:
+        return pattern.search(f.read()) is not None
 
 
 def _has_probability_flow(path: str) -> bool:
-    import gzip
-    with (gzip.open if path.endswith(".gz") else open)(path, "rb") as f:
-        return _PROBABILITY_FLOW.search(f.read()) is not None
+    return _search(path, _PROBABILITY_FLOW)
 
 
-def _read(path: str, since: float, until: float, depart_speed: str = "0") -> list[Departure]:
+def _read(path: str, since: float, until: float, depart_speed: str = "0") -> tuple[list[Departure], int]:
+    """The departures of duarouter's output from ``since`` to ``until``, and how many depart on a
+    trigger (no time)."""
+    from sumolib.miscutils import parseTime
     from sumolib.xml import parse
     named = {el.id: tuple(el.edges.split()) for el in parse(path, "route")
              if getattr(el, "id", None) and getattr(el, "edges", None)}
-    out = []
+    out, triggered = [], 0
     for el in parse(path, "vehicle"):
-        depart = float(el.depart)
+        try:
+            depart = float(parseTime(el.depart))
+        except (TypeError, ValueError):     # "triggered", "containerTriggered", "split"
+            triggered += 1
+            continue
         if not since <= depart <= until:
             continue
         if el.hasChild("route"):
@@ -103,7 +126,7 @@ def _read(path: str, since: float, until: float, depart_speed: str = "0") -> lis
                                  _departs_standing(getattr(el, "departSpeed", None) or depart_speed),
                                  getattr(el, "departPos", None)))
     out.sort(key=lambda d: d.depart)
-    return out
+    return out, triggered
 
 
 def _departs_standing(v: str | None) -> bool:

@@ -51,6 +51,12 @@ SUPPLY = 1.5
 # (--max-depart-delay, in both configurations), so the waiting list stays bounded (about
 # (SUPPLY - 1) x the leaving rate x this) instead of growing over the hour.
 MAX_DEPART_DELAY_S = 60.0
+# SUMO inserts a car from standing on a lane about every 2 s (its default car on a straight road:
+# 2.05 s at 1 s steps, docs/fill.md); the inflow enters at the fringe only where the fringe's lanes
+# can take its rate at FRINGE_LOAD of that (sources take unequal shares, a light stops some), else
+# anywhere: a city entered by five edges cannot be held full through them
+INSERT_HEADWAY_S = 2.0
+FRINGE_LOAD = 0.5
 
 
 class InflowError(RuntimeError):
@@ -116,7 +122,8 @@ def fringe_sources(net) -> list[str]:
     for e in snet.getEdges(withInternal=False):
         if not e.allows("passenger"):
             continue
-        inc = [p for p in e.getIncoming() if p.allows("passenger")
+        # a junction's internal edges (a dead end's turnaround) are not a way in
+        inc = [p for p in e.getIncoming() if p.allows("passenger") and p.getFunction() in ("", "normal")
                and not (p.getFromNode() is e.getToNode() and p.getToNode() is e.getFromNode())]
         if not inc:
             out.append(e.getID())
@@ -162,12 +169,28 @@ def route_metres(net, routes: list[list[str]]) -> float:
     return float(np.mean(lengths)) if lengths else 0.0
 
 
-def inflow_sample(net, begin: float, seed: int) -> list[list[str]]:
-    """The routes of the first :data:`SAMPLE_TRIPS` random trips the inflow is drawn from (fringe or
-    anywhere, as :func:`write_inflow`), validated by duarouter; [] if randomTrips.py finds none."""
+def fringe_capacity(net, sources: list[str]) -> float:
+    """Vehicles per second the car lanes of ``sources`` insert at :data:`FRINGE_LOAD`."""
+    snet = net.sumo_net
+    lanes = sum(ln.allows("passenger") for e in sources for ln in snet.getEdge(e).getLanes())
+    return FRINGE_LOAD * lanes / INSERT_HEADWAY_S
+
+
+def inflow_sample(net, begin: float, seed: int, vehicles: int = 0) -> tuple[list[list[str]], bool]:
+    """The routes of the first :data:`SAMPLE_TRIPS` random trips the inflow is drawn from, validated
+    by duarouter ([] if randomTrips.py finds none), and whether they enter at the fringe: where the
+    network has one whose lanes can insert the rate that holds ``vehicles`` (:data:`SUPPLY` times
+    ``vehicles`` over the trips' free-flow time; :func:`fringe_capacity`), else anywhere
+    (randomTrips.py's default: edges by length)."""
+    sources = fringe_sources(net)
     with tempfile.TemporaryDirectory(prefix="scendiff-sample-") as work:
-        return _random_trips(net.path, os.path.join(work, "sample.rou.xml"), begin,
-                             INFLOW_SECONDS / SAMPLE_TRIPS, seed, bool(fringe_sources(net)))
+        path = os.path.join(work, "sample.rou.xml")
+        if sources:
+            routes = _random_trips(net.path, path, begin, INFLOW_SECONDS / SAMPLE_TRIPS, seed, True)
+            trip_s = trip_seconds(net, routes)
+            if routes and trip_s > 0 and vehicles * SUPPLY / trip_s <= fringe_capacity(net, sources):
+                return routes, True
+        return _random_trips(net.path, path, begin, INFLOW_SECONDS / SAMPLE_TRIPS, seed, False), False
 
 
 @dataclass
@@ -247,7 +270,8 @@ def _prepend_departures(path: str, departures: list) -> None:
 
 
 def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: float | None = None,
-                 sample: list[list[str]] | None = None, probe: Probe | None = None) -> dict:
+                 sample: list[list[str]] | None = None, probe: Probe | None = None,
+                 fringe: bool | None = None) -> dict:
     """inflow.rou.xml: randomTrips.py trips from the fringe (or anywhere, for a network without
     one) at the rate that holds ``vehicles`` on the network: in a steady state as many enter as
     leave, ``vehicles / trip time`` per second (Little's law), offered :data:`SUPPLY` times over, the
@@ -265,7 +289,9 @@ def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: 
         return {"file": None, "reason": "no vehicles to hold"}
     sources = fringe_sources(net)
     if sample is None:
-        sample = inflow_sample(net, begin, seed)
+        sample, fringe = inflow_sample(net, begin, seed, vehicles)
+    elif fringe is None:
+        fringe = bool(sources)
     free_s, metres = trip_seconds(net, sample), route_metres(net, sample)
     if free_s <= 0 or metres <= 0:
         return {"file": None, "reason": "randomTrips.py found no route"}
@@ -275,7 +301,7 @@ def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: 
     trip_s = max(free_s, measured_s or 0.0)
     period = max(trip_s / vehicles / SUPPLY, 0.1)
     steady = max(begin, probe.until) if probe is not None else begin
-    _random_trips(net.path, path, steady, period, seed, bool(sources), end=begin + INFLOW_SECONDS)
+    _random_trips(net.path, path, steady, period, seed, fringe, end=begin + INFLOW_SECONDS)
     if probe is not None and probe.departures:
         _prepend_departures(path, probe.departures)
     rate = {"vehicles": vehicles, "sample_trips": len(sample), "route_m": round(metres, 1),
@@ -289,7 +315,8 @@ def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: 
                       "speed limits; SUMO's max-num-vehicles holds the network at vehicles, its max-depart-delay "
                       "drops a surplus vehicle that waited max_depart_delay_s to enter"}
     out = {"file": os.path.basename(path), "period_s": round(period, 3), "trip_s": round(trip_s, 1),
-           "from": "fringe" if sources else "anywhere (the network has no fringe)",
+           "from": "fringe" if fringe else "anywhere (the network has no fringe)" if not sources else
+                   f"anywhere (the fringe's {len(sources)} edges cannot insert {1.0 / period:.2f} veh/s)",
            "fringe_sources": len(sources), "seconds": INFLOW_SECONDS, "max_num_vehicles": vehicles,
            "max_depart_delay_s": MAX_DEPART_DELAY_S, "rate": rate}
     if probe is not None:
@@ -299,5 +326,5 @@ def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: 
     return out
 
 
-__all__ = ["MAX_DEPART_DELAY_S", "PROBE_SECONDS", "SETTLE_SECONDS", "InflowError", "Probe", "fringe_sources", "inflow_sample", "probe_speed",
+__all__ = ["MAX_DEPART_DELAY_S", "PROBE_SECONDS", "SETTLE_SECONDS", "InflowError", "Probe", "fringe_capacity", "fringe_sources", "inflow_sample", "probe_speed",
            "route_metres", "seed_fill", "trip_seconds", "write_inflow", "write_start_routes"]

@@ -18,6 +18,8 @@ from ..map.network import window_square
 AUTO_RADIUS = 300.0   # m: the surroundings whose traffic level a window takes
 QUEUE_ZONE = 30.0     # m before a stop line: a class of its own in host_density (docs/evaluation.md)
 MODEL = "model"       # --density model: the model's own level, with a host too
+# the most a lane holds: cars standing bumper to bumper, SUMO's default car (5 m) and minGap (2.5 m)
+JAM_DENSITY = 1000.0 / 7.5
 
 
 class DensityError(ValueError):
@@ -36,6 +38,9 @@ def parse_density(text: str | None, flag: str = "--density") -> float | str | No
         raise DensityError(f"{flag}: not a number, 'auto' or 'model': {text!r}") from None
     if not np.isfinite(v) or v < 0:
         raise DensityError(f"{flag}: must be a finite number >= 0, got {text}")
+    if v > JAM_DENSITY:
+        raise DensityError(f"{flag}: {text} veh/km is more than a lane holds with its cars standing "
+                           f"(at most {JAM_DENSITY:.0f}: SUMO's default car, 5 m with a 2.5 m gap)")
     return v
 
 

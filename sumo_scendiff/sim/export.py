@@ -23,6 +23,7 @@ from ..core.geometry import sumo_to_pose, wrap_angle
 from ..core.outputs import partial_path, publish
 from ..map.picture import draw_scene
 from ..tokens.features import is_pinnable
+from .additional import output_folders
 from .bundle import bundle
 
 FORMAT, VERSION = "sumo-scendiff-scenario", 1
@@ -139,8 +140,9 @@ INPUTS = ("net-file", "route-files", "additional-files")
 def write_sumocfg(path: str, options: dict[str, str], state: str | None,
                   routes: list[str] | None = None) -> None:
     """scenario.sumocfg that runs in stock SUMO from wherever the folder is copied: the network and
-    the route and additional files travel in the folder (sim.bundle); loads the saved state when given.
-    ``routes``: the route files instead of the options' own."""
+    the route and additional files travel in the folder (sim.bundle), with the subfolders their
+    outputs write into (sim.additional); loads the saved state when given. ``routes``: the route
+    files instead of the options' own."""
     here = os.path.dirname(os.path.abspath(path))
     options = {LONG_NAMES.get(k, k): v for k, v in options.items()}
     if routes is not None:
@@ -149,6 +151,9 @@ def write_sumocfg(path: str, options: dict[str, str], state: str | None,
     lines = ["<configuration>"]
     for name, value in options.items():
         if name in INPUTS:
+            if name == "additional-files":
+                for sub in {s for v in value.split(",") for s in output_folders(v)}:
+                    os.makedirs(os.path.join(here, sub), exist_ok=True)
             value = ",".join(bundle(v, here) for v in value.split(","))
         lines.append(f"    <{name} value={quoteattr(value)}/>")
     if state:

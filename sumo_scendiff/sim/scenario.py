@@ -42,6 +42,7 @@ class SumoScenario:
     additional: tuple[str, ...] = ()
     begin: float | None = None       # the configuration's <begin> (s)
     end: float | None = None
+    step_length: float | None = None  # the configuration's <step-length> (s)
     config: str | None = None        # the .sumocfg it came from
     options: tuple[tuple[str, str], ...] = ()   # its options on how SUMO runs the demand (name, value)
 
@@ -102,6 +103,10 @@ def read_sumocfg(path: str, skip: frozenset[str] = frozenset()) -> dict:
                 out[_LISTS[opt.name]] = tuple(files)
         elif opt.name in _TIMES:
             out[_TIMES[opt.name]] = _time(path, opt.name, opt.value)
+        elif opt.name == "step-length":
+            out["step_length"] = _time(path, opt.name, opt.value)
+            if not out["step_length"] > 0:
+                raise ScenarioError(f"{path}: step-length: must be > 0 ({opt.value!r})")
     out["options"] = run_options(path)
     return out
 

@@ -82,7 +82,13 @@ def has_display() -> bool:
 
 
 def start(cfg: SimConfig, quiet: bool = True):
-    """Start SUMO and return the module to drive it (``libsumo``, or ``traci`` for the GUI)."""
+    """Start SUMO and return the module to drive it (``libsumo``, or ``traci`` for the GUI). The
+    additional files' outputs (detectors, edgeData, ...) go nowhere: they are the user's, to be
+    written by the user's runs, not beside their files by ours (sim.additional)."""
+    from dataclasses import replace
+
+    from .additional import quiet_outputs
+    cfg = replace(cfg, additional=quiet_outputs(cfg.additional))
     args = cfg.args() + (["--no-warnings", "true"] if quiet else [])
     if cfg.gui and not has_display():
         raise SimError("--gui: no display to open sumo-gui on (DISPLAY is not set); run without --gui "
