@@ -120,3 +120,18 @@ def test_human_readable_times_are_read(measured, tmp_path):
     (tmp_path / "hms.xml").write_text(hms)
     iv = EdgeData.read(str(tmp_path / "hms.xml"), net).at(150.0)
     assert (iv.begin, iv.end) == (120.0, 180.0) and iv.density == EdgeData.read(path, net).at(150.0).density
+
+
+def test_a_lanedata_file_gives_the_edges_densities(cross_net, tmp_path):
+    """SUMO's laneData (per lane) read as its edgeData: the same density per km of car lane."""
+    (tmp_path / "r.rou.xml").write_text('<routes><flow id="f" begin="0" end="300" period="4" from="wc" to="ce" '
+                                        'departSpeed="max"/></routes>')
+    (tmp_path / "m.add.xml").write_text(f'<additional><edgeData id="e" period="60" file="{tmp_path / "e.xml"}"/>'
+                                        f'<laneData id="l" period="60" file="{tmp_path / "l.xml"}"/></additional>')
+    subprocess.run([sumo_binary(), "-n", cross_net, "-r", str(tmp_path / "r.rou.xml"), "-a",
+                    str(tmp_path / "m.add.xml"), "--end", "300", "--no-step-log", "true"],
+                   check=True, capture_output=True)
+    net = Network.load(cross_net)
+    edges, lanes = EdgeData.read(str(tmp_path / "e.xml"), net).at(150.0), EdgeData.read(str(tmp_path / "l.xml"), net).at(150.0)
+    assert edges.density["wc"] > 5.0
+    assert lanes.density == pytest.approx(edges.density, rel=0.01, abs=0.01)

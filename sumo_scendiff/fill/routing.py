@@ -83,7 +83,9 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
             raise RoutingError(f"duarouter did not finish routing the demand in {ROUTER_TIMEOUT_S:g} s") from None
         if done.returncode != 0 or not os.path.exists(out):
             lines = (done.stderr or done.stdout).strip().splitlines() or ["no message"]
-            raise RoutingError(f"duarouter could not route the demand: {lines[-1]}")
+            # its first error is the cause ("Quitting (on error)." comes last)
+            cause = next((ln.removeprefix("Error: ") for ln in lines if ln.startswith("Error:")), lines[-1])
+            raise RoutingError(f"duarouter could not route the demand: {cause}")
         unknown = next((ln for ln in done.stderr.splitlines() if _UNKNOWN.search(ln)), None)
         if unknown:     # duarouter goes on with a default; SUMO refuses to load such a demand
             raise RoutingError(f"{unknown.removeprefix('Warning: ').rstrip('.')} (SUMO refuses such a demand)")

@@ -7,7 +7,9 @@ Per edge and interval, the density per car lane in vehicles per km: the edge's `
 divided by its car lanes, else SUMO's ``laneDensity`` (the density over its lanes open to vehicles,
 bike lanes too) times those lanes over its car lanes, else ``sampledSeconds`` over the interval's
 duration and the edge's car-lane kilometres (SUMO's own definitions, "Lane- or Edge-based Traffic
-Measures"; read per lane, an edge with a bike lane counted half its vehicles). A window's density weighs its edges by the car-lane length they have inside it; an edge
+Measures"; read per lane, an edge with a bike lane counted half its vehicles). A laneData file
+(SUMO's ``--lanedata-output``, per lane) gives an edge the mean of its car lanes' densities, a car
+lane it does not list empty. A window's density weighs its edges by the car-lane length they have inside it; an edge
 the file does not list in the interval holds no vehicle (SUMO's ``--edgedata-output`` writes only
 the edges a vehicle used), so a window none of whose edges is listed is empty, not unknown.
 """
@@ -47,6 +49,8 @@ class EdgeData:
         if not os.path.isfile(path):
             raise EdgeDataError(f"{path}: no such file")
         lanes = _lanes_per_edge(net) if net is not None else {}
+        car_lanes = {ln.id: shapely.length(line) / 1000.0 for ln, line in zip(net.lanes, net.lines)
+                     if ln.car and line is not None} if net is not None else None
         intervals = []
         try:
             for iv in parse(path, "interval"):
@@ -54,6 +58,8 @@ class EdgeData:
                 dens = {}
                 for e in iv.getChild("edge") if iv.hasChild("edge") else ():
                     d = _lane_density(e, end - begin, lanes.get(e.id))
+                    if d is None and e.hasChild("lane"):      # laneData
+                        d = _from_lanes(e, end - begin, lanes.get(e.id), car_lanes)
                     if d is not None:
                         dens[e.id] = d
                 intervals.append(Interval(begin, end, dens))
@@ -108,6 +114,24 @@ def _lanes_per_edge(net) -> dict[str, tuple[int, int, float]]:
 def _number(e, name: str) -> float | None:
     v = getattr(e, name, None)
     return None if v in (None, "") else float(v)
+
+
+def _from_lanes(e, duration: float, lanes: tuple[int, int, float] | None,
+                car_lanes: dict[str, float] | None) -> float | None:
+    """Vehicles per km of car lane of an edge from its lanes' elements (a laneData file): the sum of
+    its car lanes' densities (``density``, else ``sampledSeconds`` over the interval and the lane's
+    km; ``car_lanes``: lane id -> km) over its car lanes (one the file leaves out: none on it)."""
+    listed = [ln for ln in e.getChild("lane") if car_lanes is None or ln.id in car_lanes]
+    each = []
+    for ln in listed:
+        d, samples, km = _number(ln, "density"), _number(ln, "sampledSeconds"), (car_lanes or {}).get(ln.id, 0.0)
+        if d is None and samples is not None:
+            d = 0.0 if samples == 0 else samples / duration / km if duration > 0 and km > 0 else None
+        each.append(d)
+    if not listed or any(d is None for d in each):
+        return None
+    cars = lanes[1] if lanes is not None else len(listed)
+    return sum(each) / cars if cars else None
 
 
 def _lane_density(e, duration: float, lanes: tuple[int, int, float] | None) -> float | None:
