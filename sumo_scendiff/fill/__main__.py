@@ -307,6 +307,9 @@ def main(o) -> int:
           f"density source: {doc['density']['kind']}" + ("" if doc["density"]["applied"] else " (not applied)"))
     print("timing (s): " + ", ".join(f"{k} {v:.1f}" for k, v in doc["timing_s"].items())
           + (f" ({o.workers} workers)" if o.workers > 1 else ""))
+    if doc["density"]["kind"] == "demand" and not doc["density"].get("en_route"):
+        print(f"warning: no vehicle of the demand is en route at {doc['begin']:g} s (persons and containers "
+              f"are not seeded; fill.json's density.departed counts what departed before)", file=sys.stderr)
     asked = doc["density"].get("veh_per_km")
     if asked and s["density_veh_per_km"] < 0.9 * asked:
         print(f"warning: {s['density_veh_per_km']} of the {asked:g} veh/km asked found room (the model "
