@@ -271,6 +271,41 @@ def test_fill_with_demand(tmp_path):
         assert run.returncode == 0 and "Error" not in run.stderr, run.stderr
 
 
+def test_a_bus_keeps_the_stops_ahead_of_it(tmp_path):
+    """A bus line whose stop is on its last edge: each bus the fill seeds before that edge still has
+    the stop, in the saved state and in the portable start, and stock SUMO runs both."""
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.map.network import Network
+    snet = Network.load(NET).sumo_net
+    edges = sorted(e.getID() for e in snet.getEdges() if e.allows("bus"))
+    last = snet.getEdge(edges[-1])
+    (tmp_path / "stops.add.xml").write_text(f'<additional><busStop id="bs" lane="{last.getLanes()[0].getID()}" '
+                                            f'startPos="{last.getLength() - 25:.1f}" endPos="{last.getLength() - 5:.1f}"/>'
+                                            '</additional>')
+    (tmp_path / "bus.rou.xml").write_text(
+        f'<routes><vType id="coach" vClass="bus"/><flow id="L1" type="coach" line="1" begin="0" end="600" '
+        f'period="15" from="{edges[0]}" to="{edges[-1]}"><stop busStop="bs" duration="20"/></flow></routes>')
+    doc = _fill(tmp_path / "o", "-r", str(tmp_path / "bus.rou.xml"), "-a", str(tmp_path / "stops.add.xml"),
+                "--begin", "120")
+    buses = [a["vehicle"] for a in doc["agents"] if a.get("demand") and a["vehicle"]]
+    assert buses
+    start = (tmp_path / "o" / "start.rou.xml").read_text()
+    assert start.count('<stop busStop="bs"') >= 1
+    import libsumo
+    libsumo.start([sumo_binary(), "-c", str(tmp_path / "o" / "scenario.sumocfg"), "--no-step-log", "true"])
+    try:
+        ahead = [v for v in buses if libsumo.vehicle.getRoadID(v) != edges[-1]]
+        with_stop = [v for v in ahead if [s.stoppingPlaceID for s in libsumo.vehicle.getStops(v)] == ["bs"]]
+    finally:
+        libsumo.close()
+    assert ahead and len(with_stop) == len(ahead)
+    assert start.count('<stop busStop="bs"') >= len(ahead)
+    for cfg in ("scenario.sumocfg", "start.sumocfg"):
+        run = subprocess.run([sumo_binary(), "-c", str(tmp_path / "o" / cfg), "--end", "200"],
+                             check=False, capture_output=True, text=True, timeout=60)
+        assert run.returncode == 0 and "Error" not in run.stderr, run.stderr
+
+
 @pytest.mark.parametrize("begin, asked", [("30", "30 s (0:00:30)"), ("0:11:00", "660 s (0:11:00)")])
 def test_a_start_outside_the_demand_is_refused(tmp_path, capsys, begin, asked):
     """--begin before the first departure or after the last (seconds or SUMO's clock time): one
@@ -474,3 +509,26 @@ def test_a_configurations_default_depart_speed(grid, tmp_path):
     for default, standing in (("0", {"a": True, "b": True}), ("max", {"a": False, "b": True})):
         deps, _ = routed_departures(grid.path, [str(routes)], until=10.0, depart_speed=default)
         assert {d.id: d.standing for d in deps} == standing, default
+
+
+def test_a_stop_holds_its_vehicle_in_the_estimate(grid, tmp_path):
+    """Buses standing 60 s at a stop on their way: the estimate holds them there for it, about as
+    many en route as SUMO has (without the stop, a minute's worth fewer)."""
+    import libsumo
+
+    from sumo_scendiff.fill.demand import DemandEstimate
+    stop = '<stop lane="B0C0_0" endPos="80" duration="60"/>'
+    for name, body in (("stop", stop), ("none", "")):
+        (tmp_path / f"{name}.rou.xml").write_text(
+            f'<routes><vType id="coach" vClass="bus"/><flow id="L" type="coach" begin="0" end="600" period="10" '
+            f'departSpeed="max"><route edges="A0B0 B0C0 C0C1"/>{body}</flow></routes>')
+    with_stop = DemandEstimate.at(grid, [str(tmp_path / "stop.rou.xml")], 300.0).vehicles
+    without = DemandEstimate.at(grid, [str(tmp_path / "none.rou.xml")], 300.0).vehicles
+    libsumo.start(["sumo", "-n", grid.path, "-r", str(tmp_path / "stop.rou.xml"), "--no-step-log", "--no-warnings"])
+    try:
+        libsumo.simulationStep(300.0)
+        sumo = libsumo.vehicle.getIDCount()
+    finally:
+        libsumo.close()
+    assert with_stop - without >= 5
+    assert with_stop == pytest.approx(sumo, rel=0.2), (with_stop, sumo)

@@ -43,6 +43,7 @@ class EnRoute:
     behind: tuple[str, ...] = ()   # the route's edges before it, nearest first (where a queue that does
                                    # not fit its edge stands: :data:`SPILL_EDGES` of them)
     offset: float = 0.0            # m along the edge where it began moving on it (its departPos)
+    stops: tuple[dict, ...] = ()   # its route's <stop>s (attributes; the seeder keeps those ahead)
 
     @property
     def waiting(self) -> bool:
@@ -69,6 +70,7 @@ class DemandEstimate:
         SUMO's); ``junction_taz``: its ``junction-taz`` option. Raises :class:`~.routing.RoutingError` when SUMO's router cannot read the demand."""
         from .queues import Trip, run_to
         from .routing import routed_departures
+        from ..sim.stops import stopping_places
         from .travel import DEFAULT_DRIVER, TravelTimes, link_flows, vtype_drivers
         snet = net.sumo_net
         drivers = vtype_drivers([*route_files, *additional])
@@ -82,13 +84,17 @@ class DemandEstimate:
         span = min(FLOW_SPAN_S, begin - first)
         times = TravelTimes(net, additional, link_flows([(d.depart, list(d.edges)) for d in departures], begin, span))
         trips: list[Trip] = []
+        stops: dict[int, tuple] = {}               # id(trip) -> its stops
+        places = stopping_places(additional) if any(d.stops for d in departures) else {}
         for d in departures:
             if not all(snet.hasEdge(e) for e in d.edges):
                 continue
             driver = drivers.get(d.type, DEFAULT_DRIVER) if d.type else DEFAULT_DRIVER
             trips.append(Trip(d.id, d.type, d.edges, driver, d.depart,
                               times.start(driver, d.edges[0]) if d.standing else 0.0,
-                              _depart_offset(d.depart_pos, snet.getEdge(d.edges[0]).getLength())))
+                              _depart_offset(d.depart_pos, snet.getEdge(d.edges[0]).getLength()),
+                              _dwell(d, places)))
+            stops[id(trips[-1])] = d.stops
         on_edge: dict[str, int] = {}
         en_route: list[EnRoute] = []
         for pos in run_to(trips, times, net, begin):
@@ -96,7 +102,8 @@ class DemandEstimate:
             on_edge[edges[k]] = on_edge.get(edges[k], 0) + 1
             ahead = snet.getEdge(edges[k]).getLength() - pos.offset
             en_route.append(EnRoute(pos.trip.id, pos.trip.type, edges[k:], begin - pos.t_enter, pos.travel,
-                                    ahead / pos.travel, edges[max(k - SPILL_EDGES, 0):k][::-1], pos.offset))
+                                    ahead / pos.travel, edges[max(k - SPILL_EDGES, 0):k][::-1], pos.offset,
+                                    stops.get(id(pos.trip), ())))
         return cls(begin, on_edge, sum(on_edge.values()), unrouted, len(departures), en_route)
 
     def edge_density(self, net) -> dict[str, float]:
@@ -126,6 +133,22 @@ class DemandEstimate:
                 normal = True
                 num += dens.get(net.lanes[i].edge, 0.0) * k
         return num / den if normal and den > 0 else None
+
+
+def _dwell(d, places: dict[str, str]) -> tuple[float, ...]:
+    """Per edge of ``d``'s route the seconds its stops hold it there (its stops in route order, each
+    on the first of its edges at or after the one before; () without stops)."""
+    from ..sim.stops import stop_lane, stop_seconds
+    if not d.stops:
+        return ()
+    out, k = [0.0] * len(d.edges), 0
+    for s in d.stops:
+        lane = stop_lane(s, places)
+        edge = lane.rpartition("_")[0] if lane else None
+        if edge in d.edges[k:]:
+            k = d.edges.index(edge, k)
+            out[k] += stop_seconds(s)
+    return tuple(out)
 
 
 def _depart_offset(pos: str | None, length: float) -> float:

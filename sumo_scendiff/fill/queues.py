@@ -59,6 +59,7 @@ class Trip:
     depart: float
     start_s: float                 # s spent before its first cruise (accelerating from standing)
     offset: float = 0.0            # m along its first edge where it enters (departPos)
+    dwell: tuple[float, ...] = ()  # s it stands at its stops on each edge of its route (none: ())
 
 
 @dataclass(frozen=True)
@@ -132,7 +133,7 @@ def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnE
         lane_of[id(trip)] = lane
         length = snet.getEdge(e).getLength()
         cruise, _ = times.edge(e, trip.driver)
-        travel = max(before + cruise * (length - offset) / length, 1e-3)
+        travel = max(before + cruise * (length - offset) / length + (trip.dwell[k] if trip.dwell else 0.0), 1e-3)
         where[id(trip)] = OnEdge(trip, k, t, travel, offset)
         push(t + travel, LINE, trip, k)
 

@@ -44,6 +44,7 @@ class Departure:
     depart: float
     standing: bool                 # departs at speed 0 (SUMO's default departSpeed) and accelerates first
     depart_pos: str | None         # its departPos attribute
+    stops: tuple[dict, ...] = ()   # its <stop> elements' attributes, in order (its route's first)
 
 
 def routed_departures(net_path: str, route_files, additional=(), until: float = float("inf"),
@@ -119,14 +120,19 @@ def _read(path: str, since: float, until: float, depart_speed: str = "0") -> tup
             continue
         if not since <= depart <= until:
             continue
+        stops = []
         if el.hasChild("route"):
-            edges = tuple(el.getChild("route")[0].edges.split())
+            route = el.getChild("route")[0]
+            edges = tuple(route.edges.split())
+            stops += route.getChild("stop") if route.hasChild("stop") else []
         else:
             edges = named.get(getattr(el, "route", None) or "", ())
+        stops += el.getChild("stop") if el.hasChild("stop") else []
         if edges:
             out.append(Departure(el.id, getattr(el, "type", None), edges, depart,
                                  _departs_standing(getattr(el, "departSpeed", None) or depart_speed),
-                                 getattr(el, "departPos", None)))
+                                 getattr(el, "departPos", None),
+                                 tuple(dict(s.getAttributes()) for s in stops)))
     out.sort(key=lambda d: d.depart)
     return out, triggered
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..sim.export import write_routes
 from ..sim.seeding import Seeder
+from ..sim.stops import add_stops
 from ..sim.sumo import start
 
 TYPICAL_SPEED_FACTOR = 0.7  # a trip time's floor: its routes at this share of the speed limits
@@ -93,6 +94,9 @@ def seed_fill(result, net, cfg, seed: int = 0, quiet: bool = True, progress: boo
         reports[k] = seeder.seed(scene, others=(others, pins[:, 5] if len(pins) else np.zeros(0)),
                                  routes=[v and v.edges for v in mine] if mine else None,
                                  types=[v and v.type for v in mine] if mine else None)
+        for a, v in enumerate(mine or ()):   # the stops its demand vehicle still has to make
+            if v is not None and v.stops and reports[k].ids.get(a) is not None:
+                add_stops(sim, reports[k].ids[a], v.stops)
     sim.simulationStep()
     for rep in reports.values():
         seeder.verify(rep)

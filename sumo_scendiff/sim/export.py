@@ -25,6 +25,7 @@ from ..map.picture import draw_scene
 from ..tokens.features import is_pinnable
 from .additional import output_folders
 from .bundle import bundle
+from .stops import stops_xml
 
 FORMAT, VERSION = "sumo-scendiff-scenario", 1
 FILES = ("scene.json", "scenario.rou.xml", "scenario.sumocfg", "state.xml.gz", "rollout.json", "scene.png")
@@ -109,10 +110,12 @@ def _vehicle_xml(sim, vid: str, net) -> tuple[str, str, str, bool]:
         first = net.sumo_net.getEdge(edges[0])
         pos, lane_index, lat = first.getLength() - 0.1, "best", 0.0
     route = f'    <route id={quoteattr(vid + "_replay")} edges="{" ".join(edges)}"/>'
+    stops = stops_xml(sim, vid)
     veh = (f'    <vehicle id={quoteattr(vid)} type={quoteattr(tid)} route={quoteattr(vid + "_replay")} '
            f'depart="0" departLane="{lane_index}" departPos="{pos:.3f}" departPosLat="{lat:.3f}" '
            f'departSpeed="{sim.vehicle.getSpeed(vid):.3f}" speedFactor="{sim.vehicle.getSpeedFactor(vid):.4f}"'
-           + (' insertionChecks="none"/>' if exact else '/>'))
+           + (' insertionChecks="none"' if exact else '')
+           + ("".join(f">\n        {s}" for s in stops) + "\n    </vehicle>" if stops else "/>"))
     return vtype, route, veh, exact
 
 
