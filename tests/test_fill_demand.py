@@ -532,3 +532,16 @@ def test_a_stop_holds_its_vehicle_in_the_estimate(grid, tmp_path):
         libsumo.close()
     assert with_stop - without >= 5
     assert with_stop == pytest.approx(sumo, rel=0.2), (with_stop, sumo)
+
+
+def test_a_repeated_route_is_driven_its_times_over(grid, tmp_path):
+    """A loop with ``repeat="2"`` is driven three times (duarouter writes it once, without the
+    attribute), so the estimate keeps its vehicles on the loop as SUMO does."""
+    from sumo_scendiff.fill.routing import routed_departures
+    loop = "A0B0 B0B1 B1A1 A1A0"
+    (tmp_path / "loop.rou.xml").write_text(f'<routes><route id="loop" edges="{loop}" repeat="2"/>'
+                                           '<flow id="f" begin="0" end="60" period="30" route="loop"/>'
+                                           '<vehicle id="once" depart="5"><route edges="A0B0 B0C0"/></vehicle></routes>')
+    deps, _ = routed_departures(grid.path, [str(tmp_path / "loop.rou.xml")], until=100.0)
+    edges = {d.id: d.edges for d in deps}
+    assert edges["f.0"] == tuple(loop.split()) * 3 and edges["once"] == ("A0B0", "B0C0")

@@ -90,8 +90,25 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
         unknown = next((ln for ln in done.stderr.splitlines() if _UNKNOWN.search(ln)), None)
         if unknown:     # duarouter goes on with a default; SUMO refuses to load such a demand
             raise RoutingError(f"{unknown.removeprefix('Warning: ').rstrip('.')} (SUMO refuses such a demand)")
-        departures, triggered = _read(out, since, until, depart_speed)
+        departures, triggered = _read(out, since, until, depart_speed, _repeats(route_files))
         return departures, triggered + sum("has no valid route" in line for line in done.stderr.splitlines())
+
+
+def _repeats(route_files) -> dict[tuple[str, ...], int]:
+    """Routes driven more than once (``repeat``: a bus loop), edges -> repetitions; duarouter's
+    output writes such a route once, without the attribute."""
+    from sumolib.xml import parse
+    out = {}
+    for path in route_files:
+        if not _search(path, re.compile(rb"\brepeat=")):
+            continue
+        for el in parse(path, "route"):
+            if getattr(el, "repeat", None) and getattr(el, "edges", None):
+                try:
+                    out[tuple(el.edges.split())] = int(el.repeat)
+                except ValueError:
+                    continue      # SUMO names the bad value when it loads the file
+    return out
 
 
 def _search(path: str, pattern: re.Pattern) -> bool:
@@ -104,9 +121,10 @@ def _has_probability_flow(path: str) -> bool:
     return _search(path, _PROBABILITY_FLOW)
 
 
-def _read(path: str, since: float, until: float, depart_speed: str = "0") -> tuple[list[Departure], int]:
+def _read(path: str, since: float, until: float, depart_speed: str = "0",
+          repeats: dict[tuple[str, ...], int] | None = None) -> tuple[list[Departure], int]:
     """The departures of duarouter's output from ``since`` to ``until``, and how many depart on a
-    trigger (no time)."""
+    trigger (no time); a route of ``repeats`` driven its times over."""
     from sumolib.miscutils import parseTime
     from sumolib.xml import parse
     named = {el.id: tuple(el.edges.split()) for el in parse(path, "route")
@@ -128,6 +146,7 @@ def _read(path: str, since: float, until: float, depart_speed: str = "0") -> tup
         else:
             edges = named.get(getattr(el, "route", None) or "", ())
         stops += el.getChild("stop") if el.hasChild("stop") else []
+        edges = edges * (1 + (repeats or {}).get(edges, 0))
         if edges:
             out.append(Departure(el.id, getattr(el, "type", None), edges, depart,
                                  _departs_standing(getattr(el, "departSpeed", None) or depart_speed),
