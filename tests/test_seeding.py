@@ -487,3 +487,23 @@ def test_two_facing_each_other_on_a_lane_both_directions_share_are_not_both_seed
     east, host = np.array([[-120.0, y, 0.0, 4.5, 1.8]]), np.array([[-60.0, y, np.pi, 4.5, 1.8]])
     assert seeder.facing_on_shared_lanes(east, host, keep, None) == {0: "a_0"}
     assert seeder.facing_on_shared_lanes(east, np.zeros((0, 5)), keep, None) == {}
+
+
+def test_an_agent_where_a_vehicle_was_moved_before_is_not_seeded(cross_net, cross_scene):
+    """A window is drawn around the vehicles already there, but the seeder may have moved one of
+    them since (pulled back from over a stop line): an agent whose box overlaps it is not seeded,
+    and the report says why; the others are."""
+    import libsumo as sim
+    import numpy as np
+    net = Network.load(cross_net)
+    scene = cross_scene(net)
+    moved = scene.boxes[2:3, :5].copy()        # a vehicle seeded before, now where agent 2 stands
+    moved[0, 1] -= 1.0
+    assert Seeder.on_others(scene, moved) == {2: "its box overlaps a vehicle seeded before"}
+    sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings"])
+    try:
+        report = Seeder(sim, net).seed(scene, others=(moved, np.zeros(1)))
+    finally:
+        sim.close()
+    assert 2 not in report.ids and "overlaps a vehicle seeded before" in report.conflicts[2]
+    assert {0, 1} <= set(report.ids)

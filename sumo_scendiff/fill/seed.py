@@ -25,6 +25,7 @@ import numpy as np
 from ..sim.export import write_routes
 from ..sim.seeding import Seeder
 from ..sim.stops import add_stops
+from .tiles import scene_rows
 from ..sim.sumo import start
 
 TYPICAL_SPEED_FACTOR = 0.7  # a trip time's floor: its routes at this share of the speed limits
@@ -58,6 +59,9 @@ MAX_DEPART_DELAY_S = 60.0
 # anywhere: a city entered by five edges cannot be held full through them
 INSERT_HEADWAY_S = 2.0
 FRINGE_LOAD = 0.5
+# the earlier tiles' vehicles a tile's seeding sees: within this many window sizes of its centre
+# (its corners are 0.71 away; a long vehicle's box reaches in from a little beyond)
+REACH = 0.9
 
 
 class InflowError(RuntimeError):
@@ -75,14 +79,18 @@ def seed_fill(result, net, cfg, seed: int = 0, quiet: bool = True, progress: boo
     sim = start(cfg, quiet=quiet)
     seeder = Seeder(sim, net, prefix="fill", seed=seed)
     reports: dict[int, object] = {}
-    rows = result.accepted.rows
+    # the vehicles seeded so far, world rows (x, y, heading, length, width, speed) where the seeder put
+    # them: a tile's pins are its neighbours as drawn, but the seeder moves some (a nose over the stop
+    # line pulled back, a car waiting inside a junction on red to its stop line) and refuses others
+    seeded = np.zeros((0, 6))
     for k in tqdm(result.order, desc="seeding", unit=" tile", disable=not progress):
         scene = result.scenes[k]
         if scene is None or not len(scene):
             continue
         w = scene.window
-        # the earlier tiles' vehicles in this window: leaders the Seeder fits gaps and speeds to
-        pins = rows[result.records[k].pin_ids]
+        # the earlier tiles' vehicles around this window: leaders the Seeder fits gaps and speeds to,
+        # places a vehicle it moves may not take
+        pins = seeded[np.hypot(seeded[:, 0] - w.cx, seeded[:, 1] - w.cy) <= REACH * w.size]
         others = np.zeros((len(pins), 5))
         if len(pins):
             others[:, :2] = w.world_to_scene(pins[:, :2])
@@ -97,6 +105,7 @@ def seed_fill(result, net, cfg, seed: int = 0, quiet: bool = True, progress: boo
         for a, v in enumerate(mine or ()):   # the stops its demand vehicle still has to make
             if v is not None and v.stops and reports[k].ids.get(a) is not None:
                 add_stops(sim, reports[k].ids[a], v.stops)
+        seeded = np.vstack([seeded, scene_rows(scene)[sorted(reports[k].ids)]])
     sim.simulationStep()
     for rep in reports.values():
         seeder.verify(rep)

@@ -304,6 +304,19 @@ class Seeder(Settling, StopLines):
         return np.clip(np.nan_to_num(bumper_gap - MIN_GAP_MARGIN, posinf=DEFAULT_MIN_GAP), 0.3, DEFAULT_MIN_GAP)
 
     # ---- seeding --------------------------------------------------------------------------------
+    @staticmethod
+    def on_others(scene: Scene, others: np.ndarray) -> dict[int, str]:
+        """Agents whose box overlaps one of ``others`` (scene frame), not to be seeded: a window is
+        drawn around the vehicles already there, but one of those the seeder moved before (a nose
+        pulled back over the stop line, a car sent from inside a junction to its stop line) may now
+        stand where this window drew an agent."""
+        if not len(scene) or not len(others):
+            return {}
+        mine, theirs = box_polygons(scene.boxes[:, :5]), box_polygons(np.asarray(others)[:, :5])
+        i, j = shapely.STRtree(theirs).query(mine, predicate="intersects")
+        hit = {int(a) for a, b in zip(i, j) if shapely.area(shapely.intersection(mine[a], theirs[b])) > OVERLAP_AREA}
+        return {a: "its box overlaps a vehicle seeded before" for a in sorted(hit)}
+
     def fit_lane_ends(self, scene: Scene, report: SeedReport, others: np.ndarray) -> None:
         """Agents standing on a normal lane with the nose past its end (over the stop line) are moved
         back along their heading until the nose is at the end, the whole trajectory with them; the
@@ -362,7 +375,7 @@ class Seeder(Settling, StopLines):
         gaps = self.min_gaps(bumper_gap)
         lead_speed = np.concatenate([scene.speed[:, T0], other_speed]).astype(np.float64)
         keep, hold, report.conflicts = self.resolve(scene, other_boxes, other_speed)
-        for i, why in gone.items():
+        for i, why in {**gone, **self.on_others(scene, other_boxes)}.items():
             keep[i], hold[i] = False, False
             report.conflicts[i] = why
         lead_speed[:len(scene)][hold] = 0.0      # a follower of a held agent departs safe behind it
