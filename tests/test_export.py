@@ -142,3 +142,41 @@ def test_writer_never_replaces_a_finished_scene(exported, tmp_path):
     folder, _ = exported
     with pytest.raises(FileExistsError, match="exists"):
         ScenarioWriter(os.path.dirname(folder), os.path.basename(folder))
+
+
+def test_departures_are_fitted_to_their_box_centres(cross_net, tmp_path):
+    """A departure whose box centre SUMO inserts 1 m behind and 0.3 m beside its pose is moved along
+    and across its lane until it is there; one already there, and one without insertionChecks="none"
+    (not an exact departure), are left alone."""
+    import libsumo
+
+    from sumo_scendiff.core.geometry import sumo_to_pose
+    from sumo_scendiff.sim.export import fit_departures, write_sumocfg
+    shape = _lane_shape(cross_net, "wc_0")
+    y0 = shape[0][1]
+    # a 5 m car whose front is at 101 m along wc (x = -200 + 101): its centre at x = -101.5
+    rows = [("off", 101.0, 0.0, (-100.5, y0 + 0.3)), ("there", 60.0, 0.0, (-142.5, y0)),
+            ("loose", 30.0, 0.0, (-160.0, y0))]
+    veh = "".join(f'<vehicle id="{v}" depart="0" departLane="0" departPos="{p}" departPosLat="{lat}" '
+                  f'departSpeed="0"{"" if v == "loose" else " insertionChecks=" + chr(34) + "none" + chr(34)}>'
+                  '<route edges="wc ce"/></vehicle>' for v, p, lat, _ in rows)
+    (tmp_path / "start.rou.xml").write_text(f'<routes><vType id="DEFAULT_VEHTYPE" length="5"/>{veh}</routes>')
+    write_sumocfg(str(tmp_path / "start.sumocfg"), {"net-file": cross_net}, None,
+                  routes=[str(tmp_path / "start.rou.xml")])
+    poses = {v: xy for v, _, _, xy in rows}
+    assert fit_departures(str(tmp_path / "start.sumocfg"), str(tmp_path / "start.rou.xml"), poses) == 1
+    libsumo.start(["sumo", "-c", str(tmp_path / "start.sumocfg"), "--no-step-log", "--lateral-resolution", "0.8"])
+    try:
+        libsumo.simulationStep()
+        for v, _, _, (x, y) in rows[:2]:
+            fx, fy = libsumo.vehicle.getPosition(v)
+            cx, cy, _ = sumo_to_pose(fx, fy, libsumo.vehicle.getAngle(v), libsumo.vehicle.getLength(v))
+            assert abs(cx - x) < 0.15 and abs(cy - y) < 0.15, (v, cx, cy, x, y)
+    finally:
+        libsumo.close()
+    assert 'id="loose" depart="0" departLane="0" departPos="30.0"' in (tmp_path / "start.rou.xml").read_text()
+
+
+def _lane_shape(net_path: str, lane: str):
+    from sumo_scendiff.map.network import Network
+    return Network.load(net_path).sumo_net.getLane(lane).getShape()

@@ -9,7 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..sim.export import write_sumocfg
+from ..sim.export import fit_departures, write_sumocfg
 from ..sim.sumo import close
 from .en_route import write_vtypes
 from .picture import draw_fill, edge_density
@@ -106,6 +106,10 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
                   "state.xml.gz", routes=onward)
     write_sumocfg(os.path.join(folder, "start.sumocfg"), {**options, "b": f"{state_time:g}"}, None,
                   routes=[os.path.join(folder, "start.rou.xml")] + onward)
+    # the portable start's box centres where the state has them (a vehicle on a curve departs with
+    # its lane's heading, which swings its box about its front)
+    refitted = fit_departures(os.path.join(folder, "start.sumocfg"), os.path.join(folder, "start.rou.xml"),
+                              {a["vehicle"]: (a["x"], a["y"]) for a in agents if a["vehicle"] in set(ids)})
 
     seeded = [a for a in agents if a["vehicle"] is not None]
     rows = np.array([[a[k] for k in ("x", "y", "heading", "length", "width", "speed")] for a in seeded]
@@ -139,7 +143,7 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
                        "placed": sum(a["status"] == "placed" for a in agents),
                        "misplaced": sum(a["status"] == "misplaced" for a in agents),
                        "refused": sum(a["status"] in ("refused", "conflict") for a in agents),
-                       "start_exact": sum(exact.values()),
+                       "start_exact": sum(exact.values()), "start_refitted": refitted,
                        "pulled_back": sum("pulled_back_m" in a for a in agents),
                        "to_stop_line": sum("to_stop_line_m" in a for a in agents), "car_lane_km": round(area_km, 3),
                        "demand_vehicles": sum("demand" in a for a in seeded),

@@ -12,6 +12,7 @@ directory, :mod:`~sumo_scendiff.core.outputs`, removes those of processes that d
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 from xml.sax.saxutils import quoteattr
@@ -134,6 +135,59 @@ def write_routes(path: str, sim, vehicle_ids, net) -> dict[str, bool]:
     with open(path, "w") as f:
         f.write("<routes>\n" + "\n".join(list(types.values()) + routes + vehicles) + "\n</routes>\n")
     return exact
+
+
+FIT_TOLERANCE = 0.1    # m: a departing box centre this close to its pose is left as it is
+
+
+def fit_departures(config: str, routes_path: str, poses: dict[str, tuple[float, float]]) -> int:
+    """Move the departures of ``routes_path`` (written by :func:`write_routes`) so that SUMO inserts
+    each box centre at its pose (world x, y by vehicle id); returns how many were moved. A departing
+    vehicle takes the heading of its lane from its back to its front, which on a curve (a vehicle
+    just past a lane's start, its back on the junction before) is not the heading it stood with, and
+    its box swings about its front. SUMO (``config``, the start that loads ``routes_path``) inserts
+    them once; each exact departure (``insertionChecks="none"``) whose centre is off is moved along and
+    across its lane by the difference, at the heading SUMO gave it, within the lane's room."""
+    import re
+
+    from ..core.geometry import sumo_to_pose
+    from .sumo import close, start_config
+    sim = start_config(config)
+    fix: dict[str, tuple[float, float]] = {}
+    try:
+        sim.simulationStep()
+        present = set(sim.vehicle.getIDList())
+        for vid, (x, y) in poses.items():
+            if vid not in present:
+                continue
+            fx, fy = sim.vehicle.getPosition(vid)
+            cx, cy, _ = sumo_to_pose(fx, fy, sim.vehicle.getAngle(vid), sim.vehicle.getLength(vid))
+            ex, ey = x - float(cx), y - float(cy)
+            if math.hypot(ex, ey) <= FIT_TOLERANCE:
+                continue
+            lane = sim.vehicle.getLaneID(vid)
+            a = math.radians(90.0 - sim.vehicle.getAngle(vid))
+            along, across = ex * math.cos(a) + ey * math.sin(a), -ex * math.sin(a) + ey * math.cos(a)
+            room = max(0.0, 0.5 * (sim.lane.getWidth(lane) - sim.vehicle.getWidth(vid)))
+            fix[vid] = (min(max(sim.vehicle.getLanePosition(vid) + along, 0.0), sim.lane.getLength(lane)),
+                        max(-room, min(room, sim.vehicle.getLateralLanePosition(vid) + across)))
+    finally:
+        close(sim)
+
+    def moved(m: re.Match) -> str:
+        tag = m.group(0)
+        if m.group(1) not in fix or 'insertionChecks="none"' not in tag:
+            return tag
+        pos, lat = fix.pop(m.group(1))
+        tag = re.sub(r'departPos="[^"]*"', f'departPos="{pos:.3f}"', tag)
+        return re.sub(r'departPosLat="[^"]*"', f'departPosLat="{lat:.3f}"', tag)
+    with open(routes_path) as f:
+        text = f.read()
+    n = len(fix)
+    text = re.sub(r'<vehicle id="([^"]+)"[^>]*>', moved, text)
+    with open(routes_path, "w") as f:
+        f.write(text)
+    return n - len(fix)
 
 
 LONG_NAMES = {"n": "net-file", "r": "route-files", "a": "additional-files", "b": "begin", "e": "end"}

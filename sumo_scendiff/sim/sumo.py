@@ -134,6 +134,16 @@ def _start_libsumo(args: list[str]):
     return libsumo
 
 
+def start_config(path: str):
+    """libsumo on a ``.sumocfg`` the product wrote (a folder's portable start), quiet, its additional
+    files' outputs going nowhere (sim.additional)."""
+    from .additional import quiet_outputs
+    from .scenario import scenario_from_files
+    extra = scenario_from_files(config=path).additional
+    return _start_libsumo(["-c", path, "--no-step-log", "true", "--no-warnings", "true"]
+                          + (["-a", ",".join(quiet_outputs(extra))] if extra else []))
+
+
 def close(sim) -> None:
     try:
         sim.close()
