@@ -25,9 +25,13 @@ def test_evaluate_prints_the_table_and_json(tmp_path, cross_net):
     lines = res.stdout.strip().splitlines()
     assert lines[0].startswith("| networks | method | MMD² pos")  # the summary first
     start = next(i for i, ln in enumerate(lines) if ln.startswith("| network | method | MMD² pos"))
-    names = [ln.split("|")[2].strip() for ln in lines[start + 2:]]
+    end = lines.index("", start)
+    names = [ln.split("|")[2].strip() for ln in lines[start + 2:end]]
     assert names == ["Ground truth", "SUMO 2 min later", "Random Log", "Lane-uniform",
                      "Lane-uniform (true count)"]
+    # Scenario Dreamer's JSD set after it, SUMO's traffic in the other windows as its floor
+    jsd_names = [ln.split("|")[2].strip() for ln in lines[end + 4:]]
+    assert jsd_names == ["SUMO, other windows"] + names[1:]
     rows = json.loads(out.read_text())["distribution"][0]["methods"]
     assert rows["Ground truth"]["traj_on_drivable"] > 0.95
     # the same windows later in SUMO: on the road and nearer the ground truth than Random Log
@@ -35,6 +39,10 @@ def test_evaluate_prints_the_table_and_json(tmp_path, cross_net):
     assert rows["SUMO 2 min later"]["mmd2_joint"] < rows["Random Log"]["mmd2_joint"]
     assert rows["Random Log"]["traj_on_drivable"] < rows["Ground truth"]["traj_on_drivable"]
     assert rows["Lane-uniform (true count)"]["agents_emd"] < 0.5
+    jsd = json.loads(out.read_text())["distribution"][0]["jsd"]
+    # Random Log's fleet and lanes come from other networks; Lane-uniform puts every box on a centre line
+    assert jsd["Random Log"]["jsd_lane_distance"] > jsd["SUMO, other windows"]["jsd_lane_distance"]
+    assert 0 <= jsd["SUMO, other windows"]["jsd_speed"] < jsd["Lane-uniform"]["jsd_speed"]
 
 
 def test_evaluate_bad_network(tmp_path):

@@ -32,6 +32,7 @@ from ..data.shards import SceneStore
 from ..generation.config import GenerationConfig, SettingError
 from ..map.network import Network, NetworkError
 from .baselines import LaneUniform, RandomLogSelection
+from .jsd import FEATURES, evaluate_jsd, vehicle_features
 from .metrics import evaluate_scenes
 
 PROG = "python -m sumo_scendiff.evaluate"
@@ -44,6 +45,8 @@ REAL_CITIES = ("resco_cologne1/cologne1.net.xml", "resco_cologne3/cologne3.net.x
                "ingolstadt_cutmap/Forschungskreuzung_cutmap.net.xml.gz")
 LATER = 120.0   # s: the reference row's delay (longer than a signal cycle: other vehicles, same traffic)
 REFERENCE = "SUMO 2 min later"
+FLOOR = "SUMO, other windows"   # the JSD set's floor: SUMO's traffic in the other half of the windows
+JSD_COLUMNS = tuple((f"jsd_{k}", f"JSD {k.replace('_', ' ')}") for k in FEATURES) + (("collision", "collision"),)
 COLUMNS = (("mmd2_position", "MMD² pos"), ("mmd2_heading", "MMD² head"),
            ("mmd2_velocity", "MMD² vel"), ("mmd2_joint", "MMD² joint"),
            ("traj_on_drivable", "traj on drivable"), ("lane_heading_difference", "lane head. diff"),
@@ -177,6 +180,11 @@ def evaluate_net(net: Network, o, pool: SceneStore, models: dict) -> dict:
     result = {"net": net.name, "path": net.path, "demand": routes and os.path.basename(routes),
               "scenes": len(gts), "methods": {}, "seconds": {}}
     first = None
+    # the JSD set compares pooled vehicles: every method's on the even windows against SUMO's on the
+    # odd ones, and SUMO's own on the even ones is the floor at the same sample size
+    half, other = gts[0::2], gts[1::2]
+    reference = vehicle_features(other, net)
+    jsd = {FLOOR: evaluate_jsd(half, other, net, reference)}
     shown = [i for i, g in enumerate(gts) if len(g)][:3]
     tiles = {"Ground truth": [gts[i] for i in shown]}
     from tqdm import tqdm
@@ -191,6 +199,7 @@ def evaluate_net(net: Network, o, pool: SceneStore, models: dict) -> dict:
         res = evaluate_scenes(gen, gts, net)
         first = first or res
         result["methods"][name] = _row(res)
+        jsd[name] = evaluate_jsd(gen[0::2], other, net, reference)
         if o.verbose:
             print(f"{net.name}: {name} in {result['seconds'][name]:.1f} s", file=sys.stderr)
     gt = first["gt_only"]
@@ -200,6 +209,7 @@ def evaluate_net(net: Network, o, pool: SceneStore, models: dict) -> dict:
                                           **{k: gt[k] for k in ("standing_red", "standing_green",
                                                                 "at_red", "at_green") if k in gt}},
                          **result["methods"]}
+    result["jsd"] = jsd
     if o.pictures:
         save_pictures(net, tiles, os.path.join(o.pictures, f"{net.name}.png"))
     return result
@@ -270,6 +280,17 @@ def summary(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def jsd_markdown(results: list[dict]) -> str:
+    """Scenario Dreamer's JSD set per network and method (:mod:`.jsd`), the floor row first."""
+    lines = ["| network | method | " + " | ".join(c[1] for c in JSD_COLUMNS) + " |",
+             "|" + "---|" * (len(JSD_COLUMNS) + 2)]
+    for r in results:
+        for k, (name, row) in enumerate(r.get("jsd", {}).items()):
+            cells = [_fmt(row.get(key)) for key, _ in JSD_COLUMNS]
+            lines.append(f"| {r['net'] if k == 0 else ''} | {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def _fmt(v) -> str:
     if v is None or (isinstance(v, float) and np.isnan(v)):
         return "–"
@@ -329,6 +350,9 @@ def _evaluate(o) -> int:
     print(f"Random Log pool: {', '.join(roots)} ({len(pool)} scenes)")
     print()
     print(markdown(results))
+    print()
+    print(f"Scenario Dreamer's JSD set (even windows against SUMO's in the odd ones; {FLOOR}: the floor)")
+    print(jsd_markdown(results))
     if tokens:
         from .tokens import markdown_tables
         print()
