@@ -71,8 +71,8 @@ def get_options(args=None):
     p.add_argument("--rollout", type=float, default=60.0, help="seconds SUMO drives after seeding (0: none)")
     p.add_argument("--replay-future", type=float, default=0.0, metavar="SECONDS",
                    help="hold the agents on their generated 0..+2 s future before SUMO takes over (max 2)")
-    p.add_argument("--step-length", type=float, default=None,
-                   help="SUMO's step (s); default: the configuration's (-c), else 0.5")
+    from .sim.sumo import add_arguments, settings_problem
+    add_arguments(p)       # --step-length, --lateral-resolution, --no-seeding-options
     p.add_argument("--gui", action="store_true", help="watch in sumo-gui (traci)")
     p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
     p.add_argument("-o", "--output-dir", dest="out", default="scendiff-out")
@@ -103,8 +103,10 @@ def get_options(args=None):
                 "give one of them")
     if o.scenes < 1:
         p.error("--scenes must be >= 1")
-    if o.rollout < 0 or (o.step_length is not None and o.step_length <= 0):
-        p.error("--rollout must be >= 0, --step-length > 0")
+    if o.rollout < 0:
+        p.error("--rollout must be >= 0")
+    if settings_problem(o):
+        p.error(settings_problem(o))
     try:
         GenerationConfig.from_options(o)
     except SettingError as e:
@@ -237,7 +239,7 @@ def run(o) -> dict:
     from .sim.lights import light_states
     from .sim.scenario import ScenarioError, scenario_from_files
     from .sim.session import Session
-    from .sim.sumo import SimConfig
+    from .sim.sumo import SimConfig, settings
     from .tokens.file import load_tokens
 
     progress = sys.stderr.isatty() or o.verbose
@@ -247,8 +249,7 @@ def run(o) -> dict:
         scen = scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional))
     except ScenarioError as e:
         raise RunError(str(e)) from None
-    if o.step_length is None:
-        o.step_length = scen.step_length or SimConfig.step_length
+    sumo_settings = settings(o, scen)     # the scenario's step length and options, the flags over them
     net = Network.load(scen.net)
     routes = scen.routes
     try:  # the route files as the set SUMO loads, against this network
@@ -265,9 +266,8 @@ def run(o) -> dict:
     # it the network is empty), and runs up to the seeding time; without, it starts at --begin
     start = (scen.begin if scen.begin is not None else first) if routes else \
         (o.begin if o.begin is not None else scen.begin)
-    cfg = SimConfig(net=scen.net, routes=routes, additional=scen.additional, step_length=o.step_length,
-                    gui=o.gui, seed=o.seed, begin=start,
-                    scenario_options=scen.options)
+    cfg = SimConfig(net=scen.net, routes=routes, additional=scen.additional, gui=o.gui, seed=o.seed, begin=start,
+                    **sumo_settings)
     session = Session(cfg, net, gen, quiet=not o.verbose)
     try:
         session.prepare((lambda sim: _warm_up(sim, o, at, progress)) if routes else None)

@@ -132,7 +132,8 @@ def test_run_counts_the_vehicles_already_in_the_window(cross_net, tmp_path):
                          capture_output=True, text=True, cwd=ROOT, env={**os.environ, "OMP_NUM_THREADS": "1"})
     assert res.returncode == 0, res.stderr
     summary = json.load(open(out / "run.json"))
-    assert json.load(open(out / "scene_000" / "scene.json"))["time"] == 25260.5   # after the step seeding it
+    # after the step seeding it: SUMO's default 1 s, the step a demand without a configuration runs at
+    assert json.load(open(out / "scene_000" / "scene.json"))["time"] == 25261.0
     assert summary["density"] == "auto (default with demand)"    # the host's level, not the model's
     row = summary["scenes"][0]
     assert row["existing_vehicles"] >= 3
@@ -157,3 +158,48 @@ def test_without_a_level_a_host_with_traffic_gives_its_own():
     assert parse_density("model") == MODEL and parse_density(" Auto ") == "auto"
     with pytest.raises(DensityError, match="'auto' or 'model'"):
         parse_density("lots")
+
+
+def test_the_divisor_leaves_out_the_junctions_internal_lanes(cross2_net):
+    """A density's km is that of normal edges' car lanes (SUMO's edgeData measures no internal
+    lane): a window on the crossing has internal lanes, and its km is the normal lanes' alone."""
+    import shapely
+    net = Network.load(cross2_net)
+    w = Window(0.0, 0.0, 0.0)
+    idx, km = net.car_lanes_in(w)
+    internal = [net.lanes[i].internal for i in idx]
+    assert any(internal)
+    normal = sum(k for k, inside in zip(km, internal) if not inside)
+    assert net.car_lane_km(w) == pytest.approx(normal) and net.car_lane_km(w) < km.sum()
+    # per-edge densities over a region: weighted by the normal lanes' km, an unnamed edge empty
+    region = shapely.box(-100, -100, 100, 100)
+    some = net.lanes[next(i for i, inside in zip(idx, internal) if not inside)].edge
+    lanes = {i: k for i, k in zip(*net.car_lanes_in_region(region, internal=False))}
+    on_some = sum(k for i, k in lanes.items() if net.lanes[i].edge == some)
+    assert net.region_density(region, {some: 30.0}) == pytest.approx(30.0 * on_some / sum(lanes.values()))
+
+
+@pytest.mark.slow
+def test_a_fills_density_is_what_sumos_edgedata_reports(tmp_path):
+    """fill --density D on a small network, then stock SUMO's edgeData over the network's edges in
+    the first second of the filled start: its density per km of car lane is D within 10 %."""
+    import sumo
+    import sumolib
+    from sumolib.xml import parse
+
+    from sumo_scendiff.fill.__main__ import get_options, main
+    net_path = os.path.join(ROOT, "networks", "grid3x3_1lane.net.xml")
+    out = tmp_path / "filled"
+    assert main(get_options(["-n", net_path, "--density", "20", "-s", "0", "-o", str(out)])) == 0
+    with open(out / "fill.json") as f:
+        begin = json.load(f)["state_time"]
+    ed = tmp_path / "ed.xml"
+    subprocess.run([os.path.join(sumo.SUMO_HOME, "bin", "sumo"), "-c", str(out / "scenario.sumocfg"),
+                    "--edgedata-output", str(ed), "-e", f"{begin + 1:g}", "--no-step-log", "--no-warnings"], check=True)
+    net = sumolib.net.readNet(net_path)
+    car_km = {e.getID(): sum(ln.getLength() for ln in e.getLanes() if ln.allows("passenger")) / 1000.0
+              for e in net.getEdges(withInternal=False)}
+    (interval,) = list(parse(str(ed), "interval"))
+    # an edge's density is per km of the edge (all its lanes): times its length, its vehicles
+    vehicles = sum(float(e.density) * net.getEdge(e.id).getLength() / 1000.0 for e in interval.edge if e.density)
+    assert vehicles / sum(car_km.values()) == pytest.approx(20.0, rel=0.10)

@@ -57,8 +57,8 @@ def get_options(args=None):
     p.add_argument("--p-mask", type=float, default=1.0, metavar="P",
                    help="global token of a tile without neighbours (default 1: the model's prior; lower: fewer vehicles)")
     p.add_argument("-s", "--seed", type=int, default=0)
-    p.add_argument("--step-length", type=float, default=None,
-                   help="SUMO's step (s); default: the configuration's (-c), else 0.5")
+    from ..sim.sumo import add_arguments, settings_problem
+    add_arguments(p)       # --step-length, --lateral-resolution, --no-seeding-options
     p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
     p.add_argument("--workers", type=int, default=1, metavar="N",
                    help="processes generating a colour's tiles side by side, each loading the model once "
@@ -95,8 +95,8 @@ def get_options(args=None):
             import_ray("--ray-address")
         except EngineError as e:
             p.error(str(e))
-    if o.step_length is not None and o.step_length <= 0:
-        p.error("--step-length must be > 0")
+    if settings_problem(o):
+        p.error(settings_problem(o))
     try:
         GenerationConfig.from_options(o)
     except SettingError as e:
@@ -197,7 +197,7 @@ def run(o, folder: str) -> dict:
     from ..map.raster import RasterConfig
     from ..sim.lights import initial_light_states
     from ..sim.scenario import ScenarioError, scenario_from_files
-    from ..sim.sumo import SimConfig
+    from ..sim.sumo import SimConfig, settings, step_length_for
     from .output import write_outputs
     from .plan import fill_network, whole_counts
     from .tiles import TileError, tile_grid
@@ -209,8 +209,7 @@ def run(o, folder: str) -> dict:
         scen = scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional))
     except ScenarioError as e:
         raise FillError(str(e)) from None
-    if o.step_length is None:
-        o.step_length = scen.step_length or SimConfig.step_length
+    o.step_length = step_length_for(scen, o.step_length)   # the scenario's (sim/sumo.py), the flag over it
     net = Network.load(scen.net)
     routes = list(scen.routes)
     if o.demand_level_only and not routes:
@@ -240,8 +239,7 @@ def run(o, folder: str) -> dict:
             source["vehicles_planned"] = int(round(sum(d * km for d, km in zip(targets, kms) if d is not None)))
         timing["load"] = time.perf_counter() - t
 
-        cfg = SimConfig(net=scen.net, additional=scen.additional, step_length=o.step_length, seed=o.seed,
-                        begin=begin, scenario_options=scen.options)
+        cfg = SimConfig(net=scen.net, additional=scen.additional, seed=o.seed, begin=begin, **settings(o, scen))
         t = time.perf_counter()
         # with --signals, the lights as SUMO's programs show them at the start: the fill agrees with them
         signals = initial_light_states(cfg) if net.signal_links and gen.config.signals else None

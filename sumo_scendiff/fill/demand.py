@@ -117,22 +117,11 @@ class DemandEstimate:
         return self.region_density(net, window_square(window))
 
     def region_density(self, net, region) -> float | None:
-        """The density in a shapely region: the estimated vehicles on its edges (each edge's density
-        times its car-lane length inside the region; edges without estimated vehicles are empty) per
-        km of all its car lane, the junctions' included, as a window's count is taken (round(D x
-        car-lane km) holds the estimate's vehicles); None where it has no normal car lane."""
-        dens = self.edge_density(net)
-        idx, km = net.car_lanes_in_region(region)
-        num = den = 0.0
-        normal = False
-        for i, k in zip(idx, km):
-            if k <= 0:
-                continue
-            den += k
-            if not net.lanes[i].internal:
-                normal = True
-                num += dens.get(net.lanes[i].edge, 0.0) * k
-        return num / den if normal and den > 0 else None
+        """The density in a shapely region: the estimated vehicles on its edges per km of its car
+        lane (:meth:`Network.region_density`, the divisor SUMO's edgeData has), as a window's count
+        is taken (round(D x car-lane km) holds the estimate's vehicles); None where it has no normal
+        car lane."""
+        return net.region_density(region, self.edge_density(net))
 
 
 def _dwell(d, places: dict[str, str]) -> tuple[float, ...]:

@@ -9,7 +9,8 @@ bike lanes too) times those lanes over its car lanes, else ``sampledSeconds`` ov
 duration and the edge's car-lane kilometres (SUMO's own definitions, "Lane- or Edge-based Traffic
 Measures"; read per lane, an edge with a bike lane counted half its vehicles). A laneData file
 (SUMO's ``--lanedata-output``, per lane) gives an edge the mean of its car lanes' densities, a car
-lane it does not list empty. A window's density weighs its edges by the car-lane length they have inside it; an edge
+lane it does not list empty. A window's density weighs its edges by the car-lane length they have inside it (normal
+edges only: SUMO's edgeData measures no junction-internal lane unless asked, map/network.py); an edge
 the file does not list in the interval holds no vehicle (SUMO's ``--edgedata-output`` writes only
 the edges a vehicle used), so a window none of whose edges is listed is empty, not unknown.
 """
@@ -87,18 +88,10 @@ class EdgeData:
 
     def region_density(self, net, region, time: float) -> float | None:
         """Vehicles per km of car lane in a shapely region at ``time``: the listed edges' densities
-        times their car-lane length inside it, per km of all its car lane (junctions and unlisted,
-        empty edges included, as a window's count is taken: round(D x car-lane km)); None where the
-        region has no car lane."""
-        iv = self.at(time)
-        idx, km = net.car_lanes_in_region(region)
-        num = den = 0.0
-        for i, k in zip(idx, km):
-            if k <= 0:
-                continue
-            den += k
-            num += iv.density.get(net.lanes[i].edge, 0.0) * k
-        return num / den if den > 0 else None
+        over the region's car lanes of normal edges (:meth:`Network.region_density`: unlisted edges
+        empty, junction-internal lanes not in the divisor, as edgeData measures); None where the
+        region has no such lane."""
+        return net.region_density(region, self.at(time).density)
 
 
 def _lanes_per_edge(net) -> dict[str, tuple[int, int, float]]:

@@ -315,25 +315,46 @@ class Network:
         idx = self.lane_tree.query(square, predicate="intersects")
         return any(self.lanes[i].car for i in idx)
 
-    def car_lanes_in(self, window) -> tuple[np.ndarray, np.ndarray]:
+    def car_lanes_in(self, window, internal: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """(lane indices, km of each inside the window's square) of the car lanes crossing it
-        (junction-internal lanes included)."""
-        return self.car_lanes_in_region(window_square(window))
+        (``internal``: junction-internal lanes included)."""
+        return self.car_lanes_in_region(window_square(window), internal)
 
-    def car_lanes_in_region(self, region) -> tuple[np.ndarray, np.ndarray]:
-        """(lane indices, km of each inside a shapely region) of the car lanes crossing it."""
+    def car_lanes_in_region(self, region, internal: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """(lane indices, km of each inside a shapely region) of the car lanes crossing it
+        (``internal``: junction-internal lanes included)."""
         idx = self.lane_tree.query(region, predicate="intersects")
-        idx = np.sort(idx[np.isin(idx, self.car_lane_ids)])
+        idx = np.sort(idx[np.isin(idx, self.car_lane_ids if internal else self.normal_car_lane_ids)])
         return idx, shapely.length(shapely.intersection(self.lines[idx], region)) / 1000.0
 
+    @cached_property
+    def normal_car_lane_ids(self) -> np.ndarray:
+        """The car lanes of normal edges (no junction-internal lane)."""
+        return np.array([i for i in self.car_lane_ids if not self.lanes[i].internal], dtype=np.int64)
+
     def car_lane_km(self, window) -> float:
-        """Kilometres of car lane inside the window's square: the denominator of a window's density
-        in vehicles per km of car lane."""
-        return float(self.car_lanes_in(window)[1].sum())
+        """Kilometres of car lane inside the window's square (:meth:`car_lane_km_in`)."""
+        return self.car_lane_km_in(window_square(window))
 
     def car_lane_km_in(self, region) -> float:
-        """Kilometres of car lane inside a shapely region (junction-internal lanes included)."""
-        return float(self.car_lanes_in_region(region)[1].sum())
+        """Kilometres of car lane of normal edges inside a shapely region: the divisor of every density
+        in vehicles per km of car lane (a window's, a fill's, an area's), as SUMO's edgeData divides
+        (its ``density`` is per km of a normal edge, ``laneDensity`` per lane-km; junction-internal
+        lanes are not measured unless ``withInternal``). The vehicles on internal lanes still count
+        in the numerator: edgeData counts a vehicle on every lane any part of it is on, so one
+        entering a junction counts on its approach until its back has left it (MSMeanData's
+        notifyMove, docs/sumo-options.md)."""
+        return float(self.car_lanes_in_region(region, internal=False)[1].sum())
+
+    def region_density(self, region, edge_density: dict[str, float]) -> float | None:
+        """Vehicles per km of car lane in a shapely region from each normal edge's density (vehicles
+        per km of car lane; an edge not named holds none): the edges' densities weighted by their
+        car-lane km inside the region, over that km (:meth:`car_lane_km_in`); None where the region
+        has no car lane of a normal edge."""
+        idx, km = self.car_lanes_in_region(region, internal=False)
+        den = float(km.sum())
+        num = sum(edge_density.get(self.lanes[i].edge, 0.0) * k for i, k in zip(idx.tolist(), km.tolist()))
+        return num / den if den > 0 else None
 
     # ---- point queries --------------------------------------------------------------------
     def on_drivable(self, points) -> np.ndarray:

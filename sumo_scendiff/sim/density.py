@@ -92,18 +92,20 @@ def _classes(net, lane: int, tail_km: float, rest_km: float):
 
 def host_density(sim, net, window, radius: float = AUTO_RADIUS, zone: float = QUEUE_ZONE) -> float | None:
     """Vehicles per km of car lane of the host simulation's own traffic within ``radius`` m of the
-    window's centre (None where no car lane is that close), per class of road: each class's density
-    around the window (:func:`road_class`: a main road's queue says little about the side streets
-    beside it) weighted by that class's car-lane km inside the window; the lanes inside junctions are
-    a class of their own, and the last ``zone`` m of a lane before its junction one apart from the rest
-    of it (queues stand there: a window on a junction holds more of them than the roads around). A
-    window with no classed lane, or whose classes have no lane around, falls back to the plain density
-    of every car lane around."""
+    window's centre (None where no car lane is that close), per class of road: the vehicles each
+    class holds inside the window at its density around it (:func:`road_class`: a main road's queue
+    says little about the side streets beside it), per km of the window's car lane (of normal edges,
+    as every density here: Network.car_lane_km_in); the lanes inside junctions are a class of their
+    own (their vehicles count, their km not in the divisor), and the last ``zone`` m of a lane before
+    its junction one apart from the rest of it (queues stand there: a window on a junction holds more
+    of them than the roads around). A window with no classed lane, or whose classes have no lane
+    around, falls back to the plain density of every car lane around."""
     circle = shapely.Point(window.cx, window.cy).buffer(radius)
     idx = net.lane_tree.query(circle, predicate="intersects")
     idx = np.sort(idx[np.isin(idx, net.car_lane_ids)])
     tail_km, rest_km = _split(net, idx, circle, zone)
-    km = float(tail_km.sum() + rest_km.sum())
+    normal = np.array([not net.lanes[i].internal for i in idx], dtype=bool)
+    km = float((tail_km + rest_km)[normal].sum())    # the divisor: normal edges' (Network.car_lane_km_in)
     if km <= 0:
         return None
     lane_of = {net.lanes[i].id: k for k, i in enumerate(idx)}
@@ -129,9 +131,11 @@ def host_density(sim, net, window, radius: float = AUTO_RADIUS, zone: float = QU
         for key, kk in _classes(net, int(i), kt, kr):
             if kk > 0:
                 inside[key] = inside.get(key, 0.0) + float(kk)
-    if not inside or any(around.get(c, (0, 0.0))[1] <= 0 for c in inside):
+    window_km = sum(k for c, k in inside.items() if c[0] != "junction")
+    if not inside or window_km <= 0 or any(around.get(c, (0, 0.0))[1] <= 0 for c in inside):
         return plain
-    return sum(around[c][0] / around[c][1] * k for c, k in inside.items()) / sum(inside.values())
+    # the vehicles the window's classes hold at their levels around, per km of its normal car lane
+    return sum(around[c][0] / around[c][1] * k for c, k in inside.items()) / window_km
 
 
 def host_has_traffic(sim) -> bool:

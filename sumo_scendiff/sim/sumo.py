@@ -4,9 +4,11 @@ connected to ``sumo-gui`` (to watch), the same options either way.
     sim = start(SimConfig(net="networks/city.net.xml"))       # the libsumo module, started
     sim.simulationStep(); ...; sim.close()
 
-Options the seeded scenes rely on: the sublane model (``--lateral-resolution``) so generated agents
-keep their lateral offset in the lane, junction collision checks, and a short step (0.5 s: a
-vehicle at 15 m/s moves 7.5 m per step; SUMO's 1 s default hides emergency braking).
+The user's scenario runs with its own settings: its step length (SUMO's default where its
+configuration names none, :func:`step_length_for`), its lane-change model (the sublane model only
+where it sets ``lateral-resolution``) and every option it carries (``SumoScenario.options``). The
+seeding adds :data:`ADDED_OPTIONS` (a scenario's own value of one wins; ``seeding_options=False``
+leaves them out) and quiets SUMO's console (:data:`QUIET_OPTIONS`); docs/sumo-options.md says why.
 """
 from __future__ import annotations
 
@@ -21,10 +23,33 @@ class SimError(RuntimeError):
     """SUMO refused to start (bad route file, ...): the message is SUMO's first error line."""
 
 
-# what the seeding needs SUMO to do as it does (a scenario's own value is not carried)
-OWN_OPTIONS = frozenset({"step-length", "seed", "no-step-log", "duration-log.disable", "collision.check-junctions",
-                         "save-state.precision", "lateral-resolution", "begin", "end", "net-file", "route-files",
-                         "additional-files", "load-state", "no-warnings", "start", "quit-on-end", "mesosim"})
+PRODUCT_STEP_LENGTH = 0.5   # s: a bare network's step, where no scenario gives one (docs/sumo-options.md)
+SUMO_STEP_LENGTH = 1.0      # s: SUMO's own default --step-length
+
+# what the seeding adds to a scenario's options (docs/sumo-options.md says why); the scenario's own
+# value of one wins, SimConfig(seeding_options=False) (the CLIs' --no-seeding-options) leaves them out
+ADDED_OPTIONS = {"collision.check-junctions": "true", "save-state.precision": "6"}
+# SUMO's console kept quiet: no difference in what it simulates
+QUIET_OPTIONS = {"no-step-log": "true", "duration-log.disable": "true"}
+# the product's own, never a scenario's: the inputs and time window it builds, the seed of its -s,
+# and the mesoscopic model (the seeding places vehicles on lanes, which only the microscopic has)
+OWN_OPTIONS = frozenset({"step-length", "seed", "begin", "end", "net-file", "route-files", "additional-files",
+                         "load-state", "no-warnings", "start", "quit-on-end", "mesosim"})
+
+
+def step_length_for(scen, given: float | None = None) -> float:
+    """The step a run of scenario ``scen`` (sim.scenario.SumoScenario) uses: ``given`` (the user's
+    --step-length), else its configuration's, else SUMO's default where there is a user scenario
+    (a configuration or a demand: its authors ran it so), else the product's for a bare network."""
+    if given is not None:
+        return given
+    return scen.step_length or default_step_length(bool(scen.config or scen.routes))
+
+
+def default_step_length(scenario: bool) -> float:
+    """SUMO's default step for a user's scenario (``scenario``: a configuration or a demand),
+    the product's for a bare network."""
+    return SUMO_STEP_LENGTH if scenario else PRODUCT_STEP_LENGTH
 
 
 @dataclass
@@ -32,9 +57,10 @@ class SimConfig:
     net: str
     routes: tuple[str, ...] = ()
     additional: tuple[str, ...] = ()    # vTypes, TLS programs, detectors, stops (-a)
-    step_length: float = 0.5
-    lateral_resolution: float = 0.8     # sublane model; 0 = off (agents snap to lane centres)
-    check_junctions: bool = True        # collisions inside junctions count too
+    step_length: float = PRODUCT_STEP_LENGTH
+    # the sublane model (m): None, the scenario's own lateral-resolution (none: off); 0 off; > 0 on
+    lateral_resolution: float | None = None
+    seeding_options: bool = True        # ADDED_OPTIONS (a scenario's own value of one wins)
     gui: bool = False                   # sumo-gui through traci instead of libsumo
     traci: bool = False                 # sumo through traci (a separate process) instead of libsumo
     seed: int = 0
@@ -48,17 +74,21 @@ class SimConfig:
     # those the product sets itself (:data:`OWN_OPTIONS`)
     scenario_options: tuple[tuple[str, str], ...] = ()
 
+    def run_options(self) -> dict[str, str]:
+        """The options on how SUMO runs, name -> value: ours (:data:`ADDED_OPTIONS`, the sublane
+        model asked for) under the scenario's own, which win."""
+        theirs = {name: value for name, value in self.scenario_options if name not in OWN_OPTIONS}
+        if self.lateral_resolution is not None:       # the user's flag over the scenario's setting
+            theirs.pop("lateral-resolution", None)
+            if self.lateral_resolution > 0:
+                theirs["lateral-resolution"] = f"{self.lateral_resolution:g}"
+        return {**QUIET_OPTIONS, **(ADDED_OPTIONS if self.seeding_options else {}), **theirs}
+
     def args(self) -> list[str]:
         """Command line (without the binary); also what ``scenario.sumocfg`` repeats."""
-        theirs = {name: value for name, value in self.scenario_options if name not in OWN_OPTIONS}
-        a = ["-n", os.path.abspath(self.net), "--step-length", f"{self.step_length:g}",
-             "--seed", str(self.seed), "--no-step-log", "true", "--duration-log.disable", "true",
-             "--collision.check-junctions", "true" if self.check_junctions else "false",
-             "--time-to-teleport", theirs.pop("time-to-teleport", "300"), "--save-state.precision", "6"]
-        for name, value in theirs.items():
+        a = ["-n", os.path.abspath(self.net), "--step-length", f"{self.step_length:g}", "--seed", str(self.seed)]
+        for name, value in self.run_options().items():
             a += [f"--{name}", value]
-        if self.lateral_resolution > 0:
-            a += ["--lateral-resolution", f"{self.lateral_resolution:g}"]
         if self.routes:
             a += ["-r", ",".join(os.path.abspath(r) for r in self.routes)]
         if self.additional:
@@ -73,6 +103,35 @@ class SimConfig:
         """The options as a name -> value dict (for writing a .sumocfg)."""
         a = self.args()
         return {a[i].lstrip("-"): a[i + 1] for i in range(0, len(a) - 1, 2)}
+
+
+def add_arguments(p) -> None:
+    """The CLIs' (run, fill) flags on how SUMO runs a scenario (:func:`settings` reads them)."""
+    p.add_argument("--step-length", type=float, default=None, metavar="S",
+                   help="SUMO's step (s); default: the configuration's (-c), else SUMO's 1 s with a scenario "
+                        f"(-c/-r), else {PRODUCT_STEP_LENGTH:g} on a bare network")
+    p.add_argument("--lateral-resolution", type=float, default=None, metavar="M",
+                   help="SUMO's sublane model at this resolution (m; 0: off); default: the scenario's own "
+                        "(off where it sets none)")
+    p.add_argument("--no-seeding-options", dest="seeding_options", action="store_false",
+                   help="leave out the options the seeding adds (" + ", ".join(ADDED_OPTIONS)
+                        + "): SUMO runs with the scenario's options and its own defaults")
+
+
+def settings_problem(o) -> str | None:
+    """What is wrong with the flags of :func:`add_arguments` (one line), or None."""
+    if o.step_length is not None and not o.step_length > 0:
+        return f"--step-length must be > 0, got {o.step_length:g}"
+    if o.lateral_resolution is not None and not o.lateral_resolution >= 0:
+        return f"--lateral-resolution must be >= 0 (0: off), got {o.lateral_resolution:g}"
+    return None
+
+
+def settings(o, scen) -> dict:
+    """SimConfig's keyword arguments on how SUMO runs, from the flags of :func:`add_arguments` and
+    the user's scenario (its step length, its options)."""
+    return {"step_length": step_length_for(scen, o.step_length), "scenario_options": scen.options,
+            "lateral_resolution": o.lateral_resolution, "seeding_options": o.seeding_options}
 
 
 def has_display() -> bool:

@@ -26,7 +26,7 @@ from ..generation.config import GenerationConfig, SettingError
 KEYS = {"name": str, "networks": list, "locations": list, "token_sets": list, "p_mask": list,
         "seeds": (list, int), "rollout": float, "step_length": float, "replay": float, "scenarios": list,
         "density": list, "vehicles": list}
-SWEEP_DEFAULTS = {"rollout": 60.0, "step_length": 0.5, "replay": 0.0}
+SWEEP_DEFAULTS = {"rollout": 60.0, "replay": 0.0}   # step_length: per network, sim.sumo.default_step_length
 NET_KEYS = {"net": str, "routes": str, "begin": (int, float, str)}
 LOC_KEYS = {"auto": int, "center": list, "yaw": float}
 SET_KEYS = {"name": str, "frame": str, "p_mask": float, "agents": list, "vary": dict}
@@ -87,7 +87,7 @@ class Spec:
     token_sets: dict[str, Any]   # name -> tokenfile.TokenSpec
     p_masks: list[float | None]
     seeds: list[int]
-    settings: dict[str, float] = field(default_factory=dict)   # rollout, step_length, replay
+    settings: dict[str, float] = field(default_factory=dict)   # rollout, replay, step_length if given
     generation: GenerationConfig = field(default_factory=GenerationConfig)
     explicit: list[dict] | None = None
     digest: str = ""
@@ -108,7 +108,10 @@ class Spec:
                                             self.p_masks, self.levels, self.seeds))
         if not combos:
             raise SpecError(f"{self.source}: the sweep is empty (a list in the cross product is empty)")
-        return [Scenario(f"s{k:04d}", net, loc, ts, pm, seed, **{**SWEEP_DEFAULTS, **self.settings},
+        from ..sim.sumo import default_step_length
+        return [Scenario(f"s{k:04d}", net, loc, ts, pm, seed,
+                         **{**SWEEP_DEFAULTS, "step_length": default_step_length(bool(self.networks[net].routes)),
+                            **self.settings},
                          generation=self.generation, density=level[0], vehicles=level[1])
                 for k, (net, loc, ts, pm, level, seed) in enumerate(combos)]
 
@@ -274,8 +277,10 @@ def parse_spec(data: dict, source: str, here: str = ".") -> Spec:
         raise _err(source, "seeds", f"must be integers (or a count), got {seeds!r}")
     levels = _levels(source, data)
     settings = {k: float(data.get(k, v)) for k, v in SWEEP_DEFAULTS.items()}
+    if "step_length" in data:   # else the network's: SUMO's default with a demand (sim/sumo.py)
+        settings["step_length"] = float(data["step_length"])
     for key, ok, rule in (("rollout", settings["rollout"] >= 0, ">= 0"),
-                          ("step_length", settings["step_length"] > 0, "> 0"),
+                          ("step_length", settings.get("step_length", 1.0) > 0, "> 0"),
                           ("replay", 0 <= settings["replay"] <= 2, "in [0, 2]")):
         if not ok:
             raise _err(source, key, f"must be {rule}, got {settings[key]!r}")
