@@ -81,6 +81,8 @@ def get_options(args=None):
     again.add_argument("--resume", action="store_true",
                        help="continue an interrupted run in -o (same command): its complete scenes are "
                             "kept, the missing ones written as the whole run would have written them")
+    p.add_argument("--export", choices=("openscenario",), default=None,
+                   help="also write each scene as OpenSCENARIO + OpenDRIVE (docs/openscenario.md)")
     p.add_argument("-v", "--verbose", action="store_true")
     GenerationConfig.add_arguments(p)
     o = p.parse_args(args)
@@ -259,7 +261,7 @@ def run(o) -> dict:
         raise RunError(str(e)) from None
     first = span[0] if span else None
     edge_data = _edge_data(o, net)
-    spec = load_tokens(o.tokens) if o.tokens else None
+    spec = load_tokens(o.tokens, net=net) if o.tokens else None
     kept = _check_output(o)
     gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig.from_options(o))
     # with demand SUMO starts at the configuration's begin, else the demand's first departure (before
@@ -360,6 +362,7 @@ def _interrupt(signum, frame):
 
 def main(o) -> int:
     from .core.outputs import OutputError, claim
+    from .export.opendrive import ExportError
     from .map.locations import LocationError
     from .map.network import NetworkError
     from .model.checkpoint import CheckpointError
@@ -369,8 +372,11 @@ def main(o) -> int:
     try:
         with claim(o.out):   # first of all: a second run into -o stops here, before any work
             summary = run(o)
+            if o.export:
+                from .export.batch import export_after
+                export_after(o.out, [r["scene"] for r in summary["scenes"]], o.export)
     except (RunError, NetworkError, CheckpointError, SimError, TokenFileError, LocationError,
-            FileExistsError, OutputError) as e:
+            FileExistsError, OutputError, ExportError) as e:
         o.parser.exit(2, f"{PROG}: error: {e}\n")
     except KeyboardInterrupt:
         done = sum(os.path.isdir(os.path.join(o.out, f"scene_{k:03d}")) for k in range(o.scenes))

@@ -149,7 +149,7 @@ ERRORS = [
      "agents[0]: token feature 'speed' must be >= 0 m/s, got -1.0"),
     ("t.json", {"frame": "world", "agents": [{"y": 2.0}]}, "features x and y (position) must be given together"),
     ("t.toml", "[[agents]]\nheading = inf\n", "agents[0]: token feature 'heading' must be finite"),
-    ("t.yaml", "p_mask: 0.5\n", "unknown token file type '.yaml' (expected .toml or .json)"),
+    ("t.yaml", "p_mask: 0.5\n", "unknown token file type '.yaml' (expected .toml, .json or .xosc)"),
     ("t", "p_mask = 0.5\n", "unknown token file type '(none)'"),
 ]
 

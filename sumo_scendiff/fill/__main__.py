@@ -68,6 +68,8 @@ def get_options(args=None):
                         "a new local instance); they read the network and checkpoint at the same paths")
     p.add_argument("-o", "--output-dir", dest="out", default="filled")
     p.add_argument("--force", action="store_true", help="replace an existing -o")
+    p.add_argument("--export", choices=("openscenario",), default=None,
+                   help="also write the fill as OpenSCENARIO + OpenDRIVE, its Init (docs/openscenario.md)")
     p.add_argument("-v", "--verbose", action="store_true")
     GenerationConfig.add_arguments(p)
     # bad input is one line naming the flag (argparse would print its usage first)
@@ -264,6 +266,7 @@ def _interrupt(signum, frame):
 def main(o) -> int:
     from ..core.outputs import OutputError, claim, clean_stale, partial_path
     from ..core.pool import EngineError
+    from ..export.opendrive import ExportError
     from ..map.network import NetworkError
     from ..model.checkpoint import CheckpointError
     from ..sim.sumo import SimError
@@ -289,7 +292,11 @@ def main(o) -> int:
                 shutil.rmtree(out) if os.path.isdir(out) else os.remove(out)
             owner.rename(out)   # complete: only now the folder has its name
             complete = True
-    except (FillError, NetworkError, CheckpointError, SimError, OutputError, InflowError, EngineError) as e:
+            if o.export:
+                from ..export.batch import export_after
+                export_after(os.path.dirname(out), [os.path.basename(out)], o.export)
+    except (FillError, NetworkError, CheckpointError, SimError, OutputError, InflowError, EngineError,
+            ExportError) as e:
         _abandon(owner)
         o.parser.exit(2, f"{PROG}: error: {e}\n")
     except KeyboardInterrupt:

@@ -35,6 +35,8 @@ def get_options(args=None):
     p.add_argument("--resume", action="store_true", help="continue the sweep in --out")
     p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
     p.add_argument("--no-pictures", action="store_true")
+    p.add_argument("--export", choices=("openscenario",), default=None,
+                   help="also write each scenario as OpenSCENARIO + OpenDRIVE (docs/openscenario.md)")
     p.add_argument("-v", "--verbose", action="store_true")
     o = p.parse_args(args)
     if o.workers < 1:
@@ -86,6 +88,7 @@ def prepare_out(o, spec, scenarios) -> list:
 
 def main(o) -> int:
     from ..core.outputs import OutputError, claim
+    from ..export.opendrive import ExportError
     from ..tokens.file import TokenFileError
     from .spec import SpecError, load_spec
     t0 = time.perf_counter()
@@ -94,7 +97,7 @@ def main(o) -> int:
         scenarios = spec.scenarios()
         with claim(o.out):
             return _sweep(o, spec, scenarios, t0)
-    except (SpecError, TokenFileError, SweepError, OutputError) as e:
+    except (SpecError, TokenFileError, SweepError, OutputError, ExportError) as e:
         o.parser.exit(2, f"{PROG}: error: {e}\n")
 
 
@@ -125,6 +128,9 @@ def _sweep(o, spec, scenarios, t0) -> int:
     from ..core.outputs import clean_stale
     clean_stale(o.out)
     rows = write_index(o.out, scenarios)
+    if o.export:
+        from ..export.batch import export_after
+        export_after(o.out, [r["id"] for r in rows if r["status"] == "ok"], o.export)
     pictures = [] if o.no_pictures else [contact_sheet(o.out, rows), stats_plot(o.out, rows)]
     ok = sum(r["status"] == "ok" for r in rows)
     failed = [r for r in rows if r["status"] == "failed"]

@@ -109,13 +109,20 @@ def _world_to_window(agent: dict, window) -> dict:
     return a
 
 
-def load_tokens(path: str | Path) -> TokenSpec:
-    """Read and check a ``.toml`` or ``.json`` token file."""
+def load_tokens(path: str | Path, net=None) -> TokenSpec:
+    """Read and check a ``.toml`` or ``.json`` token file, or an OpenSCENARIO ``.xosc`` whose Init
+    gives world-frame tokens (tokens/xosc.py; positions checked to lie on ``net`` when given)."""
     source = str(path)
     p = Path(path)
     suffix = p.suffix.lower()
+    if suffix == ".xosc":
+        from .xosc import XoscError, xosc_tokens
+        try:
+            return parse_tokens(xosc_tokens(source, net), source)
+        except XoscError as e:
+            raise TokenFileError(str(e)) from None
     if suffix not in (".toml", ".json"):
-        raise _error(source, f"unknown token file type {p.suffix or '(none)'!r} (expected .toml or .json)")
+        raise _error(source, f"unknown token file type {p.suffix or '(none)'!r} (expected .toml, .json or .xosc)")
     try:
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
