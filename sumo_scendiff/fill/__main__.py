@@ -188,6 +188,12 @@ def _amount(o, net, gen, tiles, routes, begin, additional=(), options=()) -> tup
     return None, False, {"kind": "prior", "p_mask": o.p_mask, "applied": False}, None
 
 
+def _phase(progress: bool, text: str) -> None:
+    """One line on stderr as a phase without a progress bar of its own begins (with progress)."""
+    if progress:
+        print(f"fill: {text} ...", file=sys.stderr, flush=True)
+
+
 def run(o, folder: str) -> dict:
     import shapely
 
@@ -212,6 +218,7 @@ def run(o, folder: str) -> dict:
     except ScenarioError as e:
         raise FillError(str(e)) from None
     o.step_length = step_length_for(scen, o.step_length)   # the scenario's (sim/sumo.py), the flag over it
+    _phase(progress, f"loading {os.path.basename(scen.net)} and the model")
     net = Network.load(scen.net)
     routes = list(scen.routes)
     if o.demand_level_only and not routes:
@@ -233,6 +240,8 @@ def run(o, folder: str) -> dict:
     gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig.from_options(o))
     # started here, the workers load their model while this process prepares the rest
     with tile_engine(net, gen, o.workers, o.ray_address, o.checkpoint) as engine:
+        if routes:
+            _phase(progress, f"routing the demand (duarouter) and estimating its vehicles at {begin:g} s")
         targets, applied, source, demand = _amount(o, net, gen, tiles, routes, begin, scen.additional, scen.options)
         if applied and targets is not None:
             # the counts the tiles' cores keep (generator: round(D x car-lane km)) add up to the total
@@ -255,6 +264,8 @@ def run(o, folder: str) -> dict:
                "ray_address": o.ray_address,
                "note": "the fill does not depend on the workers: each tile's noise is its own and the "
                        "model calls are cut from the plan alone"}
+    _phase(progress, "seeding the tiles into SUMO, then writing the state and the portable start (each loaded "
+                     "once in SUMO)" + ("" if routes else " and the inflow (the filled network driven on to measure it)"))
     doc = write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing, progress, workers)
     return doc
 

@@ -9,13 +9,16 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..sim.export import fit_departures, write_sumocfg
+from ..sim.export import write_sumocfg
+from ..sim.stops import place_ends
 from ..sim.sumo import close
 from .en_route import write_vtypes
 from .picture import draw_fill, edge_density
 from .seed import (
+    admit_start,
     inflow_sample,
     probe_speed,
+    refuse_at_load,
     seed_fill,
     write_inflow,
     write_start_routes,
@@ -108,8 +111,10 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
                   routes=[os.path.join(folder, "start.rou.xml")] + onward)
     # the portable start's box centres where the state has them (a vehicle on a curve departs with
     # its lane's heading, which swings its box about its front)
-    refitted = fit_departures(os.path.join(folder, "start.sumocfg"), os.path.join(folder, "start.rou.xml"),
-                              {a["vehicle"]: (a["x"], a["y"]) for a in agents if a["vehicle"] in set(ids)})
+    # and both starts load in SUMO: a vehicle it refuses is taken out alone (seed.admit_start)
+    refitted, refused = admit_start(folder, {a["vehicle"]: (a["x"], a["y"]) for a in agents if a["vehicle"] in set(ids)},
+                                    place_ends(cfg.additional, net))
+    refuse_at_load(agents, refused)
 
     seeded = [a for a in agents if a["vehicle"] is not None]
     rows = np.array([[a[k] for k in ("x", "y", "heading", "length", "width", "speed")] for a in seeded]

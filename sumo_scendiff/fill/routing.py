@@ -55,6 +55,7 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
     ``departSpeed`` departs at ``depart_speed`` (SUMO's ``default.departspeed``: the scenario's, else
     the installed SUMO's); ``junction_taz``: the scenario's ``junction-taz`` (trips between
     junctions). Raises :class:`RoutingError`."""
+    from ..core.sumo_log import echo, first_error
     from ..core.tools import sumo_binary, sumo_defaults
     if depart_speed is None:
         depart_speed = sumo_defaults().get("default.departspeed", "0")
@@ -74,7 +75,8 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
             args += ["--end", f"{until + 1.0:.3f}"]
         # duarouter 1.28 never returns from a probability flow that began before its --begin: with
         # one, the departures before ``since`` are routed too and left out here
-        if since > float("-inf") and not any(_has_probability_flow(p) for p in route_files):
+        # (and from a --begin before 0 warns that there is no route input, routing them all the same)
+        if since > 0 and not any(_has_probability_flow(p) for p in route_files):
             args += ["--begin", f"{since:.3f}"]
         if additional:
             args += ["-a", ",".join(os.path.abspath(p) for p in additional)]
@@ -84,12 +86,14 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
             raise RoutingError(f"duarouter did not finish routing the demand in {ROUTER_TIMEOUT_S:g} s") from None
         if done.returncode != 0 or not os.path.exists(out):
             lines = (done.stderr or done.stdout).strip().splitlines() or ["no message"]
-            # its first error is the cause ("Quitting (on error)." comes last)
-            cause = next((ln.removeprefix("Error: ") for ln in lines if ln.startswith("Error:")), lines[-1])
+            cause = first_error(done.stderr or done.stdout) or lines[-1]
             raise RoutingError(f"duarouter could not route the demand: {cause}")
         unknown = next((ln for ln in done.stderr.splitlines() if _UNKNOWN.search(ln)), None)
         if unknown:     # duarouter goes on with a default; SUMO refuses to load such a demand
             raise RoutingError(f"{unknown.removeprefix('Warning: ').rstrip('.')} (SUMO refuses such a demand)")
+        # what it could not route, and why, each kind of warning once (a flaw repeated over a demand
+        # would otherwise be thousands of lines)
+        echo(done.stderr, prefix="duarouter: ", warnings_only=True)
         departures, triggered = _read(out, since, until, depart_speed, _repeats(route_files))
         return departures, triggered + sum("has no valid route" in line for line in done.stderr.splitlines())
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..sim.export import write_routes
 from ..sim.seeding import Seeder
-from ..sim.stops import add_stops
+from ..sim.stops import add_stops, drop_passed
 from .tiles import scene_rows
 from ..sim.sumo import start
 
@@ -64,6 +64,13 @@ FRINGE_LOAD = 0.5
 REACH = 0.9
 
 
+# a refusal SUMO names one vehicle in ("busStop 's' for vehicle 'v' ...", "Vehicle 'v' ...")
+_NAMED = re.compile(r"[Vv]ehicle '([^']+)'")
+# vehicles taken out one by one, each named by SUMO's refusal to load the folder, before the refusal
+# is taken for the whole input's (then it is the user's to see, one line)
+MAX_REFUSED_AT_LOAD = 20
+
+
 class InflowError(RuntimeError):
     """randomTrips.py could not make the inflow (one line: its last message)."""
 
@@ -74,7 +81,19 @@ def seed_fill(result, net, cfg, seed: int = 0, quiet: bool = True, progress: boo
               demand: list | None = None):
     """Start SUMO (``cfg``), seed every tile, step once, verify and settle. Returns (sim, reports
     per tile index). ``demand``: the placed demand vehicles the tiles were given (plan.py): an agent
-    drawn for one drives the rest of its route, with its vType where ``cfg`` loads it."""
+    drawn for one drives the rest of its route, with its vType where ``cfg`` loads it. What SUMO
+    says meanwhile (with ``quiet`` False: a warning for each destination its router finds no way
+    to) is shown after, each kind once with its count (core.sumo_log)."""
+    from ..core.sumo_log import caught_stderr, echo
+    with caught_stderr() as said:
+        try:
+            out = _seed_all(result, net, cfg, seed, quiet, progress, demand)
+        finally:
+            echo(said())
+    return out
+
+
+def _seed_all(result, net, cfg, seed, quiet, progress, demand):
     from tqdm import tqdm
     sim = start(cfg, quiet=quiet)
     seeder = Seeder(sim, net, prefix="fill", seed=seed)
@@ -82,7 +101,7 @@ def seed_fill(result, net, cfg, seed: int = 0, quiet: bool = True, progress: boo
     # the vehicles seeded so far, world rows (x, y, heading, length, width, speed) where the seeder put
     # them: a tile's pins are its neighbours as drawn, but the seeder moves some (a nose over the stop
     # line pulled back, a car waiting inside a junction on red to its stop line) and refuses others
-    seeded = np.zeros((0, 6))
+    seeded, stopping = np.zeros((0, 6)), []
     for k in tqdm(result.order, desc="seeding", unit=" tile", disable=not progress):
         scene = result.scenes[k]
         if scene is None or not len(scene):
@@ -102,16 +121,31 @@ def seed_fill(result, net, cfg, seed: int = 0, quiet: bool = True, progress: boo
         reports[k] = seeder.seed(scene, others=(others, pins[:, 5] if len(pins) else np.zeros(0)),
                                  routes=[v and v.edges for v in mine] if mine else None,
                                  types=[v and v.type for v in mine] if mine else None)
-        for a, v in enumerate(mine or ()):   # the stops its demand vehicle still has to make
-            if v is not None and v.stops and reports[k].ids.get(a) is not None:
-                add_stops(sim, reports[k].ids[a], v.stops)
+        stopping += _give_stops(sim, reports[k], mine)
         seeded = np.vstack([seeded, scene_rows(scene)[sorted(reports[k].ids)]])
     sim.simulationStep()
     for rep in reports.values():
         seeder.verify(rep)
     for rep in reports.values():
         seeder.settle(rep)
+    for vid in stopping:     # verify and settle move some: a stop they moved past is passed
+        drop_passed(sim, vid)
     return sim, reports
+
+
+def _give_stops(sim, rep, mine) -> list[str]:
+    """The stops each seeded vehicle's demand vehicle (``mine``, per agent) still has to make, but
+    those behind where it stands on its lane (sim.stops); returns the vehicles given any."""
+    out = []
+    for a, v in enumerate(mine or ()):
+        vid = rep.ids.get(a)
+        if v is None or not v.stops or vid is None:
+            continue
+        lane = rep.lanes.get(a)      # (normal lane, front position); none inside a junction
+        at = (lane[0].rpartition("_")[0], lane[1]) if lane else None
+        if add_stops(sim, vid, v.stops, at=at):
+            out.append(vid)
+    return out
 
 
 def write_start_routes(path: str, sim, ids, net, begin: float) -> dict[str, bool]:
@@ -126,6 +160,106 @@ def write_start_routes(path: str, sim, ids, net, begin: float) -> dict[str, bool
         with open(path, "w") as f:
             f.write(re.sub(r' depart="0" ', f' depart="{begin:g}" ', text))
     return exact
+
+
+def load_each(load, vehicles, remove) -> dict[str, str]:
+    """Call ``load()`` (a SUMO start on the folder's files) until SUMO takes them: each time it
+    refuses naming one of ``vehicles``, ``remove(vid)`` takes that vehicle out and it is tried again
+    (at most :data:`MAX_REFUSED_AT_LOAD` times); returns vehicle id -> SUMO's reason. One vehicle
+    does not sink the folder; a refusal that names none of them is the input's and is raised."""
+    from ..sim.sumo import SimError
+    refused: dict[str, str] = {}
+    while True:
+        try:
+            load()
+            return refused
+        except SimError as e:
+            found = _NAMED.search(str(e))
+            vid = found.group(1) if found else None
+            if vid not in vehicles or vid in refused or len(refused) >= MAX_REFUSED_AT_LOAD:
+                raise
+            refused[vid] = str(e).removeprefix("SUMO refused to start: ")
+            remove(vid)
+
+
+def remove_vehicle(vid: str, routes_path: str | None = None, state_path: str | None = None) -> None:
+    """Take vehicle ``vid`` out of a portable start's route file (its vehicle and its route) and out
+    of a saved state (its vehicle, and its place in its lane's list of vehicles)."""
+    import gzip
+    import xml.etree.ElementTree as ET
+    for path in (routes_path, state_path):
+        if not path:
+            continue
+        opener = gzip.open if path.endswith(".gz") else open
+        with opener(path, "rb") as f:
+            tree = ET.parse(f)
+        root = tree.getroot()
+        for el in list(root):
+            if el.tag == "vehicle" and el.get("id") == vid or el.tag == "route" and el.get("id") == f"{vid}_replay":
+                root.remove(el)
+        for lst in root.iter("vehicles"):      # a state's <lane><vehicles value="a b"/></lane>
+            ids = lst.get("value", "").split()
+            if vid in ids:
+                lst.set("value", " ".join(v for v in ids if v != vid))
+        with opener(path, "wb") as f:
+            tree.write(f, encoding="UTF-8", xml_declaration=True)
+
+
+def admit_start(folder: str, poses: dict, ends: dict) -> tuple[int, dict[str, str]]:
+    """The folder's two starts, made to load in SUMO: the portable start's stops SUMO would refuse
+    pruned (sim.stops.prune_file_stops; ``ends``: the stopping places), its departures fitted to the
+    box centres (``poses``: vehicle id -> x, y; sim.export.fit_departures), and the state loaded
+    and stepped once; a vehicle SUMO still refuses at either is taken out of both
+    (:func:`load_each`). Returns (departures fitted, vehicle id -> SUMO's reason per one taken out)."""
+    from ..sim.export import fit_departures
+    from ..sim.stops import prune_file_stops
+    from ..sim.sumo import close, start_config
+    routes, state = os.path.join(folder, "start.rou.xml"), os.path.join(folder, "state.xml.gz")
+    prune_file_stops(routes, ends)
+    fitted = [0]
+
+    def fit():
+        fitted[0] = fit_departures(os.path.join(folder, "start.sumocfg"), routes, poses)
+
+    def step_state():
+        sim = start_config(os.path.join(folder, "scenario.sumocfg"))
+        try:
+            sim.simulationStep()
+        finally:
+            close(sim)
+
+    def remove(vid):
+        remove_vehicle(vid, routes, state)
+    refused = load_each(lambda: _caught(fit), set(poses), remove)
+    prune_file_stops(routes, ends)   # a departure the fit moved past its stop's end
+    refused.update(load_each(lambda: _caught(step_state), set(poses) - set(refused), remove))
+    return fitted[0], refused
+
+
+def _caught(run) -> None:
+    """``run()`` (SUMO started on the folder, its first step) with SUMO's console caught: what
+    fails at the first step (a route it cannot drive: libsumo's FatalTraCIError says nothing) is a
+    SimError with SUMO's first error, as a refusal to start is."""
+    from ..core.sumo_log import caught_stderr, echo, first_error
+    from ..sim.sumo import SimError
+    with caught_stderr() as text:
+        try:
+            run()
+        except SimError:
+            raise
+        except Exception as e:   # libsumo's FatalTraCIError / TraCIException
+            raise SimError(f"SUMO refused to start: {first_error(text()) or str(e) or type(e).__name__}") from None
+        said = text()
+    echo(said)
+
+
+def refuse_at_load(agents: list[dict], refused: dict[str, str]) -> None:
+    """fill.json's agents whose vehicle SUMO refused when loading the folder (:func:`admit_start`):
+    refused, with SUMO's reason, and no vehicle."""
+    for a in agents:
+        why = refused.get(a["vehicle"]) if a["vehicle"] is not None else None
+        if why is not None:
+            a.update(status="refused", reason=f"SUMO refused it when loading the folder: {why}", vehicle=None)
 
 
 def fringe_sources(net) -> list[str]:
@@ -339,5 +473,5 @@ def write_inflow(path: str, net, vehicles: int, begin: float, seed: int, speed: 
     return out
 
 
-__all__ = ["MAX_DEPART_DELAY_S", "PROBE_SECONDS", "SETTLE_SECONDS", "InflowError", "Probe", "fringe_capacity", "fringe_sources", "inflow_sample", "probe_speed",
+__all__ = ["MAX_DEPART_DELAY_S", "MAX_REFUSED_AT_LOAD", "PROBE_SECONDS", "admit_start", "load_each", "refuse_at_load", "remove_vehicle", "SETTLE_SECONDS", "InflowError", "Probe", "fringe_capacity", "fringe_sources", "inflow_sample", "probe_speed",
            "route_metres", "seed_fill", "trip_seconds", "write_inflow", "write_start_routes"]

@@ -168,28 +168,19 @@ def start(cfg: SimConfig, quiet: bool = True):
 
 def _start_libsumo(args: list[str]):
     """libsumo, started in-process; what SUMO writes to the terminal while loading (its process's
-    stderr) is caught, so that a refusal is one line: SUMO's first error."""
-    import tempfile
-
+    stderr) is caught, so that a refusal is one line: SUMO's first error; its warnings (when not
+    --no-warnings) still reach the terminal, each kind once with its count (core.sumo_log)."""
     import libsumo
-    with tempfile.TemporaryFile(mode="w+", errors="replace") as caught:
-        sys.stderr.flush()
-        saved = os.dup(2)
-        os.dup2(caught.fileno(), 2)
+
+    from ..core.sumo_log import caught_stderr, echo, first_error
+    with caught_stderr() as text:
         try:
             libsumo.start([sumo_binary("sumo")] + args)
         except Exception as e:  # libsumo.TraCIException: "Process Error"; the cause is in what SUMO wrote
-            os.dup2(saved, 2)
-            caught.seek(0)
-            errors = [ln.strip() for ln in caught if ln.startswith("Error:")]
-            cause = errors[0].removeprefix("Error:").strip() if errors else str(e).strip() or type(e).__name__
+            cause = first_error(text()) or str(e).strip() or type(e).__name__
             raise SimError(f"SUMO refused to start: {cause}") from None
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-        caught.seek(0)
-        for line in caught:          # its warnings (when not --no-warnings) still reach the terminal
-            sys.stderr.write(line)
+        said = text()
+    echo(said)
     return libsumo
 
 
