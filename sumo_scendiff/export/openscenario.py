@@ -126,10 +126,16 @@ def _story(xosc, story: str, groups: list) -> object:
     return s
 
 
+def _network_name(doc: dict) -> str:
+    """scene.json's network {"path", "name"}; fill.json's, its path."""
+    net = doc.get("network") or "sumo"
+    return net.get("name", "sumo") if isinstance(net, dict) else os.path.basename(str(net)).split(".net.xml")[0]
+
+
 def _header_properties(xosc, doc: dict, info: dict, begin: float):
     props = xosc.Properties()
     for name, value in (("generator", "sumo-scendiff"), ("scene", doc.get("scene", "fill")),
-                        ("sumo_network", (doc.get("network") or {}).get("name", "")),
+                        ("sumo_network", _network_name(doc)),
                         ("sumo_begin_time", f"{begin:g}"), ("reference_point", "box centre on the ground"),
                         ("opendrive_offset_x", f"{info['offset'][0]:g}"), ("opendrive_offset_y", f"{info['offset'][1]:g}"),
                         ("sumo_net_offset_x", f"{info['net_offset'][0]:g}"), ("sumo_net_offset_y", f"{info['net_offset'][1]:g}"),
@@ -160,7 +166,7 @@ def build_scenario(doc: dict, rep: Replay, info: dict, xodr_name: str = "scenari
             if len(path) > 1:
                 stories[story].append(_follow(xosc, name, story, path, offset))
                 ends.append(path[-1][0])
-    played = SUMO_STORY if stories[SUMO_STORY] else GENERATED_STORY
+    played = SUMO_STORY if stories[SUMO_STORY] else GENERATED_STORY if stories[GENERATED_STORY] else "none"
     params = xosc.ParameterDeclarations()
     params.add_parameter(xosc.Parameter("Replay", xosc.ParameterType.string, played))
     stop = xosc.ValueTrigger("end", 0, xosc.ConditionEdge.rising,
@@ -170,7 +176,7 @@ def build_scenario(doc: dict, rep: Replay, info: dict, xodr_name: str = "scenari
         if groups:
             board.add_story(_story(xosc, story, groups))
     when = datetime.datetime.fromtimestamp(0, datetime.timezone.utc)   # same scene, same file
-    scenario = xosc.Scenario(f"{(doc.get('network') or {}).get('name', 'sumo')} {doc.get('scene', 'fill')}",
+    scenario = xosc.Scenario(f"{_network_name(doc)} {doc.get('scene', 'fill')}",
                              "sumo-scendiff", params, entities, board, xosc.RoadNetwork(xodr_name),
                              xosc.Catalog(), osc_minor_version=OSC_MINOR, creation_date=when,
                              header_properties=_header_properties(xosc, doc, info, rep.begin))
