@@ -128,6 +128,19 @@ def test_bad_input_one_line_exit_2(case, expect, cross_net, demand, tmp_path, ca
     assert not (out / "scene_000").exists() and not (out / "run.json").exists()
 
 
+@pytest.mark.parametrize("flag, value, expect", [("--step-length", "0", "--step-length must be > 0"),
+                                                  ("--lateral-resolution", "-0.5", "--lateral-resolution must be >= 0")])
+def test_sumo_settings_are_checked(flag, value, expect, cross_net, tmp_path, capsys):
+    code, _, err = _run(["-n", cross_net, "--center", "0,0", flag, value, "-o", str(tmp_path / "o")], capsys)
+    assert code == 2 and expect in err.splitlines()[-1] and not (tmp_path / "o").exists()
+
+
+def test_the_sumo_settings_flags_reach_the_configuration(cross_net):
+    o = run_cli.get_options(["-n", cross_net, "--lateral-resolution", "0.4", "--no-seeding-options"])
+    assert o.lateral_resolution == 0.4 and o.seeding_options is False and o.step_length is None
+    assert run_cli.get_options(["-n", cross_net]).seeding_options is True
+
+
 def test_negative_guidance_is_a_usage_error(cross_net, tmp_path, capsys):
     code, _, err = _run(["-n", cross_net, "--center", "0,0", "--guidance", "-1", "-o", str(tmp_path / "o")], capsys)
     assert code == 2 and "--guidance: must be >= 0" in err and not (tmp_path / "o").exists()

@@ -75,6 +75,23 @@ def test_the_flags_are_checked_and_read(cross_net, tmp_path):
     assert SimConfig(net=scen.net, **kw).options()["lateral-resolution"] == "0.6"
 
 
+def test_a_sweeps_step_is_sumos_default_with_demand(cross_net, tmp_path):
+    """A sweep network entry with routes runs at SUMO's 1 s, a bare one at the product's 0.5 s;
+    the spec's step_length wins for both."""
+    from sumo_scendiff.sweep.spec import SpecError, load_spec
+    (tmp_path / "d.rou.xml").write_text('<routes><flow id="f" begin="0" end="300" period="4" from="wc" to="ce"/></routes>')
+    nets = (f'networks = [{{net = "{cross_net}"}}, {{net = "{cross_net}", routes = "d.rou.xml"}}]\n'
+            'locations = [{center = [0.0, 0.0]}]\n')
+    spec = tmp_path / "s.toml"
+    spec.write_text(nets)
+    assert sorted({s.step_length for s in load_spec(str(spec)).scenarios()}) == [PRODUCT_STEP_LENGTH, SUMO_STEP_LENGTH]
+    spec.write_text(nets + "step_length = 0.2\n")
+    assert {s.step_length for s in load_spec(str(spec)).scenarios()} == {0.2}
+    spec.write_text(nets + "step_length = 0\n")
+    with pytest.raises(SpecError, match="step_length: must be > 0"):
+        load_spec(str(spec))
+
+
 def test_sumo_runs_the_scenarios_own_settings(cross_net, tmp_path):
     """What SUMO itself reports it runs with: the configuration's lateral resolution, its junction
     collision setting over the seeding's, SUMO's default step."""
