@@ -131,3 +131,17 @@ def test_the_exported_configuration_repeats_the_users_settings(cross_net, tmp_pa
     replay = subprocess.run([os.path.join(sumo.SUMO_HOME, "bin", "sumo"), "-c", str(exported), "-e",
                              f"{float(opts['begin']) + 5:g}", "--no-step-log"], capture_output=True, text=True)
     assert replay.returncode == 0, replay.stderr
+
+
+@pytest.mark.slow
+def test_a_fill_keeps_the_scenarios_settings(cross_net, tmp_path):
+    """fill -c: the saved state's and the portable start's configurations run at SUMO's 1 s with the
+    scenario's options, and --lateral-resolution asks for the sublane model."""
+    from sumo_scendiff.fill.__main__ import get_options, main
+    cfg = _config(tmp_path, cross_net, processing='<time-to-teleport value="-1"/>')
+    out = tmp_path / "filled"
+    assert main(get_options(["-c", cfg, "--begin", "60", "--lateral-resolution", "0.4", "-o", str(out)])) == 0
+    for name in ("scenario.sumocfg", "start.sumocfg"):
+        opts = {el.tag: el.get("value") for el in ET.parse(out / name).getroot()}
+        assert opts["step-length"] == "1" and opts["time-to-teleport"] == "-1", name
+        assert opts["lateral-resolution"] == "0.4", name
