@@ -19,8 +19,6 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-import shapely
-
 from .network import window_square
 
 
@@ -50,8 +48,8 @@ class EdgeData:
         if not os.path.isfile(path):
             raise EdgeDataError(f"{path}: no such file")
         lanes = _lanes_per_edge(net) if net is not None else {}
-        car_lanes = {ln.id: shapely.length(line) / 1000.0 for ln, line in zip(net.lanes, net.lines)
-                     if ln.car and line is not None} if net is not None else None
+        # SUMO's own lane lengths: the ones its sampledSeconds are per
+        car_lanes = {ln.id: ln.length / 1000.0 for ln in net.lanes if ln.car} if net is not None else None
         intervals = []
         try:
             for iv in parse(path, "interval"):
@@ -95,13 +93,12 @@ class EdgeData:
 
 
 def _lanes_per_edge(net) -> dict[str, tuple[int, int, float]]:
-    """edge id -> (lanes open to vehicles, car lanes, car-lane kilometres)."""
-    out: dict[str, tuple[int, int, float]] = {}
-    for ln, line in zip(net.lanes, net.lines):
-        n, cars, km = out.get(ln.edge, (0, 0, 0.0))
-        car_km = shapely.length(line) / 1000.0 if line is not None and ln.car else 0.0
-        out[ln.edge] = (n + int(not ln.pedestrian_only), cars + int(ln.car), km + car_km)
-    return out
+    """edge id -> (lanes open to vehicles, car lanes, car-lane kilometres: Network.edge_car_km)."""
+    counts: dict[str, tuple[int, int]] = {}
+    for ln in net.lanes:
+        n, cars = counts.get(ln.edge, (0, 0))
+        counts[ln.edge] = (n + int(not ln.pedestrian_only), cars + int(ln.car))
+    return {e: (n, cars, net.edge_car_km.get(e, 0.0)) for e, (n, cars) in counts.items()}
 
 
 def _number(e, name: str) -> float | None:
