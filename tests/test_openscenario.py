@@ -154,7 +154,8 @@ def test_round_trip_within_5_cm_and_10_mrad(exported):
     tokened = [a for a in in_sumo if a["token"] is not None]
     assert tokened
     for a in tokened:
-        assert json.loads(props[a["vehicle"]]["token"]) == a["token"]
+        assert json.loads(props[a["vehicle"]]["token"]) == scene["tokens"][a["token"]]
+        assert int(props[a["vehicle"]]["token_index"]) == a["token"]
 
 
 def test_sumo_story_is_the_drive_at_the_step_length(exported):
@@ -268,3 +269,17 @@ def test_run_exports_every_scene(cross_net, tmp_path, cache):
     validate_xosc(str(out / "scene_000" / "scenario.xosc"))
     with open(out / "scene_000" / "openscenario.json") as f:
         assert json.load(f)["vehicles"] == sum(a["vehicle"] is not None for a in _scene(str(out / "scene_000"))["agents"])
+
+
+def test_two_workers_export_two_folders_alike(folder, exported, tmp_path, cache):
+    """Local worker processes (core.pool) write what one process writes."""
+    copies = [tmp_path / f"copy{k}" for k in range(2)]
+    for c in copies:
+        shutil.copytree(folder, c, ignore=shutil.ignore_patterns("scenario.xo*", "openscenario.json"))
+    res = _cli("sumo_scendiff.export", *map(str, copies), "--workers", "2", cache=cache)
+    assert res.returncode == 0, res.stderr
+    with open(os.path.join(exported, "scenario.xosc")) as f:
+        one = f.read()
+    for c in copies:
+        with open(c / "scenario.xosc") as f:
+            assert f.read() == one

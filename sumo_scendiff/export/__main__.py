@@ -27,8 +27,11 @@ def get_options(args=None):
     p.add_argument("--seconds", type=float, default=None,
                    help="seconds of SUMO's drive to record (default: the folder's rollout; 0: none)")
     p.add_argument("--force", action="store_true", help="replace an earlier export in the folders")
+    p.add_argument("--workers", type=int, default=1, help="local processes, each replaying in its own libsumo")
     p.add_argument("-v", "--verbose", action="store_true")
     o = p.parse_args(args)
+    if o.workers < 1:
+        p.error(f"--workers must be >= 1, got {o.workers}")
     if o.seconds is not None and not o.seconds >= 0:
         p.error(f"--seconds must be >= 0, got {o.seconds}")
     o.parser = p
@@ -36,12 +39,13 @@ def get_options(args=None):
 
 
 def main(o) -> int:
+    from ..core.pool import EngineError
     from .batch import export_folders
     from .opendrive import ExportError
     try:
         s = export_folders(o.folders, o.format, force=o.force, seconds=o.seconds,
-                           progress=sys.stderr.isatty() or o.verbose)
-    except ExportError as e:
+                           progress=sys.stderr.isatty() or o.verbose, workers=o.workers)
+    except (ExportError, EngineError) as e:
         o.parser.exit(2, f"{PROG}: error: {e}\n")
     print(f"exported {s['exported']} folders ({s['vehicles']} vehicles) in {s['seconds']:.1f} s")
     return 0

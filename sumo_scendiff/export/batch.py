@@ -1,39 +1,69 @@
-"""Many scene folders exported in one process (the network's OpenDRIVE converted once, the schema
-read once): what ``python -m sumo_scendiff.export`` and the ``--export`` flags of ``run``, sweeps
-and the fill call."""
+"""Many scene folders exported (the network's OpenDRIVE converted once, the schema read once per
+process), in this process or on ``workers`` local processes (each replays in its own libsumo): what
+``python -m sumo_scendiff.export`` and the ``--export`` flags of ``run``, sweeps and the fill call."""
 from __future__ import annotations
 
 import os
 import sys
 import time
 
-from .openscenario import FILES, export_folder
-from .opendrive import ExportError
+from .opendrive import ExportError, opendrive_for
+from .openscenario import FILES, export_folder, read_folder
 
 FORMATS = ("openscenario",)
 
 
+class Exporter:
+    """A pool worker (core.pool): one folder per task."""
+
+    def __init__(self, force: bool = False, seconds: float | None = None):
+        self.force, self.seconds = force, seconds
+
+    def run(self, folder: str) -> dict:
+        return export_folder(folder, force=self.force, seconds=self.seconds)
+
+
+def _networks_first(folders: list[str]) -> None:
+    """Convert each network once here, before workers would each convert it."""
+    from ..sim.scenario import ScenarioError, read_sumocfg
+    for folder in folders:
+        _, config = read_folder(folder)
+        try:
+            opendrive_for(read_sumocfg(config)["net"])
+        except (ScenarioError, KeyError):
+            pass            # the folder's own export says what is wrong with it
+
+
 def export_folders(folders: list[str], fmt: str = "openscenario", force: bool = False,
-                   seconds: float | None = None, keep_done: bool = False, progress: bool = False) -> dict:
+                   seconds: float | None = None, keep_done: bool = False, progress: bool = False,
+                   workers: int = 1) -> dict:
     """Export each folder; ``keep_done``: a folder whose export is complete (its openscenario.json
-    exists, as a resumed run's kept scenes) is left as it is. Raises ExportError on the first
-    folder that cannot be exported (those before it are complete)."""
+    exists, as a resumed run's kept scenes) is left as it is. Raises ExportError on a folder that
+    cannot be exported (the others finished by then are complete)."""
+    from tqdm import tqdm
+
+    from ..core.pool import InProcess, LocalPool
     if fmt not in FORMATS:
         raise ExportError(f"--format: {fmt!r} is not one of {', '.join(FORMATS)}")
-    from tqdm import tqdm
-    t0, done, kept, vehicles = time.perf_counter(), 0, 0, 0
-    for folder in tqdm(folders, desc="exporting OpenSCENARIO", disable=not progress, leave=False):
-        if keep_done and os.path.isfile(os.path.join(folder, FILES[-1])):
-            kept += 1
-            continue
-        record = export_folder(folder, force=force, seconds=seconds)
-        done, vehicles = done + 1, vehicles + record["vehicles"]
-    return {"exported": done, "kept": kept, "vehicles": vehicles, "seconds": round(time.perf_counter() - t0, 3)}
+    t0 = time.perf_counter()
+    todo = [f for f in folders if not (keep_done and os.path.isfile(os.path.join(f, FILES[-1])))]
+    workers = max(1, min(workers, len(todo)))
+    if workers > 1:
+        _networks_first(todo)
+    pool = InProcess(Exporter(force, seconds)) if workers == 1 else \
+        LocalPool(Exporter, (force, seconds), workers=workers)
+    vehicles = 0
+    with pool, tqdm(total=len(todo), desc="exporting OpenSCENARIO", disable=not progress, leave=False) as bar:
+        for _, record in pool.map_unordered([(f,) for f in todo]):
+            vehicles += record["vehicles"]
+            bar.update()
+    return {"exported": len(todo), "kept": len(folders) - len(todo), "vehicles": vehicles,
+            "seconds": round(time.perf_counter() - t0, 3)}
 
 
-def export_after(out: str, names: list[str], fmt: str) -> None:
+def export_after(out: str, names: list[str], fmt: str, workers: int = 1) -> None:
     """The ``--export`` of a run, sweep or fill: its finished folders ``out/name``, one line on stderr."""
     folders = [os.path.join(out, n) for n in names if os.path.isdir(os.path.join(out, n))]
-    s = export_folders(folders, fmt, keep_done=True, progress=sys.stderr.isatty())
+    s = export_folders(folders, fmt, keep_done=True, progress=sys.stderr.isatty(), workers=workers)
     print(f"exported {s['exported']} folders as OpenSCENARIO 1.2 + OpenDRIVE ({s['vehicles']} vehicles, "
           f"{s['seconds']:.1f} s)" + (f"; {s['kept']} exported before" if s["kept"] else ""), file=sys.stderr)

@@ -82,7 +82,7 @@ def generated_path(agent: dict) -> list[tuple[float, float, float, float]]:
     return [(float(p["t"]), float(p["x"]), float(p["y"]), y) for p, y in zip(poses, yaws)]
 
 
-def _vehicle(xosc, name: str, agent: dict, vt: VehicleType):
+def _vehicle(xosc, name: str, agent: dict, vt: VehicleType, tokens: list):
     length, width = float(agent["length"]), float(agent["width"])
     box = xosc.BoundingBox(width, length, vt.height, 0.0, 0.0, 0.5 * vt.height)
     front = xosc.Axle(MAX_STEER, WHEEL, width - TRACK_INSET, AXLE_SHARE * length, 0.5 * WHEEL)
@@ -92,8 +92,10 @@ def _vehicle(xosc, name: str, agent: dict, vt: VehicleType):
     veh.add_property("sumo_id", name)
     veh.add_property("sumo_vclass", vt.vclass)
     veh.add_property("status", str(agent.get("status", "placed")))
-    if agent.get("token") is not None:
-        veh.add_property("token", json.dumps(agent["token"], sort_keys=True))
+    k = agent.get("token")
+    if k is not None:   # the token as scene.json has it (in the scene's window frame), and its index there
+        veh.add_property("token", json.dumps(tokens[k] if 0 <= k < len(tokens) else None, sort_keys=True))
+        veh.add_property("token_index", str(k))
         veh.add_property("token_source", str(agent.get("token_source")))
     return veh
 
@@ -154,7 +156,7 @@ def build_scenario(doc: dict, rep: Replay, info: dict, xodr_name: str = "scenari
     ends = [0.0]
     for a in agents:
         name = a["vehicle"]
-        entities.add_scenario_object(name, _vehicle(xosc, name, a, rep.types[name]))
+        entities.add_scenario_object(name, _vehicle(xosc, name, a, rep.types[name], doc.get("tokens") or []))
         init.add_init_action(name, xosc.TeleportAction(
             xosc.WorldPosition(a["x"] + offset[0], a["y"] + offset[1], 0.0, float(a["heading"]))))
         init.add_init_action(name, xosc.AbsoluteSpeedAction(float(a["speed"]), xosc.TransitionDynamics(

@@ -130,7 +130,8 @@ def _sweep(o, spec, scenarios, t0) -> int:
     rows = write_index(o.out, scenarios)
     if o.export:
         from ..export.batch import export_after
-        export_after(o.out, [r["id"] for r in rows if r["status"] == "ok"], o.export)
+        export_after(o.out, [r["id"] for r in rows if r["status"] == "ok"], o.export,
+                     workers=o.workers if o.engine == "local" else 1)
     pictures = [] if o.no_pictures else [contact_sheet(o.out, rows), stats_plot(o.out, rows)]
     ok = sum(r["status"] == "ok" for r in rows)
     failed = [r for r in rows if r["status"] == "failed"]
