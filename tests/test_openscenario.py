@@ -186,7 +186,7 @@ def test_exported_init_reads_back_as_world_tokens(exported, cross_net):
         assert all(abs(t[k] - a[k]) < 1e-6 for k in ("heading", "length", "width", "speed"))
 
 
-def _example(folder: str, position) -> str:
+def _example(folder: str, position, road: str = "../xodr/e6mini.xodr") -> str:
     """A scenario written with scenariogeneration's own API and ScenarioGenerator, as its
     trajectory example builds one (a white car, its reference point the rear axle: the box's
     centre 2 m ahead of it), placed at ``position`` (an xosc position)."""
@@ -211,7 +211,7 @@ def _example(folder: str, position) -> str:
             params = xosc.ParameterDeclarations()
             params.add_parameter(xosc.Parameter("$EgoSpeed", xosc.ParameterType.double, "8.5"))
             return xosc.Scenario("example", "Mandolin", params, entities, xosc.StoryBoard(init),
-                                 xosc.RoadNetwork("../xodr/e6mini.xodr"), xosc.Catalog(), osc_minor_version=2)
+                                 xosc.RoadNetwork(road), xosc.Catalog(), osc_minor_version=2)
 
     files, _ = Example().generate(folder)
     return files[0]
@@ -230,7 +230,7 @@ def test_a_scenariogeneration_example_reads_as_tokens(cross_net, tmp_path):
     assert spec.frame == "world" and math.dist((a["x"], a["y"]), (-78.0, y)) < 1e-9
     assert (a["length"], a["width"], a["speed"], a["heading"]) == (5.0, 2.0, 8.5, 0.0)
     lane = _example(str(tmp_path / "lane"), xosc.LanePosition(25, 0, -3, 0))
-    with pytest.raises(TokenFileError, match="LanePosition: only WorldPosition is read"):
+    with pytest.raises(TokenFileError, match="LanePosition: its OpenDRIVE ../xodr/e6mini.xodr: not readable"):
         load_tokens(lane, net=net)
     off = _example(str(tmp_path / "off"), xosc.WorldPosition(-80.0, 60.0, 0, 0))
     with pytest.raises(TokenFileError, match=r"Ego.*off the network"):
@@ -283,3 +283,21 @@ def test_two_workers_export_two_folders_alike(folder, exported, tmp_path, cache)
     for c in copies:
         with open(c / "scenario.xosc") as f:
             assert f.read() == one
+
+
+def test_a_lane_position_on_netconverts_opendrive_is_read(exported, cross_net, tmp_path):
+    """LanePosition (road, lane -1, s, offset) on the exported scenario.xodr: the SUMO lane its road
+    and lane stand for, s scaled to the lane's length, offset to the left (sumolib computes it here)."""
+    import sumolib
+    from scenariogeneration import xosc
+    xodr = os.path.join(exported, "scenario.xodr")
+    road = next(r for r in ET.parse(xodr).getroot().findall("road")
+                if r.find("userData[@code='sumoId']") is not None and r.find("userData").get("value") == "wc")
+    path = _example(str(tmp_path), xosc.LanePosition(40.0, 0.5, -1, road.get("id")), road=xodr)
+    (a,) = load_tokens(path, net=Network.load(cross_net)).agents
+    lane = sumolib.net.readNet(cross_net).getLane("wc_0")
+    x, y = sumolib.geomhelper.positionAtShapeOffset(lane.getShape(), 40.0 * lane.getLength() / float(road.get("length")))
+    assert math.dist((a["x"], a["y"]), (x + 2.0, y + 0.5)) < 0.05 and abs(a["heading"]) < 0.01
+    bad = _example(str(tmp_path / "bad"), xosc.LanePosition(40.0, 0.0, -2, road.get("id")), road=xodr)
+    with pytest.raises(TokenFileError, match="lane -2 of road .* is no lane of SUMO edge 'wc'"):
+        load_tokens(bad, net=Network.load(cross_net))

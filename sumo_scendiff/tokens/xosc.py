@@ -8,14 +8,16 @@ of its SpeedAction, with the box of its BoundingBox. OpenSCENARIO places a vehic
 point; the token is the box's centre, the BoundingBox's Center turned by h from that point. A file
 this project wrote records in its FileHeader Properties the offset of its OpenDRIVE from the SUMO
 network (``opendrive_offset_x/y``, docs/openscenario.md), taken off here; any other file is read in the
-network's coordinates. Plain XML (ElementTree): generation does not depend on scenariogeneration.
-Parameters (``$name``) are read from the file's global ParameterDeclarations; only world positions
-are read (a lane or road position needs the OpenDRIVE's geometry), and every position must lie on the
-network (a car lane or a junction) when a network is given.
+network's coordinates. A LanePosition is read where the file's OpenDRIVE is netconvert's own (each
+road names its SUMO edge): on the SUMO lane it stands for. Plain XML (ElementTree): generation does
+not depend on scenariogeneration. Parameters (``$name``) are read from the file's global
+ParameterDeclarations; other positions (road, relative, route, geographic) are not read, and every
+position must lie on the network (a car lane or a junction) when a network is given.
 """
 from __future__ import annotations
 
 import math
+import os
 import xml.etree.ElementTree as ET
 
 
@@ -84,18 +86,69 @@ def _offset(root: ET.Element, values: _Values) -> tuple[float, float]:
                  for k in ("opendrive_offset_x", "opendrive_offset_y"))
 
 
-def _agent(name: str, private: ET.Element, box, values: _Values, offset) -> dict:
+class _Roads:
+    """netconvert's OpenDRIVE the file names (its LogicFile, read once): road id -> (SUMO edge, the
+    road's length), from the ``sumoId`` userData that ``--output.original-names`` writes."""
+
+    def __init__(self, root: ET.Element, source: str):
+        self.source, self.root, self._roads = source, root, None
+
+    def road(self, road_id: str, where: str) -> tuple[str, float]:
+        if self._roads is None:
+            logic = self.root.find("RoadNetwork/LogicFile")
+            if logic is None or not logic.get("filepath"):
+                raise _error(self.source, where, "LanePosition: the file names no OpenDRIVE (RoadNetwork LogicFile)")
+            path = os.path.join(os.path.dirname(os.path.abspath(self.source)), logic.get("filepath"))
+            try:
+                roads = ET.parse(path).getroot().findall("road")
+            except (OSError, ET.ParseError) as e:
+                raise _error(self.source, where, f"LanePosition: its OpenDRIVE {logic.get('filepath')}: "
+                             f"not readable ({e})") from None
+            self._roads = {r.get("id"): (u.get("value"), float(r.get("length"))) for r in roads
+                           for u in r.findall("userData[@code='sumoId']")}
+        if road_id not in self._roads:
+            raise _error(self.source, where, f"LanePosition: road {road_id!r} has no SUMO edge (lane positions "
+                         f"are read on netconvert's own OpenDRIVE, --output.original-names)")
+        return self._roads[road_id]
+
+
+def _lane_position(lp: ET.Element, values: _Values, roads: _Roads, net, where: str) -> tuple[float, float, float]:
+    """A LanePosition on netconvert's OpenDRIVE as world x, y, h: its road is a SUMO edge, OpenDRIVE
+    lane -k that edge's lane n - k (netconvert numbers right lanes from the centre outwards, SUMO from
+    the outer edge inwards), s scaled from the road's length to the lane's."""
+    if net is None:
+        raise _error(values.source, where, "LanePosition: needs the network to be read")
+    edge, road_len = roads.road(lp.get("roadId"), where)
+    lanes = [ln for ln in net.lanes if ln.edge == edge]
+    k = int(values.number(lp, "laneId", where))
+    index = max((ln.index for ln in lanes), default=-1) + 1 + k
+    lane = next((i for i, ln in enumerate(net.lanes) if ln.edge == edge and ln.index == index), None)
+    if k >= 0 or lane is None:
+        raise _error(values.source, where, f"LanePosition: lane {k} of road {lp.get('roadId')!r} is no lane "
+                     f"of SUMO edge {edge!r}")
+    s, t = values.number(lp, "s", where), values.number(lp, "offset", where, 0.0)
+    xy, yaw = net.lane_pose(lane, s * net.lanes[lane].length / road_len)
+    orient = lp.find("Orientation")
+    h = values.number(orient, "h", where, 0.0) if orient is not None else 0.0
+    h = h if orient is not None and orient.get("type") == "absolute" else yaw + h
+    return float(xy[0] - t * math.sin(yaw)), float(xy[1] + t * math.cos(yaw)), h
+
+
+def _agent(name: str, private: ET.Element, box, values: _Values, offset, roads: _Roads, net) -> dict:
     where = f"Init: entity {name!r}"
     agent = {}
     for action in private.iter("TeleportAction"):
         pos = action.find("Position")
         kind = pos[0].tag if pos is not None and len(pos) else None
-        if kind != "WorldPosition":
-            raise _error(values.source, where, f"{kind or 'no position'}: only WorldPosition is read "
-                         f"(x, y, h in the network's coordinates)")
-        wp = pos[0]
-        h = values.number(wp, "h", where, 0.0)
-        x, y = values.number(wp, "x", where) - offset[0], values.number(wp, "y", where) - offset[1]
+        if kind == "LanePosition":
+            x, y, h = _lane_position(pos[0], values, roads, net, where)
+        elif kind == "WorldPosition":
+            wp = pos[0]
+            h = values.number(wp, "h", where, 0.0)
+            x, y = values.number(wp, "x", where) - offset[0], values.number(wp, "y", where) - offset[1]
+        else:
+            raise _error(values.source, where, f"{kind or 'no position'}: only WorldPosition (and LanePosition "
+                         f"on netconvert's OpenDRIVE) is read")
         if box is not None:   # the reference point -> the box's centre
             x += box[2] * math.cos(h) - box[3] * math.sin(h)
             y += box[2] * math.sin(h) + box[3] * math.cos(h)
@@ -122,12 +175,12 @@ def xosc_tokens(path: str, net=None) -> dict:
     if init is None:
         raise _error(source, "no Storyboard Init (nothing places a vehicle)")
     values = _Values(root, source)
-    boxes, offset = _boxes(root, values), _offset(root, values)
+    boxes, offset, roads = _boxes(root, values), _offset(root, values), _Roads(root, source)
     agents, names = [], []
     for private in init.findall("Actions/Private"):
         name = private.get("entityRef")
         if name in boxes:
-            agent = _agent(name, private, boxes[name], values, offset)
+            agent = _agent(name, private, boxes[name], values, offset, roads, net)
             if "x" in agent:
                 agents.append(agent)
                 names.append(name)
