@@ -238,6 +238,7 @@ def run(o) -> dict:
     from .generation.token_resolve import resolve_tokens
     from .map.network import Network
     from .map.raster import render_map
+    from .sim.fleet import Fleet
     from .sim.lights import light_states
     from .sim.scenario import ScenarioError, scenario_from_files
     from .sim.session import Session
@@ -293,6 +294,8 @@ def run(o) -> dict:
         # road references (edge/lane/pos, ahead/lane_offset) resolved on the network once, here, so
         # the summary's token matching and the warnings see the tokens generation sees
         user = [resolve_tokens(net, w, spec.for_window(w)) if spec else [] for w in windows]
+        fleet = Fleet(session.sim, {})   # a token's vtype: one of the scenario's, its size
+        user = [fleet.token_vtypes(u, o.tokens) for u in user]
         for k, (w, u) in enumerate(zip(windows, user)):
             for line in heading_warnings(net, w, u):
                 print(f"{PROG}: warning: scene_{k:03d}: {o.tokens}: {line}", file=sys.stderr)

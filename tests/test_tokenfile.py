@@ -214,6 +214,17 @@ def test_a_users_terms_become_features_and_references():
     assert spec.for_window(Window(500.0, 500.0, 1.0))[1] == b
 
 
+def test_a_token_may_name_a_vtype_the_model_never_sees(tmp_path):
+    """``vtype`` names one of the scenario's vTypes (checked, and its size given, where the scenario
+    is known: tests/test_fleet.py); the model's encoding leaves it out."""
+    spec = load_tokens(_write(tmp_path, "v.toml", '[[agents]]\nvtype = "bus_articulated"\n'
+                                                  '[[agents]]\nx = 3.0\ny = 1.0\nvtype = "car"\nlength = 4.0\nwidth = 1.7\n'))
+    assert spec.agents == ({"vtype": "bus_articulated"}, {"x": 3.0, "y": 1.0, "length": 4.0, "width": 1.7, "vtype": "car"})
+    assert spec.for_window(Window(0.0, 0.0, 0.0))[1]["vtype"] == "car"
+    np.testing.assert_array_equal(agent_tokens_from_dicts([spec.agents[1]]),
+                                  agent_tokens_from_dicts([{k: v for k, v in spec.agents[1].items() if k != "vtype"}]))
+
+
 def test_vehicle_classes_are_the_fleets_sizes():
     from sumo_scendiff.core.scene import VEHICLE_CLASSES
     from sumo_scendiff.data.demand import VEHICLE_MIX
@@ -240,6 +251,9 @@ def test_vehicle_classes_are_the_fleets_sizes():
     ({"edge": "E1", "pos": 3, "lane": 0.5}, r"lane: must be a lane index >= 0"),
     ({"ahead": 80}, r"ahead: must be metres in \[-50, 50\]"),
     ({"ahead": 10, "lane_offset": "left"}, r"lane_offset: must be a whole number of lanes"),
+    ({"x": 1, "y": 1, "vtype": 3}, r"vtype: must be the id of one of the scenario's vTypes"),
+    ({"x": 1, "y": 1, "vtype": " "}, r"vtype: must be the id of one of the scenario's vTypes"),
+    ({"x": 1, "y": 1, "vtype": "coach", "vclass": "bus"}, r"vtype: conflicts with 'vclass'"),
 ])
 def test_a_users_terms_errors_name_the_key(agent, msg):
     with pytest.raises(TokenFileError, match=r"^t\.toml: agents\[0\]: " + msg.removeprefix(r"agents\[0\]: ")):

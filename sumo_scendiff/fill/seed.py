@@ -18,11 +18,13 @@ import re
 import subprocess
 import sys
 import tempfile
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..sim.export import write_routes
+from ..sim.fleet import Fleet
 from ..sim.seeding import Seeder
 from ..sim.stops import add_stops, drop_passed
 from .tiles import scene_rows
@@ -97,6 +99,8 @@ def _seed_all(result, net, cfg, seed, quiet, progress, demand):
     from tqdm import tqdm
     sim = start(cfg, quiet=quiet)
     seeder = Seeder(sim, net, prefix="fill", seed=seed)
+    if demand:   # the scenario's mix: its vehicles en route at --begin, as the run's are those present
+        seeder.fleet = Fleet.read(sim, mix=Counter(p.vehicle.type or "DEFAULT_VEHTYPE" for p in demand))
     reports: dict[int, object] = {}
     # the vehicles seeded so far, world rows (x, y, heading, length, width, speed) where the seeder put
     # them: a tile's pins are its neighbours as drawn, but the seeder moves some (a nose over the stop

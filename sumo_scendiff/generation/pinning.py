@@ -33,7 +33,7 @@ from ..core.geometry import T0, TIMES, wrap_angle
 from ..core.matching import assign
 from ..core.scene import speeds_from_traj
 from ..map.raster import RasterConfig, render_agents
-from ..tokens.features import is_pinnable
+from ..tokens.features import SEEDING_KEYS, is_pinnable
 
 # |delta mu| (autoencoder units) above which a latent cell belongs to a pinned agent: 3-4 cells per
 # agent. At 0.3 (12-19 cells) the pins crowd out the generated agents around them; at 2.5 (1 cell)
@@ -64,7 +64,7 @@ def token_trajectories(tokens: Sequence[Mapping]) -> tuple[np.ndarray, np.ndarra
     traj = np.zeros((n, len(TIMES), 3))
     t = np.asarray(TIMES)
     for i, tok in enumerate(tokens):
-        f = {k: float(v) for k, v in tok.items() if v is not None}
+        f = {k: float(v) for k, v in tok.items() if v is not None and k not in SEEDING_KEYS}
         x, y, h, v0 = f["x"], f["y"], f["heading"], f["speed"]
         v2 = _final_speed(tok)
         alpha = f.get("heading_to_final", 0.0)

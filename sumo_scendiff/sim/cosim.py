@@ -145,7 +145,8 @@ class CoSimulation:
         self.seeder.prefix = f"{self.seeder.prefix.split('.')[0]}.{self.count}."
         self.seeder.count = 0
         self.count += 1
-        report = self.seeder.seed(sub, others=(existing.boxes, existing.speed))
+        named = [None if token_of[i] is None else tokens[token_of[i]].get("vtype") for i in idx]   # sim/fleet.py
+        report = self.seeder.seed(sub, others=(existing.boxes, existing.speed), types=named)
         return Seeding(sub, report, tokens, token_source, [token_of[i] for i in idx],
                        dropped=int(len(scene) - len(idx)), seed=seed, p_mask=p_mask)
 
@@ -163,6 +164,7 @@ class CoSimulation:
         """
         for line in heading_warnings(self.net, window, tokens):
             warnings.warn(line, stacklevel=2)
+        tokens = self.seeder._known_types().token_vtypes(tokens, "tokens")   # a vtype's size (sim/fleet.py)
         ex = self.existing(window)
         all_tokens = list(tokens) + ex.tokens()
         source = ["user"] * len(tokens) + ex.token_ids()

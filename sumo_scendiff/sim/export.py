@@ -26,6 +26,7 @@ from ..map.picture import draw_scene
 from ..tokens.features import is_pinnable
 from .additional import output_folders
 from .bundle import bundle
+from .fleet import DRAWN_KEY
 from .stops import stops_xml
 
 FORMAT, VERSION = "sumo-scendiff-scenario", 1
@@ -37,6 +38,7 @@ def _agents(seeding, sim) -> list[dict]:
     scene, rep = seeding.scene, seeding.report
     score = scene.meta.get("score", [None] * len(scene))
     stood = scene.meta.get("stood_at_red") or [False] * len(scene)
+    fleet = scene.meta.get(DRAWN_KEY, {})
     out = []
     for i, a in enumerate(scene.world_agents()):
         vid = rep.ids.get(i)
@@ -54,10 +56,23 @@ def _agents(seeding, sim) -> list[dict]:
             a["to_stop_line_m"] = round(rep.to_stop_line[i], 3)
         if stood[i]:               # in a red light's queue, given standing (generation/red_queues.py)
             a["stood_at_red"] = True
+        if i in fleet:             # seeded as one of the scenario's vTypes (sim/fleet.py)
+            a.update(_vtype_record(sim, vid, fleet[i]))
         if i in rep.narrowed:      # wider than the network's junctions assume (Seeder.width_cap)
             a["sumo_width"] = rep.narrowed[i][1]
         out.append(a)
     return out
+
+
+def _vtype_record(sim, vid: str | None, drawn: tuple) -> dict:
+    """The scenario's vType an agent was seeded as, SUMO's type id of its vehicle (a copy of it
+    that may differ by minGap) and the box the model drew (its centre is the vehicle's)."""
+    try:
+        sumo_type = sim.vehicle.getTypeID(vid) if vid else None
+    except Exception:   # not in the simulation (SUMO did not take it)
+        sumo_type = None
+    return {"vtype": drawn[0], "sumo_type": sumo_type,
+            "drawn_length": round(drawn[1], 3), "drawn_width": round(drawn[2], 3)}
 
 
 def scene_document(seeding, net, sim, info: dict) -> dict:

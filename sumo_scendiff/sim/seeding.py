@@ -40,6 +40,7 @@ import shapely
 from ..core.geometry import OVERLAP_AREA, T0, box_polygons, pose_to_sumo, wrap_angle
 from ..core.scene import VEHICLE_CLASSES, Scene
 from ..map.network import Network
+from .fleet import Fleet
 from .junctions import JunctionConflicts
 from .routes import RouteChooser
 from .settle import DEFAULT_MIN_GAP, MIN_GAP_MARGIN, Settling, krauss_safe_speed
@@ -97,7 +98,7 @@ class Seeder(Settling, StopLines):
         # and SUMO registers a junction collision, whatever its class. So in SUMO a seeded vehicle is
         # at most that wide (scene.json keeps the generated width); None: the generated widths.
         self.width_cap: float | None = net.junction_vehicle_width
-        self._types: set[str] | None = None      # the simulation's own vTypes (a demand's), read once
+        self.fleet = None      # the scenario's vTypes and their mix (sim/fleet.py), read at the first seeding
 
     # ---- network helpers --------------------------------------------------------------------
     def _internal_links(self) -> dict[str, tuple[str, str]]:
@@ -259,22 +260,27 @@ class Seeder(Settling, StopLines):
         return out
 
     # ---- vehicle types ------------------------------------------------------------------------
-    def _known_types(self) -> set[str]:
-        if self._types is None:
-            self._types = set(self.sim.vehicletype.getIDList())
-        return self._types
+    def _known_types(self) -> Fleet:
+        """The scenario's fleet (its vTypes, the demand's mix of them), read once: at the first
+        seeding the vehicles present are the demand's (none of the seeder's own yet)."""
+        if self.fleet is None:
+            self.fleet = Fleet.read(self.sim, exclude=self.prefix.split(".")[0])
+        return self.fleet
 
     def vtype(self, vid: str, length: float, width: float, vclass: int, min_gap: float,
               parent: str | None = None) -> str:
-        """The agent's own vType: a copy of ``parent`` (a type the simulation knows: a demand's
-        vehicle's, with its class and driving parameters) or of SUMO's default with the class of
-        its size, with its box and fitted minGap."""
+        """The agent's own vType (``{vid}_type``, its own so that settling its minGap touches no other
+        vehicle): with ``parent`` one of the scenario's vTypes (:meth:`Fleet.assign`) a copy of it
+        that differs only by a minGap fitted to the gap ahead where that is below its own; else a
+        copy of SUMO's default with the class of its size, its box and fitted minGap."""
         t = self.sim.vehicletype
         tid = f"{vid}_type"
-        known = parent is not None and parent in self._known_types()
-        t.copy(parent if known else "DEFAULT_VEHTYPE", tid)
-        if not known:
-            t.setVehicleClass(tid, VEHICLE_CLASSES[int(vclass)])
+        if parent is not None and parent in self._known_types():
+            t.copy(parent, tid)
+            t.setMinGap(tid, min(float(min_gap), float(t.getMinGap(parent))))
+            return tid
+        t.copy("DEFAULT_VEHTYPE", tid)
+        t.setVehicleClass(tid, VEHICLE_CLASSES[int(vclass)])
         t.setLength(tid, float(length))
         t.setWidth(tid, float(width))
         t.setMinGap(tid, float(min_gap))
@@ -358,7 +364,8 @@ class Seeder(Settling, StopLines):
         ``routes``: per agent a route (edges from where it stands) it should drive, or None: the
         vehicle of a demand it stands for (``report.own_route``: followed, rerouted to its end, or
         "lost" when neither reaches it and a destination is drawn as for the others). ``types``:
-        per agent a vType the simulation knows whose driving parameters it takes, or None.
+        per agent a vType it is asked to be (a token's, a demand vehicle's own), or None: with a
+        demand one of the scenario's chosen by :meth:`~sumo_scendiff.sim.fleet.Fleet.assign`.
 
         ``others``: (boxes (M, 5), speeds (M,)) in the scene frame of the host's vehicles around the
         window, which can be the vehicle ahead of an agent. An agent departs at its generated speed,
@@ -369,13 +376,16 @@ class Seeder(Settling, StopLines):
         sim, report = self.sim, SeedReport()
         w = scene.window
         other_boxes, other_speed = others if others is not None else (np.zeros((0, 5)), np.zeros(0))
+        types, crowded = self._known_types().assign(   # the scenario's vTypes, boxes resized (sim/fleet.py)
+            scene, other_boxes, *self.leaders(np.concatenate([scene.boxes[:, :5], other_boxes[:, :5]])),
+            self.net, types, self.rng)
         gone = self.fit_red_junctions(scene, report, other_boxes)
         self.fit_lane_ends(scene, report, other_boxes)
         lead, bumper_gap = self.leaders(scene.boxes, other_boxes)
         gaps = self.min_gaps(bumper_gap)
         lead_speed = np.concatenate([scene.speed[:, T0], other_speed]).astype(np.float64)
         keep, hold, report.conflicts = self.resolve(scene, other_boxes, other_speed)
-        for i, why in {**gone, **self.on_others(scene, other_boxes)}.items():
+        for i, why in {**gone, **self.on_others(scene, other_boxes), **crowded}.items():
             keep[i], hold[i] = False, False
             report.conflicts[i] = why
         lead_speed[:len(scene)][hold] = 0.0      # a follower of a held agent departs safe behind it
@@ -396,11 +406,10 @@ class Seeder(Settling, StopLines):
             self.count += 1
             try:
                 width = float(scene.boxes[i, 4])
-                if self.width_cap is not None and width > self.width_cap:
+                if self.width_cap is not None and width > self.width_cap and types[i] is None:
                     report.narrowed[i] = (width, self.width_cap)
                     width = self.width_cap
-                tid = self.vtype(vid, scene.boxes[i, 3], width, scene.vclass[i], gaps[i],
-                                 types[i] if types is not None else None)
+                tid = self.vtype(vid, scene.boxes[i, 3], width, scene.vclass[i], gaps[i], types[i])
                 given = routes[i] if routes is not None else None
                 full, how = self.routes.along(edges, last_lane, given, tid) if given else ([], "")
                 if given:

@@ -44,7 +44,7 @@ import numpy as np
 import torch
 
 from ..core.geometry import T0, T_FINAL, TIMES, wrap_angle
-from .features import FEATURES, TokenError
+from .features import FEATURES, SEEDING_KEYS, TokenError
 
 FEATURE_DIMS: dict[str, int] = {"x": 64, "y": 64, "heading": 2, "length": 1, "width": 1,
                                 "speed": 10, "final_speed": 10, "heading_to_final": 10}
@@ -309,6 +309,7 @@ def agent_tokens_from_dicts(agents: Sequence[Mapping[str, Any]]) -> np.ndarray:
     {"length": 12.0, "width": 2.5}])``.
     """
     cols: dict[str, list] = {}
+    agents = [{k: v for k, v in a.items() if k not in SEEDING_KEYS} for a in agents]
     for i, a in enumerate(agents):
         try:
             v = validate_token_features(a)

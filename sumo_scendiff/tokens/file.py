@@ -21,7 +21,7 @@ A file is TOML (``.toml``) or JSON (``.json``) with the same structure (see docs
     [[agents]]          # a user's terms: places on the road, vehicle classes, manoeuvres
     ahead = 15.0        # or edge = "E1", lane = 0, pos = 30 (resolved at generation)
     lane_offset = 1
-    vclass = "truck"
+    vclass = "truck"    # or vtype = "bus_articulated": one of the scenario's own vTypes
     manoeuvre = "stop"
 
 Every error is a :class:`TokenFileError` with a one-line message that starts with the file path.
@@ -52,7 +52,7 @@ VCLASS_SIZES = {"passenger": (4.6, 1.8), "car": (4.6, 1.8), "delivery": (6.0, 2.
 TURN = 0.4
 MANOEUVRES = {"stop": ("final_speed", 0.0), "turn_left": ("heading_to_final", TURN),
               "turn_right": ("heading_to_final", -TURN), "straight": ("heading_to_final", 0.0)}
-USER_KEYS = REFERENCE_KEYS + ("vclass", "manoeuvre")
+USER_KEYS = REFERENCE_KEYS + ("vclass", "manoeuvre", "vtype")
 
 
 class TokenFileError(ValueError):
@@ -207,6 +207,7 @@ def _parse_agent(item: Mapping[str, Any], frame: str, source: str, where: str) -
         raise _error(source, where, e) from None
     agent = {k: float(given[k]) for k in FEATURES if k in valid and np.isfinite(valid[k][0])}
     agent.update(_references(user, given, source, where))
+    agent.update(_vtype(user, source, where))
     if not agent:
         raise _error(source, where, f"no token features (give at least one of {', '.join(FEATURES)})")
     return agent
@@ -235,6 +236,19 @@ def _user_features(user: dict, given: Mapping, source: str, where: str) -> dict:
             raise _error(source, where, f"manoeuvre: {name!r} conflicts with {feature!r}")
         out[feature] = value
     return out
+
+
+def _vtype(user: dict, source: str, where: str) -> dict:
+    """The scenario's vType a token names (checked against the scenario where it is known,
+    sim/fleet.py); it says the class and, unless the token gives one, the size: not with ``vclass``."""
+    if "vtype" not in user:
+        return {}
+    name = user["vtype"]
+    if not isinstance(name, str) or not name.strip():
+        raise _error(source, where, f"vtype: must be the id of one of the scenario's vTypes (a string), got {name!r}")
+    if "vclass" in user:
+        raise _error(source, where, "vtype: conflicts with 'vclass' (a vType has its class)")
+    return {"vtype": name}
 
 
 def _references(user: dict, given: Mapping, source: str, where: str) -> dict:

@@ -1,0 +1,164 @@
+"""The scenario's own fleet (sim/fleet.py): with a demand every seeded vehicle is of one of its vTypes."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from sumo_scendiff.map.network import Network
+from sumo_scendiff.sim.fleet import DRAWN_KEY, Fleet
+from sumo_scendiff.sim.seeding import Seeder
+from sumo_scendiff.tokens.file import TokenFileError
+
+TYPES = """<additional>
+    <vType id="car" vClass="passenger" length="4.3" width="1.7" minGap="1.5" accel="2.2" decel="4.0"
+           emissionClass="HBEFA4/PC_petrol_Euro-6ab"/>
+    <vType id="coach" vClass="bus" length="12.0" width="2.55" minGap="2.0" accel="1.0" decel="3.5"
+           emissionClass="HBEFA4/UBus_Std_gt15-18t_Euro-VI_A-C"/>
+</additional>
+"""
+# as many coaches as cars depart: a coach is seeded wherever there is room for one
+DEMAND = """<routes>
+    <flow id="cars" type="car" begin="0" end="100" period="6" from="wc" to="ce"/>
+    <flow id="coaches" type="coach" begin="0" end="100" period="6" from="sc" to="cn"/>
+</routes>
+"""
+OWN = {"car": ("passenger", 4.3, 1.7, 1.5, 2.2, "HBEFA4/PC_petrol_Euro-6ab"),
+       "coach": ("bus", 12.0, 2.55, 2.0, 1.0, "HBEFA4/UBus_Std_gt15-18t_Euro-VI_A-C")}
+
+
+@pytest.fixture(scope="module")
+def scenario(cross_net, tmp_path_factory):
+    d = tmp_path_factory.mktemp("fleet")
+    (d / "types.add.xml").write_text(TYPES)
+    (d / "demand.rou.xml").write_text(DEMAND)
+    return cross_net, str(d / "types.add.xml"), str(d / "demand.rou.xml")
+
+
+def _seed(scenario, cross_scene, seed: int, types=None, demand: bool = True, tweak=None):
+    """Start SUMO on the scenario (its demand run 40 s), seed the five-agent crossing scene (changed
+    by ``tweak(scene)``); returns per seeded agent (its vType as SUMO has it), the scene, the report
+    and the fleet."""
+    import libsumo as sim
+    net_path, add, rou = scenario
+    net = Network.load(net_path)
+    scene = cross_scene(net)
+    if tweak is not None:
+        tweak(scene)
+    sim.start(["sumo", "-n", net_path, "-a", add, "--no-step-log", "--no-warnings"]
+              + (["-r", rou] if demand else []))
+    try:
+        for _ in range(40 if demand else 0):
+            sim.simulationStep()
+        seeder = Seeder(sim, net, seed=seed)
+        report = seeder.seed(scene, types=types)
+        sim.simulationStep()
+        seeder.verify(report)
+        t = sim.vehicletype
+        got = {i: (t.getVehicleClass(tid), t.getLength(tid), t.getWidth(tid), t.getMinGap(tid), t.getAccel(tid),
+                   t.getEmissionClass(tid))
+               for i, tid in ((i, sim.vehicle.getTypeID(v)) for i, v in report.ids.items())}
+        return got, scene, report, seeder.fleet
+    finally:
+        sim.close()
+
+
+def test_every_seeded_vehicle_is_one_of_the_scenarios_vtypes(scenario, cross_scene):
+    got, scene, report, fleet = _seed(scenario, cross_scene, seed=0)
+    assert fleet.active and set(fleet.share) == {"car", "coach"}
+    assert report.placed == 4 and not report.misplaced
+    for i, (cls, length, width, min_gap, accel, emission) in got.items():
+        name = scene.meta[DRAWN_KEY][i][0]
+        own = OWN[name]
+        assert (cls, length, width, accel, emission) == (own[0], own[1], own[2], own[4], own[5])
+        assert min_gap <= own[3] + 1e-9          # a copy that differs by minGap only where it must fit
+        assert tuple(scene.boxes[i, 3:5]) == pytest.approx((own[1], own[2]))
+    # the queue of two 1 m apart has no room for a coach, whatever the seed
+    assert {scene.meta[DRAWN_KEY][i][0] for i in (0, 1)} == {"car"}
+    assert got[1][3] < OWN["car"][3]             # the follower keeps a minGap that fits its gap
+
+
+def test_coaches_where_they_fit_and_the_same_seed_the_same_fleet(scenario, cross_scene):
+    names = []
+    for seed in (0, 1, 2, 3, 0):
+        _, scene, report, _ = _seed(scenario, cross_scene, seed=seed)
+        names.append([scene.meta[DRAWN_KEY][i][0] for i in sorted(report.ids)])
+        assert not report.misplaced
+    assert names[0] == names[-1]
+    assert any("coach" in n for n in names) and all(n[:2] == ["car", "car"] for n in names)
+
+
+def test_no_vtype_fits_a_queue_drawn_tighter_than_its_cars(scenario, cross_scene):
+    """Two 4 m cars drawn 0.1 m apart: as the scenario's 4.3 m cars (centres kept) they would
+    overlap, so one is not seeded, with the reason; the drawn boxes are kept in the record."""
+    def tight(scene):
+        scene.boxes[:2, 3] = 4.0
+        scene.boxes[1, 0] = scene.boxes[0, 0] - 4.1
+        scene.traj[1, :, 0] = scene.boxes[1, 0]
+    got, scene, report, _ = _seed(scenario, cross_scene, seed=0, tweak=tight)
+    assert len({0, 1} & set(report.conflicts)) == 1 and len({0, 1} & set(report.ids)) == 1
+    why = report.conflicts[min(set(report.conflicts) & {0, 1})]
+    assert "as vType 'car' its box overlaps" in why
+    assert scene.meta[DRAWN_KEY][0][1] == pytest.approx(4.0) and scene.boxes[0, 3] == pytest.approx(4.3)
+
+
+def test_a_named_vtype_is_given_and_unknown_names_are_one_line(scenario, cross_scene):
+    got, scene, report, fleet = _seed(scenario, cross_scene, seed=0, types=[None, None, "coach", "car", None])
+    assert got[2][:3] == ("bus", 12.0, 2.55) and got[3][:3] == ("passenger", 4.3, 1.7)
+    # a token's vtype: its size where the token gives none, the token's own where it does
+    toks = fleet.token_vtypes([{"x": 1.0, "y": 0.0, "vtype": "coach"},
+                               {"x": 5.0, "y": 0.0, "vtype": "car", "length": 4.0, "width": 1.6}, {"x": 9.0}],
+                              "tok.toml")
+    assert (toks[0]["length"], toks[0]["width"]) == (12.0, 2.55) and toks[1]["length"] == 4.0
+    with pytest.raises(TokenFileError) as e:
+        fleet.token_vtypes([{"x": 1.0}, {"vtype": "bus_articulated"}], "tok.toml")
+    msg = str(e.value)
+    assert msg.startswith("tok.toml: agents[1]") and "'bus_articulated'" in msg and "\n" not in msg
+
+
+def test_a_bare_network_keeps_the_drawn_boxes(scenario, cross_scene):
+    got, scene, report, fleet = _seed(scenario, cross_scene, seed=0, demand=False)
+    assert not fleet.active and not scene.meta.get(DRAWN_KEY)
+    assert got[2][:2] == pytest.approx(("passenger", 5.1)) and got[0][1] == pytest.approx(4.6)
+
+
+def test_a_distribution_is_shared_by_its_probabilities(cross_net, tmp_path):
+    """A demand of one vTypeDistribution: the mix is its members', by their probabilities."""
+    import libsumo as sim
+    (tmp_path / "d.rou.xml").write_text(
+        '<routes><vTypeDistribution id="mix"><vType id="a" length="4" probability="3"/>'
+        '<vType id="b" length="6" vClass="delivery" probability="1"/></vTypeDistribution>'
+        '<flow id="f" type="mix" begin="0" end="10" period="1" from="wc" to="ce"/></routes>')
+    sim.start(["sumo", "-n", cross_net, "-r", str(tmp_path / "d.rou.xml"), "--no-step-log", "--no-warnings"])
+    try:
+        fleet = Fleet.read(sim, mix={"mix": 8})        # as if its vehicles were still to come
+        assert fleet.share == pytest.approx({"a": 0.75, "b": 0.25})
+        rng = np.random.default_rng(0)
+        assert fleet.member("mix", 6.2, 2.0, "delivery", rng) == "b"
+    finally:
+        sim.close()
+
+
+@pytest.mark.slow
+def test_run_seeds_the_scenarios_vtypes_and_names_an_unknown_one(scenario, tmp_path, capsys):
+    from sumo_scendiff import run as run_cli
+    net_path, add, rou = scenario
+    tok = tmp_path / "tok.toml"
+    tok.write_text('[[agents]]\nx = 30.0\ny = 1.6\nheading = 3.1416\nspeed = 5.0\nvtype = "coach"\n')   # on cw: no demand
+    common = ["-n", net_path, "-a", add, "-r", rou, "--center", "0,0", "--scenes", "1", "--rollout", "0",
+              "--steps", "8", "--begin", "40", "--vehicles", "12"]
+    code = run_cli.main(run_cli.get_options(common + ["--tokens", str(tok), "-o", str(tmp_path / "out")]))
+    assert code == 0, capsys.readouterr().err
+    doc = json.load(open(tmp_path / "out" / "scene_000" / "scene.json"))
+    seeded = [a for a in doc["agents"] if a["vehicle"]]
+    assert seeded and all(a["vtype"] in OWN and a["sumo_type"] for a in seeded)
+    assert all((a["length"], a["width"]) == pytest.approx(OWN[a["vtype"]][1:3]) for a in seeded)
+    assert any(a["vtype"] == "coach" and a["token"] == 0 for a in seeded)
+    tok.write_text('[[agents]]\nx = -30.0\ny = -1.6\nvtype = "bus_articulated"\n')
+    try:
+        code = run_cli.main(run_cli.get_options(common + ["--tokens", str(tok), "-o", str(tmp_path / "bad")]))
+    except SystemExit as e:
+        code = e.code
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and str(tok) in err and "bus_articulated" in err
