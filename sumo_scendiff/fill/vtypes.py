@@ -72,15 +72,13 @@ def vtype_table(paths, of) -> dict:
     """``of(element)`` of every vType in ``paths`` (route and additional files) by id, and of every
     vTypeDistribution (its first member's; a distribution lists members or holds vTypes)."""
     from sumolib.xml import parse
+
+    from ..sim.fleet import vtype_distributions
     out: dict = {}
-    dists: dict[str, list[str]] = {}
     for path in paths:          # (one pass per kind: sumolib empties a child it also yields)
         for el in parse(path, "vType"):
             out[el.id] = of(el)
-        for el in parse(path, "vTypeDistribution"):
-            members = (getattr(el, "vTypes", None) or "").split()
-            dists[el.id] = members + [c.id for c in (el.getChild("vType") if el.hasChild("vType") else [])]
-    for name, members in dists.items():
+    for name, members in vtype_distributions(paths).items():
         first = next((m for m in members if m in out), None)
         if first is not None and name not in out:
             out[name] = out[first]
