@@ -301,3 +301,19 @@ def test_a_lane_position_on_netconverts_opendrive_is_read(exported, cross_net, t
     bad = _example(str(tmp_path / "bad"), xosc.LanePosition(40.0, 0.0, -2, road.get("id")), road=xodr)
     with pytest.raises(TokenFileError, match="lane -2 of road .* is no lane of SUMO edge 'wc'"):
         load_tokens(bad, net=Network.load(cross_net))
+
+
+@pytest.mark.slow
+def test_the_fill_exports_its_init(cross_net, tmp_path, cache):
+    """The fill's folder (fill.json, no rollout): Init only, every seeded vehicle where fill.json has it."""
+    out = tmp_path / "fill"
+    res = _cli("sumo_scendiff.fill", "-n", cross_net, "-o", str(out), "--export", "openscenario", cache=cache)
+    assert res.returncode == 0, res.stderr
+    with open(out / "fill.json") as f:
+        agents = {a["vehicle"]: a for a in json.load(f)["agents"] if a["vehicle"]}
+    root = ET.parse(out / "scenario.xosc").getroot()
+    init = _init_poses(root)
+    assert agents and set(init) == set(agents) and not _trajectories(root)
+    for name, (x, y, h, v) in init.items():
+        a = agents[name]
+        assert math.dist((x, y), (a["x"], a["y"])) <= 0.05 and _angle(h, a["heading"]) <= 0.01
