@@ -341,9 +341,10 @@ class Network:
         in vehicles per km of car lane (a window's, a fill's, an area's), as SUMO's edgeData divides
         (its ``density`` is per km of a normal edge, ``laneDensity`` per lane-km; junction-internal
         lanes are not measured unless ``withInternal``). The vehicles on internal lanes still count
-        in the numerator: edgeData counts a vehicle on every lane any part of it is on, so one
-        entering a junction counts on its approach until its back has left it (MSMeanData's
-        notifyMove, docs/sumo-options.md)."""
+        in the numerator. edgeData's ``sampledSeconds`` counts a vehicle on every lane any part of it
+        is on (one entering a junction counts on its approach until its back has left it), its
+        ``density`` (SUMO 1.28) on the lane of its front bumper: a vehicle whose front is inside a
+        junction is in no normal edge's ``density`` (MSMeanData's notifyMove; docs/sumo-options.md)."""
         return float(self.car_lanes_in_region(region, internal=False)[1].sum())
 
     def region_density(self, region, edge_density: dict[str, float]) -> float | None:
