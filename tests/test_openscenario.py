@@ -36,16 +36,22 @@ def cache(tmp_path_factory) -> str:
 
 @pytest.fixture(scope="module")
 def folder(cross_net, cross_scene, tmp_path_factory) -> str:
-    """A seeded scene folder (one user token, one agent SUMO refuses) with a 5 s rollout."""
+    """A seeded scene folder (one user token, one agent SUMO refuses, one vehicle of the host
+    simulation kept: ``host``, southbound 30 m north of the junction) with a 5 s rollout."""
     out = tmp_path_factory.mktemp("scenes")
     net = Network.load(cross_net)
     scene = cross_scene(net)
     cfg = SimConfig(net=cross_net)
     sim = start(cfg)
     try:
+        sim.route.add("host_route", ["nc", "cs"])
+        sim.vehicle.add("host", "host_route", departPos="170", departSpeed="5")
+        sim.simulationStep()
         cosim = CoSimulation(sim, net, generator=None)
-        seeding = cosim.place(scene, [{**TOKEN, "y": float(scene.boxes[0, 1])}], ["user"],
-                              cosim.existing(scene.window), seed=3, p_mask=0.5)
+        existing = cosim.existing(scene.window)
+        assert existing.token_ids() == ["host"]
+        seeding = cosim.place(scene, [{**TOKEN, "y": float(scene.boxes[0, 1])}] + existing.tokens(),
+                              ["user"] + existing.token_ids(), existing, seed=3, p_mask=0.5)
         sim.simulationStep()
         cosim.verify(seeding)
         writer = ScenarioWriter(str(out), "scene_000")
@@ -137,7 +143,7 @@ def test_round_trip_within_5_cm_and_10_mrad(exported):
     root = ET.parse(os.path.join(exported, "scenario.xosc")).getroot()
     init, paths = _init_poses(root), _trajectories(root)
     in_sumo = [a for a in scene["agents"] if a["vehicle"]]
-    assert set(init) == {a["vehicle"] for a in in_sumo}
+    assert set(init) == {a["vehicle"] for a in in_sumo} | {"host"}
     assert len(in_sumo) < len(scene["agents"])          # the off-road agent: refused, not exported
     for a in in_sumo:
         x, y, h, v = init[a["vehicle"]]
@@ -156,6 +162,21 @@ def test_round_trip_within_5_cm_and_10_mrad(exported):
     for a in tokened:
         assert json.loads(props[a["vehicle"]]["token"]) == scene["tokens"][a["token"]]
         assert int(props[a["vehicle"]]["token_index"]) == a["token"]
+
+
+def test_a_kept_vehicle_is_exported_where_sumo_has_it(exported):
+    """The host simulation's vehicle the scene kept: an entity with its token, at SUMO's pose (one
+    step on from the token, taken before seeding; the window is the world frame here)."""
+    scene = _scene(exported)
+    root = ET.parse(os.path.join(exported, "scenario.xosc")).getroot()
+    k, token = next((k, t) for k, t in enumerate(scene["tokens"]) if t["source"] == "host")
+    props = {p.get("name"): p.get("value") for o in root.iter("ScenarioObject") if o.get("name") == "host"
+             for p in o.iter("Property")}
+    assert props["status"] == "kept" and int(props["token_index"]) == k and json.loads(props["token"]) == token
+    x, y, h, v = _init_poses(root)["host"]
+    assert abs(x - token["x"]) < 0.05 and 0 < token["y"] - y <= 0.5 * token["speed"] + 1.0
+    assert _angle(h, token["heading"]) < 0.01
+    assert ("host", "sumo") in _trajectories(root) and ("host", "generated") not in _trajectories(root)
 
 
 def test_sumo_story_is_the_drive_at_the_step_length(exported):

@@ -3,8 +3,8 @@ on netconvert's OpenDRIVE of its network (``scenario.xodr``), described in ``ope
 
     record = export_folder("out/scene_000")        # ExportError: one line naming the folder or file
 
-One entity per vehicle SUMO holds at the start (a refused agent is in no simulation: counted, not
-exported). Its reference point is the centre of its box on the ground (``scene.json``'s x, y), so
+One entity per vehicle SUMO holds at the start: the scene's agents (a refused one is in no
+simulation: counted, not exported) and the simulation's own vehicles it kept (their pose SUMO's). Its reference point is the centre of its box on the ground (``scene.json``'s x, y), so
 its BoundingBox centre is (0, 0, height / 2); Init teleports it to its world pose (the OpenDRIVE's
 coordinates: the network's plus the recorded offset) at its speed. Two stories, one played
 (``$Replay``, a global parameter players can override): ``generated``, the model's 0..+2 s future
@@ -128,6 +128,25 @@ def _story(xosc, story: str, groups: list) -> object:
     return s
 
 
+def kept_vehicles(doc: dict) -> dict[str, int]:
+    """The simulation's own vehicles the scene kept (run -r/-c, the co-simulation): SUMO id -> its
+    token's index in scene.json's tokens. The model did not place them: SUMO has them where they stood."""
+    return {t["source"]: k for k, t in enumerate(doc.get("tokens") or [])
+            if t.get("source") not in (None, "user")}
+
+
+def _kept_agents(doc: dict, rep: Replay) -> list[dict]:
+    """Kept vehicles as agents: their pose, speed and box as SUMO has them at the start."""
+    out = []
+    for vid, k in kept_vehicles(doc).items():
+        if vid in rep.types and rep.paths.get(vid) and rep.paths[vid][0][0] == 0.0:
+            _, x, y, yaw, speed = rep.paths[vid][0]
+            out.append({"vehicle": vid, "x": x, "y": y, "heading": yaw, "speed": speed, "status": "kept",
+                        "length": rep.types[vid].length, "width": rep.types[vid].width,
+                        "token": k, "token_source": vid})
+    return out
+
+
 def _network_name(doc: dict) -> str:
     """scene.json's network {"path", "name"}; fill.json's, its path."""
     net = doc.get("network") or "sumo"
@@ -151,6 +170,7 @@ def build_scenario(doc: dict, rep: Replay, info: dict, xodr_name: str = "scenari
     from scenariogeneration import xosc
     offset = info["offset"]
     agents = [a for a in doc["agents"] if a.get("vehicle") in rep.types]
+    agents += [a for a in _kept_agents(doc, rep) if a["vehicle"] not in {b["vehicle"] for b in agents}]
     entities, init = xosc.Entities(), xosc.Init()
     stories = {GENERATED_STORY: [], SUMO_STORY: []}
     ends = [0.0]
@@ -182,7 +202,8 @@ def build_scenario(doc: dict, rep: Replay, info: dict, xodr_name: str = "scenari
                              "sumo-scendiff", params, entities, board, xosc.RoadNetwork(xodr_name),
                              xosc.Catalog(), osc_minor_version=OSC_MINOR, creation_date=when,
                              header_properties=_header_properties(xosc, doc, info, rep.begin))
-    held = {"vehicles": len(agents), "not_in_sumo": sum(1 for a in doc["agents"] if a.get("vehicle") not in rep.types),
+    held = {"vehicles": len(agents), "kept": sum(a["status"] == "kept" for a in agents),
+            "not_in_sumo": sum(1 for a in doc["agents"] if a.get("vehicle") not in rep.types),
             "stories": {k: len(v) for k, v in stories.items()}, "played": played}
     return scenario, held
 
@@ -212,7 +233,7 @@ def export_folder(folder: str, force: bool = False, seconds: float | None = None
     od = opendrive_for(net)
     t1 = time.perf_counter()
     secs = rollout_seconds(folder, 0.0) if seconds is None else seconds
-    rep = replay(config, [a["vehicle"] for a in doc["agents"] if a.get("vehicle")], secs)
+    rep = replay(config, [a["vehicle"] for a in doc["agents"] if a.get("vehicle")] + list(kept_vehicles(doc)), secs)
     t2 = time.perf_counter()
     scenario, held = build_scenario(doc, rep, od.info)
     final = {f: os.path.join(folder, f) for f in FILES}
