@@ -338,3 +338,13 @@ def test_the_fill_exports_its_init(cross_net, tmp_path, cache):
     for name, (x, y, h, v) in init.items():
         a = agents[name]
         assert math.dist((x, y), (a["x"], a["y"])) <= 0.05 and _angle(h, a["heading"]) <= 0.01
+
+
+def test_the_picture_draws_the_file_beside_scene_png(exported, tmp_path):
+    import cv2
+
+    from sumo_scendiff.export.picture import draw
+    out = str(tmp_path / "pic.png")
+    draw(exported, out)
+    img = cv2.imread(out)
+    assert img is not None and img.shape[1] > img.shape[0] > 200   # two panels side by side
