@@ -240,6 +240,7 @@ def run(o) -> dict:
     from .map.raster import render_map
     from .sim.fleet import Fleet
     from .sim.lights import light_states
+    from .sim.preflight import preflight
     from .sim.scenario import ScenarioError, scenario_from_files
     from .sim.session import Session
     from .sim.sumo import SimConfig, settings
@@ -249,7 +250,7 @@ def run(o) -> dict:
     timing = {}
     t = time.perf_counter()
     try:
-        scen = scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional))
+        scen = preflight(scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional)))
     except ScenarioError as e:
         raise RunError(str(e)) from None
     sumo_settings = settings(o, scen)     # the scenario's step length and options, the flags over them

@@ -96,12 +96,12 @@ def test_run_ego_infill(cross_net, demand, tmp_path, capsys):
 
 @pytest.mark.parametrize("case, expect", [
     ("missing-net", "no such file"),
-    ("not-a-net", "not a SUMO network"),
+    ("not-a-net", "junk.net.xml: SUMO refuses to load it: Invalid network"),   # stock SUMO's words
     ("far-center", "off the network"),
     ("bad-tokens", "agents[0]"),
     ("ego-never", "never appears"),
     ("unwritable", "not writable"),
-    ("foreign-routes", "does not match the network"),
+    ("foreign-routes", "SUMO refuses to load it: The edge 'x' within the route for vehicle 'a' is not known"),
     ("begin-outside", "--begin 3600 s (1:00:00) lies outside the demand ("),
 ])
 def test_bad_input_one_line_exit_2(case, expect, cross_net, demand, tmp_path, capsys):

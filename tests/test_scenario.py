@@ -25,7 +25,7 @@ def scenario(tmp_path, cross_net):
     (d / "run.sumocfg").write_text(
         '<configuration>\n <input>\n  <net-file value="cross.net.xml"/>\n'
         '  <route-files value="sub/cars.rou.xml"/>\n  <additional-files value="vtypes.add.xml"/>\n'
-        ' </input>\n <time>\n  <begin value="0:10"/>\n  <end value="3600"/>\n  <step-length value="1"/>\n </time>\n'
+        ' </input>\n <time>\n  <begin value="0:00:10"/>\n  <end value="3600"/>\n  <step-length value="1"/>\n </time>\n'
         ' <output>\n  <tripinfo-output value="trips.xml"/>\n </output>\n</configuration>\n')
     return d
 
@@ -35,7 +35,7 @@ def test_a_sumocfg_gives_its_inputs_relative_to_its_folder(scenario):
     assert s.net == str(scenario / "cross.net.xml")
     assert s.routes == (str(scenario / "sub" / "cars.rou.xml"),)
     assert s.additional == (str(scenario / "vtypes.add.xml"),)
-    assert (s.begin, s.end) == (10.0, 3600.0)       # SUMO's M:S form too
+    assert (s.begin, s.end) == (10.0, 3600.0)       # SUMO's H:M:S form too
     assert s.step_length == 1.0                      # run and fill take it unless --step-length
 
 
@@ -90,7 +90,8 @@ def test_route_files_are_checked_as_a_set(scenario, cross_net):
 
 def test_the_demands_span_in_every_form_sumo_reads(tmp_path, cross_net):
     """Departures as seconds or clock time, attributes with spaces around '=', a flow departing
-    until its end; a flow without an end leaves the span open."""
+    until its end; a flow without an end departs for a day (SUMO's default), or until the
+    simulation's end."""
     from sumo_scendiff.map.network import Network
     edges = sorted({ln.edge for ln in Network.load(cross_net).lanes})
     f = tmp_path / "d.rou.xml"
@@ -100,7 +101,8 @@ def test_the_demands_span_in_every_form_sumo_reads(tmp_path, cross_net):
     assert demand_span([str(f)], set(edges)) == (54000.0, 57600.0)
     assert check_demand([str(f)], set(edges)) == 54000.0
     f.write_text(f'<routes><flow id="f" begin="10" period="5" from="{edges[0]}" to="{edges[-1]}"/></routes>')
-    assert demand_span([str(f)], set(edges)) == (10.0, float("inf"))
+    assert demand_span([str(f)], set(edges)) == (10.0, 10.0 + 86400.0)
+    assert demand_span([str(f)], set(edges), end=3600.0) == (10.0, 3600.0)
 
 
 def test_the_seeding_time_is_on_sumos_clock_within_the_demand():

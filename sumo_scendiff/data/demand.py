@@ -7,14 +7,13 @@ density drawn per episode, so that recorded scenes range from nearly empty to co
 from __future__ import annotations
 
 import glob
-import gzip
 import os
-import re
 import subprocess
 import sys
 from dataclasses import dataclass
 from typing import Sequence
 
+from ..core.sumo_xml import XmlError, elements, seconds
 from ..core.tools import sumo_tool
 
 # (id, vClass, guiShape, length, width, minGap, accel, decel, maxSpeed, probability)
@@ -73,76 +72,120 @@ def random_trips(net_path: str, out_path: str, spec: RandomDemand) -> str:
     return out_path
 
 
-_EDGE_ATTRS = re.compile(rb'\b(?:edges|from|to)\s*=\s*"([^"]*)"')
-_DEPART = re.compile(rb'<(?:vehicle|trip|flow|person|personFlow)\b[^>]*?\b(?:depart|begin)\s*=\s*"([^"]*)"')
-_FLOW_END = re.compile(rb'<(?:flow|personFlow)\b[^>]*?\bend\s*=\s*"([^"]*)"')
-_FLOW = re.compile(rb'<(?:flow|personFlow)\b')
-_DEMAND = re.compile(rb'<(?:vehicle|trip|flow|person|personFlow|container|containerFlow)\b')
+DEMAND = ("vehicle", "trip", "flow", "person", "personFlow", "container", "containerFlow")
+FLOWS = ("flow", "personFlow", "containerFlow")
+_PER_HOUR = ("vehsPerHour", "personsPerHour", "containersPerHour", "perHour")
+_EDGE_ATTRS = ("edges", "from", "to", "via")
+DAY_S = 86400.0        # a flow with neither an end nor a simulation end departs for a day (SUMO's)
+READ_LIMIT = 100_000   # demand elements of one file read for its departures; past them: open-ended
 
 
-def _read_xml(path: str, roots: tuple[bytes, ...]) -> bytes:
-    if not os.path.exists(path):
-        raise DemandError(f"{path}: no such file")
-    if os.path.getsize(path) == 0:
-        raise DemandError(f"{path}: empty file")
-    opener = gzip.open if path.endswith(".gz") else open
-    with opener(path, "rb") as f:
-        data = f.read()
-    root = next((r for r in roots if b"<" + r in data[:65536]), None)
-    if root is None:
-        names = " or ".join(f"<{r.decode()}>" for r in roots)
-        raise DemandError(f"{path}: not a SUMO route file (no {names} element)")
-    if not data.rstrip().endswith(b"</" + root + b">"):
-        raise DemandError(f"{path}: truncated (no closing </{root.decode()}>)")
-    return data
-
-
-def _seconds(value: bytes) -> float | None:
-    """A SUMO time attribute (seconds, or clock time ``[D:]HH:MM:SS``) in s; None for the
-    non-times a depart may be (``triggered``, ``now``, ...)."""
-    from sumolib.miscutils import parseTime
-    try:
-        return float(parseTime(value.decode()))
-    except (ValueError, TypeError):
+def flow_span(el, begin: float | None = None, end: float | None = None) -> tuple[float, float] | None:
+    """The first and the last departure (s) of a ``flow``/``personFlow``/``containerFlow`` element
+    as SUMO computes them (``SUMOVehicleParserHelper::parseFlowAttributes``): ``begin`` defaults to
+    the simulation's begin, the flow runs to its ``end``, or for ``number`` vehicles at a ``period``
+    / per-hour rate, else to the simulation's ``end`` or for a day; None for a triggered one."""
+    b = seconds(el.get("begin")) if el.get("begin") is not None else (begin or 0.0)
+    if b is None:
         return None
+    if el.get("end") is not None:
+        e = seconds(el.get("end"))
+        return None if e is None else (b, e)
+    rate = next((float(el.get(a)) for a in _PER_HOUR if _number(el.get(a))), None)
+    offset = _period(el.get("period")) if el.get("period") is not None else 3600.0 / rate if rate else None
+    number = _number(el.get("number"))
+    if number and offset is not None:
+        return b, b + (number - 1) * offset
+    return b, end if end is not None and end > b else b + DAY_S
+
+
+def _period(value: str) -> float | None:
+    """A flow's period in s: a time, or ``exp(r)`` (departures at random, ``r`` a second: on
+    average every 1/r s)."""
+    if value.startswith("exp(") and value.endswith(")"):
+        r = _number(value[4:-1])
+        return 1.0 / r if r else None
+    return seconds(value)
+
+
+def _number(value: str | None) -> float | None:
+    try:
+        return float(value) if value is not None and float(value) > 0 else None
+    except ValueError:
+        return None
+
+
+def departures(el, begin: float | None = None, end: float | None = None) -> tuple[float, float] | None:
+    """The first and last departure (s) of one demand element (:data:`DEMAND`); None when it
+    departs on a trigger (``triggered``, ``containerTriggered``, ``split``)."""
+    if el.tag in FLOWS:
+        return flow_span(el, begin, end)
+    depart = el.get("depart")
+    t = (begin or 0.0) if depart == "begin" else seconds(depart)
+    return None if t is None else (t, t)
+
+
+def _edges_used(el):
+    for sub in el.iter():
+        for a in _EDGE_ATTRS:
+            value = sub.get(a)
+            if value:
+                yield from value.split()
 
 
 def check_demand(route_files: Sequence[str], edge_ids: set[str], additional: Sequence[str] = (),
                  sample: int = 2000) -> float:
-    """Check route files as the set SUMO loads: each is a closed ``<routes>`` (or ``<additional>``)
-    file, the set (with the additional files, which may hold vTypes or routes too) has vehicles,
-    trips or flows, and the edges they use are the network's. A file of vTypes alone is legal.
-    Returns the first departure (s). Raises :class:`DemandError` naming the file."""
+    """Check route files as the set SUMO loads: each file is XML SUMO reads (any root element,
+    gzipped or not, includes in place), the set (with the additional files, which may hold vTypes
+    or routes too) has vehicles, trips, flows, persons or containers, and the edges they use are
+    the network's. A file of vTypes alone is legal. Returns the first departure (s).
+    Raises :class:`DemandError` naming the file."""
     return demand_span(route_files, edge_ids, additional, sample)[0]
 
 
 def demand_span(route_files: Sequence[str], edge_ids: set[str], additional: Sequence[str] = (),
-                sample: int = 2000) -> tuple[float, float]:
-    """:func:`check_demand`'s checks; returns the first and the last departure (s; a flow departs
-    until its ``end``, one without an end or a file past its first 2 MB: ``inf``)."""
-    data = {p: _read_xml(p, (b"routes", b"additional")) for p in route_files}
-    data.update({p: _read_xml(p, (b"additional", b"routes")) for p in additional})
-    if not any(_DEMAND.search(d) for d in data.values()):
+                sample: int = 2000, begin: float | None = None, end: float | None = None) -> tuple[float, float]:
+    """:func:`check_demand`'s checks; returns the first and the last departure (s) of the set (a
+    flow departs until its end, :func:`flow_span`; ``begin`` and ``end`` are the simulation's,
+    a flow's defaults). A file with more than :data:`READ_LIMIT` demand elements leaves the last
+    departure open (``inf``)."""
+    first, last, found = float("inf"), float("-inf"), False
+    for path in list(route_files) + list(additional):
+        span, n = _file_span(path, edge_ids, sample, begin, end)
+        found |= n > 0
+        if span:
+            first, last = min(first, span[0]), max(last, span[1])
+    if not found:
         raise DemandError(f"{', '.join(route_files) or ', '.join(additional)}: no vehicle routes or "
                           "trips found")
-    departs, ends, open_ended = [], [], False
-    for path, d in data.items():
-        used = []
-        for m in _EDGE_ATTRS.finditer(d):
-            used.extend(m.group(1).decode().split())
-            if len(used) >= sample:
+    return (0.0, float("inf")) if first == float("inf") else (first, last)
+
+
+def _file_span(path: str, edge_ids: set[str], sample: int, begin, end) -> tuple[tuple[float, float] | None, int]:
+    """One file's (first, last) departure (None: none with a time) and its number of demand
+    elements read; checks the first ``sample`` edges it names against the network."""
+    first, last, n, used, unknown = float("inf"), float("-inf"), 0, 0, []
+    try:
+        for where, el in elements([path], DEMAND + ("route", "routeDistribution")):
+            if used < sample:
+                names = list(_edges_used(el))
+                used += len(names)
+                unknown += [(e, where) for e in names if e not in edge_ids]
+            if el.tag not in DEMAND:
+                continue
+            n += 1
+            span = departures(el, begin, end)
+            if span:
+                first, last = min(first, span[0]), max(last, span[1])
+            if n >= READ_LIMIT:
+                last = float("inf")
                 break
-        unknown = [e for e in used if e not in edge_ids]
-        if len(unknown) > 0.01 * len(used):
-            raise DemandError(f"{path}: does not match the network ({len(unknown)} of {len(used)} "
-                              f"edges referenced are unknown, e.g. '{unknown[0]}')")
-        head = min(len(d), 2_000_000)
-        departs += [t for m in _DEPART.finditer(d, 0, head) for t in [_seconds(m.group(1))] if t is not None]
-        ends += [t for m in _FLOW_END.finditer(d, 0, head) for t in [_seconds(m.group(1))] if t is not None]
-        open_ended |= head < len(d) or len(_FLOW.findall(d, 0, head)) > len(_FLOW_END.findall(d, 0, head))
-    if not departs:
-        return 0.0, float("inf")
-    return min(departs), float("inf") if open_ended else max(departs + ends)
+    except XmlError as e:
+        raise DemandError(str(e)) from None
+    if len(unknown) > 0.01 * used:
+        raise DemandError(f"{unknown[0][1]}: does not match the network ({len(unknown)} of {used} "
+                          f"edges referenced are unknown, e.g. '{unknown[0][0]}')")
+    return (None if first == float("inf") else (first, last)), n
 
 
 def seeding_time(begin: float | None, config_begin: float | None, span: tuple[float, float],

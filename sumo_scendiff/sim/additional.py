@@ -4,17 +4,18 @@
     for sub in output_folders(path):                # beside an exported copy of ``path``
         os.makedirs(os.path.join(folder, sub), exist_ok=True)
 
-An output element writes where its ``file`` says, relative to its additional file. The product's own
+An output element writes where its ``file`` says (a timed event where its ``dest`` says), relative
+to its additional file. The product's own
 SUMO runs (seeding, the lights at the start, the fill's probe) load the user's additional files, and
 would write those outputs into the user's folder, over the results of the user's own runs: they load
-a copy whose outputs go to SUMO's null device, and whose other relative paths (an ``<include>``, a
-rerouter's definitions) point back at the original's folder. An exported configuration loads the
+a copy whose outputs go to SUMO's null device, and whose other relative paths (a rerouter's
+definitions) point back at the original's folder; an ``<include>`` points at the included file, or
+at its own quiet copy when it names outputs itself. An exported configuration loads the
 file itself, and its folder gets the subfolders those outputs name: SUMO does not create a folder
 for an output and refuses to start without it.
 """
 from __future__ import annotations
 
-import gzip
 import os
 import tempfile
 import xml.etree.ElementTree as ET
@@ -23,20 +24,22 @@ import xml.etree.ElementTree as ET
 OUTPUTS = {tag: "file" for tag in (
     "inductionLoop", "e1Detector", "instantInductionLoop", "laneAreaDetector", "e2Detector",
     "multiLaneAreaDetector", "entryExitDetector", "e3Detector", "edgeData", "laneData", "edgeRelation",
-    "tazRelation", "routeProbe", "vTypeProbe")} | {"calibrator": "output"}
+    "tazRelation", "routeProbe", "vTypeProbe")} | {"calibrator": "output", "timedEvent": "dest"}
 # attributes that name an input file, relative to the additional file
 INPUTS = ("file", "href")
 NULL = "NUL"             # SUMO's name for the null device, on every platform
 
 _cache: dict[tuple[str, float, int], str] = {}
+_origin: dict[str, str] = {}          # quiet copy -> the user's file
 _tmp: tempfile.TemporaryDirectory | None = None
 
 
 def _read(path: str) -> ET.ElementTree | None:
+    from ..core.sumo_xml import XmlError, open_xml
     try:
-        with (gzip.open if path.endswith(".gz") else open)(path, "rb") as f:
+        with open_xml(path) as f:
             return ET.parse(f)
-    except (ET.ParseError, OSError, EOFError):
+    except (ET.ParseError, XmlError, OSError, EOFError):
         return None         # SUMO names what is wrong with it when it loads it
 
 
@@ -48,35 +51,60 @@ def _outputs(tree: ET.ElementTree):
 
 
 def quiet_outputs(paths) -> tuple[str, ...]:
-    """``paths`` with each additional file that names an output replaced by a copy writing it
-    nowhere (made once per process; the others as they are)."""
-    global _tmp
-    out = []
-    for path in paths:
+    """``paths`` with each additional file that names an output (itself or in a file it includes)
+    replaced by a copy writing it nowhere (made once per process; the others as they are)."""
+    return tuple(_quiet(os.path.abspath(p), ()) for p in paths)
+
+
+def original(path: str) -> str:
+    """The user's file a quiet copy was made of (``path`` itself if it is none), and in a text
+    naming quiet copies (SUMO's message) each replaced by its original."""
+    for copy, orig in _origin.items():
+        path = path.replace(copy, orig)
+    return path
+
+
+def _quiet(path: str, chain: tuple[str, ...]) -> str:
+    from ..core.sumo_xml import include_path
+    try:
         st = os.stat(path)
-        key = (os.path.abspath(path), st.st_mtime, st.st_size)
-        if key not in _cache:
-            tree = _read(path)
-            found = list(_outputs(tree)) if tree is not None else []
-            if not found:
-                _cache[key] = path
-            else:
-                here = os.path.dirname(os.path.abspath(path))
-                for el in tree.iter():
-                    for attr in INPUTS:
-                        v = el.get(attr)
-                        if v and not os.path.isabs(v) and (OUTPUTS.get(el.tag) != attr):
-                            el.set(attr, os.path.join(here, v))
-                for el, attr in found:
-                    el.set(attr, NULL)
-                if _tmp is None:
-                    _tmp = tempfile.TemporaryDirectory(prefix="scendiff-additional-")
-                name = os.path.basename(path).removesuffix(".gz")
-                copy = os.path.join(_tmp.name, f"{len(_cache)}-{name}")
-                tree.write(copy, encoding="unicode")
-                _cache[key] = copy
-        out.append(_cache[key])
-    return tuple(out)
+    except OSError:
+        return path                     # SUMO names the missing file
+    key = (path, st.st_mtime, st.st_size)
+    if key in _cache:
+        return _cache[key]
+    tree = _read(path) if path not in chain else None
+    changed = False
+    for el in tree.iter("include") if tree is not None else ():
+        target = include_path(path, el.get("href") or "")
+        quiet = _quiet(target, chain + (path,)) if el.get("href") else target
+        changed |= quiet != target
+        el.set("href", quiet)
+    found = list(_outputs(tree)) if tree is not None else []
+    if not found and not changed:
+        _cache[key] = path
+        return path
+    here = os.path.dirname(path)
+    for el in tree.iter():
+        for attr in INPUTS:
+            v = el.get(attr)
+            if v and not os.path.isabs(v) and OUTPUTS.get(el.tag) != attr:
+                el.set(attr, os.path.join(here, v))
+    for el, attr in found:
+        el.set(attr, NULL)
+    _cache[key] = _write_copy(tree, path)
+    return _cache[key]
+
+
+def _write_copy(tree: ET.ElementTree, path: str) -> str:
+    global _tmp
+    if _tmp is None:
+        _tmp = tempfile.TemporaryDirectory(prefix="scendiff-additional-")
+    name = os.path.basename(path).removesuffix(".gz")
+    copy = os.path.join(_tmp.name, f"{len(_origin)}-{name}")
+    tree.write(copy, encoding="unicode")
+    _origin[copy] = path
+    return copy
 
 
 def output_folders(path: str) -> list[str]:
@@ -90,4 +118,4 @@ def output_folders(path: str) -> list[str]:
     return sorted(found)
 
 
-__all__ = ["NULL", "OUTPUTS", "output_folders", "quiet_outputs"]
+__all__ = ["NULL", "OUTPUTS", "original", "output_folders", "quiet_outputs"]

@@ -52,13 +52,11 @@ def _split(value: str) -> list[str]:
 
 
 def _time(path: str, name: str, value: str) -> float:
-    try:
-        if ":" in value:   # SUMO also takes [[D:]H:]M:S
-            parts = [float(p) for p in value.split(":")]
-            return sum(p * f for p, f in zip(reversed(parts), (1, 60, 3600, 86400)))
-        return float(value)
-    except ValueError:
-        raise ScenarioError(f"{path}: {name}: not a time in seconds ({value!r})") from None
+    from ..core.sumo_xml import seconds
+    t = seconds(value)
+    if t is None:
+        raise ScenarioError(f"{path}: {name}: not a time SUMO reads (seconds or H:M:S, got {value!r})")
+    return t
 
 
 def input_flags_problem(net: str | None, config: str | None) -> str | None:

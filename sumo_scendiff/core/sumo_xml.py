@@ -1,0 +1,109 @@
+"""SUMO's XML inputs (route, additional and configuration files) read as SUMO reads them.
+
+    for path, el in elements(["a.rou.xml", "b.add.xml.gz"], {"vehicle", "flow"}):
+        t = seconds(el.get("depart"))
+
+SUMO takes any root element (``<routes>``, ``<additional>``, ``<add>``, a ``<tlLogics>`` or a
+``<viewsettings>`` given as an additional file) and acts on the elements it knows wherever they
+are; a gzipped file whatever its name; and ``<include href="..."/>`` in place, the path relative
+to the including file's folder (``GenericSAXHandler::startElement``). Files are streamed
+(ElementTree iterparse) and each element is let go once it has been handed over, so a route file
+of a whole day costs its reading time, not its size in memory.
+"""
+from __future__ import annotations
+
+import gzip
+import math
+import os
+import xml.etree.ElementTree as ET
+from typing import BinaryIO, Collection, Iterable, Iterator
+
+_GZIP = b"\x1f\x8b"
+
+
+class XmlError(ValueError):
+    """One line: the file and what is wrong with it."""
+
+
+def open_xml(path: str) -> BinaryIO:
+    """``path`` opened for reading, gunzipped when it is gzipped (SUMO looks at the bytes, not at
+    the name). Raises :class:`XmlError` for a missing or empty file."""
+    if not os.path.isfile(path):
+        raise XmlError(f"{path}: no such file")
+    if os.path.getsize(path) == 0:
+        raise XmlError(f"{path}: empty file")
+    f = open(path, "rb")
+    if f.read(2) == _GZIP:
+        f.close()
+        return gzip.open(path, "rb")
+    f.seek(0)
+    return f
+
+
+def seconds(value: str | None) -> float | None:
+    """A SUMO time (seconds, or clock time ``H:M:S`` / ``D:H:M:S``, as sumolib's ``parseTime``)
+    in s; None for what is not one (``triggered``, ``now``, ``0:10``: SUMO takes no ``M:S``)."""
+    from sumolib.miscutils import parseTime
+    if value is None:
+        return None
+    try:
+        t = float(parseTime(value.strip()))
+    except (ValueError, TypeError, AttributeError):
+        return None
+    return None if math.isnan(t) else t
+
+
+def include_path(including: str, href: str) -> str:
+    """Where ``<include href>`` in ``including`` points, as SUMO resolves it."""
+    return href if os.path.isabs(href) else os.path.normpath(os.path.join(os.path.dirname(including), href))
+
+
+def elements(paths: Iterable[str], tags: Collection[str]) -> Iterator[tuple[str, ET.Element]]:
+    """(file, element) for every element of ``paths`` whose tag is in ``tags`` and which lies in
+    no other such element, with all it holds, in file order, includes in place. The element is
+    emptied once the caller asks for the next one: keep what you need, not the element.
+    Raises :class:`XmlError` naming the file (and line) that cannot be read."""
+    for path in paths:
+        yield from _walk(os.path.abspath(path), frozenset(tags), ())
+
+
+def _walk(path: str, tags: frozenset, chain: tuple[str, ...]) -> Iterator[tuple[str, ET.Element]]:
+    if path in chain:
+        raise XmlError(f"{chain[-1]}: includes {path}, which includes it back")
+    with open_xml(path) as f:
+        try:
+            yield from _events(path, f, tags, chain)
+        except ET.ParseError as e:
+            raise XmlError(f"{path}: not well-formed XML ({e})") from None
+        except (OSError, EOFError) as e:       # a gzip cut short or corrupt
+            raise XmlError(f"{path}: cannot be read ({e})") from None
+
+
+def _events(path: str, f: BinaryIO, tags: frozenset, chain: tuple[str, ...]):
+    inside, depth, root = 0, 0, None
+    for event, el in ET.iterparse(f, events=("start", "end")):
+        if event == "start":
+            depth += 1
+            root = el if root is None else root
+            if inside:
+                inside += 1
+            elif el.tag in tags:
+                inside = 1
+            elif el.tag == "include" and el.get("href"):
+                target = include_path(path, el.get("href"))
+                if not os.path.isfile(target):
+                    raise XmlError(f"{path}: include href=\"{el.get('href')}\": no such file {target}")
+                yield from _walk(target, tags, chain + (path,))
+            continue
+        depth -= 1
+        if inside:
+            inside -= 1
+            if inside == 0:
+                yield path, el
+        if not inside:
+            el.clear()
+            if depth == 1:
+                root.clear()      # its children so far are done with: let them go
+
+
+__all__ = ["XmlError", "elements", "include_path", "open_xml", "seconds"]

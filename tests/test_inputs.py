@@ -1,0 +1,185 @@
+"""SUMO's inputs read as SUMO reads them (core.sumo_xml, data.demand) and judged by SUMO itself
+before any expensive work (sim.preflight): any root element, gzip, includes, flows, persons and
+containers, public transport, calibrators, rerouters, TAZ; SUMO's own refusals in one line."""
+from __future__ import annotations
+
+import gzip
+import os
+import subprocess
+import sys
+
+import pytest
+
+from sumo_scendiff.core.sumo_xml import XmlError, elements, seconds
+from sumo_scendiff.data.demand import DemandError, demand_span
+from sumo_scendiff.sim.preflight import preflight
+from sumo_scendiff.sim.scenario import ScenarioError, scenario_from_files
+
+# an additional file as many published scenarios write it: root <add>, vTypes, public transport
+# stops, a TAZ, a calibrator and a rerouter, a detector and a timed event writing outputs
+ADD = ('<add>\n  <vTypeDistribution id="mix">\n    <vType id="small" length="4" probability="0.7"/>\n'
+       '    <vType id="van" vClass="delivery" length="6.5" probability="0.3"/>\n  </vTypeDistribution>\n'
+       '  <vType id="bus" vClass="bus"/>\n'
+       '  <busStop id="bs1" lane="A0B0_0" startPos="20" endPos="45" lines="1"/>\n'
+       '  <busStop id="bs2" lane="B0C0_0" startPos="40" endPos="65" lines="1"/>\n'
+       '  <taz id="t1" edges="A0B0 A1B1"/>\n'
+       '  <calibrator id="cal" edge="A2B2" pos="10" output="out/cal.xml"/>\n'
+       '  <rerouter id="rr" edges="A1B1"><interval begin="0" end="30000"><closingReroute id="B1C1"/>'
+       '</interval></rerouter>\n'
+       '  <inductionLoop id="e1" lane="A0B0_0" pos="80" period="60" file="out/e1.xml"/>\n'
+       '  <timedEvent type="SaveTLSStates" dest="out/tls.xml"/>\n</add>\n')
+# demand of every kind, times as seconds and clock time, from 7:00:00 (25200 s) to 7:10:00
+ROUTES = ('<routes>\n'
+          '  <route id="line1" edges="A0B0 B0C0"/>\n'
+          '  <flow id="bus" type="bus" line="1" route="line1" begin="7:00:00" end="7:10:00" period="120">\n'
+          '    <stop busStop="bs1" duration="20"/>\n    <stop busStop="bs2" duration="10"/>\n  </flow>\n'
+          '  <vehicle id="v0" type="mix" depart="25220"><route edges="A1B1 B1C1"/>'
+          '<stop lane="B1C1_0" endPos="60" duration="5" until="7:01:00"/></vehicle>\n'
+          '  <flow id="fh" type="mix" begin="7:00:30" vehsPerHour="360" number="5" from="A2B2" to="B2C2"/>\n'
+          '  <flow id="fp" begin="25200" end="7:05:00" probability="0.05" from="A0A1" to="A1A2"/>\n'
+          '  <person id="p0" depart="25210"><walk edges="A0B0 B0C0"/><stop lane="B0C0_0" endPos="30" '
+          'duration="20"/></person>\n'
+          '  <personFlow id="pf" begin="7:00:00" end="25800" period="120"><walk from="A1B1" to="B1C1"/>'
+          '</personFlow>\n'
+          '  <container id="c0" depart="25300"><tranship edges="A2B2 B2C2"/></container>\n'
+          '  <containerFlow id="cf" begin="25200" number="3" period="100"><tranship edges="B0C0 C0C1"/>'
+          '</containerFlow>\n</routes>\n')
+
+
+def _write(path, text: str, gz: bool = False):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if gz:
+        with gzip.open(path, "wt") as f:
+            f.write(text)
+    else:
+        path.write_text(text)
+    return str(path)
+
+
+def _config(folder, net: str, routes: str, additional: str, extra: str = "") -> str:
+    return _write(folder / "run.sumocfg",
+                  f'<configuration><input><net-file value="{net}"/><route-files value="{routes}"/>'
+                  f'<additional-files value="{additional}"/></input><time><begin value="7:00:00"/></time>'
+                  f'{extra}</configuration>')
+
+
+@pytest.fixture
+def user(tmp_path, grid):
+    """A user's scenario folder: the grid, an <add> additional file, every kind of demand."""
+    d = tmp_path / "user"
+    (d / "out").mkdir(parents=True)
+    _write(d / "city.add.xml", ADD)
+    _write(d / "city.rou.xml", ROUTES)
+    _config(d, grid.path, "city.rou.xml", "city.add.xml",
+            '<output><tripinfo-output value="out/trips.xml"/><summary value="out/summary.xml"/></output>'
+            '<report><log value="out/log.txt"/></report>')
+    return d
+
+
+def _edges(grid) -> set[str]:
+    return {ln.edge for ln in grid.lanes}
+
+
+def test_every_kind_of_input_sumo_reads_is_read(user, grid):
+    """An <add>-rooted additional file (vTypes, bus stops, TAZ, calibrator, rerouter), flows by
+    period, rate, number and probability with clock times, persons and containers with their
+    plans, stops with until and duration: read, the demand's span as SUMO departs it, and stock
+    SUMO loads it all without writing anything beside the user's files."""
+    scen = scenario_from_files(str(user / "run.sumocfg"))
+    assert scen.additional == (str(user / "city.add.xml"),) and scen.begin == 25200.0
+    # the bus line and the person flow depart until 7:10:00; the rate flow's 5th at 7:01:10
+    assert demand_span(scen.routes, _edges(grid), scen.additional, begin=scen.begin) == (25200.0, 25800.0)
+    before = sorted(os.listdir(user / "out"))
+    assert preflight(scen) is scen
+    assert sorted(os.listdir(user / "out")) == before == []
+
+
+def test_a_gzipped_route_file_whatever_its_name(tmp_path, grid):
+    """SUMO reads a gzipped file by its bytes: with or without .gz in its name."""
+    for name in ("d.rou.xml.gz", "hidden.rou.xml"):
+        path = _write(tmp_path / name, ROUTES, gz=True)
+        assert demand_span([path], _edges(grid), [_write(tmp_path / "a.add.xml", ADD)]) == (25200.0, 25800.0)
+        preflight(scenario_from_files(net=grid.path, routes=[path], additional=[str(tmp_path / "a.add.xml")]))
+
+
+def test_includes_are_read_in_place_relative_to_the_including_file(tmp_path, grid):
+    """<include href> in a route and an additional file, resolved from the including file's folder
+    as SUMO resolves it; an include of a missing file names both."""
+    _write(tmp_path / "parts" / "types.xml", '<additional><vType id="mix"/><vType id="bus"/></additional>')
+    add = _write(tmp_path / "parts" / "main.add.xml",
+                 '<add><include href="types.xml"/><busStop id="bs1" lane="A0B0_0" startPos="20" endPos="45"/>'
+                 '<busStop id="bs2" lane="B0C0_0" startPos="40" endPos="65"/></add>')
+    _write(tmp_path / "more" / "late.rou.xml", '<routes><vehicle id="late" type="mix" depart="9:00:00">'
+           '<route edges="A0B0"/></vehicle></routes>')
+    routes = _write(tmp_path / "d.rou.xml", ROUTES.replace("</routes>", '<include href="more/late.rou.xml"/>'
+                                                           '</routes>'))
+    tags = [el.tag for _, el in elements([add], {"vType", "busStop"})]
+    assert tags == ["vType", "vType", "busStop", "busStop"]
+    assert demand_span([routes], _edges(grid), [add]) == (25200.0, 32400.0)
+    preflight(scenario_from_files(net=grid.path, routes=[routes], additional=[add]))
+    _write(tmp_path / "bad.add.xml", '<add><include href="parts/nothere.xml"/></add>')
+    with pytest.raises(XmlError, match=r"bad\.add\.xml: include href=\"parts/nothere\.xml\": no such file"):
+        list(elements([str(tmp_path / "bad.add.xml")], {"vType"}))
+
+
+def test_flow_spans_as_sumo_computes_them(tmp_path, grid):
+    """A flow departs from its begin (default: the simulation's) to its end, or for `number`
+    vehicles at its period or rate, or until the simulation's end, or for a day."""
+    def span(flow: str, **kw):
+        f = _write(tmp_path / "f.rou.xml", f'<routes><flow id="f" from="A0B0" to="B0C0" {flow}/></routes>')
+        return demand_span([f], _edges(grid), **kw)
+    assert span('begin="1:00:00" number="4" period="30"') == (3600.0, 3690.0)
+    assert span('begin="100" number="3" vehsPerHour="720"') == (100.0, 110.0)
+    assert span('begin="0" number="11" period="exp(0.5)"') == (0.0, 20.0)      # on average every 2 s
+    assert span('end="600" number="10"', begin=60.0) == (60.0, 600.0)
+    assert span('begin="0:02:00" period="10"', end=900.0) == (120.0, 900.0)
+    assert span('begin="0:02:00" probability="0.1"') == (120.0, 120.0 + 86400.0)
+    assert seconds("1:00:00:00") == 86400.0 and seconds("0:10") is None and seconds("triggered") is None
+
+
+def test_a_route_file_with_a_syntax_error_is_one_line_naming_it(tmp_path, grid):
+    bad = _write(tmp_path / "bad.rou.xml", '<routes>\n<vehicle id="a" depart="0">\n<route edges="A0B0"/>\n'
+                 '</routes>\n')
+    with pytest.raises(DemandError, match=r"^.*bad\.rou\.xml: not well-formed XML \(mismatched tag: line 4") as e:
+        demand_span([bad], _edges(grid))
+    assert "\n" not in str(e.value)
+    with pytest.raises(ScenarioError, match=r"^.*bad\.rou\.xml: line \d+, column \d+: SUMO refuses it: "
+                       r"expected end of tag 'vehicle'$"):
+        preflight(scenario_from_files(net=grid.path, routes=[bad]))
+
+
+def test_a_demand_for_another_network_is_named_as_sumo_names_it(tmp_path, grid):
+    foreign = _write(tmp_path / "foreign.rou.xml", '<routes><vehicle id="a" depart="0">'
+                     '<route edges="nowhere gone"/></vehicle></routes>')
+    with pytest.raises(ScenarioError) as e:
+        preflight(scenario_from_files(net=grid.path, routes=[foreign]))
+    assert "foreign.rou.xml" in str(e.value) and "\n" not in str(e.value)
+    assert str(e.value).endswith("SUMO refuses to load it: The edge 'nowhere' within the route for vehicle "
+                                 "'a' is not known. The route can not be build.")
+    with pytest.raises(DemandError, match="foreign.rou.xml: does not match the network"):
+        demand_span([foreign], _edges(grid))
+
+
+def test_an_error_in_a_quieted_file_names_the_users_file(user, grid):
+    """SUMO loads a copy of an additional file whose outputs are quieted: its error names the
+    user's file, not the copy."""
+    bad = _write(user / "bad.add.xml", ADD.replace('lane="B0C0_0"', 'lane="B0C0_7"'))
+    with pytest.raises(ScenarioError) as e:
+        preflight(scenario_from_files(str(user / "run.sumocfg"), additional=[bad]))
+    assert "B0C0_7" in str(e.value) and "scendiff-additional" not in str(e.value)
+
+
+@pytest.mark.slow    # the CLI imports the model's libraries before it reads the scenario
+def test_a_configuration_sumo_refuses_stops_the_cli_in_one_line(user, grid, tmp_path):
+    """`run -c` on a configuration stock SUMO refuses: exit 2, SUMO's error in one line, nothing
+    written (the real CLI, in its own process)."""
+    _write(user / "other.rou.xml", '<routes><vehicle id="w" depart="7:00:00"><route edges="nowhere"/>'
+           '</vehicle></routes>')
+    cfg = _config(user, grid.path, "other.rou.xml", "city.add.xml")
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "sumo_scendiff.run", "-c", cfg, "-o", str(out)],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr
+    assert "run.sumocfg: SUMO refuses to load it: The edge 'nowhere' within the route for vehicle 'w'" in done.stderr
+    assert not out.exists() and sorted(os.listdir(user / "out")) == []
