@@ -183,3 +183,30 @@ def test_a_configuration_sumo_refuses_stops_the_cli_in_one_line(user, grid, tmp_
     assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr
     assert "run.sumocfg: SUMO refuses to load it: The edge 'nowhere' within the route for vehicle 'w'" in done.stderr
     assert not out.exists() and sorted(os.listdir(user / "out")) == []
+
+
+def _game_configs() -> list[str]:
+    import glob
+
+    from sumo_scendiff.core.tools import sumo_tool
+    return sorted(glob.glob(sumo_tool("game", "*.sumocfg")))
+
+
+@pytest.mark.slow    # SUMO's own public scenarios, shipped with the wheel: seconds each
+@pytest.mark.parametrize("config", _game_configs(), ids=os.path.basename)
+def test_sumos_own_scenarios_are_read(config):
+    """Each of SUMO's game scenarios (trams and trains with persons and containers, DRT, bus
+    lines, <add>, <tlLogics> and GUI settings as additional files, flows of every kind) is read
+    and loaded by stock SUMO; one that needs an option only an OSG-enabled sumo-gui has is
+    refused in SUMO's words."""
+    import sumolib
+    scen = scenario_from_files(config)
+    net = sumolib.net.readNet(scen.net, withInternal=True)
+    edges = {e.getID() for e in net.getEdges(withInternal=True)}
+    if scen.routes:
+        first, last = demand_span(scen.routes, edges, scen.additional, begin=scen.begin, end=scen.end)
+        assert 0 <= first <= last
+    try:
+        preflight(scen)
+    except ScenarioError as e:
+        assert "No option with the name 'osg-view' exists" in str(e) and "\n" not in str(e)
