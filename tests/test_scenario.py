@@ -55,6 +55,21 @@ def test_a_missing_file_names_the_configuration_the_option_and_the_file(scenario
     assert scenario_from_files(str(scenario / "run.sumocfg"), routes=[str(scenario / "mine.rou.xml")]).routes
 
 
+def test_file_lists_are_read_as_sumo_reads_them(scenario):
+    """Files are separated by commas (a space is part of a name, written %20 or as it is); a
+    space-separated list is one file that does not exist, as SUMO says too."""
+    (scenario / "my routes.rou.xml").write_text(ROUTES)
+    for value in ("my routes.rou.xml, sub/cars.rou.xml", "my%20routes.rou.xml,sub/cars.rou.xml"):
+        (scenario / "sp.sumocfg").write_text(f'<configuration><net-file value="cross.net.xml"/>'
+                                             f'<route-files value="{value}"/></configuration>')
+        assert scenario_from_files(str(scenario / "sp.sumocfg")).routes == (
+            str(scenario / "my routes.rou.xml"), str(scenario / "sub" / "cars.rou.xml"))
+    (scenario / "sp.sumocfg").write_text('<configuration><net-file value="cross.net.xml"/>'
+                                         '<route-files value="sub/cars.rou.xml vtypes.add.xml"/></configuration>')
+    with pytest.raises(ScenarioError, match=r"route-files: sub/cars\.rou\.xml vtypes\.add\.xml: no such file"):
+        scenario_from_files(str(scenario / "sp.sumocfg"))
+
+
 @pytest.mark.parametrize("text, message", [
     ("not xml at all <", "not a SUMO configuration"),
     ("<configuration/>", "not a SUMO configuration"),

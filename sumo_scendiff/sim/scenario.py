@@ -4,10 +4,11 @@ directly, or both (the flags replace what the configuration names).
 
     scen = scenario_from_files(config="cologne3.sumocfg")
     scen = scenario_from_files(net="city.net.xml", routes=["a.rou.xml"], additional=["vtypes.add.xml"])
-    first = check_demand(scen, {ln.edge for ln in net.lanes})     # first departure (s), or None
+    scen = preflight(scen)      # sim.preflight: stock SUMO loads it first, its refusal in one line
 
 The configuration is read with sumolib (``sumolib.options.readOptions``); paths in it are relative to
-its folder, as SUMO reads them. The inputs and the time window are taken, and the options that say
+its folder and file lists are comma-separated, as SUMO reads them; its times are SUMO's (seconds or
+H:M:S, core.sumo_xml.seconds). The inputs and the time window are taken, and the options that say
 how SUMO runs the demand (``processing``, ``routing``, devices, ...: ``--junction-taz``, rerouting,
 teleporting) are carried into every SUMO run and exported configuration; outputs a configuration
 names (tripinfo, logs, ...) are the user's business, never written beside their files, and reports,
@@ -16,7 +17,6 @@ the GUI's settings and the seed are the product's.
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -48,7 +48,10 @@ class SumoScenario:
 
 
 def _split(value: str) -> list[str]:
-    return [v for v in re.split(r"[,\s]+", value.strip()) if v]
+    """A file list option's files as SUMO reads them: comma-separated, each trimmed and
+    URL-decoded (SUMO writes a space in a file name as %20); a space does not separate files."""
+    from urllib.parse import unquote
+    return [unquote(v.strip()) for v in value.split(",") if v.strip()]
 
 
 def _time(path: str, name: str, value: str) -> float:
