@@ -138,14 +138,27 @@ def test_flow_spans_as_sumo_computes_them(tmp_path, grid):
 
 
 def test_a_route_file_with_a_syntax_error_is_one_line_naming_it(tmp_path, grid):
+    """Named by the reader, and by SUMO (which reads route files at its first step: the
+    configuration's own TraCI port and clients do not keep the preflight from getting there)."""
     bad = _write(tmp_path / "bad.rou.xml", '<routes>\n<vehicle id="a" depart="0">\n<route edges="A0B0"/>\n'
                  '</routes>\n')
     with pytest.raises(DemandError, match=r"^.*bad\.rou\.xml: not well-formed XML \(mismatched tag: line 4") as e:
         demand_span([bad], _edges(grid))
     assert "\n" not in str(e.value)
+    cfg = _write(tmp_path / "t.sumocfg", f'<configuration><net-file value="{grid.path}"/><route-files '
+                 'value="bad.rou.xml"/><traci_server><remote-port value="1"/><num-clients value="3"/>'
+                 '</traci_server></configuration>')
     with pytest.raises(ScenarioError, match=r"^.*bad\.rou\.xml: line \d+, column \d+: SUMO refuses it: "
                        r"expected end of tag 'vehicle'$"):
-        preflight(scenario_from_files(net=grid.path, routes=[bad]))
+        preflight(scenario_from_files(cfg), timeout=120)
+
+
+def test_a_scenario_sumo_is_slow_to_load_is_not_judged(user):
+    """Past the preflight's time SUMO is stopped and the scenario goes on (the run's own SUMO
+    speaks for it then)."""
+    scen = scenario_from_files(str(user / "run.sumocfg"))
+    assert preflight(scen, timeout=0.0) is scen
+    assert sorted(os.listdir(user / "out")) == []
 
 
 def test_a_demand_for_another_network_is_named_as_sumo_names_it(tmp_path, grid):

@@ -130,7 +130,7 @@ def _first_step(args: list[str], work: str, timeout: float) -> tuple[int | None,
             pass
         finally:
             try:
-                code = proc.wait(timeout=max(deadline - time.monotonic(), 1.0))
+                code = proc.wait(timeout=max(deadline - time.monotonic(), 0.1))
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
