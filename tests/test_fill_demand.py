@@ -60,7 +60,8 @@ def test_no_demand_vehicle_twice(tmp_path):
     times = [("early", 60), ("at", 120), ("within", 120.25), ("due", 120.5), ("later", 125)]
     demand.write_text("<routes>" + "".join(f'<vehicle id="{v}" depart="{t}"><route edges="{edges[k]}"/></vehicle>'
                                            for k, (v, t) in enumerate(times)) + "</routes>")
-    doc = _fill(tmp_path / "o", "-r", str(demand), "--begin", "120")
+    # a 0.5 s step (a demand's own default is SUMO's 1 s): "due" departs after the state's time
+    doc = _fill(tmp_path / "o", "-r", str(demand), "--begin", "120", "--step-length", "0.5")
     carried = {a["demand"]["id"] for a in doc["agents"] if a.get("demand") and a["vehicle"]}
     assert {"at", "within"} <= carried and not carried & {"due", "later"}
     for cfg in ("scenario.sumocfg", "start.sumocfg"):
