@@ -31,7 +31,7 @@ CITIES = {"resco_cologne3": ["-c", "resco_cologne3/cologne3.sumocfg"],
           "resco_ingolstadt7": ["-c", "resco_ingolstadt7/ingolstadt7.sumocfg"],
           "wildau": ["-n", "wildau/net.net.xml.gz", "-r", "wildau/flows_SUMOV2.2.rou.xml"]}
 SNAPSHOT_S = 60.0
-DRAWS = 20
+DRAWS = 200
 RANGES = {"length": 25.0, "width": 5.0}
 BIN = 0.1
 
