@@ -109,7 +109,7 @@ def _vehicle_xml(sim, vid: str, net) -> tuple[str, str, str, bool]:
              f'decel="{vt.getDecel(tid):g}" emergencyDecel="{vt.getEmergencyDecel(tid):g}" '
              f'sigma="{vt.getImperfection(tid):g}" tau="{vt.getTau(tid):g}" maxSpeed="{vt.getMaxSpeed(tid):g}" '
              f'speedFactor="normc({vt.getSpeedFactor(tid):g},{vt.getSpeedDeviation(tid):g},0.2,2)" '
-             f'color="{color}"/>')
+             f'emissionClass={quoteattr(vt.getEmissionClass(tid))} color="{color}"/>')
     edges = list(sim.vehicle.getRoute(vid))[sim.vehicle.getRouteIndex(vid):]
     lane = sim.vehicle.getLaneID(vid)
     exact = bool(lane) and (not lane.startswith(":") or len(edges) > 1)
