@@ -140,6 +140,25 @@ def test_a_distribution_is_shared_by_its_probabilities(cross_net, tmp_path):
         sim.close()
 
 
+def test_before_any_vehicle_departs_the_mix_is_the_route_files(cross_net, tmp_path):
+    """No vehicle present yet: the mix is what the route files depart (flows by their number,
+    period, rate), a distribution's by its probabilities; bicycles do not count."""
+    import libsumo as sim
+    (tmp_path / "d.rou.xml").write_text(
+        '<routes><vType id="car" length="4.3"/><vType id="lorry" vClass="truck" length="9"/>'
+        '<vType id="bike" vClass="bicycle"/>'
+        '<vTypeDistribution id="mix" vTypes="car lorry" probabilities="1 1"/>'
+        '<flow id="a" type="car" begin="50" end="150" period="4" from="wc" to="ce"/>'
+        '<flow id="b" type="mix" begin="50" end="3650" vehsPerHour="50" from="wc" to="ce"/>'
+        '<flow id="c" type="bike" begin="50" end="150" period="1" from="wc" to="ce"/></routes>')
+    sim.start(["sumo", "-n", cross_net, "-r", str(tmp_path / "d.rou.xml"), "--no-step-log", "--no-warnings"])
+    try:
+        fleet = Fleet.read(sim)
+    finally:
+        sim.close()
+    assert fleet.share == pytest.approx({"car": 50 / 75, "lorry": 25 / 75})
+
+
 @pytest.mark.slow
 def test_run_seeds_the_scenarios_vtypes_and_names_an_unknown_one(scenario, tmp_path, capsys):
     from sumo_scendiff import run as run_cli

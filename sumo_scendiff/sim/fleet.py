@@ -47,6 +47,7 @@ KIND = {"passenger": "passenger", "private": "passenger", "taxi": "passenger", "
 LENGTH_SCALE, WIDTH_SCALE, OTHER_KIND = 1.0, 0.25, 2.0
 NEAR = 0.5            # types within this cost of the nearest are "as near" (the mix chooses among them)
 ROOM_MARGIN = 0.5     # m: a longer type keeps at least this gap to the vehicles ahead and behind
+LISTED = 12          # vType ids an unknown name's error lists
 DRAWN_KEY = "fleet"   # scene.meta: agent index -> (vType id, drawn length, drawn width)
 
 
@@ -90,17 +91,39 @@ def vtype_distributions(paths: Sequence[str]) -> dict[str, dict[str, float]]:
 
 
 def file_mix(paths: Sequence[str], dists: Mapping[str, Mapping[str, float]]) -> Counter:
-    """The vehicles the route files ``paths`` depart, per vType (a flow's ``number`` where it gives
-    one, else one; a distribution's vehicles shared by its probabilities)."""
+    """The vehicles the route files ``paths`` depart, per vType (a flow's: :func:`flow_count`; a
+    distribution's vehicles shared by its probabilities)."""
     from sumolib.xml import parse
     mix: Counter = Counter()
     for path in paths:
         for el in parse(path, ["vehicle", "trip", "flow"]):
-            n = float(getattr(el, "number", None) or 1.0) if el.name == "flow" else 1.0
+            n = flow_count(el) if el.name == "flow" else 1.0
             tid = getattr(el, "type", None) or "DEFAULT_VEHTYPE"
             for member, p in dists.get(tid, {tid: 1.0}).items():
                 mix[member] += n * p
     return mix
+
+
+def flow_count(el) -> float:
+    """About how many vehicles a ``<flow>`` departs: its ``number``, else its span over its
+    ``period`` or at its ``vehsPerHour`` or ``probability`` per second; one where it gives no span."""
+    from sumolib.miscutils import parseTime
+    if getattr(el, "number", None):
+        return float(el.number)
+    try:
+        span = parseTime(el.end) - parseTime(getattr(el, "begin", None) or "0")
+    except (AttributeError, TypeError, ValueError):   # no end (or one SUMO reads otherwise)
+        return 1.0
+    period = getattr(el, "period", None) or ""
+    if period.startswith("exp("):          # SUMO's random departures at this rate per second
+        rate = float(period[4:].rstrip(")"))
+    elif period:
+        rate = 1.0 / float(period)
+    elif getattr(el, "vehsPerHour", None):
+        rate = float(el.vehsPerHour) / 3600.0
+    else:
+        rate = float(getattr(el, "probability", None) or 0.0)
+    return max(span * rate, 1.0)
 
 
 def _sim_files(sim) -> tuple[list[str], list[str]]:
@@ -189,8 +212,9 @@ class Fleet:
                 continue
             if name not in self.names:
                 known = sorted(n for n in self.names if not n.startswith("DEFAULT_"))
+                listed = ", ".join(known[:LISTED]) + (f" and {len(known) - LISTED} more" if len(known) > LISTED else "")
                 raise TokenFileError(f"{source}: agents[{i}]: vtype: the scenario has no vType {name!r}"
-                                     f" (it has {', '.join(known) or 'none but SUMO defaults'})")
+                                     f" (it has {listed or 'none but SUMO defaults'})")
             tok = dict(tok)
             if tok.get("length") is None and tok.get("width") is None:
                 probs = self.dists.get(name, {name: 1.0})
@@ -320,4 +344,4 @@ def _lane_rules(scene: Scene, net) -> list:
     return out
 
 
-__all__ = ["DRAWN_KEY", "Fleet", "VType", "crowded", "file_mix", "read_vtype", "room_for", "vtype_distributions"]
+__all__ = ["DRAWN_KEY", "Fleet", "VType", "crowded", "file_mix", "flow_count", "read_vtype", "room_for", "vtype_distributions"]
