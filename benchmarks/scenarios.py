@@ -5,6 +5,7 @@ user would, beside stock SUMO.
     python benchmarks/scenarios.py build [--only NAME ...]     # into the cache, nothing into git
     python benchmarks/scenarios.py run [--only NAME ...] [--jobs 1] [--results results/corpus.json]
                                        [--markdown docs/corpus.md]
+    python benchmarks/scenarios.py table --results results/corpus.json --markdown docs/corpus.md
 
 The cache is ``~/.cache/sumo-scendiff/corpus`` (``--cache DIR``); each scenario is a folder there with
 the configuration, every file it names (paths kept relative, as its authors laid them out) and
@@ -44,6 +45,7 @@ import hashlib
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -54,7 +56,6 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_CACHE = Path.home() / ".cache" / "sumo-scendiff" / "corpus"
-DEFAULT_MIRROR = Path("/work/.mirror")
 AREA_SIDE = 400.0      # m: the fill's square when the registry names no area
 ROLL = 30.0            # s: how far past T stock SUMO runs each configuration
 TIMEOUT = {"sumo": 600, "run": 1200, "run_replay": 300, "fill": 1500, "fill_replay": 600,
@@ -72,6 +73,8 @@ class Scenario:
     begin: float | None = None   # T; None: the configuration's begin + offset
     offset: float = 120.0
     area: tuple | None = None
+    timeout: dict = dataclasses.field(default_factory=dict)   # step -> s, over TIMEOUT
+    note: str = ""
 
 
 def _game(name, cfg, covers=(), **kw):
@@ -121,7 +124,9 @@ REGISTRY: list[Scenario] = [
     _sumo_rl("sumorl_4x4_lucas", "4x4-Lucas/4x4.sumocfg", ("grid", "lights")),
     _sumo_rl("sumorl_4x4loop", "4x4loop/4x4loop.sumocfg", ("grid", "loop")),
     _sumo_rl("sumorl_nguyen", "Nguyen/nguyen.sumocfg", ("flows", "TAZ")),
-    _sumo_rl("sumorl_ow", "OW/OW-traci.sumocfg", ("arterial",)),
+    _sumo_rl("sumorl_ow", "OW/OW-traci.sumocfg", ("arterial", "TraCI port"),
+             timeout={"sumo": 60, "run": 120, "fill": 120},
+             note="its configuration sets remote-port: stock sumo waits for a TraCI client"),
     _sumo_rl("sumorl_simple", "simple/simple.sumocfg", ()),
     _sumo_rl("resco_arterial4x4", "RESCO/arterial4x4/arterial4x4.sumocfg", ("arterial", "lights"),
              source="RESCO via sumo-rl (PyPI)"),
@@ -228,14 +233,15 @@ def _from_pypi(sc: Scenario, dest: Path, cache: Path) -> dict:
     return {"wheel": wheel.name, "sha256": _sha256(wheel)}
 
 
-def _github_file(repo: str, commit: str, path: str, cache: Path, mirror: Path) -> bytes:
+def _github_file(repo: str, commit: str, path: str, cache: Path, mirror: Path | None) -> bytes:
+    """A repository's file at a commit: saved in the cache before, else from a git mirror (then saved)."""
     saved = cache / "_github" / repo.replace("/", "+") / commit / path
     if saved.is_file():
         return saved.read_bytes()
-    gitdir = mirror / repo.replace("/", "+") / "repo"
-    if not gitdir.is_dir():
-        raise FileNotFoundError(f"github:{repo} is neither saved under {saved.parents[len(Path(path).parts) - 1]} "
-                                f"nor mirrored at {gitdir}")
+    gitdir = mirror / repo.replace("/", "+") / "repo" if mirror else None
+    if gitdir is None or not gitdir.is_dir():
+        raise FileNotFoundError(f"github:{repo} {path}@{commit[:10]} is neither saved at {saved} nor mirrored"
+                                + (f" at {gitdir}" if gitdir else " (--mirror)"))
     out = subprocess.run(["git", "--git-dir", str(gitdir), "show", f"{commit}:{path}"],
                          capture_output=True, check=True, timeout=120).stdout
     saved.parent.mkdir(parents=True, exist_ok=True)
@@ -243,7 +249,7 @@ def _github_file(repo: str, commit: str, path: str, cache: Path, mirror: Path) -
     return out
 
 
-def _from_github(sc: Scenario, dest: Path, cache: Path, mirror: Path) -> dict:
+def _from_github(sc: Scenario, dest: Path, cache: Path, mirror: Path | None) -> dict:
     g = sc.get
     for rel, (path, commit) in g["files"].items():
         (dest / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -259,17 +265,18 @@ def _tool(name: str) -> str:
     return str(_sumo_home() / "tools" / name)
 
 
-def _from_osm_wizard(sc: Scenario, dest: Path, cache: Path, mirror: Path) -> dict:
+def _from_osm_wizard(sc: Scenario, dest: Path, cache: Path, mirror: Path | None) -> dict:
     """An OSM file built into a scenario as SUMO's osmWebWizard does (its non-interactive mode)."""
     g = sc.get
-    dest.mkdir(parents=True)
-    osm = dest / "source.osm"
+    osm = cache / "_downloads" / f"{sc.name}.osm"
+    osm.parent.mkdir(parents=True, exist_ok=True)
     osm.write_bytes(_github_file(g["repo"], g["commit"], g["path"], cache, mirror))
+    # the wizard builds in a fresh temporary folder when its output folder exists already
     cmd = [sys.executable, _tool("osmWebWizard.py"), "--osm-file", str(osm), "--test-output", str(dest),
            "--remote"] + g.get("options", [])
-    subprocess.run(cmd, cwd=dest, check=True, capture_output=True, timeout=1800)
-    osm.unlink()
-    return {"built_with": " ".join(cmd[1:])}
+    subprocess.run(cmd, cwd=cache, check=True, capture_output=True, timeout=1800)
+    return {"built_with": ["osmWebWizard.py", "--osm-file", osm.name, "--test-output", dest.name, "--remote",
+                           *g.get("options", [])]}
 
 
 def _from_generate(sc: Scenario, dest: Path, cache: Path) -> dict:
@@ -295,7 +302,7 @@ def _from_generate(sc: Scenario, dest: Path, cache: Path) -> dict:
     return {"built_with": {"netgenerate": g["netgenerate"], "randomTrips": g["trips"]}}
 
 
-def build(sc: Scenario, cache: Path, mirror: Path = DEFAULT_MIRROR, force: bool = False) -> Path:
+def build(sc: Scenario, cache: Path, mirror: Path | None = None, force: bool = False) -> Path:
     """The scenario's configuration in the cache, building its folder first if needed."""
     dest = cache / sc.name
     cfg = dest / sc.config
@@ -363,12 +370,12 @@ def car_centre(net: Path) -> tuple:
     return (statistics.median(xs), statistics.median(ys)) if xs else None
 
 
-def fill_area(sc: Scenario, cfg: Path) -> tuple:
+def fill_area(sc: Scenario, cfg: Path, side: float = AREA_SIDE) -> tuple:
     if sc.area is not None:
         return sc.area
     net = cfg.parent / _config_value(cfg, "net-file")
     x0, y0, x1, y1 = net_boundary(net)
-    (cx, cy), h = car_centre(net) or ((x0 + x1) / 2, (y0 + y1) / 2), AREA_SIDE / 2
+    (cx, cy), h = car_centre(net) or ((x0 + x1) / 2, (y0 + y1) / 2), side / 2
     return (max(x0, cx - h), max(y0, cy - h), min(x1, cx + h), min(y1, cy + h))
 
 
@@ -388,22 +395,23 @@ def step(cmd: list, timeout: float, log: Path, cwd: Path) -> dict:
     """One subprocess with its own time limit; its output to ``log``; ok, seconds, one line."""
     t0 = time.monotonic()
     log.parent.mkdir(parents=True, exist_ok=True)
+    # its own process group: the `sumo` entry point is a wrapper around the binary, and a timeout must
+    # end both (a binary waiting for a TraCI client would hold its port)
+    p = subprocess.Popen([str(c) for c in cmd], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         cwd=cwd, stdin=subprocess.DEVNULL, start_new_session=True)
     try:
-        p = subprocess.run([str(c) for c in cmd], capture_output=True, text=True, timeout=timeout,
-                           cwd=cwd, stdin=subprocess.DEVNULL)
-        out, err, rc = p.stdout, p.stderr, p.returncode
-    except subprocess.TimeoutExpired as e:
-        out, err, rc = _text(e.stdout), _text(e.stderr) + f"\ntimeout after {timeout:.0f} s", None
+        out, err = p.communicate(timeout=timeout)
+        rc = p.returncode
+    except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)
+        out, err = p.communicate()
+        err, rc = err + f"\ntimeout after {timeout:.0f} s", None
     log.write_text(f"$ {' '.join(map(str, cmd))}\n--- stdout\n{out}\n--- stderr\n{err}\n")
     res = {"ok": rc == 0, "seconds": round(time.monotonic() - t0, 1), "cmd": " ".join(map(str, cmd)),
            "returncode": rc}
     if rc != 0:
         res["error"] = _one_line(err) or _one_line(out)
     return res
-
-
-def _text(b) -> str:
-    return b.decode(errors="replace") if isinstance(b, bytes) else (b or "")
 
 
 def placement(doc_path: Path) -> dict | None:
@@ -435,7 +443,8 @@ def commands(cfg: Path, t: float, area: tuple, out: Path, scenes: int = 2, rollo
     py, end = sys.executable, f"{t + ROLL:g}"
     a = ",".join(f"{v:.1f}" for v in area)
     return {
-        "sumo": [_sumo(), "-c", cfg, "--end", end, "--no-step-log", "true"],
+        "sumo": [_sumo(), "-c", cfg, "--end", end, "--no-step-log", "true",
+                 "--summary-output", out / "sumo_summary.xml"],
         "run": [py, "-m", "sumo_scendiff.run", "-c", cfg, "--begin", f"{t:g}", "--scenes", str(scenes),
                 "--rollout", f"{rollout:g}", "-o", out / "run"],
         "run_replay": [_sumo(), "-c", out / "run" / "scene_000" / "scenario.sumocfg", "--end", f"{t + 5:g}",
@@ -449,12 +458,24 @@ def commands(cfg: Path, t: float, area: tuple, out: Path, scenes: int = 2, rollo
     }
 
 
+def running_at(summary: Path, t: float) -> int | None:
+    """Vehicles on the road in stock SUMO's run at T (its summary-output): how much traffic the product
+    was given to fill around."""
+    running = None
+    if summary.is_file():
+        for _, el in ET.iterparse(summary):
+            if el.tag == "step" and float(el.get("time")) <= t + 1e-6:
+                running = int(el.get("running"))
+            el.clear()
+    return running
+
+
 NEEDS = {"run_replay": "run", "fill_replay": "fill", "fill_start": "fill"}
 
 
-def run_scenario(sc: Scenario, cache: Path, mirror: Path) -> dict:
+def run_scenario(sc: Scenario, cache: Path, mirror: Path | None = None) -> dict:
     row = {"name": sc.name, "source": sc.source, "licence": sc.licence, "covers": list(sc.covers),
-           "product": _product_state(), "steps": {}}
+           "note": sc.note, "product": _product_state(), "steps": {}}
     try:
         cfg = build(sc, cache, mirror)
     except Exception as e:     # noqa: BLE001 -- a source that cannot be had is a row, not a crash
@@ -469,7 +490,9 @@ def run_scenario(sc: Scenario, cache: Path, mirror: Path) -> dict:
         if name in NEEDS and not row["steps"][NEEDS[name]]["ok"]:
             row["steps"][name] = {"ok": None, "error": f"skip: {NEEDS[name]} failed"}
             continue
-        row["steps"][name] = step(cmd, TIMEOUT[name], out / "logs" / f"{name}.log", out)
+        limit = sc.timeout.get(name, TIMEOUT[name])
+        row["steps"][name] = step(cmd, limit, out / "logs" / f"{name}.log", out)
+    row["sumo_running_at_T"] = running_at(out / "sumo_summary.xml", t)
     row["placement_run"] = placement(out / "run" / "scene_000" / "scene.json")
     row["placement_fill"] = placement(out / "fill" / "fill.json")
     return row
@@ -495,25 +518,39 @@ def _share(p: dict | None) -> str:
     return f"{100 * p['placed_share']:.1f} % of {p['agents']}"
 
 
+def _or_dash(v) -> str:
+    return "–" if v is None else str(v)
+
+
 def _seconds(row: dict, name: str) -> str:
     s = row["steps"].get(name) or {}
     return f"{s['seconds']:.0f}" if s.get("seconds") is not None and s.get("ok") is not None else "–"
 
 
+def _current(row: dict) -> dict:
+    """A results row with the registry's present source, licence and coverage for its scenario."""
+    sc = next((s for s in REGISTRY if s.name == row["name"]), None)
+    return row if sc is None else {**row, "source": sc.source, "licence": sc.licence, "covers": list(sc.covers),
+                                   "note": sc.note}
+
+
 def markdown(rows: list) -> str:
     head = ("| scenario | source | licence | covers | " + " | ".join(STEPS)
-            + " | placed (run) | placed (fill) | time s sumo / run / fill | first failure |")
+            + " | SUMO's vehicles at T | placed (run) | placed (fill) | time s sumo / run / fill | first failure |")
     lines = [head, "|" + "---|" * (len(STEPS) + 9)]
-    for r in rows:
+    for r in map(_current, rows):
         marks = [MARK[r["steps"][n]["ok"]] if n in r["steps"] else "–" for n in STEPS]
         if "build" in r["steps"]:
             marks = ["not built"] + ["–"] * (len(STEPS) - 1)
         step_name, err, _ = first_failure(r)
+        err = err.replace(str(DEFAULT_CACHE) + "/", "").replace(f"{sys.executable} ", "python ")
         fail = f"{step_name}: {err}".replace("|", "\\|") if step_name else ""
+        fail += f" ({r['note']})" if r.get("note") else ""
         times = " / ".join(_seconds(r, n) for n in ("sumo", "run", "fill"))
+        figures = [_or_dash(r.get("sumo_running_at_T")), _share(r.get("placement_run")),
+                   _share(r.get("placement_fill")), times, fail]
         lines.append(f"| {r['name']} | {r['source']} | {r['licence']} | {', '.join(r['covers'])} | "
-                     + " | ".join(marks) + f" | {_share(r.get('placement_run'))} | "
-                     f"{_share(r.get('placement_fill'))} | {times} | {fail} |")
+                     + " | ".join(marks + figures) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -590,6 +627,16 @@ def _product_state() -> str:
     return head + ("+changes" if dirty else "")
 
 
+def _cmd_table(o) -> None:
+    """The table again from ``--results`` (no scenario is run)."""
+    if not o.results or not o.results.is_file():
+        sys.exit("scenarios.py: table: --results names no results file")
+    table = markdown(_merge(o.results, []))
+    print(table)
+    if o.markdown:
+        _write_markdown(o.markdown, table)
+
+
 def _save(o, rows: list) -> None:
     o.results.parent.mkdir(parents=True, exist_ok=True)
     o.results.write_text(json.dumps({"format": "sumo-scendiff-corpus", "version": 1,
@@ -598,18 +645,17 @@ def _save(o, rows: list) -> None:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("command", choices=["list", "build", "run"])
+    ap.add_argument("command", choices=["list", "build", "run", "table"])
     ap.add_argument("--only", nargs="+", default=[], metavar="NAME")
     ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
-    ap.add_argument("--mirror", type=Path, default=DEFAULT_MIRROR,
-                    help="git mirrors of the GitHub sources (DIR/owner+name/repo)")
+    ap.add_argument("--mirror", type=Path, help="git mirrors of the GitHub sources (DIR/owner+name/repo)")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--force", action="store_true", help="build: rebuild existing folders")
     ap.add_argument("--results", type=Path, help="JSON results, merged with an existing file")
     ap.add_argument("--markdown", type=Path, help="write the table (between the markers of docs/corpus.md)")
     o = ap.parse_args(argv)
     o.cache = o.cache.expanduser()
-    {"list": _cmd_list, "build": _cmd_build, "run": _cmd_run}[o.command](o)
+    {"list": _cmd_list, "build": _cmd_build, "run": _cmd_run, "table": _cmd_table}[o.command](o)
 
 
 if __name__ == "__main__":

@@ -117,7 +117,7 @@ SUBSET = [
 def test_committed_scenario_runs_fills_and_replays_in_stock_sumo(corpus, tmp_path, name):
     sc = _entry(corpus, name)
     cfg = _copy(name, tmp_path, corpus)
-    t, area = corpus.begin_time(sc, cfg), corpus.fill_area(sc, cfg)
+    t, area = corpus.begin_time(sc, cfg), corpus.fill_area(sc, cfg, side=200.0)
     out = tmp_path / "out"
     for step, cmd in corpus.commands(cfg, t, area, out, scenes=1, rollout=5).items():
         res = corpus.step(cmd, corpus.TIMEOUT[step], out / "logs" / f"{step}.log", tmp_path)
