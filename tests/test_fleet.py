@@ -181,3 +181,39 @@ def test_run_seeds_the_scenarios_vtypes_and_names_an_unknown_one(scenario, tmp_p
         code = e.code
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and str(tok) in err and "bus_articulated" in err
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("amount", [[], ["--density", "25"]])
+def test_fill_seeds_the_scenarios_vtypes(tmp_path, amount):
+    """fill -r: every seeded vehicle, the demand's own (at the demand's level) or those the model
+    draws (at a density asked for), is one of the demand's vTypes (fill.json names it), in the
+    saved state as well."""
+    import os
+
+    import libsumo
+
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.fill.__main__ import get_options, main
+    net = os.path.join(os.path.dirname(__file__), "..", "networks", "grid3x3_1lane.net.xml")
+    edges = sorted(e.getID() for e in Network.load(net).sumo_net.getEdges())
+    (tmp_path / "d.rou.xml").write_text(
+        TYPES.replace("<additional>", "<routes>").replace("</additional>", "")
+        + f'<flow id="cars" type="car" begin="0" end="600" period="4" from="{edges[0]}" to="{edges[-1]}"/>'
+        + f'<flow id="coaches" type="coach" begin="0" end="600" period="12" from="{edges[1]}" to="{edges[-2]}"/>'
+        + "</routes>")
+    out = tmp_path / "o"
+    assert main(get_options(["-n", net, "-r", str(tmp_path / "d.rou.xml"), "--begin", "120", "-o", str(out), *amount])) == 0
+    doc = json.load(open(out / "fill.json"))
+    seeded = [a for a in doc["agents"] if a["vehicle"]]
+    assert seeded and all(a["vtype"] in OWN for a in seeded)
+    assert all((a["length"], a["width"]) == pytest.approx(OWN[a["vtype"]][1:3]) for a in seeded)
+    assert all(a.get("demand") for a in seeded) == (not amount)
+    libsumo.start([sumo_binary(), "-c", str(out / "scenario.sumocfg"), "--no-step-log", "true"])
+    try:
+        present = set(libsumo.vehicle.getIDList())
+        got = {(libsumo.vehicle.getVehicleClass(a["vehicle"]), libsumo.vehicle.getLength(a["vehicle"]))
+               for a in seeded if a["vehicle"] in present}
+    finally:
+        libsumo.close()
+    assert got and got <= {("passenger", 4.3), ("bus", 12.0)}

@@ -10,6 +10,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..sim.export import write_sumocfg
+from ..sim.fleet import DRAWN_KEY
 from ..sim.stops import place_ends
 from ..sim.sumo import close
 from .en_route import write_vtypes
@@ -53,6 +54,9 @@ def _agents(result, reports) -> list[dict]:
                 row["to_stop_line_m"] = round(rep.to_stop_line[a], 3)
             if rep is not None and a in rep.narrowed:     # wider than the network's junctions assume (Seeder.width_cap)
                 row["sumo_width"] = rep.narrowed[a][1]
+            fleet = scene.meta.get(DRAWN_KEY, {}).get(a)
+            if fleet is not None:                          # seeded as the scenario's vType (sim/fleet.py)
+                row.update(vtype=fleet[0], drawn_length=round(fleet[1], 3), drawn_width=round(fleet[2], 3))
             if (scene.meta.get("stood_at_red") or [False] * len(rows))[a]:   # a red queue given standing (--signals)
                 row["stood_at_red"] = True
             d = (scene.meta.get("demand") or [None] * len(rows))[a]
@@ -67,13 +71,14 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
                   workers: dict | None = None) -> dict:
     t = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="scendiff-vtypes-") as work:
-        # the demand's own vTypes, for the vehicles that stand for its vehicles (only the seeding
-        # SUMO loads them: the folder's configurations load the route files themselves)
+        # the demand's own vTypes, for the vehicles that stand for its vehicles and those the model
+        # adds (sim/fleet.py; only the seeding SUMO loads them: the folder's configurations load the
+        # route files themselves)
         extra = os.path.join(work, "vtypes.add.xml")
         seed_cfg = replace(cfg, additional=tuple(cfg.additional) + (extra,)) \
-            if result.demand and write_vtypes(routes, extra) else cfg
+            if routes and write_vtypes(routes, extra) else cfg
         sim, reports = seed_fill(result, net, seed_cfg, seed=o.seed, quiet=not o.verbose, progress=progress,
-                                 demand=result.demand)
+                                 demand=result.demand, routes=routes)
     try:
         timing["seed"] = time.perf_counter() - t
         t = time.perf_counter()
