@@ -197,6 +197,15 @@ def _phase(progress: bool, text: str) -> None:
 def run(o, folder: str) -> dict:
     import shapely
 
+    from ..sim.preflight import preflight
+    from ..sim.scenario import ScenarioError, scenario_from_files
+
+    progress = sys.stderr.isatty() or o.verbose
+    timing, t = {}, time.perf_counter()
+    try:   # the user's inputs judged by SUMO itself before the model is even imported
+        scen = preflight(scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional)))
+    except ScenarioError as e:
+        raise FillError(str(e)) from None
     from ..core.threads import GENERATION_THREADS, share_cpu
     share_cpu(default=GENERATION_THREADS)   # before torch is imported (core/threads.py: why one)
     from ..data.demand import DemandError, demand_span, seeding_time
@@ -204,19 +213,11 @@ def run(o, folder: str) -> dict:
     from ..map.network import Network
     from ..map.raster import RasterConfig
     from ..sim.lights import initial_light_states
-    from ..sim.scenario import ScenarioError, scenario_from_files
     from ..sim.sumo import SimConfig, settings, step_length_for
     from .output import write_outputs
     from .plan import fill_network, whole_counts
     from .tiles import TileError, tile_grid
     from .workers import tile_engine
-
-    progress = sys.stderr.isatty() or o.verbose
-    timing, t = {}, time.perf_counter()
-    try:
-        scen = scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional))
-    except ScenarioError as e:
-        raise FillError(str(e)) from None
     o.step_length = step_length_for(scen, o.step_length)   # the scenario's (sim/sumo.py), the flag over it
     _phase(progress, f"loading {os.path.basename(scen.net)} and the model")
     net = Network.load(scen.net)
@@ -226,7 +227,8 @@ def run(o, folder: str) -> dict:
     begin = o.begin if o.begin is not None else 0.0
     if routes:
         try:
-            span = demand_span(routes, {ln.edge for ln in net.lanes}, scen.additional)
+            span = demand_span(routes, {ln.edge for ln in net.lanes}, scen.additional,
+                               begin=scen.begin, end=scen.end)
             begin = seeding_time(o.begin, scen.begin, span, routes)
         except DemandError as e:
             raise FillError(str(e)) from None
@@ -274,14 +276,21 @@ def _interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
-def main(o) -> int:
-    from ..core.outputs import OutputError, claim, clean_stale, partial_path
+def _user_errors() -> tuple[type, ...]:
+    """The errors that are the user's input, one line and exit 2; imported only when one is raised,
+    so that a bad input is answered before torch is loaded."""
+    from ..core.outputs import OutputError
     from ..core.pool import EngineError
     from ..export.opendrive import ExportError
     from ..map.network import NetworkError
     from ..model.checkpoint import CheckpointError
     from ..sim.sumo import SimError
     from .seed import InflowError
+    return FillError, NetworkError, CheckpointError, SimError, OutputError, InflowError, EngineError, ExportError
+
+
+def main(o) -> int:
+    from ..core.outputs import claim, clean_stale, partial_path
     out = os.path.abspath(o.out.rstrip("/") or o.out)
     on_sigterm = signal.signal(signal.SIGTERM, _interrupt)
     owner, complete = None, False
@@ -306,8 +315,9 @@ def main(o) -> int:
             if o.export:
                 from ..export.batch import export_after
                 export_after(os.path.dirname(out), [os.path.basename(out)], o.export)
-    except (FillError, NetworkError, CheckpointError, SimError, OutputError, InflowError, EngineError,
-            ExportError) as e:
+    except Exception as e:
+        if not isinstance(e, FillError) and not isinstance(e, _user_errors()):
+            raise
         _abandon(owner)
         o.parser.exit(2, f"{PROG}: error: {e}\n")
     except KeyboardInterrupt:
