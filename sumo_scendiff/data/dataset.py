@@ -54,8 +54,9 @@ class SceneDataset(Dataset):
             rng = np.random.default_rng((self.seed, self.epoch, idx))
             scene = crop_to_window(rotate_scene(scene, float(rng.uniform(-np.pi, np.pi))))
         net = self.network(self.store.net_path(idx))
-        # the density condition: every vehicle of the window per km of its car lanes
-        km = net.car_lane_km(scene.window)
+        # the density condition: every vehicle of the window per km of all its car lanes, internal
+        # ones included (the model's unit; the generator converts a requested density into it)
+        km = net.condition_km(scene.window)
         density = len(scene) / km if km > 0 else float("nan")
         if len(scene) > self.max_agents:  # keep the agents nearest the centre
             keep = np.argsort(np.hypot(scene.boxes[:, 0], scene.boxes[:, 1]))[: self.max_agents]

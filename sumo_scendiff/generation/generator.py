@@ -336,6 +336,7 @@ class ScenarioGenerator:
             raise ValueError(f"{len(areas)} count areas for {n} windows")
         counts = [self._count(net, w, dens[k] if dens is not None else None, cfg, areas[k])
                   for k, w in enumerate(windows)]
+        dens = self._condition(net, windows, dens)
         out: list[Scene] = []
         from tqdm import tqdm
         for s in tqdm(range(0, n, cfg.batch_size), disable=not progress, desc="generating"):
@@ -391,6 +392,17 @@ class ScenarioGenerator:
                                  pinned_poses(dicts[i]), floor=True)
             taken = np.concatenate([out[k].boxes[:, :2], token_positions(toks[k]).reshape(-1, 2)])
             out[k] = add_new_agents(out[k], second, counts[k], taken, ASKED_RADIUS, areas[k])
+
+    @staticmethod
+    def _condition(net, windows: Sequence[Window], dens: np.ndarray | None) -> np.ndarray | None:
+        """Requested densities (per km of normal edges' car lanes, as SUMO's edgeData) in the model's
+        unit, per km of every car lane of the window (:meth:`Network.condition_km`): the same
+        vehicles, the condition the model was trained on."""
+        if dens is None or net is None or not len(windows):
+            return dens
+        ratio = np.array([net.car_lane_km(w) / km if (km := net.condition_km(w)) > 0 else 1.0
+                          for w in windows])
+        return dens * ratio
 
     @staticmethod
     def _count(net, window: Window, density: float | None, cfg: GenerationConfig,

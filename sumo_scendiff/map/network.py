@@ -336,6 +336,12 @@ class Network:
         """Kilometres of car lane inside the window's square (:meth:`car_lane_km_in`)."""
         return self.car_lane_km_in(window_square(window))
 
+    def condition_km(self, window) -> float:
+        """Kilometres of every car lane inside the window's square, junction-internal lanes
+        included: the divisor of the model's density condition (what its training windows were
+        given), not of a density a user asks for (:meth:`car_lane_km`)."""
+        return float(self.car_lanes_in(window, internal=True)[1].sum())
+
     def car_lane_km_in(self, region) -> float:
         """Kilometres of car lane of normal edges inside a shapely region: the divisor of every density
         in vehicles per km of car lane (a window's, a fill's, an area's), as SUMO's edgeData divides
