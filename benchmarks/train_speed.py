@@ -5,9 +5,9 @@ DistributedDataParallel processes with one thread each (the same global batch).
 
 Runs the real CLI (``python -m sumo_scendiff.train``, or ``python -m torch.distributed.run
 --standalone --nproc_per_node 2 -m sumo_scendiff.train`` with half the batch per process) for each
-stage of ``scripts/train_fast.sh``: the autoencoder from scratch with the shipped model's config, its
-decoder alone (from the shipped model, encoder frozen), and the diffusion model (in the shipped
-model's latent space). Each setting runs twice from scratch, for the two ``--steps`` counts; the
+training stage of ``configs/scendiff.json``: the autoencoder from scratch, its decoder alone reading
+the tokens (from the shipped model, encoder frozen), and the diffusion model (in the shipped
+model's latent space), each with that stage's settings. Each setting runs twice from scratch, for the two ``--steps`` counts; the
 difference of the wall times over the difference of the steps is the time per step with start-up,
 data indexing and process spawning cancelled out. No validation runs.
 """
@@ -26,24 +26,21 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from report import emit  # noqa: E402
 
 SHIPPED = os.path.join(ROOT, "sumo_scendiff", "weights", "scendiff.pt")
-AE_CONFIG = {"C_m": 19, "map_skips": True, "heading_bins": 16, "kl_weight": 0.01,
-             "loss": {"category_weights": [1.0, 1.0, 4.0], "box_weight": 4.0, "vertex_weight": 2.0,
-                      "heading_bin_weight": 2.0}}
-# (label, global batch, stage arguments) as in scripts/train_fast.sh
+AE_CONFIG = {"latent_noise": 1.0, "loss": {"category_weights": [1.0, 1.0, 40.0]}}
+# (label, global batch, stage arguments) as in configs/scendiff.json
 STAGES = [
-    ("autoencoder from scratch", 16, ["autoencoder", "--model-config", json.dumps(AE_CONFIG)]),
-    ("decoder alone (encoder frozen)", 16, ["autoencoder", "--init-from", SHIPPED, "--freeze-encoder",
-                                            "--model-config", '{"latent_noise": 0}']),
-    ("diffusion", 32, ["diffusion", "--autoencoder", SHIPPED, "--model-config",
-                       '{"P_mean": 0.3, "P_std": 1.4}', "--p-keep-all-tokens", "0.2", "--p-map-only", "0.3"]),
+    ("autoencoder from scratch", 16, ["autoencoder", "--p-keep-all-tokens", "0", "--p-map-only", "1",
+                                      "--model-config", json.dumps(AE_CONFIG)]),
+    ("decoder alone (encoder frozen)", 16, ["autoencoder", "--init-from", SHIPPED, "--freeze-encoder"]),
+    ("diffusion", 32, ["diffusion", "--autoencoder", SHIPPED]),
 ]
 LAUNCHES = [("1 process x 2 threads", 1, 2), ("2 processes x 1 thread (DDP)", 2, 1)]
 
 
 def get_options(args=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--data", default=os.path.join(ROOT, "data", "fast", "train"),
-                   help="a recording (python -m sumo_scendiff.data; default: the two-hour recipe's)")
+    p.add_argument("--data", default=os.path.join(ROOT, "runs", "scendiff", "data", "train"),
+                   help="a recording (python -m sumo_scendiff.data; default: configs/scendiff.json's in runs/scendiff)")
     p.add_argument("--steps", type=int, nargs=2, default=[10, 60], metavar=("SHORT", "LONG"))
     p.add_argument("-o", "--output", default=None, help="also write the table to this markdown file")
     o = p.parse_args(args)

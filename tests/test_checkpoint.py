@@ -129,3 +129,47 @@ def test_cli_calibrate_bad_input_exit_2(tmp_path, args, words):
                          capture_output=True, text=True, cwd=tmp_path)
     assert res.returncode == 2 and "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1
     assert words in res.stderr
+
+
+def _saved_config(tmp_path, name: str, **fields) -> str:
+    """A version-1 autoencoder-train checkpoint whose stored config is ``fields`` (as an earlier
+    version wrote it)."""
+    path = str(tmp_path / name)
+    torch.save({"format": ckpt.FORMAT, "version": 1, "kind": "autoencoder-train", "state": {},
+                "model_config": fields, "step": 0}, path)
+    return path
+
+
+def test_a_config_an_earlier_version_stored_loads_as_it_was_trained(tmp_path):
+    """Fields a config lacks take the value that model was trained with, not today's default; the
+    retired switches, on in that model, are dropped."""
+    path = _saved_config(tmp_path, "old.pt", C_m=11, map_skips=True, loss={"cls_weight": 20.0})
+    cfg = ckpt.config_from_dict(AutoencoderConfig, ckpt.load(path, "autoencoder-train")["model_config"])
+    assert (cfg.C_m, cfg.heading_bins, cfg.C_t, cfg.token_branch, cfg.kl_weight, cfg.latent_noise) == (11, 0, 0, 0, 0.1, 1.0)
+    assert (cfg.loss.speed_weight, cfg.loss.category_weights, cfg.loss.box_weight) == (0.0, (0.1, 0.3, 4.0), 1.0)
+    assert AutoencoderConfig().heading_bins == 16 and AutoencoderConfig().loss.speed_weight == 2.0
+
+
+@pytest.mark.parametrize("fields, words", [
+    ({"map_skips": False}, "map_skips False"),
+    ({}, "map_skips False"),                                         # stored before map skips existed
+    ({"map_skips": True, "C_t": 13, "token_speeds_filled": False}, "token_speeds_filled False"),
+    ({"map_skips": True, "C_t": 13, "token_branch": 32, "token_speeds_filled": True}, "token_branch_mix False"),
+])
+def test_a_model_this_version_cannot_run_is_one_line_naming_the_file(tmp_path, fields, words):
+    path = _saved_config(tmp_path, "retired.pt", **fields)
+    with pytest.raises(ckpt.CheckpointError, match=words) as e:
+        ckpt.load(path, "autoencoder-train")
+    assert "retired.pt" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_the_shipped_checkpoint_reads_with_todays_defaults():
+    """The shipped file stores every field; its configs are today's defaults (the retired switches
+    were on), so the default model is the shipped architecture."""
+    from sumo_scendiff.generation.generator import DEFAULT_CHECKPOINT
+    from sumo_scendiff.model.diffusion import DiffusionConfig
+    ck = ckpt.load(DEFAULT_CHECKPOINT, "scenario-diffusion")
+    assert ckpt.config_from_dict(AutoencoderConfig, ck["autoencoder_config"]) == AutoencoderConfig()
+    assert ckpt.config_from_dict(DiffusionConfig, ck["diffusion_config"]) == DiffusionConfig()
+    raw = torch.load(DEFAULT_CHECKPOINT, weights_only=True)["autoencoder_config"]
+    assert raw["map_skips"] and raw["token_speeds_filled"] and raw["token_branch_mix"]

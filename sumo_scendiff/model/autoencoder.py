@@ -7,13 +7,14 @@ resolution, narrowed for CPU training and without the mid-block self-attention:
 * D_down: m (B, C_m, 128, 128) -> (B, C_map, 16, 16), same architecture as E, own weights
 * D_up:   concat(z, D_down(m)) at 16 -> upsample 16 -> 32 -> 64 -> y (B, 19 [+ 2K], 64, 64); the output
   resolution is truncated at 64 px as in appendix C.1. See ``detection.py`` for the layout of y.
-  With ``map_skips`` (beyond the paper) D_down's 32 and 64 px features are added (1x1 projections)
-  into D_up at those resolutions, U-Net fashion, so the decoder sees the lanes finer than the 16 px
-  bottleneck's 6.25 m cells (docs/model.md: a small gain in lane heading).
+  Beyond the paper, D_down's 32 and 64 px features are added (1x1 projections) into D_up at those
+  resolutions, U-Net fashion, so the decoder sees the lanes finer than the 16 px bottleneck's
+  6.25 m cells (docs/model.md: a small gain in lane heading).
   With ``C_t`` > 0 (beyond the paper) D_up also reads the positioned agent tokens as a 64 px raster
   (``tokens/raster.py``), pooled to and added (3x3 convolutions) at 16, 32 and 64 px, so a vehicle
   decoded under a token can take the speed, turn and size it gives, which the 4-channel latent
-  carries only roughly: D(z, m, t).
+  carries only roughly: D(z, m, t); a token branch (``token_branch``) corrects the outputs in the
+  cells a token covers and draws its vehicle's steps toward the token's speeds.
 
 Training objective (appendix C.3): L = L_rec + kl_weight * L_KL, both per-scene sums averaged
 over the batch.
@@ -27,58 +28,49 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..map.raster import MAP_CHANNELS
-from ..tokens.raster import SPEED_SCALE, TOKEN_CHANNELS, token_raster
-from .blocks import Downsample, ResnetBlock, Upsample, group_norm, grow_segments
+from ..tokens.raster import C_T, SPEED_SCALE, TOKEN_CHANNELS, token_raster
+from .blocks import Downsample, ResnetBlock, Upsample, group_norm
 from .detection import C_Y, DetectionLossConfig, detection_loss
 from .heading import bin_width
 
 
+# D_down reads the map channels up to the traffic lights' states: where a vehicle stands at red is
+# the diffusion model's to draw (its E_m reads them); the decoder only puts the boxes on the lanes
+AE_MAP_CHANNELS = MAP_CHANNELS.index("signal_go")
+
+
 @dataclass(frozen=True)
 class AutoencoderConfig:
-    """Hyper-parameters of :class:`ScenarioAutoencoder` (names follow the paper's symbols)."""
+    """Hyper-parameters of :class:`ScenarioAutoencoder` (names follow the paper's symbols); the
+    defaults are the shipped model's (docs/model.md)."""
 
     C_x: int = 15  # agent raster channels (appendix A)
-    C_m: int = len(MAP_CHANNELS)  # map raster channels: D_down reads the first C_m (11: no lane_dir*)
+    C_m: int = AE_MAP_CHANNELS  # map raster channels D_down reads (the first C_m)
     C_z: int = 4  # latent channels
     C_map: int = 16  # channels of D_down(m)
     enc_channels: tuple[int, ...] = (16, 32, 64, 64)  # E and D_down, at 128, 64, 32, 16 px
     dec_channels: tuple[int, ...] = (64, 32, 32)  # D_up, at 16, 32, 64 px (CPU budget)
     dropout: float = 0.0
-    kl_weight: float = 0.1  # appendix C.3
-    # scale of the reparameterisation noise in training: 1 is the VAE's z = mu + sigma * eps; a
-    # decoder-only fine-tune may lower it to sharpen the decoding of mu (the latents diffusion learns)
-    latent_noise: float = 1.0
+    kl_weight: float = 0.01  # appendix C.3 has 0.1: the latent was then too noisy to place boxes
+    # scale of the reparameterisation noise in training: 1 is the VAE's z = mu + sigma * eps; 0 decodes
+    # mu itself, the latents the diffusion model learns (the recipe's decoder stage, encoder frozen)
+    latent_noise: float = 0.0
     logit_bias: float = -4.0  # initial box logit (prior probability ~ 0.018)
     log_dist_bias: float = 0.4  # initial log edge distance (~1.5 m)
     delta_scale: tuple[float, float, float] = (10.0, 2.0, 0.3)  # output units of (dx m, dy m, dyaw rad)
-    # beyond appendix C.1: D_up also receives D_down's features at 32 and 64 px (U-Net skips), so
-    # that boxes can follow the lanes at the output resolution, not only through the 16 px bottleneck
-    map_skips: bool = False
     use_map: bool = True  # False: the paper's no-map ablation (D sees m replaced by zeros)
     # beyond the paper: K > 0 adds a MultiBin heading head of K bins (2K output channels, heading.py)
     # that commits to one heading where the cos/sin regression would average between lanes
-    heading_bins: int = 0
+    heading_bins: int = 16
     # beyond the paper: C_t > 0 gives D_up the agent tokens as a raster of C_t channels
     # (tokens.raster.C_T); 0 = the paper's D(z, m), which decodes from the latent alone
-    C_t: int = 0
-    # with C_t: a token giving only one of speed / final speed shows the decoder that value in the
-    # other's channel too (its presence bit still 0). With absent read as 0 m/s, a decoder learns
-    # the two channels' difference as the vehicle's acceleration and draws a token that gives only
-    # its speed braking from too fast (docs/tokens.md)
-    token_speeds_filled: bool = False
+    C_t: int = C_T
     # with C_t: channels of a token branch (0: none), a small stack at the output resolution that
     # reads the decoder's last features beside the token raster and corrects the head's outputs in
-    # the cells a token covers only (gated by the raster's token channel, its last convolution
-    # zero-initialised): a scene without tokens, and every cell away from one, decodes exactly as
-    # the decoder it was added to, while a token's own vehicle gets layers of its own to follow it
-    token_branch: int = 0
-    # with token_branch: the branch also draws each 1 s step's length toward the token's speeds,
-    # y' = (1 - g) y + g v, v the step a vehicle at the token's speed (now, +2 s) drives straight on
-    # and g in (0, 1) a gate the branch learns (starting near 0). A correction added to y must know
-    # y to undo it; the decoder's latent and map pull a token's vehicle toward the lane's limit by an
-    # amount the branch's normalised layers cannot read, and a gate's gradient has one sign whether
-    # the latent's speed is above or below the token's
-    token_branch_mix: bool = False
+    # the cells a token covers only (gated by the raster's token channel): a scene without tokens,
+    # and every cell away from one, decodes as the decoder alone, while a token's own vehicle gets
+    # layers of its own to follow it, and a gate that draws its steps toward the token's speeds
+    token_branch: int = 32
     loss: DetectionLossConfig = field(default_factory=DetectionLossConfig)
 
 
@@ -134,32 +126,26 @@ class DetectionDecoder(nn.Module):
             if i < len(ch) - 1:
                 layers.append(Upsample(c))
             prev = c
-        # with map_skips, D_down's features at 16 * 2^i px (its level top - i) are projected (1x1)
-        # and added to the input of the ResnetBlock of level i >= 1 (body index 1 + 2 i); the
-        # projections start at zero, so a decoder warm-started from one without skips begins as it
+        # D_down's features at 16 * 2^i px (its level top - i) are projected (1x1) and added to the
+        # input of the ResnetBlock of level i >= 1 (body index 1 + 2 i), U-Net fashion, so the boxes
+        # follow the lanes finer than the 16 px bottleneck's 6.25 m cells
         top = len(cfg.enc_channels) - 1
         self.skip_at, self.skips = {}, nn.ModuleDict()
-        for i in range(1, len(ch)) if cfg.map_skips else ():
+        for i in range(1, len(ch)):
             self.skip_at[1 + 2 * i] = top - i
-            self.skips[str(1 + 2 * i)] = conv = nn.Conv2d(cfg.enc_channels[top - i], ch[i - 1], 1)
-            nn.init.zeros_(conv.weight)
-            nn.init.zeros_(conv.bias)
+            self.skips[str(1 + 2 * i)] = nn.Conv2d(cfg.enc_channels[top - i], ch[i - 1], 1)
         # with C_t, the token raster (at the output resolution) is average-pooled to each level's
-        # resolution and added (3x3, zero-initialised: a decoder warm-started without it begins as
-        # it was) to the input of that level's ResnetBlock, body index 1 + 2 i
+        # resolution and added (3x3) to the input of that level's ResnetBlock, body index 1 + 2 i
         self.token_at, self.tokens = {}, nn.ModuleDict()
         for i in range(len(ch)) if cfg.C_t else ():
             self.token_at[1 + 2 * i] = 2 ** (len(ch) - 1 - i)
-            self.tokens[str(1 + 2 * i)] = conv = nn.Conv2d(cfg.C_t, ch[max(i - 1, 0)], 3, padding=1)
-            nn.init.zeros_(conv.weight)
-            nn.init.zeros_(conv.bias)
+            self.tokens[str(1 + 2 * i)] = nn.Conv2d(cfg.C_t, ch[max(i - 1, 0)], 3, padding=1)
         self.body = nn.Sequential(*layers)
         self.norm_out = group_norm(prev)
         k = cfg.heading_bins
         self.conv_out = nn.Conv2d(prev, C_Y + 2 * k, 3, padding=1)
-        self.branch = TokenBranch(prev, cfg.C_t, cfg.token_branch, C_Y + 2 * k, cfg.dropout,
-                                  mix_scale=cfg.delta_scale[0] if cfg.token_branch_mix else None) \
-            if cfg.C_t and cfg.token_branch else None
+        self.branch = TokenBranch(prev, cfg.C_t, cfg.token_branch, C_Y + 2 * k, cfg.delta_scale[0],
+                                  cfg.dropout) if cfg.C_t and cfg.token_branch else None
         scale = torch.ones(C_Y + 2 * k)
         scale[7:C_Y] = torch.tensor(cfg.delta_scale).repeat(4)
         if k:
@@ -170,10 +156,10 @@ class DetectionDecoder(nn.Module):
             self.conv_out.bias[0] = cfg.logit_bias
             self.conv_out.bias[3:7] = cfg.log_dist_bias
 
-    def forward(self, z: torch.Tensor, m_enc: torch.Tensor,
-                m_feats: list[torch.Tensor] | None = None, t: torch.Tensor | None = None) -> torch.Tensor:
-        """``m_feats``: D_down's pyramid (finest first), needed with ``map_skips``; ``t``: the token
-        raster (B, C_t, 64, 64) of a decoder with C_t (None: no tokens)."""
+    def forward(self, z: torch.Tensor, m_enc: torch.Tensor, m_feats: list[torch.Tensor],
+                t: torch.Tensor | None = None) -> torch.Tensor:
+        """``m_feats``: D_down's pyramid (finest first); ``t``: the token raster (B, C_t, 64, 64) of
+        a decoder with C_t (None: no tokens)."""
         h = self.conv_in(torch.cat([z, m_enc], dim=1))
         for k, layer in enumerate(self.body):
             if k in self.skip_at:
@@ -196,41 +182,38 @@ MIX_GATE_START = -2.0                           # sigmoid(-2) = 0.12: open enoug
 
 class TokenBranch(nn.Module):
     """The head's outputs corrected where a token stands (``AutoencoderConfig.token_branch``):
-    conv over [features, token raster], two ResnetBlocks, GN-SiLU-conv (zero-initialised), added to
-    the head's raw outputs in the cells whose token channel is set and nowhere else. With
-    ``mix_scale`` (``token_branch_mix``) each step's dx is then drawn toward the token's speeds
-    through a gate read from the same features (:meth:`_mixed`)."""
+    conv over [features, token raster], two ResnetBlocks, GN-SiLU-conv, added to the head's raw
+    outputs in the cells whose token channel is set and nowhere else; then each step's dx is drawn
+    toward the token's speeds through a gate read from the same features (:meth:`_mixed`): a
+    correction added to y must know y to undo it, which the branch's normalised layers do not read."""
 
-    def __init__(self, feat_ch: int, c_t: int, ch: int, out_ch: int, dropout: float = 0.0,
-                 mix_scale: float | None = None):
+    def __init__(self, feat_ch: int, c_t: int, ch: int, out_ch: int, mix_scale: float, dropout: float = 0.0):
         super().__init__()
         self.conv_in = nn.Conv2d(feat_ch + c_t, ch, 3, padding=1)
         self.blocks = nn.Sequential(ResnetBlock(ch, ch, dropout=dropout), ResnetBlock(ch, ch, dropout=dropout))
         self.norm_out = group_norm(ch)
+        # the correction starts at zero (a residual branch: the head learns the cells first) ...
         self.conv_out = nn.Conv2d(ch, out_ch, 3, padding=1)
         nn.init.zeros_(self.conv_out.weight)
         nn.init.zeros_(self.conv_out.bias)
-        # token_branch_mix: one gate per 1 s step, read from the branch's features; near 0 at first
-        self.mix_scale, self.mix = mix_scale, None
-        if mix_scale is not None:
-            self.mix = nn.Conv2d(ch, len(MIX_STEPS), 3, padding=1)
-            nn.init.zeros_(self.mix.weight)
-            nn.init.constant_(self.mix.bias, MIX_GATE_START / MIX_GAIN)
+        # ... and each 1 s step's gate near closed (open enough to learn from)
+        self.mix_scale = mix_scale
+        self.mix = nn.Conv2d(ch, len(MIX_STEPS), 3, padding=1)
+        nn.init.zeros_(self.mix.weight)
+        nn.init.constant_(self.mix.bias, MIX_GATE_START / MIX_GAIN)
 
     def forward(self, y: torch.Tensor, h: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         gate = t[:, :1] > 0          # tokens.raster: channel 0 is 1 in the cells around each token
         if not self.training and not bool(gate.any()):   # (in training always run: DDP wants every weight used)
             return y
         f = F.silu(self.norm_out(self.blocks(self.conv_in(torch.cat([h, t], dim=1)))))
-        out = y + self.conv_out(f)
-        if self.mix is not None:
-            out = self._mixed(out, t, torch.sigmoid(MIX_GAIN * self.mix(f)))
+        out = self._mixed(y + self.conv_out(f), t, torch.sigmoid(MIX_GAIN * self.mix(f)))
         return torch.where(gate, out, y)     # exactly y away from the tokens
 
     def _mixed(self, y: torch.Tensor, t: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
         """dx of each step drawn toward the step a vehicle at the token's speeds drives straight on:
-        the past steps at its speed now, the future ones from it to its speed at +2 s (with
-        ``token_speeds_filled`` an absent one reads the other's); the token raster's speeds are in
+        the past steps at its speed now, the future ones from it to its speed at +2 s (an absent one
+        reads the other's, :meth:`ScenarioAutoencoder.token_raster`); the token raster's speeds are in
         ``SPEED_SCALE`` m/s, the head's dx in ``mix_scale`` m."""
         now = t[:, TOKEN_CHANNELS.index("speed")] * SPEED_SCALE / self.mix_scale
         final = t[:, TOKEN_CHANNELS.index("final_speed")] * SPEED_SCALE / self.mix_scale
@@ -270,8 +253,13 @@ class ScenarioAutoencoder(nn.Module):
     def token_raster(self, tokens: torch.Tensor, pad: torch.Tensor, exact: torch.Tensor | None = None) -> torch.Tensor:
         """The decoder's input ``t`` of agent tokens (B, T, AGENT_TOKEN_DIM) and their padding (B, T):
         ``tokens.raster.token_raster`` at the output resolution, in this decoder's encoding
-        (``exact``: the tokens' exact speeds and turn, ``tokens.raster.exact_values``)."""
-        return token_raster(tokens, pad, self.out_res, fill_speeds=self.cfg.token_speeds_filled, exact=exact)
+        (``exact``: the tokens' exact speeds and turn, ``tokens.raster.exact_values``).
+
+        A token giving only one of speed / final speed shows the decoder that value in the other's
+        channel too (its presence bit still 0): with absent read as 0 m/s, a decoder learns the two
+        channels' difference as the vehicle's acceleration and draws a token that gives only its
+        speed braking from too fast (docs/tokens.md)."""
+        return token_raster(tokens, pad, self.out_res, fill_speeds=True, exact=exact)
 
     def decode(self, z: torch.Tensor, m: torch.Tensor, t: torch.Tensor | None = None) -> torch.Tensor:
         """y = D(z, m) = D_up(z, D_down(m)), (B, 19 [+ 2 heading_bins], 64, 64). ``t``: the token
@@ -280,9 +268,7 @@ class ScenarioAutoencoder(nn.Module):
         t = t if self.cfg.C_t else None
         if not self.cfg.use_map:
             m = torch.zeros_like(m)
-        if self.cfg.map_skips:
-            return self.D_up(z, *self.D_down.pyramid(m), t=t)
-        return self.D_up(z, self.D_down(m), t=t)
+        return self.D_up(z, *self.D_down.pyramid(m), t=t)
 
     def forward(self, x: torch.Tensor, m: torch.Tensor, sample: bool | None = None,
                 t: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -291,28 +277,6 @@ class ScenarioAutoencoder(nn.Module):
         sample = self.training if sample is None else sample
         z = self.sample(mu, logvar) if sample else mu
         return self.decode(z, m, t), mu, logvar
-
-    def grow_latent(self, state: dict, old_c_z: int) -> dict:
-        """A state dict of this autoencoder's layout with ``old_c_z`` latent channels, fitted to this
-        one's larger C_z: each new mu / logvar output of the encoder starts as a copy of an old one
-        (new channel ``k`` copies ``k mod old_c_z``), which the decoder reads with zero weights. The
-        grown model decodes what the old one did, and from the first step the new channels carry
-        information the decoder can learn to use (the same signal under independent noise), so
-        training can make them specialise in what the old ones could not carry. New channels fed
-        fresh random weights instead stay at the prior (sigma 1): posterior collapse, measured."""
-        c, own = self.cfg.C_z, self.state_dict()
-        if old_c_z == c:
-            return state
-        if old_c_z > c:
-            raise ValueError(f"cannot shrink the latent from {old_c_z} to {c} channels")
-        state, src = dict(state), torch.arange(c) % old_c_z
-        for key in ("E.conv_out.weight", "E.conv_out.bias"):
-            mu, logvar = state[key].split(old_c_z)
-            state[key] = torch.cat([mu[src], logvar[src]])
-        key = "D_up.conv_in.weight"
-        state[key] = grow_segments(state[key], torch.zeros_like(own[key]), 1,
-                                   (old_c_z, self.cfg.C_map), (c, self.cfg.C_map))
-        return state
 
     @staticmethod
     def kl(mu: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:

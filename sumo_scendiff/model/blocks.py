@@ -8,7 +8,6 @@ diffusion model. API is stable:
   after the first convolution.
 * ``Downsample(ch)``: stride-2 3x3 convolution (H -> H/2).
 * ``Upsample(ch)``: nearest-neighbour x2 followed by a 3x3 convolution.
-* ``widen_input(state, key, weight)``: a conv weight of a state dict grown to more input channels.
 """
 from __future__ import annotations
 
@@ -75,42 +74,3 @@ class Upsample(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.conv(F.interpolate(x, scale_factor=2.0, mode="nearest"))
-
-
-def widen_input(state: dict, key: str, weight: torch.Tensor) -> dict:
-    """``state`` with the conv weight ``state[key]`` (out, in_old, k, k) fitted to ``weight``'s shape
-    (out, in_new >= in_old, k, k): the new trailing input channels get zero weights, so a module
-    warm-started from the old state computes what it did until training teaches it the new input."""
-    old = state.get(key)
-    if old is None or old.shape[1] >= weight.shape[1]:
-        return state
-    w = torch.zeros_like(weight)
-    w[:, : old.shape[1]] = old
-    return {**state, key: w}
-
-
-def widen_output(state: dict, key: str, param: torch.Tensor) -> dict:
-    """``state`` with the conv weight or bias ``state[key]`` (out_old, ...) fitted to ``param``'s shape
-    (out_new >= out_old, ...): the new trailing output channels start at zero, the old ones keep
-    their values (a head warm-started with more outputs computes the old outputs unchanged)."""
-    old = state.get(key)
-    if old is None or old.shape[0] >= param.shape[0]:
-        return state
-    w = torch.zeros_like(param)
-    w[: old.shape[0]] = old
-    return {**state, key: w}
-
-
-def grow_segments(old: torch.Tensor, like: torch.Tensor, dim: int, old_sizes: tuple[int, ...],
-                  new_sizes: tuple[int, ...]) -> torch.Tensor:
-    """``like`` (a tensor of the grown layout: its values fill what is new) with ``old``'s values put
-    back: along ``dim``, ``old`` is made of consecutive segments of ``old_sizes`` and ``like`` of
-    ``new_sizes`` (each at least as long); segment ``i`` of ``old`` goes to the start of segment ``i``.
-    E.g. an encoder's ``conv_out`` of ``[mu; logvar]`` grown from 4 + 4 to 8 + 8 latent channels."""
-    if len(old_sizes) != len(new_sizes) or any(n < o for o, n in zip(old_sizes, new_sizes)):
-        raise ValueError(f"cannot grow segments {old_sizes} to {new_sizes}")
-    out = like.detach().clone()
-    for src, dst, n in zip(torch.tensor((0,) + old_sizes).cumsum(0).tolist(),
-                           torch.tensor((0,) + new_sizes).cumsum(0).tolist(), old_sizes):
-        out.narrow(dim, dst, n).copy_(old.narrow(dim, src, n))
-    return out

@@ -17,11 +17,50 @@ import torch
 from ..core.files import file_sha256 as sha256
 
 FORMAT = "sumo-scendiff"
-VERSION = 1
+# 2: configs hold this version's fields; 1 (the shipped file's): configs as earlier versions wrote
+# them, read through EARLIER_DEFAULTS and RETIRED
+VERSION = 2
+READS = (1, 2)
 
 
 class CheckpointError(ValueError):
     """A checkpoint that cannot be used; the message names the file."""
+
+
+# Fields whose default changed, each with the value a version-1 config that lacks it was trained
+# with (a config holds the fields its version had): part -> field -> value
+EARLIER_DEFAULTS = {
+    "autoencoder": {"C_m": 21, "kl_weight": 0.1, "latent_noise": 1.0, "heading_bins": 0, "C_t": 0,
+                    "token_branch": 0, "map_skips": False, "token_speeds_filled": False,
+                    "token_branch_mix": False},
+    "autoencoder.loss": {"box_weight": 1.0, "vertex_weight": 1.0, "category_weights": [0.1, 0.3, 4.0],
+                         "heading_bin_weight": 1.0, "speed_weight": 0.0, "told_speed_weight": 0.0},
+    "diffusion": {"P_mean": -0.5, "P_std": 1.0},
+    "diffusion.unet": {"pos_freqs": 0, "splat_ch": 0},
+}
+# Switches version-1 configs stored that this version no longer has: what each switched on is now the only
+# way, so a config must have had it on wherever it mattered. part -> field -> where it mattered
+RETIRED = {"autoencoder": {"map_skips": lambda c: True,
+                           "token_speeds_filled": lambda c: c["C_t"] > 0,
+                           "token_branch_mix": lambda c: c["C_t"] > 0 and c["token_branch"] > 0}}
+# the stored configs of each kind of checkpoint: key -> part
+CONFIGS = {"scenario-diffusion": {"autoencoder_config": "autoencoder", "diffusion_config": "diffusion"},
+           "autoencoder-train": {"model_config": "autoencoder"},
+           "diffusion-train": {"model_config": "diffusion"}}
+
+
+def upgraded_config(d: dict, part: str, path: str) -> dict:
+    """A stored config of ``part`` as this version reads it: missing fields at the value that model
+    was trained with (:data:`EARLIER_DEFAULTS`), retired switches (:data:`RETIRED`) checked and dropped."""
+    out = {**EARLIER_DEFAULTS.get(part, {}), **d}
+    for key in {k.split(".")[1] for k in EARLIER_DEFAULTS if k.startswith(part + ".")}:
+        out[key] = upgraded_config(d.get(key, {}), f"{part}.{key}", path)
+    for field, mattered in RETIRED.get(part, {}).items():
+        if out.get(field) is not True and mattered(out):
+            raise CheckpointError(f"{path}: a model with {field} {out.get(field)} (this version always "
+                                  f"has it on): train it again, or read it with an earlier version")
+        out.pop(field, None)
+    return out
 
 
 def config_to_dict(cfg) -> dict:
@@ -69,12 +108,15 @@ def load(path: str, kind: str | tuple[str, ...]) -> dict:
         raise CheckpointError(f"{path}: not a readable checkpoint ({first})") from None
     if not isinstance(ck, dict) or ck.get("format") != FORMAT:
         raise CheckpointError(f"{path}: not a sumo-scendiff checkpoint")
-    if ck.get("version") != VERSION:
+    if ck.get("version") not in READS:
         raise CheckpointError(f"{path}: checkpoint format version {ck.get('version')} "
-                              f"(this code reads version {VERSION})")
+                              f"(this code reads versions {', '.join(map(str, READS))})")
     kinds = (kind,) if isinstance(kind, str) else kind
     if ck.get("kind") not in kinds:
         raise CheckpointError(f"{path}: a {ck.get('kind')!r} checkpoint, expected {' or '.join(kinds)}")
+    for key, part in CONFIGS.get(ck["kind"], {}).items() if ck["version"] == 1 else ():
+        if isinstance(ck.get(key), dict):
+            ck[key] = upgraded_config(ck[key], part, path)
     return ck
 
 

@@ -21,9 +21,7 @@ also embedded by its own MLP into ``splat_ch`` channels and added into the one l
 position bin falls in (``tokens.token_cells``); the resulting image is concatenated to the input.
 Cross-attention alone must *learn* to route a token to its pixel, which a CPU-sized training
 run does not (docs/model.md); the splat hands that routing to the network, and
-cross-attention keeps carrying tokens without a position and the set-level context. The splat
-channels come last in ``conv_in`` so a model trained without them warm-starts with zero weights there
-(:func:`widen_conv_in`).
+cross-attention keeps carrying tokens without a position and the set-level context.
 
 Widths: the paper uses 64/128/256 channels. On the project's 2-core CPU that UNet runs at
 ~350 samples/s (batch 32, 16 x 16), short of the >= 600 forwards/s needed for 20 scenes/s with 20
@@ -42,14 +40,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ..tokens.encoding import AGENT_TOKEN_DIM, GLOBAL_TOKEN_DIM, token_cells
-from .blocks import (
-    Downsample,
-    ResnetBlock,
-    Upsample,
-    group_norm,
-    grow_segments,
-    widen_input,
-)
+from .blocks import Downsample, ResnetBlock, Upsample, group_norm
 
 
 @dataclass(frozen=True)
@@ -276,39 +267,6 @@ class UNet(nn.Module):
             if j < len(cfg.channels) - 1:
                 h = self.upsample[j](h)
         return self.conv_out(F.silu(self.norm_out(h)))
-
-
-def widen_conv_in(state: dict, net: "UNet", prefix: str = "") -> dict:
-    """A state dict of a UNet built with fewer input channels (older config: no splat), fitted to
-    ``net``: the missing trailing input channels of ``conv_in`` get zero weights and the missing
-    splat MLP keeps ``net``'s fresh initialisation, so the warm-started net computes what the old
-    one did until training teaches it to use the new input."""
-    own = net.state_dict()
-    state = widen_input(state, prefix + "conv_in.weight", own["conv_in.weight"])
-    for k, v in own.items():
-        if k.startswith("splat.") and prefix + k not in state:
-            state[prefix + k] = v
-    return state
-
-
-def grow_latent(state: dict, net: "UNet", old_c_z: int, prefix: str = "") -> dict:
-    """A state dict of a UNet on ``old_c_z`` latent channels, fitted to ``net``'s larger c_z (an
-    autoencoder whose latent was grown, ``ScenarioAutoencoder.grow_latent``): ``conv_in`` reads the
-    new channels with zero weights and ``conv_out`` predicts them with zero weights (F = 0: the
-    denoiser starts at c_skip z there), so the grown net denoises the old channels as before."""
-    c, own = net.cfg.c_z, net.state_dict()
-    if old_c_z == c:
-        return state
-    if old_c_z > c:
-        raise ValueError(f"cannot shrink the latent from {old_c_z} to {c} channels")
-    state, key = dict(state), prefix + "conv_in.weight"
-    rest = own["conv_in.weight"].shape[1] - c
-    state[key] = grow_segments(state[key], torch.zeros_like(own["conv_in.weight"]), 1,
-                               (old_c_z, state[key].shape[1] - old_c_z), (c, rest))
-    for name in ("conv_out.weight", "conv_out.bias"):
-        state[prefix + name] = grow_segments(state[prefix + name], torch.zeros_like(own[name]), 0,
-                                             (old_c_z,), (c,))
-    return state
 
 
 def count_parameters(module: nn.Module) -> int:

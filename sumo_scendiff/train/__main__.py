@@ -1,19 +1,20 @@
 """Train Scenario Diffusion: the detection autoencoder, then the latent diffusion model, then export.
 
-    python -m sumo_scendiff.train autoencoder --data data/train --val data/val -o runs/ae --steps 6000
-    python -m sumo_scendiff.train diffusion --autoencoder runs/ae/last.pt --data data/train \\
-        --val data/val -o runs/diffusion --steps 8000
+    python -m sumo_scendiff.train recipe configs/scendiff.json runs/scendiff   # the shipped model, every stage
+    python -m sumo_scendiff.train autoencoder --data data/train --val data/val -o runs/ae --steps 5500
     python -m sumo_scendiff.train autoencoder --init-from runs/ae/last.pt --freeze-encoder ...  # decoder only
+    python -m sumo_scendiff.train diffusion --autoencoder runs/ae/last.pt --data data/train \\
+        --val data/val -o runs/diffusion
     python -m sumo_scendiff.train diffusion --autoencoder sumo_scendiff/weights/scendiff.pt \\
         --init-from sumo_scendiff/weights/scendiff.pt ...  # fine-tune the shipped model
     python -m sumo_scendiff.train export --autoencoder runs/ae/last.pt \\
         --diffusion runs/diffusion/last.pt -o runs/scendiff.pt --scene-guidance-sigma 1
     python -m sumo_scendiff.train calibrate --model runs/scendiff.pt --data data/val --turned
-    python -m sumo_scendiff.train recipe configs/fast.json --print-stage autoencoder --out runs/fast ...
 
-Recipes (configs/): configs/fast.json is the shipped model's (run by scripts/train_fast.sh, every
-training stage as two one-thread DDP processes), configs/nomap.json the paper's no-map ablation
-(scripts/train_nomap.sh).
+Recipes (configs/): configs/scendiff.json trains the shipped model from nothing (record, autoencoder,
+decoder, diffusion, export, calibrate; OUT/recipe.json logs each stage's time), configs/nomap.json
+the paper's no-map ablation, configs/finetune_example.json fine-tunes the shipped model on one's
+own networks. scripts/run_recipe.sh RECIPE OUT runs the same.
 
 Each training stage writes ``OUT/last.pt`` every ``--ckpt-every`` steps (and when ``--max-minutes``
 runs out or on Ctrl-C) and continues from it when started again with the same ``-o``: a stopped run
@@ -39,7 +40,7 @@ HELP = {"autoencoder": "train the detection autoencoder (or its decoder alone)",
         "diffusion": "train the latent diffusion model in an autoencoder's latent space",
         "export": "write a trained autoencoder and diffusion model as one model file",
         "calibrate": "calibrate the global token's guidance weight and store it in a model file",
-        "recipe": "print a stage of a recipe file (configs/*.json) as its command line"}
+        "recipe": "run a recipe file (configs/*.json) into OUT, or print its stages"}
 
 
 def get_options(args=None):
@@ -104,16 +105,19 @@ def get_options(args=None):
     c.add_argument("--sampler", choices=SAMPLER_NAMES, default=None, help="default: generation's")
     c.add_argument("-s", "--seed", type=int, default=0)
     r = sub.add_parser("recipe", help=HELP["recipe"], description=HELP["recipe"] + " (sumo_scendiff/train/"
-                       "recipe.py describes the format)")
+                       "recipe.py describes the format, recipe_run.py the run)")
     r.add_argument("recipe", metavar="RECIPE.json")
-    what = r.add_mutually_exclusive_group(required=True)
+    r.add_argument("out", metavar="OUT", nargs="?", default=None,
+                   help="the run's output directory ({out} in the recipe); OUT/recipe.json logs the run")
+    what = r.add_mutually_exclusive_group()
     what.add_argument("--print-stage", metavar="NAME",
-                      help="the stage's program (data or a train subcommand), then its arguments, one a "
-                           "line; nothing for a recording that is complete, --resume for one interrupted")
+                      help="print the stage's program (data or a train subcommand), then its arguments, one "
+                           "a line, instead of running; nothing for a recording that is complete, --resume "
+                           "for one interrupted")
     what.add_argument("--print", choices=("stages", "procs"), dest="print_key",
-                      help="the stage names in order, or the process count of training stages")
-    r.add_argument("--out", default=None, help="the run's output: {out} in the recipe")
-    r.add_argument("--data-dir", default=None, help="where recordings go: {data} in the recipe")
+                      help="print the stage names in order, or the process count of training stages")
+    r.add_argument("--data-dir", default=None, help="where recordings go: {data} in the recipe (default OUT/data)")
+    r.add_argument("--scale", default=None, help="another size of the recipe from its \"scales\" (e.g. toy)")
     r.add_argument("--procs", type=int, default=None, help="training processes (default: the recipe's)")
     r.add_argument("--steps", action="append", default=[], metavar="STAGE=N",
                    help="another step budget for a training stage (its lr drop moves with it)")
@@ -176,48 +180,64 @@ def _check(args: list[str]) -> None:
         raise rc.RecipeError(err.getvalue().strip().splitlines()[-1].partition("error: ")[2]) from None
 
 
-def recipe(o) -> None:
+def recipe(o) -> int:
     r = rc.load(o.recipe)
     try:
-        print_recipe(o, r)
+        return run_recipe(o, rc.scaled(r, o.scale))
     except rc.RecipeError as e:
         raise rc.RecipeError(f"{o.recipe}: {e}") from None
 
 
-def print_recipe(o, r: dict) -> None:
+def _steps(o) -> dict[str, int]:
     steps = {}
     for item in o.steps:
         name, _, n = item.partition("=")
         if not n.isdigit():
             raise rc.RecipeError(f"--steps {item}: expected STAGE=N")
         steps[name] = int(n)
+    return steps
+
+
+def run_recipe(o, r: dict) -> int:
+    """Check every stage's command line (a bad one fails before hours of the ones before it), then
+    print what was asked or run the stages."""
+    steps = _steps(o)
     names = [s["name"] for s in r["stages"]]
     rc.check_steps(r, steps)
     if o.print_key == "stages":
         print("\n".join(names))
-        return
+        return 0
+    procs = o.procs or r.get("procs", 1)
     if o.print_key == "procs":
-        print(o.procs or r.get("procs", 1))
-        return
-    rc.stage(r, o.print_stage)
-    for name in names:   # every stage, so that a bad one fails before hours of the ones before it
+        print(procs)
+        return 0
+    if o.print_stage:
+        rc.stage(r, o.print_stage)
+    elif o.out is None:
+        raise rc.RecipeError("give OUT, the run's output directory (or --print / --print-stage)")
+    out = os.path.abspath(o.out) if o.out else None
+    data = os.path.abspath(o.data_dir) if o.data_dir else (os.path.join(out, "data") if out else None)
+    lines = {}
+    for name in names:
         try:
-            args = rc.stage_args(r, name, o.out, o.data_dir, o.procs, steps.get(name))
-            _check(args)
+            lines[name] = rc.stage_args(r, name, out, data, procs, steps.get(name))
+            _check(lines[name])
         except rc.RecipeError as e:
             raise rc.RecipeError(f"stage {name}: {e}") from None
-        if name == o.print_stage:
-            printed = rc.pending(args)
-    print("\n".join(printed))
+    if o.print_stage:
+        print("\n".join(rc.pending(lines[o.print_stage])))
+        return 0
+    from .recipe_run import run
+    os.makedirs(out, exist_ok=True)
+    return run(o.recipe, r, out, data, procs, steps, o.scale, lines)
 
 
 def main(o) -> int:
     if o.stage == "recipe":
         try:
-            recipe(o)
+            return recipe(o)
         except rc.RecipeError as e:
             o.parser.exit(2, f"{PROG}: error: {e}\n")
-        return 0
     from ..core.threads import share_cpu
     share_cpu()   # before torch starts its thread pool: idle threads sleep instead of spinning
     import numpy as np

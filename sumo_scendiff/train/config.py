@@ -23,8 +23,11 @@ class TrainConfig:
     ema_halflife: float = 0.0     # weight average half-life in steps (0: none); export uses it
     ema_rampup: float = 0.05      # ... but at most this fraction of the steps so far (EDM's rule)
     # diffusion, and an autoencoder whose decoder reads the tokens (C_t):
-    p_keep_all_tokens: float = 0.4  # P(p_mask = 0), every agent a token (sec. 4.3.1)
-    p_map_only: float = 0.0       # P(p_mask = 1), the map alone; else p_mask ~ Beta(2, 1)
+    # P(p_mask = 0), every agent a token (sec. 4.3.1 has 0.4) ...
+    p_keep_all_tokens: float = 0.2
+    # ... P(p_mask = 1), the map alone (the paper: 0; map-only generation drew half the agents
+    # SUMO has when training never showed a window without tokens); else p_mask ~ Beta(2, 1)
+    p_map_only: float = 0.3
     p_all_features: float = 0.5   # a kept token gives every feature (TokenMaskConfig)
     p_drop_group: float = 0.3     # ... else each feature group is dropped with this probability
     # diffusion: the denoising error of the latent cells under an agent kept as a positioned token
@@ -34,16 +37,6 @@ class TrainConfig:
     # the encoder is shown otherwise (train/token_decoder.py), so the decoder learns to follow the token
     p_mislead: float = 0.0
     p_counterfactual: float = 0.0   # ... of those, the share the other way round: the token and loss moved
-    # ... and reads its tokens' exact speeds and turn, as generation gives them (False: their bins'
-    # centres, as the decoders up to round 19 were trained)
-    exact_token_values: bool = False
-    # ... and only its token inputs' weights learn (their biases and the rest frozen): a scene
-    # without tokens decodes exactly as the decoder it started from
-    token_weights_only: bool = False
-    # ... or only its token branch learns (model_config token_branch > 0): every cell away from a
-    # token, and a scene without tokens, decodes exactly as the decoder it started from
-    token_branch_only: bool = False
-    token_lr_scale: float = 1.0   # ... and its token inputs learn this many times faster (new, from zero)
     p_no_signals: float = 0.0     # scenes shown with their traffic lights unknown (a model without a host)
     seed: int = 0
     workers: int = 0              # DataLoader worker processes (rendering is ~2 % of a step)

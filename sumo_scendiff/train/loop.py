@@ -178,8 +178,8 @@ class Loop:
             print(f"{self.path}: resuming at step {self.step}")
 
     def _set_lr(self, lr: float) -> None:
-        for group in self.opt.param_groups:   # a group may learn at a multiple of the stage's rate
-            group["lr"] = lr * group.get("lr_scale", 1.0)
+        for group in self.opt.param_groups:
+            group["lr"] = lr
 
     def save(self) -> None:
         if rank() != 0:

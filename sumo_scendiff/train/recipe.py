@@ -11,12 +11,17 @@ flags of the program that runs it.
 that program's long flag with ``_`` for ``-`` (true: the flag alone; a list: its values; an object:
 JSON), except:
 
-- ``split``: ``-n networks/NET`` for each network of that split of networks/splits.json;
+- ``split``: ``-n networks/NET`` for each network of that split of networks/splits.json; ``nets``:
+  the same for the networks listed (names under networks/);
 - ``batch_size`` of a training stage: the global batch, split over the recipe's ``procs``
   DistributedDataParallel processes;
 - ``lr_drop_at_percent``: ``--lr-drop-at`` at that share of the stage's steps, down to a hundred.
 
 Strings may name ``{out}`` (the run's output) and ``{data}`` (where recordings go).
+
+``scales`` (optional) holds other sizes of the same recipe, e.g. the tests' ``toy``: ``procs``,
+``every`` (values given to each stage that has that key) and ``stages`` (name -> keys set on that
+stage; an object merges into an object, null removes the key). :func:`scaled` applies one.
 """
 from __future__ import annotations
 
@@ -27,7 +32,8 @@ FORMAT = "sumo-scendiff-recipe"
 VERSION = 1
 RUNS = ("data", "autoencoder", "diffusion", "export", "calibrate")
 TRAINING = ("autoencoder", "diffusion")
-SPLITS = os.path.join("networks", "splits.json")
+NETWORKS = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "networks")
+SPLITS = os.path.join(NETWORKS, "splits.json")
 
 
 class RecipeError(ValueError):
@@ -59,7 +65,36 @@ def load(path: str) -> dict:
             raise RecipeError(f"{path}: stage {name}: run {s.get('run')!r}, expected one of {', '.join(RUNS)}")
     if not isinstance(recipe.get("procs", 1), int) or recipe.get("procs", 1) < 1:
         raise RecipeError(f"{path}: procs must be a positive integer")
+    for name, scale in recipe.get("scales", {}).items():
+        unknown = set(scale.get("stages", {})) - set(names)
+        if unknown:
+            raise RecipeError(f"{path}: scale {name}: no stage {', '.join(sorted(unknown))}")
     return recipe
+
+
+def _merged(base: dict, over: dict) -> dict:
+    out = dict(base)
+    for key, v in over.items():
+        if v is None:
+            out.pop(key, None)
+        elif isinstance(v, dict) and isinstance(base.get(key), dict):
+            out[key] = _merged(base[key], v)
+        else:
+            out[key] = v
+    return out
+
+
+def scaled(recipe: dict, scale: str | None) -> dict:
+    """The recipe at one of its ``scales`` (None: as written)."""
+    if scale is None:
+        return recipe
+    if scale not in recipe.get("scales", {}):
+        raise RecipeError(f"no scale {scale!r} (scales: {', '.join(recipe.get('scales', {})) or 'none'})")
+    sc = recipe["scales"][scale]
+    every, named = sc.get("every", {}), sc.get("stages", {})
+    stages = [_merged(_merged(s, {k: v for k, v in every.items() if k in s}), named.get(s["name"], {}))
+              for s in recipe["stages"]]
+    return {**recipe, "procs": sc.get("procs", recipe.get("procs", 1)), "stages": stages}
 
 
 def stage(recipe: dict, name: str) -> dict:
@@ -91,7 +126,7 @@ def _value(v, paths: dict) -> str:
         return str(v)
     for key, path in paths.items():
         if "{" + key + "}" in v and path is None:
-            raise RecipeError(f"{v} needs {'--out' if key == 'out' else '--data-dir'}")
+            raise RecipeError(f"{v} needs {'OUT' if key == 'out' else '--data-dir'}")
     return v.format(**paths)
 
 
@@ -117,7 +152,9 @@ def stage_args(recipe: dict, name: str, out: str | None = None, data: str | None
     for key, v in s.items():
         if key == "split":
             with open(SPLITS) as f:
-                args += [a for net in json.load(f)[v] for a in ("-n", os.path.join("networks", net))]
+                args += [a for net in json.load(f)[v] for a in ("-n", os.path.join(NETWORKS, net))]
+        elif key == "nets":
+            args += [a for net in v for a in ("-n", os.path.join(NETWORKS, net))]
         elif isinstance(v, bool):
             args += [_flag(key)] if v else []
         elif isinstance(v, dict):

@@ -59,11 +59,12 @@ def mislead(traj: np.ndarray, given: dict[str, np.ndarray], rng: np.random.Gener
 
 def decoder_conditioning(batch: dict, seed: int, step: int, rank: int, mask_cfg: TokenMaskConfig,
                          p_mislead: float, read_tokens: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
-                         raster: RasterConfig = RasterConfig(), p_counterfactual: float = 0.0,
-                         exact: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+                         raster: RasterConfig = RasterConfig(), p_counterfactual: float = 0.0
+                         ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(x, t, traj, told)``: the agent raster the encoder sees ((B, C_x, H, W): the batch's own
     where no token misleads it), the tokens' raster as the decoder reads them (``read_tokens(tokens,
-    pad)``: ``ScenarioAutoencoder.token_raster``, given the exact values with ``exact``), the
+    pad, exact)``: ``ScenarioAutoencoder.token_raster`` given the tokens' exact speeds and turn, as
+    generation gives them, not their bins' centres), the
     trajectories the loss asks for (the batch's, but for the counterfactual agents) and which agents
     ((B, N) bool) a token gives a speed or final speed of."""
     toks, xs, values = [], [], []
@@ -96,8 +97,6 @@ def decoder_conditioning(batch: dict, seed: int, step: int, rank: int, mask_cfg:
     tokens, pad = pad_tokens(toks)
     x = torch.from_numpy(np.stack(xs)).to(batch["agents"].device)
     speed_given = speed_given.to(x.device)
-    if not exact:
-        return x, read_tokens(tokens.to(x.device), pad.to(x.device)), target, speed_given
     vals = torch.full((len(values), tokens.shape[1], len(EXACT_FEATURES)), float("nan"))
     for i, v in enumerate(values):
         vals[i, :len(v)] = torch.from_numpy(v).float()
