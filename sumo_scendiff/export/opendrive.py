@@ -8,8 +8,9 @@ netconvert writes OpenDRIVE 1.4 from a ``.net.xml`` in the network's own coordin
 ``offset.disable-normalization`` when reading one): its header's west/south are the network's
 ``convBoundary`` minimum. ``info["offset"]`` is measured, not assumed: OpenDRIVE minus network
 coordinates, from the header's bounds against the network's ``convBoundary``; SUMO's ``netOffset``
-and projection are recorded too (OpenDRIVE 1.4 keeps only the projection, in ``geoReference``, so
-a geographic position is ``xodr - offset - netOffset`` projected back). ``--output.original-names``
+and projection are recorded too (netconvert writes the projection as ``geoReference`` and, for a
+projected network, OpenDRIVE 1.6's header ``<offset>`` = −netOffset: a geographic position is
+``xodr - offset - netOffset`` projected back). ``--output.original-names``
 puts each SUMO edge id in its road's ``userData`` (road and lane positions can be mapped back).
 """
 from __future__ import annotations
@@ -54,6 +55,7 @@ def cache_dir() -> str:
 
 
 _MEMO: dict[str, OpenDrive] = {}
+CACHE_VERSION = 2
 
 
 def opendrive_for(net: str) -> OpenDrive:
@@ -63,7 +65,8 @@ def opendrive_for(net: str) -> OpenDrive:
         return _MEMO[key]
     folder = cache_dir()
     os.makedirs(folder, exist_ok=True)
-    xodr, meta = os.path.join(folder, f"{key}.xodr"), os.path.join(folder, f"{key}.json")
+    name = os.path.join(folder, f"{key}-v{CACHE_VERSION}")   # a new description: a new entry
+    xodr, meta = f"{name}.xodr", f"{name}.json"
     if not (os.path.isfile(xodr) and os.path.isfile(meta)):
         _convert(net, xodr)
         info = describe(net, xodr)
@@ -119,7 +122,7 @@ def describe(net: str, xodr: str) -> dict:
         raise ExportError(f"{net}: no <location> in the network or no <header> in its OpenDRIVE")
     conv = _numbers(loc.get("convBoundary", "0,0,0,0"))
     offset = [float(header.get("west", conv[0])) - conv[0], float(header.get("south", conv[1])) - conv[1]]
-    geo = header.find("geoReference")
+    geo, shift = header.find("geoReference"), header.find("offset")
     version = subprocess.run([sumo_binary("netconvert"), "--version"], capture_output=True, text=True).stdout
     revision = (int(header.get("revMajor", 1)), int(header.get("revMinor", 4)))
     return {"netconvert": version.splitlines()[0].strip() if version else None,
@@ -129,6 +132,9 @@ def describe(net: str, xodr: str) -> dict:
             "net_offset": _numbers(loc.get("netOffset", "0,0")),
             "projection": loc.get("projParameter", "!"),
             "geo_reference": (geo.text or "").strip() if geo is not None else None,
+            # netconvert writes OpenDRIVE 1.6's header <offset> (minus the netOffset) for a projected
+            # network: the roads' coordinates plus it are the projection's; it does not move the roads
+            "header_offset": {k: float(shift.get(k, 0)) for k in ("x", "y", "z", "hdg")} if shift is not None else None,
             "schema": _schema_check(xodr, revision)}
 
 

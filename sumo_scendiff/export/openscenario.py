@@ -202,7 +202,7 @@ def build_scenario(doc: dict, rep: Replay, info: dict, xodr_name: str = "scenari
                              "sumo-scendiff", params, entities, board, xosc.RoadNetwork(xodr_name),
                              xosc.Catalog(), osc_minor_version=OSC_MINOR, creation_date=when,
                              header_properties=_header_properties(xosc, doc, info, rep.begin))
-    held = {"vehicles": len(agents), "kept": sum(a["status"] == "kept" for a in agents),
+    held = {"vehicles": len(agents), "kept": sum(a.get("status") == "kept" for a in agents),
             "not_in_sumo": sum(1 for a in doc["agents"] if a.get("vehicle") not in rep.types),
             "stories": {k: len(v) for k, v in stories.items()}, "played": played}
     return scenario, held
