@@ -64,6 +64,7 @@ def export_folders(folders: list[str], fmt: str = "openscenario", force: bool = 
 def export_after(out: str, names: list[str], fmt: str, workers: int = 1) -> None:
     """The ``--export`` of a run, sweep or fill: its finished folders ``out/name``, one line on stderr."""
     folders = [os.path.join(out, n) for n in names if os.path.isdir(os.path.join(out, n))]
-    s = export_folders(folders, fmt, keep_done=True, progress=sys.stderr.isatty(), workers=workers)
+    # the command's own folders: an export interrupted before its openscenario.json is redone
+    s = export_folders(folders, fmt, force=True, keep_done=True, progress=sys.stderr.isatty(), workers=workers)
     print(f"exported {s['exported']} folders as OpenSCENARIO 1.2 + OpenDRIVE ({s['vehicles']} vehicles, "
           f"{s['seconds']:.1f} s)" + (f"; {s['kept']} exported before" if s["kept"] else ""), file=sys.stderr)
