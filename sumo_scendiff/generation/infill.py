@@ -25,28 +25,37 @@ def scene_tokens(scene: Scene) -> list[dict]:
              "width": float(b[4]), "speed": float(v)} for b, v in zip(scene.boxes, scene.speed[:, T0])]
 
 
-def area_mask(window, boxes: np.ndarray, area: tuple | None) -> np.ndarray:
+def area_mask(window, boxes: np.ndarray, area: tuple | None, net=None) -> np.ndarray:
     """Which boxes (scene frame of ``window``) count towards a requested count: centre inside
-    ``area`` (a world rectangle x0, y0, x1, y1; None: the whole window, every box)."""
-    if area is None or not len(boxes):
-        return np.ones(len(boxes), bool)
-    x0, y0, x1, y1 = area
-    xy = window.scene_to_world(np.asarray(boxes, np.float64)[:, :2]).reshape(-1, 2)
-    return (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)
+    ``area`` (a world rectangle x0, y0, x1, y1; None: the whole window, every box) and, given the
+    network, front bumper outside every junction: SUMO's edgeData ``density`` counts a vehicle on
+    the lane of its front bumper, and a junction's internal lanes are in no edge's density."""
+    ok = np.ones(len(boxes), bool)
+    if not len(boxes):
+        return ok
+    boxes = np.asarray(boxes, np.float64)
+    if area is not None:
+        x0, y0, x1, y1 = area
+        xy = window.scene_to_world(boxes[:, :2]).reshape(-1, 2)
+        ok &= (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)
+    if net is not None:
+        front = boxes[:, :2] + 0.5 * boxes[:, 3:4] * np.c_[np.cos(boxes[:, 2]), np.sin(boxes[:, 2])]
+        ok &= ~net.in_junction(window.scene_to_world(front).reshape(-1, 2))
+    return ok
 
 
-def in_area(scene: Scene, area: tuple | None) -> np.ndarray:
+def in_area(scene: Scene, area: tuple | None, net=None) -> np.ndarray:
     """:func:`area_mask` of a scene's agents."""
-    return area_mask(scene.window, scene.boxes, area)
+    return area_mask(scene.window, scene.boxes, area, net)
 
 
 def add_new_agents(first: Scene, second: Scene, count: int, taken: np.ndarray, radius: float,
-                   area: tuple | None = None) -> Scene:
+                   area: tuple | None = None, net=None) -> Scene:
     """``first`` with the agents of ``second`` that are new -- centre farther than ``radius`` m from
     every point of ``taken`` (the first scene's agents and the tokens' positions, (K, 2)) and box
-    clear of the first scene's boxes -- most probable first, until it holds ``count`` agents in
-    ``area`` (:func:`in_area`; only agents there are added)."""
-    room = count - int(in_area(first, area).sum())
+    clear of the first scene's boxes -- most probable first, until it holds ``count`` agents that
+    count (:func:`in_area`; only agents in ``area`` are added)."""
+    room = count - int(in_area(first, area, net).sum())
     if room <= 0 or not len(second):
         return first
     ok = in_area(second, area)

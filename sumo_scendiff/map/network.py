@@ -309,6 +309,14 @@ class Network:
         box = shapely.box(*window.world_bounds())
         return np.sort(self.junction_tree.query(box, predicate="intersects"))
 
+    def in_junction(self, points) -> np.ndarray:
+        """Per point (N, 2 world), whether it lies inside a junction's shape."""
+        pts = shapely.points(np.asarray(points, np.float64).reshape(-1, 2))
+        inside = np.zeros(len(pts), bool)
+        if len(pts) and len(self.junctions):
+            inside[self.junction_tree.query(pts, predicate="within")[0]] = True
+        return inside
+
     def has_road(self, window) -> bool:
         """Whether any car lane crosses the window's square."""
         square = window_square(window)
