@@ -227,6 +227,14 @@ def _windows(o, net, sim, cosim):
 
 
 def run(o) -> dict:
+    from .sim.preflight import preflight
+    from .sim.scenario import ScenarioError, scenario_from_files
+    timing = {}
+    t = time.perf_counter()
+    try:   # the user's inputs judged by SUMO itself before the model is even imported
+        scen = preflight(scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional)))
+    except ScenarioError as e:
+        raise RunError(str(e)) from None
     from .core.threads import GENERATION_THREADS, share_cpu
     threads = share_cpu(default=GENERATION_THREADS)   # before torch is imported (core/threads.py: why one)
     import numpy as np
@@ -240,24 +248,17 @@ def run(o) -> dict:
     from .map.raster import render_map
     from .sim.fleet import Fleet
     from .sim.lights import light_states
-    from .sim.preflight import preflight
-    from .sim.scenario import ScenarioError, scenario_from_files
     from .sim.session import Session
     from .sim.sumo import SimConfig, settings
     from .tokens.file import load_tokens
 
     progress = sys.stderr.isatty() or o.verbose
-    timing = {}
-    t = time.perf_counter()
-    try:
-        scen = preflight(scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional)))
-    except ScenarioError as e:
-        raise RunError(str(e)) from None
     sumo_settings = settings(o, scen)     # the scenario's step length and options, the flags over them
     net = Network.load(scen.net)
     routes = scen.routes
     try:  # the route files as the set SUMO loads, against this network
-        span = demand_span(routes, {ln.edge for ln in net.lanes}, scen.additional) if routes else None
+        span = demand_span(routes, {ln.edge for ln in net.lanes}, scen.additional,
+                           begin=scen.begin, end=scen.end) if routes else None
         at = seeding_time(o.begin, scen.begin, span, routes) if span and not o.ego else None
     except DemandError as e:
         raise RunError(str(e)) from None
@@ -364,14 +365,22 @@ def _interrupt(signum, frame):
     raise KeyboardInterrupt  # SIGTERM ends a run as Ctrl-C does: complete scenes are kept
 
 
-def main(o) -> int:
-    from .core.outputs import OutputError, claim
+def _user_errors() -> tuple[type, ...]:
+    """The errors that are the user's input, one line and exit 2; imported only when one is raised,
+    so that a bad input is answered before torch is loaded."""
+    from .core.outputs import OutputError
     from .export.opendrive import ExportError
     from .map.locations import LocationError
     from .map.network import NetworkError
     from .model.checkpoint import CheckpointError
     from .sim.sumo import SimError
     from .tokens.file import TokenFileError
+    return (RunError, NetworkError, CheckpointError, SimError, TokenFileError, LocationError,
+            FileExistsError, OutputError, ExportError)
+
+
+def main(o) -> int:
+    from .core.outputs import claim
     on_sigterm = signal.signal(signal.SIGTERM, _interrupt)
     try:
         with claim(o.out):   # first of all: a second run into -o stops here, before any work
@@ -379,8 +388,9 @@ def main(o) -> int:
             if o.export:
                 from .export.batch import export_after
                 export_after(o.out, [r["scene"] for r in summary["scenes"]], o.export)
-    except (RunError, NetworkError, CheckpointError, SimError, TokenFileError, LocationError,
-            FileExistsError, OutputError, ExportError) as e:
+    except Exception as e:
+        if not isinstance(e, (RunError, FileExistsError)) and not isinstance(e, _user_errors()):
+            raise
         o.parser.exit(2, f"{PROG}: error: {e}\n")
     except KeyboardInterrupt:
         done = sum(os.path.isdir(os.path.join(o.out, f"scene_{k:03d}")) for k in range(o.scenes))

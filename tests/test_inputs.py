@@ -223,3 +223,29 @@ def test_sumos_own_scenarios_are_read(config):
         preflight(scen)
     except ScenarioError as e:
         assert "No option with the name 'osg-view' exists" in str(e) and "\n" not in str(e)
+
+
+_BEFORE_TORCH = """import runpy, sys
+sys.argv = sys.argv[1:]
+try:
+    runpy.run_module(sys.argv[0], run_name="__main__")
+except SystemExit as e:
+    print(e.code, "torch" in sys.modules)
+"""
+
+
+@pytest.mark.parametrize("module", ["sumo_scendiff.run", "sumo_scendiff.fill"])
+def test_a_scenario_sumo_refuses_is_answered_before_the_model_is_imported(module, tmp_path):
+    """run and fill: a missing file and a configuration stock SUMO refuses are one line and exit 2,
+    answered before torch is imported (seconds, not the model's load)."""
+    import shutil
+    here = os.path.join(os.path.dirname(__file__), "data", "corpus", "game_square")
+    shutil.copytree(here, tmp_path / "sq")
+    cfg = tmp_path / "sq" / "square.sumocfg"
+    cfg.write_text(cfg.read_text().replace("<report>", '<report>\n        <osg-view value="true"/>'))
+    for config, words in ((cfg, "No option with the name 'osg-view' exists"), (tmp_path / "no.sumocfg", "no such file")):
+        p = subprocess.run([sys.executable, "-c", _BEFORE_TORCH, module, "-c", str(config), "-o", str(tmp_path / "o")],
+                           capture_output=True, text=True, timeout=120)
+        assert p.stdout.split() == ["2", "False"], p.stdout + p.stderr[-500:]
+        assert p.stderr.count("\n") == 1 and words in p.stderr and str(config) in p.stderr, p.stderr
+        assert not (tmp_path / "o").exists()

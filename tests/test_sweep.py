@@ -185,18 +185,32 @@ def test_bad_spec_names_file_and_key(body, message, tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
-def test_sweep_index_pictures_and_a_failing_network(cross_net, tmp_path, capsys):
+def test_a_network_sumo_refuses_stops_the_sweep_before_any_work(cross_net, tmp_path, capsys):
     junk = tmp_path / "junk.net.xml"
     junk.write_text("<net>")
     spec = tmp_path / "two.json"
     spec.write_text(json.dumps({"networks": [cross_net, str(junk)], "locations": [{"center": [0, 0]}],
+                                "p_mask": [0.5], "seeds": [3], "steps": 4, "rollout": 1.0}))
+    code, stdout, err = _main(["--spec", str(spec), "--out", str(tmp_path / "out")], capsys)
+    assert code == 2 and err.count("\n") == 1 and "network 'junk'" in err and "junk.net.xml" in err, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_sweep_index_pictures_and_a_failing_network(cross_net, tmp_path, capsys):
+    from .conftest import netconvert
+    # stock SUMO runs a railway (the preflight passes it); the model has no car lane to seed on it
+    rail = netconvert('<node id="a" x="0" y="0"/><node id="b" x="300" y="0"/>',
+                      '<edge id="ab" from="a" to="b" numLanes="1" speed="30" allow="rail"/>',
+                      str(tmp_path / "rail.net.xml"))
+    spec = tmp_path / "two.json"
+    spec.write_text(json.dumps({"networks": [cross_net, rail], "locations": [{"center": [0, 0]}],
                                 "p_mask": [0.5], "seeds": [3], "steps": 4, "rollout": 1.0}))
     out = tmp_path / "out"
     code, stdout, err = _main(["--spec", str(spec), "--out", str(out)], capsys)
     assert code == 1, err                                 # one entry failed, the rest went on
     rows = _index(out)
     assert [r["status"] for r in rows] == ["ok", "failed"]
-    assert "junk.net.xml" in rows[1]["error"] and "failed s0001" in stdout
+    assert "rail.net.xml" in rows[1]["error"] and "failed s0001" in stdout
     assert sorted(os.listdir(out / "s0000")) == sorted(["scene.json", "scenario.rou.xml", "scenario.sumocfg",
                                                         "state.xml.gz", "rollout.json", "scene.png",
                                                         "cross.net.xml.gz"])   # the folder replays alone

@@ -86,6 +86,19 @@ def prepare_out(o, spec, scenarios) -> list:
     return todo
 
 
+def check_networks(source: str, spec, scenarios) -> None:
+    """Each network entry a scenario uses, loaded once by stock SUMO with its demand (sim/preflight.py)
+    before any work: a scenario SUMO refuses stops the sweep in one line, not every worker."""
+    from ..sim.preflight import preflight
+    from ..sim.scenario import ScenarioError, scenario_from_files
+    for name in dict.fromkeys(s.network for s in scenarios):
+        entry = spec.networks[name]
+        try:
+            preflight(scenario_from_files(None, entry.net, [entry.routes] if entry.routes else []))
+        except ScenarioError as e:
+            raise SweepError(f"{source}: network {name!r}: {e}") from None
+
+
 def main(o) -> int:
     from ..core.outputs import OutputError, claim
     from ..export.opendrive import ExportError
@@ -95,6 +108,7 @@ def main(o) -> int:
     try:
         spec = load_spec(o.spec)
         scenarios = spec.scenarios()
+        check_networks(o.spec, spec, scenarios)
         with claim(o.out):
             return _sweep(o, spec, scenarios, t0)
     except (SpecError, TokenFileError, SweepError, OutputError, ExportError) as e:
