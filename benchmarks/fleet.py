@@ -58,7 +58,8 @@ def city_traffic(flags: list[str]) -> np.ndarray:
     opts = dict(zip(flags[::2], flags[1::2]))
     scen = scenario_from_files(opts.get("-c"), opts.get("-n"), [opts["-r"]] if "-r" in opts else [], [])
     net = Network.load(scen.net)
-    begin, end = demand_span(scen.routes, {ln.edge for ln in net.lanes}, scen.additional)
+    begin, end = demand_span(scen.routes, {ln.edge for ln in net.lanes}, scen.additional,
+                             begin=scen.begin, end=scen.end)
     end = min(end, begin + 3600.0)   # a flow without an end: the first hour
     sim.start(["sumo", "-n", scen.net, "-r", ",".join(scen.routes), "-b", f"{begin:g}", "--no-step-log",
                "--no-warnings"] + (["-a", ",".join(scen.additional)] if scen.additional else []))
