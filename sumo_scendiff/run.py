@@ -29,7 +29,7 @@ EGO_AHEAD_M = 25.0   # the ego window's centre ahead of the ego: it sees its own
 
 
 def get_options(args=None):
-    from .core.cli import HelpFormatter, description, epilog, sumo_time
+    from .core.cli import HelpFormatter, description, epilog, joined, sumo_time
     from .generation.config import GenerationConfig, SettingError
     p = argparse.ArgumentParser(prog=PROG, description=description(__doc__), epilog=epilog(__doc__),
                                 formatter_class=HelpFormatter)
@@ -85,7 +85,7 @@ def get_options(args=None):
                    help="also write each scene as OpenSCENARIO + OpenDRIVE (docs/openscenario.md)")
     p.add_argument("-v", "--verbose", action="store_true")
     GenerationConfig.add_arguments(p)
-    o = p.parse_args(args)
+    o = p.parse_args(joined(p, args))   # --center -5,3: a negative coordinate is not a flag
     from .sim.scenario import input_flags_problem
     if input_flags_problem(o.net, o.config):
         p.error(input_flags_problem(o.net, o.config))

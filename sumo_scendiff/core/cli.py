@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import re
+import sys
 
 _ROLES = re.compile(r":(?:mod|func|class|meth|attr|data):`(~?)([\w.]+)`")
 
@@ -32,6 +33,27 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
                 or not action.option_strings:
             return text
         return f"{text} (default: %(default)s)" if text else "(default: %(default)s)"
+
+
+_NEGATIVE = re.compile(r"-\.?\d")
+
+
+def joined(parser: argparse.ArgumentParser, args=None) -> list[str]:
+    """The command line with the value of every coordinate flag (its metavar a list such as
+    ``X0,Y0,X1,Y1``) that begins with a minus joined to its flag, ``--area -100,-50,300,350`` ->
+    ``--area=-100,-50,300,350``: argparse would take such a value for a flag of its own (networks
+    with negative coordinates are common). Give it to ``parser.parse_args``."""
+    args = list(sys.argv[1:] if args is None else args)
+    flags = {s for a in parser._actions if "," in str(a.metavar or "") for s in a.option_strings}
+    out, k = [], 0
+    while k < len(args):
+        if args[k] in flags and k + 1 < len(args) and _NEGATIVE.match(args[k + 1]):
+            out.append(f"{args[k]}={args[k + 1]}")
+            k += 2
+        else:
+            out.append(args[k])
+            k += 1
+    return out
 
 
 def sumo_time(value: str) -> float:

@@ -29,7 +29,7 @@ class FillError(Exception):
 
 
 def get_options(args=None):
-    from ..core.cli import HelpFormatter, description, epilog, sumo_time
+    from ..core.cli import HelpFormatter, description, epilog, joined, sumo_time
     from ..generation.config import GenerationConfig, SettingError
     p = argparse.ArgumentParser(prog=PROG, description=description(__doc__), epilog=epilog(__doc__),
                                 formatter_class=HelpFormatter)
@@ -74,7 +74,7 @@ def get_options(args=None):
     GenerationConfig.add_arguments(p)
     # bad input is one line naming the flag (argparse would print its usage first)
     p.error = lambda message: p.exit(2, f"{PROG}: error: {message}\n")
-    o = p.parse_args(args)
+    o = p.parse_args(joined(p, args))   # --area -100,-50,...: a negative coordinate is not a flag
     from ..sim.scenario import input_flags_problem
     if input_flags_problem(o.net, o.config):
         p.error(input_flags_problem(o.net, o.config))
