@@ -239,12 +239,11 @@ def run(o) -> dict:
     threads = share_cpu(default=GENERATION_THREADS)   # before torch is imported (core/threads.py: why one)
     import numpy as np
 
-    from .core.outputs import partial_path
     from .data.demand import DemandError, demand_span, seeding_time
     from .generation.generator import GenerationConfig, ScenarioGenerator
     from .generation.token_check import heading_warnings
     from .generation.token_resolve import resolve_tokens
-    from .map.network import Network
+    from .map.network import Network, NoCarLane
     from .map.raster import render_map
     from .sim.fleet import Fleet
     from .sim.lights import light_states
@@ -254,7 +253,12 @@ def run(o) -> dict:
 
     progress = sys.stderr.isatty() or o.verbose
     sumo_settings = settings(o, scen)     # the scenario's step length and options, the flags over them
-    net = Network.load(scen.net)
+    try:
+        net = Network.load(scen.net)
+    except NoCarLane as e:
+        if not o.config:     # a bare -n: the user chose a network the model cannot use
+            raise
+        return _nothing_to_generate(o, scen, f"no car lane: {e}")
     routes = scen.routes
     try:  # the route files as the set SUMO loads, against this network
         span = demand_span(routes, {ln.edge for ln in net.lanes}, scen.additional,
@@ -333,11 +337,25 @@ def run(o) -> dict:
     summary = {"network": scen.net, "configuration": scen.config, "output_dir": os.path.abspath(o.out),
                "model_sha256": gen.sha256, "seed": o.seed, "threads": threads,
                "density": getattr(o, "level", None), "scenes": results, "timing_s": {k: round(v, 3) for k, v in timing.items()}}
+    return _write_summary(o, summary)
+
+
+def _write_summary(o, summary: dict) -> dict:
+    from .core.outputs import partial_path
     tmp = partial_path(os.path.join(o.out, "run.json"))
     with open(tmp, "w") as f:
         json.dump(summary, f, indent=1)
     os.replace(tmp, os.path.join(o.out, "run.json"))
     return summary
+
+
+def _nothing_to_generate(o, scen, why: str) -> dict:
+    """A scenario stock SUMO runs on which the model has nowhere to draw a vehicle (a railway): no
+    window can be placed, so no scene folder; run.json says why (README: bad input)."""
+    _check_output(o)
+    return _write_summary(o, {"network": scen.net, "configuration": scen.config,
+                              "output_dir": os.path.abspath(o.out), "seed": o.seed, "scenes": [],
+                              "nothing_to_generate": why, "timing_s": {}})
 
 
 def print_summary(summary: dict) -> None:
@@ -385,7 +403,7 @@ def main(o) -> int:
     try:
         with claim(o.out):   # first of all: a second run into -o stops here, before any work
             summary = run(o)
-            if o.export:
+            if o.export and summary["scenes"]:
                 from .export.batch import export_after
                 export_after(o.out, [r["scene"] for r in summary["scenes"]], o.export)
     except Exception as e:
@@ -398,6 +416,10 @@ def main(o) -> int:
                            f"rerun with --resume to write the others\n")
     finally:
         signal.signal(signal.SIGTERM, on_sigterm)
+    if summary.get("nothing_to_generate"):
+        print(f"{PROG}: nothing to generate: {summary['nothing_to_generate']}; wrote "
+              f"{os.path.join(summary['output_dir'], 'run.json')} (no scene)")
+        return 0
     print_summary(summary)
     return 0
 

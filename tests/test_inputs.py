@@ -249,3 +249,24 @@ def test_a_scenario_sumo_refuses_is_answered_before_the_model_is_imported(module
         assert p.stdout.split() == ["2", "False"], p.stdout + p.stderr[-500:]
         assert p.stderr.count("\n") == 1 and words in p.stderr and str(config) in p.stderr, p.stderr
         assert not (tmp_path / "o").exists()
+
+
+def test_a_scenario_without_a_car_lane_ends_with_nothing_generated(tmp_path):
+    """SUMO's railway game (trains, stops, rerouters): stock SUMO runs it, so run -c and fill -c end
+    with exit 0 and one notice, run.json / fill.json saying why and nothing that looks like a scene
+    or a filled start; the bare network with -n stays an error."""
+    import json
+    cfg = os.path.join(os.path.dirname(__file__), "data", "corpus", "game_rail", "rail.sumocfg")
+    for module, out, record in (("run", tmp_path / "r", "run.json"), ("fill", tmp_path / "f", "fill.json")):
+        p = subprocess.run([sys.executable, "-m", f"sumo_scendiff.{module}", "-c", cfg, "--begin", "120",
+                            "-o", str(out)], capture_output=True, text=True, timeout=300)
+        assert p.returncode == 0 and p.stdout.count("\n") == 1 and "nothing to generate: no car lane" in p.stdout, \
+            p.stdout + p.stderr[-500:]
+        assert os.listdir(out) == [record]
+        doc = json.loads((out / record).read_text())
+        assert "no lane a passenger car may use" in doc["nothing_to_generate"]
+        assert doc["scenes" if module == "run" else "agents"] == []
+    p = subprocess.run([sys.executable, "-m", "sumo_scendiff.run", "-n",
+                        os.path.join(os.path.dirname(cfg), "rail", "net.net.xml"), "-o", str(tmp_path / "n")],
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 2 and p.stderr.count("\n") == 1 and "no lane a passenger car may use" in p.stderr

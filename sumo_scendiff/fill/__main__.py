@@ -210,7 +210,7 @@ def run(o, folder: str) -> dict:
     share_cpu(default=GENERATION_THREADS)   # before torch is imported (core/threads.py: why one)
     from ..data.demand import DemandError, demand_span, seeding_time
     from ..generation.generator import GenerationConfig, ScenarioGenerator
-    from ..map.network import Network
+    from ..map.network import Network, NoCarLane
     from ..map.raster import RasterConfig
     from ..sim.lights import initial_light_states
     from ..sim.sumo import SimConfig, settings, step_length_for
@@ -220,7 +220,12 @@ def run(o, folder: str) -> dict:
     from .workers import tile_engine
     o.step_length = step_length_for(scen, o.step_length)   # the scenario's (sim/sumo.py), the flag over it
     _phase(progress, f"loading {os.path.basename(scen.net)} and the model")
-    net = Network.load(scen.net)
+    try:
+        net = Network.load(scen.net)
+    except NoCarLane as e:
+        if not o.config:     # a bare -n: the user chose a network the model cannot use
+            raise
+        return _nothing_to_fill(folder, o, scen, f"no car lane: {e}")
     routes = list(scen.routes)
     if o.demand_level_only and not routes:
         raise FillError("--demand-level-only: there is no demand (give -r, or -c with route files)")
@@ -272,6 +277,20 @@ def run(o, folder: str) -> dict:
     return doc
 
 
+def _nothing_to_fill(folder: str, o, scen, why: str) -> dict:
+    """A scenario stock SUMO runs on which the model has nowhere to draw a vehicle (a railway): the
+    folder holds fill.json alone, saying why; no state, nothing to run (README: bad input)."""
+    import json
+
+    from .output import FORMAT, VERSION
+    doc = {"format": FORMAT, "version": VERSION, "network": os.path.abspath(scen.net),
+           "configuration": scen.config, "begin": o.begin, "seed": o.seed, "nothing_to_generate": why,
+           "summary": {"tiles": 0, "kept": 0, "vehicles": 0}, "tiles": [], "agents": [], "files": ["fill.json"]}
+    with open(os.path.join(folder, "fill.json"), "w") as f:
+        json.dump(doc, f, indent=1)
+    return doc
+
+
 def _interrupt(signum, frame):
     raise KeyboardInterrupt
 
@@ -312,7 +331,7 @@ def main(o) -> int:
                 shutil.rmtree(out) if os.path.isdir(out) else os.remove(out)
             owner.rename(out)   # complete: only now the folder has its name
             complete = True
-            if o.export:
+            if o.export and not doc.get("nothing_to_generate"):
                 from ..export.batch import export_after
                 export_after(os.path.dirname(out), [os.path.basename(out)], o.export)
     except Exception as e:
@@ -326,6 +345,10 @@ def main(o) -> int:
                                                        f"nothing written to {o.out}\n"))
     finally:
         signal.signal(signal.SIGTERM, on_sigterm)
+    if doc.get("nothing_to_generate"):
+        print(f"{PROG}: nothing to generate: {doc['nothing_to_generate']}; wrote "
+              f"{os.path.join(o.out, 'fill.json')} (no state: the scenario itself is the start)")
+        return 0
     s = doc["summary"]
     why = f"; {s['refused']} refused, fill.json says why" if s["refused"] else ""
     print(f"filled {len(doc['tiles'])} tiles: {s['vehicles']} of {s['kept']} drawn vehicles seeded ({s['placed']} at "

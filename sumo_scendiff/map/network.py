@@ -31,6 +31,12 @@ class NetworkError(ValueError):
     """A network file that cannot be used; the message names the file and the problem."""
 
 
+class NoCarLane(NetworkError):
+    """A network without a lane a passenger car may use (a railway, a pedestrian zone): stock SUMO
+    runs it, the model has nowhere to draw a vehicle. A user's scenario on one ends with nothing
+    generated (run.py, fill); a bare ``-n`` on one is an error."""
+
+
 NETCONVERT_VEHICLE_WIDTH = 1.8   # m: netconvert's default --internal-junctions.vehicle-width
 
 @dataclass
@@ -207,7 +213,7 @@ class Network:
                 continue
             junctions.append(Junction(node.getID(), node.getType(), poly))
         if not any(ln.car for ln in lanes):
-            raise NetworkError(f"{path}: the network has no lane a passenger car may use")
+            raise NoCarLane(f"{path}: the network has no lane a passenger car may use")
         network = cls(path, lanes, junctions, net)
         # A big network is ~100k long-lived Python objects; without this, every full garbage collection
         # triggered by per-window work walks them all, and a 100 m window costs more on a larger net
