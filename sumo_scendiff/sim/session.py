@@ -21,6 +21,7 @@ from __future__ import annotations
 import os
 import tempfile
 import time
+from contextlib import contextmanager
 from dataclasses import replace
 
 from .cosim import CoSimulation, Existing
@@ -54,7 +55,8 @@ class Session:
         self._at_base = True
         if warm_up is not None:
             try:
-                warm_up(self.sim)
+                with self._said():
+                    warm_up(self.sim)
             except Exception as e:   # SUMO stopping on the demand (an unknown vType, a broken route)
                 raise _stopped(e) from None
             fd, self.base = tempfile.mkstemp(suffix=".xml.gz", prefix="scendiff-base-")
@@ -85,8 +87,29 @@ class Session:
             os.remove(self.base)
             self.base = None
 
+    @contextmanager
+    def _said(self):
+        """With warnings on (-v), what SUMO says while it steps (a warning per vehicle: no
+        connection, an emergency brake, a teleport) shown after the block, each kind once with its
+        count (core.sumo_log), as the fill shows its own. sumo-gui is a process of its own, its
+        console its own."""
+        if self.quiet or self.cfg.gui:
+            yield
+            return
+        from ..core.sumo_log import caught_stderr, echo
+        with caught_stderr() as said:
+            try:
+                yield
+            finally:
+                echo(said())
+
     # ---- one scene ----------------------------------------------------------------------------
-    def realise(self, scene, tokens: list[dict], sources: list[str], existing: Existing, out_dir: str,
+    def realise(self, *args, **kwargs) -> dict:
+        """:meth:`_realise`, what SUMO says meanwhile summarised (:meth:`_said`)."""
+        with self._said():
+            return self._realise(*args, **kwargs)
+
+    def _realise(self, scene, tokens: list[dict], sources: list[str], existing: Existing, out_dir: str,
                 name: str, info: dict, rollout_s: float, seed: int = 0, p_mask: float = 1.0,
                 force: bool = False, progress: bool = False, replay: float = 0.0) -> dict:
         """Seed ``scene`` into a fresh simulation at the base state, export it to
