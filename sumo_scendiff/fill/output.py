@@ -153,7 +153,7 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
                        "placed": sum(a["status"] == "placed" for a in agents),
                        "misplaced": sum(a["status"] == "misplaced" for a in agents),
                        "refused": sum(a["status"] in ("refused", "conflict") for a in agents),
-                       "start_exact": sum(exact.values()), "start_refitted": refitted,
+                       "start_exact": sum(v for vid, v in exact.items() if vid not in refused), "start_refitted": refitted,
                        "pulled_back": sum("pulled_back_m" in a for a in agents),
                        "to_stop_line": sum("to_stop_line_m" in a for a in agents), "car_lane_km": round(area_km, 3),
                        "demand_vehicles": sum("demand" in a for a in seeded),
