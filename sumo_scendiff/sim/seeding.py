@@ -25,10 +25,11 @@ seeding step, :meth:`Seeder.settle` (:mod:`~sumo_scendiff.sim.settle`) checks bo
 leader SUMO itself sees.
 
 Generated agents are rarely on a lane's centre line. With SUMO's sublane model
-(``--lateral-resolution``, which :mod:`~sumo_scendiff.sim.sumo` turns on) ``moveToXY`` with
-``keepRoute=1`` keeps their lateral offset; without it SUMO snaps them to the centre line (most
-generated agents then end up off their pose; docs/evaluation.md, "Seeding SUMO: placement and hand-off"), so the Seeder uses ``keepRoute=2``
-(exact pose, mapped to the nearest lane of its route) in such host simulations.
+(``--lateral-resolution``: on only where the user's scenario sets it or the CLIs' flag asks for it,
+:mod:`~sumo_scendiff.sim.sumo` adds none) ``moveToXY`` with ``keepRoute=1`` keeps their lateral
+offset; without it SUMO snaps them to the centre line (most generated agents then end up off their
+pose; docs/evaluation.md, "Seeding SUMO: placement and hand-off"), so the Seeder uses ``keepRoute=2``
+(exact pose, mapped to the nearest lane of its route) in such host simulations (the default).
 """
 from __future__ import annotations
 

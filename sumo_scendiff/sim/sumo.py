@@ -54,6 +54,10 @@ def default_step_length(scenario: bool) -> float:
 
 @dataclass
 class SimConfig:
+    """One SUMO run as the product starts it. Its fields are the library's defaults: a bare
+    network's step (:data:`PRODUCT_STEP_LENGTH`) whatever ``routes`` holds; the CLIs and sweeps
+    pass the scenario's own (:func:`step_length_for`, :func:`settings`), as a library caller with a
+    user's scenario should (docs/sumo-options.md)."""
     net: str
     routes: tuple[str, ...] = ()
     additional: tuple[str, ...] = ()    # vTypes, TLS programs, detectors, stops (-a)
