@@ -329,6 +329,7 @@ def run(o) -> dict:
             row = session.realise(scenes[k], tokens[k], sources[k], existing[k], o.out, name, info,
                                   o.rollout, seed=o.seed, p_mask=p_mask[k], force=o.force,
                                   replay=o.replay_future)
+            _warn_lost(o, name, row)
             results.append({"scene": name, "location": places[k][1], "target_veh_per_km": targets[k],
                             **_counts(net, windows[k], row)})
         timing.update(session.timing)
@@ -358,21 +359,30 @@ def _nothing_to_generate(o, scen, why: str) -> dict:
                               "nothing_to_generate": why, "timing_s": {}})
 
 
+def _warn_lost(o, name: str, row: dict) -> None:
+    """One warning line per token of the user's that gives no vehicle (README: every token is placed
+    or named)."""
+    for k, why in row.get("user_tokens_lost", {}).items():
+        print(f"{PROG}: warning: {name}: {o.tokens}: token {k}: no vehicle: {why}", file=sys.stderr)
+
+
 def print_summary(summary: dict) -> None:
+    from .sim.seeding import STATUSES
     rows = summary["scenes"]
     rolled = any(r.get("seconds", 0) > 0 for r in rows)
     wide = max([11] + [len(str(r["location"])) for r in rows])
-    print(f"{'scene':10} {'where':{wide}} {'kept':>5} {'generated':>9} {'placed':>6} {'refused':>7} {'veh/km':>6} "
-          f"{'misplaced':>9} {'collisions':>10} {'teleports':>9} {'e-brakes':>8} {'speed':>6}")
+    print(f"{'scene':10} {'where':{wide}} {'kept':>5} {'generated':>9} {'placed':>6} {'misplaced':>9} "
+          f"{'refused':>7} {'dropped':>7} {'veh/km':>6} {'collisions':>10} {'teleports':>9} {'e-brakes':>8} {'speed':>6}")
     for r in rows:
         density = "–" if r.get("density_veh_per_km") is None else f"{r['density_veh_per_km']:.0f}"
         speed = f"{r['mean_speed']:6.1f}" if rolled else f"{'–':>6}"
         print(f"{r['scene']:10} {r['location']:{wide}} {r['existing_vehicles']:5d} {r['generated']:9d} "
-              f"{r['placed']:6d} {r['refused']:7d} {density:>6} {r['misplaced']:9d} {r['collisions']:10d} "
-              f"{r['teleports']:9d} {r['emergency_brakes']:8d} {speed}")
+              f"{r['placed']:6d} {r['misplaced']:9d} {r['refused']:7d} {r.get('dropped', 0):7d} {density:>6} "
+              f"{r['collisions']:10d} {r['teleports']:9d} {r['emergency_brakes']:8d} {speed}")
     gen = sum(r["generated"] for r in rows)
-    placed = sum(r["placed"] for r in rows)
-    print(f"placed {placed} of {gen} generated agents ({100.0 * placed / max(gen, 1):.1f} %) at their pose "
+    n = {s: sum(r.get(s, 0) for r in rows) for s in STATUSES}
+    print(f"of {gen} generated agents: placed {n['placed']} ({100.0 * n['placed'] / max(gen, 1):.1f} %) at their "
+          f"pose, misplaced {n['misplaced']}, refused by SUMO {n['refused']}, dropped {n['dropped']}; "
           f"beside {sum(r['existing_vehicles'] for r in rows)} vehicles kept from the simulation; "
           f"timing (s): " + ", ".join(f"{k} {v:.2f}" for k, v in summary["timing_s"].items()))
     print(f"wrote {len(rows)} scenario folders and run.json to {summary['output_dir']} "

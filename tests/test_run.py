@@ -60,9 +60,9 @@ def test_run_center_tokens_and_rollout(cross_net, tmp_path, capsys):
     assert len(doc["model"]["sha256"]) == 64 and doc["model"]["sampler"] == "sample_dpmpp_2m"
     for a in doc["agents"]:
         assert abs(a["x"]) <= 50 and abs(a["y"]) <= 50 and len(a["poses"]) == 5
-        assert a["status"] in ("placed", "refused", "misplaced")
+        assert a["status"] in ("placed", "misplaced", "refused", "dropped")
     roll = json.load(open(out / "scene_000" / "rollout.json"))
-    assert roll["seconds"] == 4.0 and roll["placed"] + roll["refused"] + roll["misplaced"] == roll["generated"]
+    assert roll["seconds"] == 4.0 and roll["placed"] + roll["refused"] + roll["misplaced"] + roll["dropped"] == roll["generated"]
     assert "placed" in stdout and "scene_001" in stdout
 
     # the same seed gives the same scenes

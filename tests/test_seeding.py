@@ -505,5 +505,30 @@ def test_an_agent_where_a_vehicle_was_moved_before_is_not_seeded(cross_net, cros
         report = Seeder(sim, net).seed(scene, others=(moved, np.zeros(1)))
     finally:
         sim.close()
-    assert 2 not in report.ids and "overlaps a vehicle seeded before" in report.conflicts[2]
+    assert 2 not in report.ids and "overlaps a vehicle seeded before" in report.dropped[2]
+    assert report.status(2) == ("dropped", report.dropped[2])
     assert {0, 1} <= set(report.ids)
+
+
+def test_a_vehicle_sumo_does_not_have_after_the_seeding_step_is_refused(cross_net, cross_scene):
+    """Every agent is exactly one of placed, misplaced, refused, dropped: one SUMO does not have after
+    the seeding step (here the host took it out before the step) is refused with the reason, no
+    vehicle id left in the record (it was counted as a misplaced vehicle), and the counts add up."""
+    import libsumo as sim
+    net = Network.load(cross_net)
+    scene = cross_scene(net)
+    sim.start(["sumo", "-n", cross_net, "--no-step-log", "--no-warnings"])
+    try:
+        seeder = Seeder(sim, net)
+        report = seeder.seed(scene)
+        sim.vehicle.remove(report.ids[0])
+        sim.simulationStep()
+        seeder.verify(report)
+        left = set(sim.vehicle.getIDList())
+    finally:
+        sim.close()
+    status, why = report.status(0)
+    assert status == "refused" and "not in the simulation after the seeding step" in why
+    assert 0 not in report.ids and 0 not in report.misplaced and left == set(report.ids.values())
+    assert report.status(4)[0] == "refused" and report.placed == 3
+    assert report.counts(len(scene)) == {"generated": 5, "placed": 3, "misplaced": 0, "refused": 2, "dropped": 0}

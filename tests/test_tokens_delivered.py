@@ -81,6 +81,18 @@ def test_an_unmatched_token_is_placed_on_its_lane(city, gen):
     assert s.speed[1, T0] == pytest.approx(city.lanes[city.lane_index[lane.id]].speed, abs=0.05)
 
 
+def test_a_pinned_truck_the_model_does_not_draw_is_placed_on_its_lane(city, gen):
+    """A pinned token (pose, size, speed) whose agent the decoder does not find, here a truck 0.77 m
+    off its lane's centre line with nothing drawn at all, is placed on that lane like a partial token
+    no agent matched: before, it vanished without a warning."""
+    w = road_window(city)
+    truck = {"x": 10.0, "y": 0.77, "heading": 0.0, "length": 11.0, "width": 2.5, "speed": 8.0}
+    s = gen.generate(city, [w], tokens=[[truck]], p_mask=0.5, seed=0, config=replace(gen.config, threshold=1.0))[0]
+    assert s.meta["delivers"] == [0] and s.meta["cell"] == [-1] and "token_warnings" not in s.meta
+    assert s.boxes[0].tolist() == pytest.approx([10.0, 0.0, 0.0, 11.0, 2.5], abs=0.05)   # on the centre line
+    assert s.speed[0, T0] == pytest.approx(8.0, abs=0.05)
+
+
 def test_an_off_road_token_is_a_warning_not_a_silent_drop(city, gen, caplog):
     w = road_window(city)
     g = np.stack(np.meshgrid(np.arange(-45, 46, 5.0), np.arange(-45, 46, 5.0)), -1).reshape(-1, 2)

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..sim.export import write_sumocfg
 from ..sim.fleet import DRAWN_KEY
+from ..sim.seeding import STATUSES
 from ..sim.stops import place_ends
 from ..sim.sumo import close
 from .en_route import write_vtypes
@@ -37,16 +38,14 @@ def _agents(result, reports) -> list[dict]:
         rows, rep = scene_rows(scene), reports.get(k)
         for a, r in enumerate(rows):
             vid = rep.ids.get(a) if rep is not None else None
-            if vid is None:
-                status = "conflict" if rep is not None and a in rep.conflicts else "refused"
-                why = (rep.conflicts.get(a) or rep.refused.get(a)) if rep is not None else None
-            else:
-                status, why = ("misplaced" if a in rep.misplaced else "placed"), None
+            status, why = rep.status(a) if rep is not None else ("dropped", "its tile was not seeded")
             row = {"tile": k, "x": round(float(r[0]), 3), "y": round(float(r[1]), 3),
                    "heading": round(float(r[2]), 4), "length": round(float(r[3]), 3),
                    "width": round(float(r[4]), 3), "speed": round(float(r[5]), 3),
                    "vclass": int(scene.vclass[a]), "vehicle": vid, "status": status}
-            if why:
+            if status == "misplaced":
+                row["position_error"] = why
+            elif why is not None:
                 row["reason"] = why
             if rep is not None and a in rep.pulled_back:   # its nose was over the stop line (Seeder.fit_lane_ends)
                 row["pulled_back_m"] = round(rep.pulled_back[a], 3)
@@ -150,9 +149,8 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
            "density": source, "p_mask": o.p_mask, "model_sha256": gen.sha256, "model": gen.config.record(gen),
            "sumo_options": options, "inflow": inflow,
            "summary": {"tiles": len(result.tiles), "kept": len(agents), "vehicles": len(seeded),
-                       "placed": sum(a["status"] == "placed" for a in agents),
-                       "misplaced": sum(a["status"] == "misplaced" for a in agents),
-                       "refused": sum(a["status"] in ("refused", "conflict") for a in agents),
+                       # kept = placed + misplaced + refused + dropped (SeedReport.status)
+                       **{s: sum(a["status"] == s for a in agents) for s in STATUSES},
                        "start_exact": sum(v for vid, v in exact.items() if vid not in refused), "start_refitted": refitted,
                        "pulled_back": sum("pulled_back_m" in a for a in agents),
                        "to_stop_line": sum("to_stop_line_m" in a for a in agents), "car_lane_km": round(area_km, 3),

@@ -33,7 +33,7 @@ from ..core.scene import speeds_from_traj
 from ..tokens.encoding import MIN_DISPLACEMENT
 from ..tokens.features import is_pinnable
 from .lane_snap import GIVEN_MAX_ANGLE, SNAP_MAX_ANGLE, SNAP_RADIUS, walk_lanes
-from .pinning import _arc, _distance, retime
+from .pinning import _arc, _distance, match_pins, retime
 
 log = logging.getLogger(__name__)
 
@@ -48,14 +48,24 @@ def _given(t: Mapping, f: str) -> float:
     return np.nan if v is None or not np.isfinite(float(v)) else float(v)
 
 
-def delivered_rows(tokens: Sequence | None) -> np.ndarray:
+def delivered_rows(tokens: Sequence | None, pinned: bool = False) -> np.ndarray:
     """(D, 9) rows (:data:`COLUMNS`) of the token dicts of one window that give a position but are
-    not pinnable: the pinned ones have their own path (:mod:`.pinning`), and a token without a
-    position names no vehicle of its own."""
+    not pinnable (``pinned``: those that are, instead): the pinned ones have their own path
+    (:mod:`.pinning`), and a token without a position names no vehicle of its own."""
     rows = [[float(i)] + [_given(t, f) for f in COLUMNS[1:]] for i, t in enumerate(tokens or ())
-            if isinstance(t, Mapping) and not is_pinnable(t)
+            if isinstance(t, Mapping) and is_pinnable(t) == pinned
             and t.get("x") is not None and t.get("y") is not None]
     return np.array(rows, np.float64).reshape(-1, len(COLUMNS))
+
+
+def missing_pins(tokens: Sequence | None, boxes: np.ndarray, radius: float) -> np.ndarray:
+    """The rows (:data:`COLUMNS`) of the pinned tokens no agent of the finished scene (``boxes``,
+    scene frame) stands for, for :func:`place_rows`: the decoder may not find a pinned agent above
+    the threshold (its latent is the token's as drawn, off the centre lines the model learnt), or a
+    more probable box it overlaps once snapped onto its lane wins; without this it was lost silently."""
+    rows = delivered_rows(tokens, pinned=True)
+    found = {p for _, p in match_pins(boxes, rows[:, 1:3], radius)}
+    return rows[[k for k in range(len(rows)) if k not in found]]
 
 
 def match_rows(boxes: np.ndarray, rows: np.ndarray, radius: float, taken: np.ndarray | None = None

@@ -78,10 +78,47 @@ class Seeding:
     seed: int = 0
     p_mask: float = 1.0
     meta: dict = field(default_factory=dict)
+    # the generated agents not handed to the seeder (``dropped`` of them): the model's copy of a
+    # vehicle already there, or on top of one; their reasons and tokens, as for the seeded agents
+    before: Scene | None = None
+    before_reason: list[str] = field(default_factory=list)
+    before_token: list[int | None] = field(default_factory=list)
 
     @property
     def agent_ids(self) -> list[str]:
         return list(self.report.ids.values())
+
+    def counts(self) -> dict[str, int]:
+        """Every generated agent once: generated = placed + misplaced + refused + dropped."""
+        out = self.report.counts(len(self.scene))
+        out["generated"] += self.dropped
+        out["dropped"] += self.dropped
+        return out
+
+    def lost_tokens(self) -> dict[int, str]:
+        """The user's positioned tokens (index -> why) no vehicle in the simulation realises: the
+        model drew none there (the generator's own warning for it where it gave one), or our rules
+        dropped it, or SUMO refused it. A misplaced one is a vehicle, and not lost."""
+        said: dict[int, str] = {}
+        for line in self.scene.meta.get("token_warnings", ()):
+            k = line.split(" ", 2)[1] if line.startswith("token ") else ""
+            if k.isdigit():
+                said.setdefault(int(k), line)
+        agent = {t: i for i, t in enumerate(self.token_of) if t is not None}
+        early = {t: why for t, why in zip(self.before_token, self.before_reason) if t is not None}
+        out = {}
+        for k, (t, src) in enumerate(zip(self.tokens, self.token_source)):
+            if src != "user" or t.get("x") is None:
+                continue
+            if k in agent:
+                status, why = self.report.status(agent[k])
+                if status in ("refused", "dropped"):
+                    out[k] = f"its vehicle was {status}: {why}"
+            elif k in early:
+                out[k] = f"its vehicle was dropped: {early[k]}"
+            else:
+                out[k] = said.get(k, "the model drew no vehicle there")
+        return out
 
 
 def token_assignment(scene: Scene, tokens: list[dict]) -> list[int | None]:
@@ -97,6 +134,20 @@ def token_assignment(scene: Scene, tokens: list[dict]) -> list[int | None]:
     for g, t in zip(gi, ti):
         out[int(g)] = pos[int(t)]
     return out
+
+
+def on_existing(scene: Scene, token_of: list[int | None], token_source: list[str],
+                existing: Existing) -> dict[int, str]:
+    """The generated agents (index -> why) not to seed beside the host's vehicles: the model's copy of
+    a vehicle already there (matched to its token), or a box within ``OVERLAP_BUFFER`` m of one."""
+    why = {i: f"the model's copy of vehicle {token_source[t]!r}, already there"
+           for i, t in enumerate(token_of) if t is not None and token_source[t] != "user"}
+    if len(existing.ids) and len(scene):
+        theirs = shapely.buffer(box_polygons(existing.boxes), OVERLAP_BUFFER)
+        mine, other = shapely.STRtree(theirs).query(box_polygons(scene.boxes), predicate="intersects")
+        for i, j in sorted(zip(mine.tolist(), other.tolist())):
+            why.setdefault(i, f"its box overlaps vehicle {existing.ids[j]!r}, already there")
+    return why
 
 
 class CoSimulation:
@@ -135,12 +186,9 @@ class CoSimulation:
               seed: int = 0, p_mask: float = 1.0) -> Seeding:
         """Seed a generated ``scene`` whose tokens were ``tokens`` (user's, then existing vehicles')."""
         token_of = token_assignment(scene, tokens)
-        keep = np.array([t is None or token_source[t] == "user" for t in token_of], bool)
-        if len(existing.ids) and len(scene):
-            occupied = shapely.union_all(box_polygons(existing.boxes)).buffer(OVERLAP_BUFFER)
-            mine = box_polygons(scene.boxes)
-            keep &= ~shapely.intersects(mine, occupied)
-        idx = np.flatnonzero(keep)
+        why = on_existing(scene, token_of, token_source, existing)
+        idx = np.array([i for i in range(len(scene)) if i not in why], np.int64)
+        gone = np.array(sorted(why), np.int64)
         sub = scene.select(idx)
         self.seeder.prefix = f"{self.seeder.prefix.split('.')[0]}.{self.count}."
         self.seeder.count = 0
@@ -148,7 +196,9 @@ class CoSimulation:
         named = [None if token_of[i] is None else tokens[token_of[i]].get("vtype") for i in idx]   # sim/fleet.py
         report = self.seeder.seed(sub, others=(existing.boxes, existing.speed), types=named)
         return Seeding(sub, report, tokens, token_source, [token_of[i] for i in idx],
-                       dropped=int(len(scene) - len(idx)), seed=seed, p_mask=p_mask)
+                       dropped=len(gone), seed=seed, p_mask=p_mask, before=scene.select(gone),
+                       before_reason=[why[i] for i in gone.tolist()],
+                       before_token=[token_of[i] for i in gone.tolist()])
 
     def seed_window(self, window: Window, tokens: list[dict] = (), p_mask: float | None = None,
                     seed: int | None = None, density: float | str | None = None,

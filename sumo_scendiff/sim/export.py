@@ -42,14 +42,14 @@ def _agents(seeding, sim) -> list[dict]:
     out = []
     for i, a in enumerate(scene.world_agents()):
         vid = rep.ids.get(i)
-        status = "refused" if i in rep.refused else "misplaced" if i in rep.misplaced else "placed"
+        status, why = rep.status(i)
         tok = seeding.token_of[i]
         a.update({"vehicle": vid, "status": status, "score": None if score[i] is None else float(score[i]),
                   "token": tok, "token_source": None if tok is None else seeding.token_source[tok]})
-        if i in rep.refused:
-            a["reason"] = rep.refused[i]
-        if i in rep.misplaced:
-            a["position_error"] = rep.misplaced[i]
+        if status == "misplaced":
+            a["position_error"] = why
+        elif why is not None:
+            a["reason"] = why
         if i in rep.pulled_back:   # its nose was over the stop line (Seeder.fit_lane_ends)
             a["pulled_back_m"] = round(rep.pulled_back[i], 3)
         if i in rep.to_stop_line:  # waiting inside a junction on red: moved to its stop line (Seeder.fit_red_junctions)
@@ -61,7 +61,26 @@ def _agents(seeding, sim) -> list[dict]:
         if i in rep.narrowed:      # wider than the network's junctions assume (Seeder.width_cap)
             a["sumo_width"] = rep.narrowed[i][1]
         out.append(a)
-    return out
+    return out + _dropped_before(seeding)
+
+
+def _dropped_before(seeding) -> list[dict]:
+    """The generated agents never handed to the seeder (on a vehicle already there), after the others."""
+    before = seeding.before
+    if before is None or not len(before):
+        return []
+    score = before.meta.get("score", [None] * len(before))
+    return [{**a, "vehicle": None, "status": "dropped", "reason": why,
+             "score": None if score[i] is None else float(score[i]),
+             "token": tok, "token_source": None if tok is None else seeding.token_source[tok]}
+            for i, (a, why, tok) in enumerate(zip(before.world_agents(), seeding.before_reason, seeding.before_token))]
+
+
+def _tokens(seeding, pin: bool) -> list[dict]:
+    """The tokens given to the model; a user's that no vehicle realises says why (``lost``)."""
+    lost = seeding.lost_tokens()
+    return [{**t, "source": s, "pinned": pin and is_pinnable(t), **({"lost": lost[k]} if k in lost else {})}
+            for k, (t, s) in enumerate(zip(seeding.tokens, seeding.token_source))]
 
 
 def _vtype_record(sim, vid: str | None, drawn: tuple) -> dict:
@@ -82,14 +101,11 @@ def scene_document(seeding, net, sim, info: dict) -> dict:
             "network": {"path": os.path.abspath(net.path), "name": net.name},
             "window": {"cx": w.cx, "cy": w.cy, "yaw": w.yaw, "size": w.size},
             "time": float(sim.simulation.getTime()), "seed": seeding.seed, "p_mask": seeding.p_mask,
-            "tokens": [{**t, "source": s, "pinned": pin and is_pinnable(t)}
-                       for t, s in zip(seeding.tokens, seeding.token_source)],
+            "tokens": _tokens(seeding, pin),
             "dropped_on_existing": seeding.dropped,
             # the traffic lights the scene was generated with (tls id -> SUMO state string)
             "signals": seeding.scene.meta.get("signals", {}),
-            "counts": {"generated": len(seeding.scene), "placed": seeding.report.placed,
-                       "refused": len(seeding.report.refused),
-                       "misplaced": len(seeding.report.misplaced)},
+            "counts": seeding.counts(),       # generated = placed + misplaced + refused + dropped
             "agents": _agents(seeding, sim)}
 
 
@@ -244,9 +260,9 @@ def write_picture(path: str, seeding, net, ego=None) -> None:
     kept = [[t[k] for k in ("x", "y", "heading", "length", "width")]
             for t, s in zip(seeding.tokens, seeding.token_source) if s != "user"]
     kinds = ["generated" if tok is None else "token" for tok in seeding.token_of]
-    c = seeding.report
-    title = (f"{net.name}  seed {seeding.seed}  p_mask {seeding.p_mask:.2f}  agents {len(scene)} "
-             f"(placed {c.placed}, refused {len(c.refused)})")
+    c = seeding.counts()
+    title = (f"{net.name}  seed {seeding.seed}  p_mask {seeding.p_mask:.2f}  agents {c['generated']} "
+             f"(placed {c['placed']}, misplaced {c['misplaced']}, refused {c['refused']}, dropped {c['dropped']})")
     img = draw_scene(net, scene, pixels=800, token_xy=np.array(xy).reshape(-1, 2), title=title,
                      kinds=kinds, kept=np.array(kept).reshape(-1, 5), ego=ego)
     cv2.imwrite(path, img)

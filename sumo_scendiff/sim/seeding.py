@@ -19,7 +19,7 @@ first moved back onto its lane (:meth:`Seeder.fit_lane_ends`). SUMO
 refusing a vehicle never crashes the host simulation: the agent is reported as refused. Before any
 is added, agents on internal lanes of one junction whose links conflict are resolved
 (:mod:`~sumo_scendiff.sim.junctions`): of two already in the area their links share, one is
-seeded (the other is in ``report.conflicts``); of two still before it, the later departs standing
+seeded (the other is in ``report.dropped``); of two still before it, the later departs standing
 and waits (in ``report.slowed``). After the
 seeding step, :meth:`Seeder.settle` (:mod:`~sumo_scendiff.sim.settle`) checks both again against the
 leader SUMO itself sees.
@@ -53,6 +53,9 @@ CLAMPED = 0.01         # m: a position on an internal lane this near its start i
 LANE_END_MARGIN = 0.05  # m: a nose further than this past its lane's end is moved back behind it
 
 
+STATUSES = ("placed", "misplaced", "refused", "dropped")   # every generated agent is exactly one
+
+
 @dataclass
 class SeedReport:
     ids: dict[int, str] = field(default_factory=dict)        # agent index -> vehicle id
@@ -61,7 +64,7 @@ class SeedReport:
     targets: dict[int, tuple] = field(default_factory=dict)  # agent index -> (x_front, y_front, angle)
     slowed: dict[int, tuple] = field(default_factory=dict)   # agent index -> (generated, departure speed)
     gap_fitted: dict[int, tuple] = field(default_factory=dict)  # agent index -> (minGap, minGap fitted)
-    conflicts: dict[int, str] = field(default_factory=dict)  # agent index -> why not seeded (junction foe)
+    dropped: dict[int, str] = field(default_factory=dict)    # agent index -> why our own rules did not seed it
     pulled_back: dict[int, float] = field(default_factory=dict)  # agent index -> m moved behind its lane's end
     narrowed: dict[int, tuple] = field(default_factory=dict)  # agent index -> (generated, SUMO width), width_cap
     to_stop_line: dict[int, float] = field(default_factory=dict)  # agent index -> m moved from a red junction
@@ -71,6 +74,31 @@ class SeedReport:
     @property
     def placed(self) -> int:
         return len(self.ids) - len(self.misplaced)
+
+    @property
+    def conflicts(self) -> dict[int, str]:
+        """The agents not seeded by the seeder's own rules: :attr:`dropped` (its earlier name)."""
+        return self.dropped
+
+    def status(self, i: int) -> tuple[str, str | float | None]:
+        """Agent ``i``'s record: ``placed`` (None), ``misplaced`` (its position error, m), ``refused``
+        (SUMO's reason) or ``dropped`` (the rule's reason); exactly one (README, scene.json)."""
+        if i in self.dropped:
+            return "dropped", self.dropped[i]
+        if i in self.refused:
+            return "refused", self.refused[i]
+        if i in self.misplaced:
+            return "misplaced", self.misplaced[i]
+        if i in self.ids:
+            return "placed", None
+        return "dropped", "not seeded"   # an index the seeding never reached: not in SUMO, never "placed"
+
+    def counts(self, generated: int) -> dict[str, int]:
+        """generated = placed + misplaced + refused + dropped for a scene of ``generated`` agents."""
+        out = {"generated": generated, **dict.fromkeys(STATUSES, 0)}
+        for i in range(generated):
+            out[self.status(i)[0]] += 1
+        return out
 
 
 def sublane(sim) -> bool:
@@ -385,10 +413,10 @@ class Seeder(Settling, StopLines):
         lead, bumper_gap = self.leaders(scene.boxes, other_boxes)
         gaps = self.min_gaps(bumper_gap)
         lead_speed = np.concatenate([scene.speed[:, T0], other_speed]).astype(np.float64)
-        keep, hold, report.conflicts = self.resolve(scene, other_boxes, other_speed)
+        keep, hold, report.dropped = self.resolve(scene, other_boxes, other_speed)
         for i, why in {**gone, **self.on_others(scene, other_boxes), **crowded}.items():
             keep[i], hold[i] = False, False
-            report.conflicts[i] = why
+            report.dropped[i] = why
         lead_speed[:len(scene)][hold] = 0.0      # a follower of a held agent departs safe behind it
         depart = self.departure_speeds(lead, bumper_gap - gaps, lead_speed, types)
         self.routes.refresh()
@@ -426,6 +454,7 @@ class Seeder(Settling, StopLines):
                                      float(fx), float(fy), float(angle), keepRoute=self.keep_route)
             except Exception as e:  # libsumo.TraCIException / traci.TraCIException
                 report.refused[i] = str(e).splitlines()[0] if str(e) else type(e).__name__
+                self._withdraw(vid)
                 continue
             report.ids[i] = vid
             report.targets[i] = (float(fx), float(fy), float(angle))
@@ -487,15 +516,30 @@ class Seeder(Settling, StopLines):
             except Exception:   # gone, or the lane is not on its route: it stays as SUMO has it
                 continue
 
+    def _withdraw(self, vid: str) -> None:
+        """Take back a vehicle SUMO did not take as seeded: added but refused a pose, or still waiting
+        to be inserted, it would otherwise enter later, somewhere, as a vehicle no record names."""
+        try:
+            self.sim.vehicle.remove(vid)
+        except Exception:   # never added, or already gone
+            pass
+
     def verify(self, report: SeedReport) -> SeedReport:
         """After a simulation step: which seeded agents are not where they were generated (those
-        SUMO clamped onto a junction's start first put back on their lane, :meth:`keep_on_seeded_lanes`)."""
+        SUMO clamped onto a junction's start first put back on their lane, :meth:`keep_on_seeded_lanes`).
+        One SUMO does not have after the step (not inserted, or removed at once) is refused, with the
+        reason, and taken back: a ``placed`` or ``misplaced`` agent is a vehicle in the simulation."""
         self.keep_on_seeded_lanes(report)
         present = set(self.sim.vehicle.getIDList())
-        for i, vid in report.ids.items():
+        collided = set(self.sim.simulation.getCollidingVehiclesIDList())
+        for i, vid in list(report.ids.items()):
             fx, fy, angle = report.targets[i]
             if vid not in present:
-                report.misplaced[i] = float("inf")
+                report.refused[i] = ("removed by SUMO after a collision in the seeding step" if vid in collided
+                                     else "not in the simulation after the seeding step (SUMO did not insert it)")
+                self._withdraw(vid)
+                for d in (report.ids, report.targets, report.lanes, report.slowed):
+                    d.pop(i, None)
                 continue
             x, y = self.sim.vehicle.getPosition(vid)
             err = float(np.hypot(x - fx, y - fy))
@@ -505,4 +549,4 @@ class Seeder(Settling, StopLines):
         return report
 
 
-__all__ = ["Seeder", "SeedReport", "krauss_safe_speed"]
+__all__ = ["STATUSES", "Seeder", "SeedReport", "krauss_safe_speed"]

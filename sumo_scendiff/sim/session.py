@@ -140,10 +140,12 @@ class Session:
             rep = seeding.report
             user = [k for k, (src, tok) in enumerate(zip(sources, tokens))
                     if src == "user" and tok.get("x") is not None]
+            lost = seeding.lost_tokens()
             row = {"user_tokens": len(user),
                    "user_tokens_matched": len(set(user) & set(t for t in seeding.token_of if t is not None)),
-                   "generated": len(seeding.scene), "placed": rep.placed, "refused": len(rep.refused),
-                   "misplaced": len(rep.misplaced), "slowed": len(rep.slowed), "gap_fitted": len(rep.gap_fitted),
+                   # every user token that gives no vehicle, with why (run prints them as warnings)
+                   "user_tokens_lost": {str(k): why for k, why in sorted(lost.items())},
+                   **seeding.counts(), "slowed": len(rep.slowed), "gap_fitted": len(rep.gap_fitted),
                    "existing_vehicles": len(existing.token_ids()),
                    "dropped_on_existing": seeding.dropped, "replayed_s": replay, **stats.as_dict()}
             writer.finish(row)

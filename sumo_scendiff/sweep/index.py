@@ -17,8 +17,8 @@ COLUMNS = ("id", "status", "network", "location", "kind", "token_set", "p_mask",
            "density", "vehicles", "density_target_veh_per_km", "seed",
            "steps", "threshold", "guidance", "scene_guidance", "pin_tokens", "pin_speeds", "lane_headings",
            "lane_snap", "rollout", "step_length", "replay", "user_tokens",
-           "user_tokens_matched",
-           "generated", "placed", "refused", "misplaced", "existing_vehicles", "dropped_on_existing",
+           "user_tokens_matched", "user_tokens_lost",
+           "generated", "placed", "misplaced", "refused", "dropped", "existing_vehicles", "dropped_on_existing",
            "vehicles_in_window", "density_veh_per_km",
            "collisions", "teleports", "emergency_brakes", "collisions_per_100", "teleports_per_100",
            "emergency_brakes_per_100", "mean_speed", "present_at_end", "arrived", "error")
@@ -33,6 +33,8 @@ def row_for(out: str, s: Scenario) -> dict:
             stats = json.load(f)
         row = {**s.params(), "status": "ok", "kind": sweep["kind"], "p_mask_used": sweep["p_mask_used"],
                "density_target_veh_per_km": sweep.get("density_target_veh_per_km"), **stats}
+        if isinstance(stats.get("user_tokens_lost"), dict):   # the reasons are in the scene's own files
+            row["user_tokens_lost"] = len(stats["user_tokens_lost"])
         if "existing_vehicles" in stats and "placed" in stats:   # as run's summary counts them
             km = sweep.get("car_lane_km")
             row["vehicles_in_window"] = stats["existing_vehicles"] + stats["placed"]
