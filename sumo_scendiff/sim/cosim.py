@@ -283,11 +283,15 @@ class CoSimulation:
             self.follow(seeding, k * dt)
             self.sim.simulationStep()
 
-    def verify(self, seeding: Seeding) -> Seeding:
-        """After the host's next step: agents not within 0.5 m / 0.1 rad of their generated pose;
-        then none faster than it can stop behind its leader (:meth:`Seeder.settle`)."""
+    def verify(self, seeding: Seeding, warn: bool = True) -> Seeding:
+        """After the host's next step: agents not within 0.5 m / 0.1 rad of their generated pose, or
+        not in SUMO at all (refused); then none faster than it can stop behind its leader
+        (:meth:`Seeder.settle`). ``warn``: a warning for each of the caller's tokens that gives no
+        vehicle (:meth:`Seeding.lost_tokens`; False: the caller reports them itself)."""
         self.seeder.verify(seeding.report)
         self.seeder.settle(seeding.report)
+        for k, why in seeding.lost_tokens().items() if warn else ():
+            warnings.warn(f"token {k}: no vehicle: {why}", stacklevel=2)
         return seeding
 
 

@@ -26,6 +26,7 @@ from dataclasses import replace
 
 from .cosim import CoSimulation, Existing
 from .export import ScenarioWriter
+from .fleet import Fleet
 from .rollout import rollout
 from .sumo import SimConfig, SimError, close, start
 
@@ -40,8 +41,9 @@ def _stopped(e: BaseException) -> BaseException:
 
 
 class Session:
-    def __init__(self, cfg: SimConfig, net, generator, quiet: bool = True):
+    def __init__(self, cfg: SimConfig, net, generator, quiet: bool = True, model_fleet: bool = False):
         self.cfg, self.net, self.generator, self.quiet = cfg, net, generator, quiet
+        self.model_fleet = model_fleet   # the model's sizes on SUMO's default vType (run --model-fleet)
         self.base: str | None = None
         self.sim = None
         self._at_base = False
@@ -124,9 +126,11 @@ class Session:
             t = time.perf_counter()
             sim = self.sim = start(replace(self.cfg, seed=seed, state=self.base), quiet=self.quiet)
             cosim = CoSimulation(sim, self.net, self.generator, seed=seed, prefix="sd")
+            if self.model_fleet:   # a fleet without a mix: no drawn agent is given a scenario's vType
+                cosim.seeder.fleet = Fleet(sim, {})
             seeding = cosim.place(scene, tokens, sources, existing, seed=seed, p_mask=p_mask)
             sim.simulationStep()
-            cosim.verify(seeding)
+            cosim.verify(seeding, warn=False)      # run prints them, once per scene (user_tokens_lost)
             self.timing["seed"] += time.perf_counter() - t
             t = time.perf_counter()
             writer.after_seeding(sim, seeding, self.net, self.cfg.options(), info)
