@@ -277,7 +277,7 @@ def run(o) -> dict:
         (o.begin if o.begin is not None else scen.begin)
     cfg = SimConfig(net=scen.net, routes=routes, additional=scen.additional, gui=o.gui, seed=o.seed, begin=start,
                     **sumo_settings)
-    session = Session(cfg, net, gen, quiet=not o.verbose)
+    session = Session(cfg, net, gen, quiet=not o.verbose, model_fleet=o.model_fleet)
     try:
         session.prepare((lambda sim: _warm_up(sim, o, at, progress)) if routes else None)
         places = _windows(o, net, session.sim, session.cosim())
@@ -337,6 +337,7 @@ def run(o) -> dict:
         session.close()
     summary = {"network": scen.net, "configuration": scen.config, "output_dir": os.path.abspath(o.out),
                "model_sha256": gen.sha256, "seed": o.seed, "threads": threads,
+               "fleet": "model" if o.model_fleet else "scenario",
                "density": getattr(o, "level", None), "scenes": results, "timing_s": {k: round(v, 3) for k, v in timing.items()}}
     return _write_summary(o, summary)
 

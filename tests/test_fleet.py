@@ -217,3 +217,33 @@ def test_fill_seeds_the_scenarios_vtypes(tmp_path, amount):
     finally:
         libsumo.close()
     assert got and got <= {("passenger", 4.3), ("bus", 12.0)}
+
+
+@pytest.mark.slow
+def test_the_model_fleet_on_request(scenario, tmp_path):
+    """run and fill --model-fleet: with a demand, the vehicles the model draws keep its sizes on
+    SUMO's default vType, none is one of the scenario's (the records say which fleet)."""
+    import os
+
+    from sumo_scendiff import run as run_cli
+    from sumo_scendiff.fill.__main__ import get_options, main
+    net_path, add, rou = scenario
+    code = run_cli.main(run_cli.get_options(
+        ["-n", net_path, "-a", add, "-r", rou, "--center", "0,0", "--scenes", "1", "--rollout", "0", "--steps", "8",
+         "--begin", "40", "--vehicles", "12", "--model-fleet", "-o", str(tmp_path / "r")]))
+    assert code == 0
+    seeded = [a for a in json.load(open(tmp_path / "r" / "scene_000" / "scene.json"))["agents"] if a["vehicle"]]
+    assert seeded and not any(a.get("vtype") for a in seeded)
+    assert json.load(open(tmp_path / "r" / "run.json"))["fleet"] == "model"
+    net = os.path.join(os.path.dirname(__file__), "..", "networks", "grid3x3_1lane.net.xml")
+    edges = sorted(e.getID() for e in Network.load(net).sumo_net.getEdges())
+    (tmp_path / "d.rou.xml").write_text(
+        TYPES.replace("<additional>", "<routes>").replace("</additional>", "")
+        + f'<flow id="coaches" type="coach" begin="0" end="600" period="6" from="{edges[1]}" to="{edges[-2]}"/>'
+        + "</routes>")
+    out = tmp_path / "f"
+    assert main(get_options(["-n", net, "-r", str(tmp_path / "d.rou.xml"), "--begin", "120", "--density", "25",
+                             "--model-fleet", "-o", str(out)])) == 0
+    doc = json.load(open(out / "fill.json"))
+    seeded = [a for a in doc["agents"] if a["vehicle"]]
+    assert doc["fleet"] == "model" and seeded and not any(a.get("vtype") for a in seeded)

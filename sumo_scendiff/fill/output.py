@@ -77,7 +77,7 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
         seed_cfg = replace(cfg, additional=tuple(cfg.additional) + (extra,)) \
             if routes and write_vtypes(routes, extra) else cfg
         sim, reports = seed_fill(result, net, seed_cfg, seed=o.seed, quiet=not o.verbose, progress=progress,
-                                 demand=result.demand, routes=routes)
+                                 demand=result.demand, routes=routes, model_fleet=o.model_fleet)
     try:
         timing["seed"] = time.perf_counter() - t
         t = time.perf_counter()
@@ -147,7 +147,7 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
            "begin": cfg.begin or 0.0, "state_time": state_time, "seed": o.seed,
            "area": list(o.area) if o.area else None, "stride": o.stride, "tile_size": result.tiles[0].window.size,
            "density": source, "p_mask": o.p_mask, "model_sha256": gen.sha256, "model": gen.config.record(gen),
-           "sumo_options": options, "inflow": inflow,
+           "sumo_options": options, "inflow": inflow, "fleet": "model" if o.model_fleet else "scenario",
            "summary": {"tiles": len(result.tiles), "kept": len(agents), "vehicles": len(seeded),
                        # kept = placed + misplaced + refused + dropped (SeedReport.status)
                        **{s: sum(a["status"] == s for a in agents) for s in STATUSES},

@@ -80,27 +80,30 @@ class InflowError(RuntimeError):
 
 
 def seed_fill(result, net, cfg, seed: int = 0, quiet: bool = True, progress: bool = False,
-              demand: list | None = None, routes=()):
+              demand: list | None = None, routes=(), model_fleet: bool = False):
     """Start SUMO (``cfg``), seed every tile, step once, verify and settle. Returns (sim, reports
     per tile index). ``demand``: the placed demand vehicles the tiles were given (plan.py): an agent
     drawn for one drives the rest of its route, with its vType where ``cfg`` loads it. With a
-    demand (``routes``) every seeded vehicle is one of its vTypes (sim/fleet.py). What SUMO
+    demand (``routes``) every seeded vehicle is one of its vTypes (sim/fleet.py), unless
+    ``model_fleet`` (then the model's sizes on SUMO's default vType). What SUMO
     says meanwhile (with ``quiet`` False: a warning for each destination its router finds no way
     to) is shown after, each kind once with its count (core.sumo_log)."""
     from ..core.sumo_log import caught_stderr, echo
     with caught_stderr() as said:
         try:
-            out = _seed_all(result, net, cfg, seed, quiet, progress, demand, routes)
+            out = _seed_all(result, net, cfg, seed, quiet, progress, demand, routes, model_fleet)
         finally:
             echo(said())
     return out
 
 
-def _seed_all(result, net, cfg, seed, quiet, progress, demand, routes):
+def _seed_all(result, net, cfg, seed, quiet, progress, demand, routes, model_fleet=False):
     from tqdm import tqdm
     sim = start(cfg, quiet=quiet)
     seeder = Seeder(sim, net, prefix="fill", seed=seed)
-    if demand or routes:   # the mix: the vehicles en route at --begin (as run's are those present), else the route files'
+    if model_fleet:        # a fleet without a mix: no drawn agent is given a scenario's vType (--model-fleet)
+        seeder.fleet = Fleet(sim, {})
+    elif demand or routes:   # the mix: the vehicles en route at --begin (as run's are those present), else the route files'
         seeder.fleet = Fleet.read(sim, mix=Counter(p.vehicle.type or "DEFAULT_VEHTYPE" for p in demand or ()),
                                   files=[*routes, *cfg.additional])
     reports: dict[int, object] = {}

@@ -120,6 +120,10 @@ def add_arguments(p) -> None:
     p.add_argument("--no-seeding-options", dest="seeding_options", action="store_false",
                    help="leave out the options the seeding adds (" + ", ".join(ADDED_OPTIONS)
                         + "): SUMO runs with the scenario's options and its own defaults")
+    p.add_argument("--model-fleet", action="store_true",
+                   help="seed each vehicle the model draws with its drawn size on SUMO's default vType, "
+                        "as without a demand, not as one of the scenario's own vTypes (a token's vtype "
+                        "and a demand vehicle's own type are still theirs)")
 
 
 def settings_problem(o) -> str | None:
