@@ -1,0 +1,248 @@
+"""The scenario studio: its real server on a free port (networks/city.net.xml), and the page in a real
+headless Chromium (Debian's ``chromium``, driven by playwright's Python package) where there is one.
+
+A scene kept in the studio is a folder stock SUMO replays, and the same scene as ``run`` writes with the
+command the studio shows and the token file it saved (byte for byte).
+"""
+from __future__ import annotations
+
+import gzip
+import json
+import os
+import shlex
+import shutil
+import socket
+import subprocess
+import sys
+import threading
+import time
+import urllib.error
+import urllib.request
+
+import pytest
+
+pytest.importorskip("starlette", reason="the studio's server library (pip install -e '.[studio]')")
+uvicorn = pytest.importorskip("uvicorn", reason="the studio's server (pip install -e '.[studio]')")
+
+ROOT = os.path.join(os.path.dirname(__file__), "..")
+NET = os.path.join(ROOT, "networks", "city.net.xml")
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--no-first-run"]
+CENTER = [158.0, 208.0]          # a window on edge g0_0_g0_1 (its lane 1 is a car lane, lane 0 a sidewalk)
+TOKEN = {"edge": "g0_0_g0_1", "lane": 1, "pos": 70.0, "vclass": "bus", "speed": 6.0, "manoeuvre": "stop"}
+
+
+@pytest.fixture(scope="module")
+def studio(tmp_path_factory):
+    """The studio's app under uvicorn on a free port of 127.0.0.1, as ``python -m sumo_scendiff.studio``."""
+    from sumo_scendiff.studio.app import make_app
+    out = str(tmp_path_factory.mktemp("studio") / "out")
+    app = make_app(NET, None, out)
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning"))
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    while not server.started:
+        if not thread.is_alive():
+            pytest.fail("the studio's server did not start")
+        time.sleep(0.05)
+    yield f"http://127.0.0.1:{sock.getsockname()[1]}", out
+    server.should_exit = True
+    thread.join()
+
+
+def call(url: str, body=None, raw: bytes | None = None) -> tuple[int, dict]:
+    data = raw if raw is not None else None if body is None else json.dumps(body).encode()
+    req = urllib.request.Request(url, data=data, headers={"Content-Type": "application/json"})
+    try:
+        with urllib.request.urlopen(req) as r:
+            return r.status, json.load(r)
+    except urllib.error.HTTPError as e:
+        return e.code, json.load(e)
+
+
+def test_network_geometry_is_the_projects_network(studio):
+    from sumo_scendiff.map.network import Network
+    url, _ = studio
+    status, doc = call(f"{url}/api/network")
+    net = Network.load(NET)
+    assert status == 200 and doc["name"] == "city"
+    assert [ln["id"] for ln in doc["lanes"]] == [ln.id for ln in net.lanes]
+    lane = next(ln for ln in doc["lanes"] if ln["id"] == "g0_0_g0_1_1")
+    assert lane["kind"] == "car" and len(lane["shape"]) == 2 * len(net.lanes[net.lane_index["g0_0_g0_1_1"]].shape)
+    assert next(ln for ln in doc["lanes"] if ln["id"] == "g0_0_g0_1_0")["kind"] == "walk"
+    assert len(doc["junctions"]) > 0 and all(len(j["ring"]) >= 6 for j in doc["junctions"])
+    tls = {ln.id for ln in net.lanes if ln.tls and not ln.internal}
+    assert tls and {lt["lane"] for lt in doc["lights"]} == tls
+
+
+def test_snap_finds_the_car_lane_not_the_sidewalk(studio):
+    url, _ = studio
+    status, s = call(f"{url}/api/snap", {"x": 158.0, "y": 208.0})
+    assert status == 200 and (s["lane"], s["edge"], s["index"]) == ("g0_0_g0_1_1", "g0_0_g0_1", 1)
+    assert 0 <= s["pos"] <= s["length"] and abs(s["x"] - 158.0) < 2 and abs(s["y"] - 208.0) < 2
+    status, err = call(f"{url}/api/snap", {"x": -5000.0, "y": 0.0})
+    assert status == 400 and "no car lane within" in err["error"]
+
+
+@pytest.mark.parametrize("path, body, raw, status, words", [
+    ("/api/snap", None, b"{not json", 400, "not JSON"),
+    ("/api/snap", {"x": "east", "y": 1}, None, 400, "x: expected a finite number"),
+    ("/api/tokens", {"agents": [{"speed": -3}]}, None, 400, "must be >= 0"),
+    ("/api/tokens", {"agents": [{"spede": 3}]}, None, 400, "unknown key 'spede'"),
+    ("/api/generate", {"tokens": {}}, None, 400, "center: expected [x, y]"),
+    ("/api/generate", {"center": CENTER, "density": -4}, None, 400, "density: expected a number"),
+    ("/api/generate", {"center": [9000.0, 9000.0]}, None, 400, "off the network"),
+    ("/api/generate", {"center": CENTER, "tokens": {"agents": [{"edge": "nope", "pos": 3.0}]}}, None, 400,
+     "no edge 'nope'"),
+    ("/api/keep", {"draft": "../..", "scene": "scene_000", "name": "x"}, None, 400, "keep: expected"),
+    ("/api/keep", {"draft": "gen-9999", "scene": "scene_000", "name": "x"}, None, 400, "no scene"),
+    ("/api/fill", {"path": "../../../etc/passwd"}, None, 400, "no such file under the output directory"),
+    ("/api/fill", {"fill": {"format": "other"}}, None, 400, "not a fill.json"),
+    ("/api/nothing", None, None, 404, "/api/nothing"),
+    ("/api/generate", None, None, 405, "/api/generate"),
+])
+def test_a_malformed_request_gets_a_4xx_with_one_line(studio, path, body, raw, status, words):
+    url, _ = studio
+    got, doc = call(f"{url}{path}", body, raw)
+    assert got == status and words in doc["error"] and "Traceback" not in doc["error"]
+    assert "\n" not in doc["error"]
+
+
+def _replays(folder: str) -> None:
+    from sumo_scendiff.core.tools import sumo_binary
+    done = subprocess.run([sumo_binary(), "-c", os.path.join(folder, "scenario.sumocfg"), "--end", "1",
+                           "--no-step-log"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+
+
+def _same_as_run(kept: str, scene: str, command: str, tmp) -> None:
+    """``run`` with the studio's command and the token file it kept writes the same scene, byte for byte."""
+    args = shlex.split(command)[3:]
+    args[args.index("--tokens") + 1] = os.path.join(kept, "tokens.toml")
+    args[args.index("-o") + 1] = str(tmp / "cli")
+    done = subprocess.run([sys.executable, "-m", "sumo_scendiff.run", *args], capture_output=True, text=True, cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+    cli = os.path.join(tmp, "cli", scene)
+    for name in ("scene.json", "scenario.rou.xml", "scenario.sumocfg"):
+        with open(os.path.join(kept, name), "rb") as a, open(os.path.join(cli, name), "rb") as b:
+            assert a.read() == b.read(), name
+    with gzip.open(os.path.join(kept, "state.xml.gz")) as a, gzip.open(os.path.join(cli, "state.xml.gz")) as b:
+        # SUMO's header comment names the time of writing and the options; the state is what follows it
+        assert a.read().split(b"-->", 1)[1] == b.read().split(b"-->", 1)[1]
+
+
+@pytest.mark.slow
+def test_generate_keep_replay_and_run_gives_the_same_scene(studio, tmp_path):
+    url, out = studio
+    status, doc = call(f"{url}/api/generate", {"center": CENTER, "tokens": {"p_mask": 0.5, "agents": [TOKEN]},
+                                               "scenes": 1, "seed": 3})
+    assert status == 200, doc
+    scene = doc["scenes"][0]
+    assert scene["window"] == {"cx": CENTER[0], "cy": CENTER[1], "yaw": 0.0, "size": 100.0}
+    assert sum(scene["counts"].values()) - scene["counts"]["generated"] == scene["counts"]["generated"]
+    bus = [a for a in scene["agents"] if a["source"] == "user" and a["token"] == 0]
+    assert len(bus) == 1 and bus[0]["vclass"] == "bus" and len(bus[0]["path"]) == 5
+    assert all(a["reason"] for a in scene["agents"] if a["status"] in ("refused", "dropped"))
+    assert 'manoeuvre = "stop"' in doc["tokens"] and "--seed 3" in doc["command"]
+
+    status, kept = call(f"{url}/api/keep", {"draft": doc["draft"], "scene": "scene_000", "name": "mine",
+                                            "openscenario": True})
+    assert status == 201, kept
+    assert kept["folder"] == os.path.abspath(os.path.join(out, "mine")) and kept["openscenario"]
+    assert {"scene.json", "scenario.sumocfg", "state.xml.gz", "tokens.toml"} <= set(kept["files"])
+    assert any(f.endswith(".xosc") for f in os.listdir(kept["folder"]))
+    status, again = call(f"{url}/api/keep", {"draft": doc["draft"], "scene": "scene_000", "name": "mine"})
+    assert status == 409 and "exists" in again["error"]   # nothing the user made is overwritten
+    _replays(kept["folder"])
+    _same_as_run(kept["folder"], "scene_000", doc["command"], tmp_path)
+
+    # a fill-format file of the kept scene's vehicles colours the edge they stand on
+    agents = json.load(open(os.path.join(kept["folder"], "scene.json")))["agents"]
+    fill = {"format": "sumo-scendiff-fill", "agents": agents}
+    with open(os.path.join(out, "fill.json"), "w") as f:
+        json.dump(fill, f)
+    status, dens = call(f"{url}/api/fill", {"path": "fill.json"})
+    assert status == 200 and dens["vehicles"] == sum(a["vehicle"] is not None for a in agents)
+    assert dens["edges"].get("g0_0_g0_1", 0) > 0
+    assert call(f"{url}/api/fill", {"fill": fill})[1] == dens
+
+
+def _chromium_problem() -> str | None:
+    if not os.path.exists(CHROMIUM):
+        return f"no {CHROMIUM} (Debian's chromium package: apt-get install chromium)"
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "no playwright (pip install -e '.[test]')"
+    return None
+
+
+def _world_click(page, x: float, y: float) -> None:
+    sx, sy = page.evaluate("([x, y]) => { const r = document.getElementById('canvas').getBoundingClientRect();"
+                           " return [r.left + studio.view.ox + x * studio.view.s, r.top + studio.view.oy - y * studio.view.s]; }",
+                           [x, y])
+    page.mouse.click(sx, sy)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(_chromium_problem() is not None, reason=str(_chromium_problem()))
+def test_the_page_in_headless_chromium(studio):
+    """Load, place a window, drop a token and edit it, generate, see the vehicles, keep; SUMO replays it."""
+    from playwright.sync_api import sync_playwright
+    url, out = studio
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1400, "height": 900})
+        errors = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(url)
+        page.wait_for_function("window.studio && window.studio.ready", timeout=60000)
+        assert page.evaluate("studio.drawn.cells") > 0
+        page.evaluate("([x, y]) => { const c = document.getElementById('canvas'); studio.view = "
+                      "{s: 4, ox: c.clientWidth / 2 - 4 * x, oy: c.clientHeight / 2 + 4 * y}; draw(); }", CENTER)
+        page.click("#mode-window")
+        _world_click(page, *CENTER)
+        assert page.evaluate("[studio.win.cx, studio.win.cy]") == pytest.approx(CENTER, abs=0.5)
+        page.click("#mode-token")
+        _world_click(page, 157.0, 240.0)
+        page.wait_for_function("studio.tokens.length === 1")
+        assert page.evaluate("studio.tokens[0].lane") == "g0_0_g0_1_1"
+        page.select_option("[data-key=vclass]", "bus")
+        page.fill("[data-key=speed]", "6")
+        page.press("[data-key=speed]", "Enter")
+        page.select_option("[data-key=manoeuvre]", "stop")
+        page.wait_for_function("document.getElementById('toml').textContent.includes('stop')")
+        toml = page.text_content("#toml")
+        assert 'vclass = "bus"' in toml and "speed = 6.0" in toml and 'edge = "g0_0_g0_1"' in toml
+        page.fill("#scenes", "2")
+        page.click("#generate")
+        page.wait_for_function("studio.result && !studio.busy", timeout=120000)
+        result = page.evaluate("studio.result")
+        assert len(result["scenes"]) == 2, page.text_content("#gen-status")
+        assert page.evaluate("studio.drawn.boxes") == len(result["scenes"][0]["agents"]) > 0
+        assert page.evaluate("document.querySelectorAll('#multiples canvas').length") == 2
+        assert any(a["source"] == "user" for a in result["scenes"][0]["agents"])
+        if os.environ.get("STUDIO_SCREENSHOT"):
+            page.screenshot(path=os.environ["STUDIO_SCREENSHOT"])
+        page.fill("#keep-name", "from_the_page")
+        page.click("#keep")
+        page.wait_for_function("studio.kept", timeout=60000)
+        browser.close()
+    assert not errors
+    folder = os.path.join(out, "from_the_page")
+    assert open(os.path.join(folder, "tokens.toml")).read() == result["tokens"]
+    _replays(folder)
+
+
+def test_the_command_line(tmp_path):
+    """Bad flags are one line and exit 2; the server prints its address."""
+    bad = subprocess.run([sys.executable, "-m", "sumo_scendiff.studio", "-n", "x.sumocfg"], capture_output=True,
+                         text=True, cwd=ROOT)
+    assert bad.returncode == 2 and "-n: x.sumocfg: a SUMO configuration" in bad.stderr
+    missing = subprocess.run([sys.executable, "-m", "sumo_scendiff.studio", "-n", str(tmp_path / "no.net.xml"),
+                              "-o", str(tmp_path / "o")], capture_output=True, text=True, cwd=ROOT)
+    assert missing.returncode == 2 and "no.net.xml" in missing.stderr and "Traceback" not in missing.stderr
+    shutil.rmtree(tmp_path / "o", ignore_errors=True)
