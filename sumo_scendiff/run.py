@@ -263,7 +263,7 @@ def run(o) -> dict:
     try:  # the route files as the set SUMO loads, against this network
         span = demand_span(routes, {ln.edge for ln in net.lanes}, scen.additional,
                            begin=scen.begin, end=scen.end) if routes else None
-        at = seeding_time(o.begin, scen.begin, span, routes) if span and not o.ego else None
+        at = seeding_time(o.begin, scen.begin, span, routes, config_end=scen.end) if span and not o.ego else None
     except DemandError as e:
         raise RunError(str(e)) from None
     first = span[0] if span else None

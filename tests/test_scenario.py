@@ -139,6 +139,11 @@ def test_the_seeding_time_is_on_sumos_clock_within_the_demand():
         seeding_time(25500.0, 26000.0, span, files, flag="begin")
     with pytest.raises(DemandError, match=r"^the default start \(first departure \+ 600 s\) 30000 s"):
         seeding_time(None, 30000.0, span, files)
+    # a begin after the last departure is SUMO's to run: a looping demand still drives then
+    assert seeding_time(30000.0, None, span, files) == 30000.0
+    with pytest.raises(DemandError, match=r"^--begin 30000 s \(8:20:00\) lies after the configuration's end "
+                       r"29000 s \(8:03:20\); give an earlier --begin$"):
+        seeding_time(30000.0, None, span, files, config_end=29000.0)
 
 
 def test_a_saved_state_starts_without_the_flows_it_has_finished(tmp_path):

@@ -189,20 +189,25 @@ def _file_span(path: str, edge_ids: set[str], sample: int, begin, end) -> tuple[
 
 
 def seeding_time(begin: float | None, config_begin: float | None, span: tuple[float, float],
-                 route_files: Sequence[str], flag: str = "--begin") -> float:
+                 route_files: Sequence[str], flag: str = "--begin", config_end: float | None = None) -> float:
     """The time to seed a demand's network at, on SUMO's clock: ``begin`` when given, else
     :data:`WARM_UP_S` after SUMO's start (the configuration's begin, not before the first departure)
     or the last departure if that comes sooner.
-    Raises :class:`DemandError` when it lies outside the demand's departures (``span``, from
-    :func:`demand_span`: before them the network is empty, after them it empties, and either would
-    look like a filled network that is not) or before the configuration's begin (SUMO cannot go back)."""
+    Raises :class:`DemandError` when it lies before the demand's first departure (``span``, from
+    :func:`demand_span`: the network is empty and would look like a filled network that is not),
+    when the default start lies after its last, before the configuration's begin (SUMO cannot go
+    back) or after its end (SUMO stops before). A ``begin`` given after the last departure is
+    SUMO's as any other: its vehicles may still drive (long trips, rerouters sending them round)."""
     from ..core.cli import clock
     first, last = span
     start = first if config_begin is None else config_begin
     # a demand shorter than the warm-up is seeded at its last departure, when it has all its traffic
     t = min(max(start, first) + WARM_UP_S, max(last, start)) if begin is None else begin
     name = flag if begin is not None else f"the default start (first departure + {WARM_UP_S:g} s)"
-    if t < first or t > last:
+    if config_end is not None and t > config_end:
+        raise DemandError(f"{name} {t:g} s ({clock(t)}) lies after the configuration's end "
+                          f"{config_end:g} s ({clock(config_end)}); give an earlier {flag}")
+    if t < first or (t > last and begin is None):
         when = f"departures from {first:g} s ({clock(first)})" + \
             ("" if last == float("inf") else f" to {last:g} s ({clock(last)})")
         raise DemandError(f"{name} {t:g} s ({clock(t)}) lies outside the demand ({', '.join(route_files)}: "
