@@ -217,3 +217,14 @@ def test_the_configurations_run_options_are_carried(tmp_path, grid):
         assert sim.vehicle.getIDCount() > 0
     finally:
         close(sim)
+
+
+def test_options_outside_any_section_go_by_the_section_sumo_files_them_under(tmp_path, grid):
+    """SUMO reads an option given outside any section too (sumo-rl's configurations give their TraCI
+    port so): a TraCI port, a seed or a GUI option there is not carried (an in-process run would wait
+    for a TraCI client), a processing option is."""
+    cfg = tmp_path / "traci.sumocfg"
+    cfg.write_text(f'<configuration><net-file value="{grid.path}"/><remote-port value="8813"/>'
+                   '<num-clients value="1"/><seed value="3"/><start value="true"/>'
+                   '<time-to-teleport value="-1"/></configuration>')
+    assert scenario_from_files(str(cfg)).options == (("time-to-teleport", "-1"),)

@@ -20,9 +20,9 @@ def sumo_tool(*path: str) -> str:
 
 
 @functools.lru_cache(maxsize=None)
-def sumo_defaults() -> dict[str, str]:
-    """The installed ``sumo``'s option defaults (name -> value), from its configuration template:
-    they change between SUMO versions (``default.departspeed`` was 0 and is "avg" in 1.28)."""
+def _sumo_template() -> tuple[tuple[str, str, str], ...]:
+    """The installed ``sumo``'s options as (section, name, default) from its configuration template;
+    empty where it cannot write one (the callers' own fallbacks; SUMO itself will say what is wrong)."""
     import subprocess
     import tempfile
     import xml.etree.ElementTree as ET
@@ -30,6 +30,20 @@ def sumo_defaults() -> dict[str, str]:
         path = os.path.join(work, "template.sumocfg")
         try:
             subprocess.run([sumo_binary("sumo"), "--save-template", path], capture_output=True, timeout=60, check=True)
-            return {opt.tag: opt.get("value", "") for section in ET.parse(path).getroot() for opt in section}
+            return tuple((section.tag, opt.tag, opt.get("value", ""))
+                         for section in ET.parse(path).getroot() for opt in section)
         except (OSError, subprocess.SubprocessError, ET.ParseError):
-            return {}       # no template: the callers' own fallbacks (SUMO itself will say what is wrong)
+            return ()
+
+
+def sumo_defaults() -> dict[str, str]:
+    """The installed ``sumo``'s option defaults (name -> value), from its configuration template:
+    they change between SUMO versions (``default.departspeed`` was 0 and is "avg" in 1.28)."""
+    return {name: value for _, name, value in _sumo_template()}
+
+
+def sumo_option_sections() -> dict[str, str]:
+    """The installed ``sumo``'s options (name -> the section of its configuration they belong to:
+    ``traci_server``, ``gui_only``, ``processing``, ...), for options a configuration gives outside
+    any section."""
+    return {name: section for section, name, _ in _sumo_template()}

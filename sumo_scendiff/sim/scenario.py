@@ -29,6 +29,9 @@ _TIMES = {"begin": "begin", "b": "begin", "end": "end", "e": "end"}
 # seeding places vehicles on lanes, which only the microscopic model has
 _NOT_CARRIED = frozenset({"input", "output", "time", "report", "gui_only", "traci_server", "random_number",
                           "mesoscopic"})
+# the sections an option given outside any section is left out by (an input option such as
+# junction-taz, which names no file, is carried wherever it is given)
+_NOT_CARRIED_LOOSE = _NOT_CARRIED - {"input", "output"}
 
 
 class ScenarioError(ValueError):
@@ -117,6 +120,9 @@ def run_options(path: str) -> tuple[tuple[str, str], ...]:
     section but inputs, outputs, the time window, reports, the GUI's, TraCI's and the seed, and none
     that names a file (its path would not travel with the exported scenario)."""
     import xml.etree.ElementTree as ET
+
+    from ..core.tools import sumo_option_sections
+    sections = sumo_option_sections()
     out = []
     for section in ET.parse(path).getroot():
         if not isinstance(section.tag, str):          # a comment
@@ -126,7 +132,10 @@ def run_options(path: str) -> tuple[tuple[str, str], ...]:
             continue
         for opt in opts:
             name, value = opt.tag, opt.get("value")
+            # an option outside any section (SUMO reads those too) goes by the section SUMO files it
+            # under: a TraCI port given so would make every in-process run wait for a client
             if (not isinstance(name, str) or value is None or name in _LISTS or name in _FILES or name in _TIMES
+                    or (opt is section and sections.get(name) in _NOT_CARRIED_LOOSE)
                     or "output" in name or name.endswith(("-file", "-files", "-log", ".file"))):
                 continue
             out.append((name, value))
