@@ -247,3 +247,14 @@ def test_the_model_fleet_on_request(scenario, tmp_path):
     doc = json.load(open(out / "fill.json"))
     seeded = [a for a in doc["agents"] if a["vehicle"]]
     assert doc["fleet"] == "model" and seeded and not any(a.get("vtype") for a in seeded)
+
+
+def test_a_vehicle_faster_than_its_vtype_departs_at_the_types_max_speed(scenario, cross_scene, tmp_path):
+    """SUMO refuses a departure above the vType's maxSpeed: the agent drawn at 8 m/s given one of the
+    scenario's types, which drive at most 3 m/s, departs at 3 m/s (recorded as slowed), not refused."""
+    net_path, _, rou = scenario
+    slow = tmp_path / "slow.add.xml"
+    slow.write_text(TYPES.replace(' minGap=', ' maxSpeed="3" minGap='))
+    got, scene, report, _ = _seed((net_path, str(slow), rou), cross_scene, seed=0)
+    assert 2 in report.ids and 2 not in report.refused
+    assert report.slowed[2] == (8.0, 3.0)

@@ -445,8 +445,11 @@ class Seeder(Settling, StopLines):
                     report.own_route[i] = how or "lost"
                 sim.route.add(f"{vid}_route", full or self.routes.complete(edges, last_lane, tid, self.rng))
                 speed, slowed = max(float(scene.speed[i, T0]), 0.0), None
-                if depart[i] < speed:   # held for a foe on its junction, or safe behind the one ahead
-                    slowed, speed = (speed, float(depart[i])), float(depart[i])
+                # held for a foe on its junction, safe behind the one ahead, or at most what its vType
+                # drives (a scenario's slow type: SUMO refuses a departure above its maxSpeed)
+                cap = min(float(depart[i]), sim.vehicletype.getMaxSpeed(tid))
+                if cap < speed:
+                    slowed, speed = (speed, cap), cap
                 sim.vehicle.add(vid, f"{vid}_route", typeID=tid, depart="now",
                                 departLane=str(lane_index) if not lane.internal else "best",
                                 departPos="base", departSpeed=f"{speed:.3f}")
