@@ -125,7 +125,7 @@ function drawScene(c, scene, px) {
   for (const a of scene.agents) {
     const bad = a.status === "refused" || a.status === "dropped";
     if (a.path.length > 1) {
-      c.strokeStyle = "#2b6cb088"; c.lineWidth = 0.5;
+      c.strokeStyle = "#1a4f8acc"; c.lineWidth = Math.max(0.35, 1.5 * px);
       c.beginPath(); c.moveTo(...a.path[0]); for (const q of a.path.slice(1)) c.lineTo(...q); c.stroke();
     }
     const p = boxPath(a);
@@ -167,7 +167,9 @@ function drawTokens(c, px) {
   S.tokens.forEach((t, i) => {
     const r = Math.max(2.5, 7 * px);
     c.lineWidth = 2 * px; c.strokeStyle = i === S.sel ? "#e07b00" : "#0a0"; c.fillStyle = "#ffffffaa";
-    c.beginPath(); c.arc(t.x, t.y, r, 0, 2 * Math.PI); c.fill(); c.stroke();
+    c.beginPath(); c.arc(t.x, t.y, r, 0, 2 * Math.PI);
+    if (!S.result) c.fill();     // over a generated scene the vehicle under the token stays visible
+    c.stroke();
     c.beginPath(); c.moveTo(t.x, t.y); c.lineTo(t.x + 2 * r * Math.cos(t.heading), t.y + 2 * r * Math.sin(t.heading)); c.stroke();
     c.save(); c.translate(t.x, t.y); c.scale(px, -px);
     c.fillStyle = "#063"; c.font = "bold 11px sans-serif"; c.fillText(String(i), 9, -9); c.restore();
@@ -184,13 +186,53 @@ function draw() {
   ctx.setTransform(1, 0, 0, 1, 0, 0); ctx.clearRect(0, 0, canvas.width, canvas.height);
   if (!S.net) return;
   const px = 1 / S.view.s;
-  S.drawn.cells = drawNetwork(ctx, S.view, w, h, dpr);
+  drawLayer(w, h, dpr);
   const scene = S.result && S.result.scenes[S.scene];
   S.drawn.boxes = scene ? drawScene(ctx, scene, px) : 0;
   drawWindow(ctx, px);
   S.drawn.tokens = drawTokens(ctx, px);
   S.drawMs = performance.now() - t0; S.draws++;
 }
+
+// The network is drawn once into a layer larger than the view (LAYER_MARGIN of a view on each side) and
+// copied while panning. While zooming the layer is scaled, and drawn anew at the new scale when the zoom
+// has rested for LAYER_DELAY_MS (without a layer the network is drawn straight into the view).
+const LAYER_MARGIN = 0.5, LAYER_DELAY_MS = 200;
+let layer = null, layerTimer = null;
+function buildLayer(w, h, dpr) {
+  const v = S.view, mx = Math.round(w * LAYER_MARGIN), my = Math.round(h * LAYER_MARGIN);
+  const cv = layer ? layer.canvas : document.createElement("canvas");
+  cv.width = Math.round((w + 2 * mx) * dpr); cv.height = Math.round((h + 2 * my) * dpr);
+  const c = cv.getContext("2d");
+  c.setTransform(1, 0, 0, 1, 0, 0); c.clearRect(0, 0, cv.width, cv.height);
+  const cells = drawNetwork(c, { s: v.s, ox: v.ox + mx, oy: v.oy + my }, w + 2 * mx, h + 2 * my, dpr);
+  layer = { canvas: cv, s: v.s, ox: v.ox, oy: v.oy, w, h, dpr, mx, my, cells, valid: true };
+  S.drawn.layers = (S.drawn.layers || 0) + 1;
+}
+
+function drawLayer(w, h, dpr) {
+  const v = S.view;
+  const same = layer && layer.valid && layer.s === v.s && layer.w === w && layer.h === h && layer.dpr === dpr;
+  if (same && (Math.abs(v.ox - layer.ox) > layer.mx || Math.abs(v.oy - layer.oy) > layer.my)) buildLayer(w, h, dpr);
+  if (!same) {
+    if (layer && layer.valid && layer.w === w && layer.h === h && layer.dpr === dpr) {
+      // zooming: the last layer scaled (blurred for a moment), drawn sharp once the zoom rests
+      const k = v.s / layer.s;
+      ctx.setTransform(1, 0, 0, 1, 0, 0);
+      ctx.drawImage(layer.canvas, (v.ox - k * (layer.ox + layer.mx)) * dpr, (v.oy - k * (layer.oy + layer.my)) * dpr,
+                    layer.canvas.width * k, layer.canvas.height * k);
+      ctx.setTransform(dpr * v.s, 0, 0, -dpr * v.s, dpr * v.ox, dpr * v.oy);
+    } else S.drawn.cells = drawNetwork(ctx, v, w, h, dpr);
+    clearTimeout(layerTimer);
+    layerTimer = setTimeout(() => { buildLayer(w, h, dpr); redraw(); }, LAYER_DELAY_MS);
+    return;
+  }
+  ctx.setTransform(1, 0, 0, 1, 0, 0);
+  ctx.drawImage(layer.canvas, Math.round((v.ox - layer.ox - layer.mx) * dpr), Math.round((v.oy - layer.oy - layer.my) * dpr));
+  S.drawn.cells = layer.cells;
+  ctx.setTransform(dpr * v.s, 0, 0, -dpr * v.s, dpr * v.ox, dpr * v.oy);
+}
+function dropLayer() { if (layer) layer.valid = false; }
 
 let pending = false;
 function redraw() { if (!pending) { pending = true; requestAnimationFrame(() => { pending = false; draw(); }); } }
@@ -426,7 +468,7 @@ async function keep() {
 async function loadFill(body) {
   try {
     S.fill = await api("/api/fill", body);
-    buildCells();
+    buildCells(); dropLayer();
     $("fill-info").textContent = `${S.fill.vehicles} vehicles; lanes coloured by veh/km of their edge, 0 (blue) … ${S.fill.max} (red)`;
     redraw();
   } catch (e) { $("fill-info").textContent = e.message; }
