@@ -74,6 +74,9 @@ def get_options(args=None):
     from .sim.sumo import add_arguments, settings_problem
     add_arguments(p)       # --step-length, --lateral-resolution, --no-seeding-options
     p.add_argument("--gui", action="store_true", help="watch in sumo-gui (traci)")
+    p.add_argument("--traci", action="store_true",
+                   help="SUMO as a process of its own through traci, not libsumo in this one (slower): a SUMO "
+                        "that crashes or is killed ends the run in one line with its last words")
     p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
     p.add_argument("-o", "--output-dir", dest="out", default="scendiff-out")
     again = p.add_mutually_exclusive_group()
@@ -275,7 +278,7 @@ def run(o) -> dict:
     # it the network is empty), and runs up to the seeding time; without, it starts at --begin
     start = (scen.begin if scen.begin is not None else first) if routes else \
         (o.begin if o.begin is not None else scen.begin)
-    cfg = SimConfig(net=scen.net, routes=routes, additional=scen.additional, gui=o.gui, seed=o.seed, begin=start,
+    cfg = SimConfig(net=scen.net, routes=routes, additional=scen.additional, gui=o.gui, traci=o.traci, seed=o.seed, begin=start,
                     **sumo_settings)
     session = Session(cfg, net, gen, quiet=not o.verbose, model_fleet=o.model_fleet)
     try:
@@ -382,8 +385,11 @@ def print_summary(summary: dict) -> None:
               f"{r['collisions']:10d} {r['teleports']:9d} {r['emergency_brakes']:8d} {speed}")
     gen = sum(r["generated"] for r in rows)
     n = {s: sum(r.get(s, 0) for r in rows) for s in STATUSES}
-    print(f"of {gen} generated agents: placed {n['placed']} ({100.0 * n['placed'] / max(gen, 1):.1f} %) at their "
-          f"pose, misplaced {n['misplaced']}, refused by SUMO {n['refused']}, dropped {n['dropped']}; "
+    copies = sum(r.get("copies_of_existing", 0) for r in rows)
+    new = gen - copies          # the model's copies of the vehicles kept are theirs, not new traffic
+    print(f"of {gen} generated agents: placed {n['placed']} ({100.0 * n['placed'] / max(new, 1):.1f} % of the "
+          f"{new} new) at their pose, misplaced {n['misplaced']}, refused by SUMO {n['refused']}, dropped "
+          f"{n['dropped']}" + (f" ({copies} the model's copies of vehicles already there)" if copies else "") + "; "
           f"beside {sum(r['existing_vehicles'] for r in rows)} vehicles kept from the simulation; "
           f"timing (s): " + ", ".join(f"{k} {v:.2f}" for k, v in summary["timing_s"].items()))
     print(f"wrote {len(rows)} scenario folders and run.json to {summary['output_dir']} "

@@ -22,6 +22,7 @@ simulation is never stopped by a refused vehicle: it is reported in ``seeding.re
 """
 from __future__ import annotations
 
+import functools
 import warnings
 from dataclasses import dataclass, field
 
@@ -44,6 +45,7 @@ from ..map.network import Network
 from .density import default_density, host_has_traffic, window_target
 from .lights import light_states
 from .seeding import Seeder, SeedReport
+from .sumo import died
 
 EXISTING_MARGIN = 10.0   # m beyond the window where existing vehicles still block generated ones
 OVERLAP_BUFFER = 0.3     # m of clearance kept around existing vehicles
@@ -75,6 +77,7 @@ class Seeding:
     token_source: list[str]               # "user" or the existing vehicle's id, per token
     token_of: list[int | None]            # per seeded agent: index into tokens, or None
     dropped: int = 0                      # generated agents not seeded: on top of existing vehicles
+    copies: int = 0                       # of those, the model's copies of a vehicle already there
     seed: int = 0
     p_mask: float = 1.0
     meta: dict = field(default_factory=dict)
@@ -93,6 +96,7 @@ class Seeding:
         out = self.report.counts(len(self.scene))
         out["generated"] += self.dropped
         out["dropped"] += self.dropped
+        out["copies_of_existing"] = self.copies   # among the dropped: the host's own vehicles redrawn
         return out
 
     def lost_tokens(self) -> dict[int, str]:
@@ -150,7 +154,25 @@ def on_existing(scene: Scene, token_of: list[int | None], token_source: list[str
     return why
 
 
+def _sumo_gone(method):
+    """The method, raising :class:`~sumo_scendiff.sim.sumo.SumoDied` (SUMO's last words, one line)
+    where the caller's traci SUMO ends in the middle of it, whatever traci call meets the end."""
+    @functools.wraps(method)
+    def guarded(self, *args, **kwargs):
+        try:
+            return method(self, *args, **kwargs)
+        except Exception as e:
+            gone = died(e, self.sim)
+            if gone is None:
+                raise
+            raise gone from None
+    return guarded
+
+
 class CoSimulation:
+    """Seeds generated traffic into the caller's simulation. Every method raises
+    :class:`~sumo_scendiff.sim.sumo.SumoDied` if the caller's SUMO (traci) ends in the middle."""
+
     def __init__(self, sim, net: Network, generator, seed: int = 0, prefix: str = "sd"):
         self.sim, self.net, self.generator = sim, net, generator
         self.seeder = Seeder(sim, net, prefix=prefix, seed=seed)
@@ -159,6 +181,7 @@ class CoSimulation:
         self._last_seed_xy: dict[str, np.ndarray] = {}
 
     # ---- the host's vehicles ------------------------------------------------------------------
+    @_sumo_gone
     def existing(self, window: Window) -> Existing:
         sim, ids, boxes, speed = self.sim, [], [], []
         reach = window.size * np.sqrt(0.5) + EXISTING_MARGIN
@@ -182,6 +205,7 @@ class CoSimulation:
                         np.asarray(speed, np.float64).reshape(-1)[keep], inside[keep])
 
     # ---- seeding ------------------------------------------------------------------------------
+    @_sumo_gone
     def place(self, scene: Scene, tokens: list[dict], token_source: list[str], existing: Existing,
               seed: int = 0, p_mask: float = 1.0) -> Seeding:
         """Seed a generated ``scene`` whose tokens were ``tokens`` (user's, then existing vehicles')."""
@@ -195,11 +219,13 @@ class CoSimulation:
         self.count += 1
         named = [None if token_of[i] is None else tokens[token_of[i]].get("vtype") for i in idx]   # sim/fleet.py
         report = self.seeder.seed(sub, others=(existing.boxes, existing.speed), types=named)
+        copies = sum(token_of[i] is not None and token_source[token_of[i]] != "user" for i in gone.tolist())
         return Seeding(sub, report, tokens, token_source, [token_of[i] for i in idx],
-                       dropped=len(gone), seed=seed, p_mask=p_mask, before=scene.select(gone),
+                       dropped=len(gone), copies=copies, seed=seed, p_mask=p_mask, before=scene.select(gone),
                        before_reason=[why[i] for i in gone.tolist()],
                        before_token=[token_of[i] for i in gone.tolist()])
 
+    @_sumo_gone
     def seed_window(self, window: Window, tokens: list[dict] = (), p_mask: float | None = None,
                     seed: int | None = None, density: float | str | None = None,
                     vehicles: int | None = None) -> Seeding:
@@ -228,18 +254,21 @@ class CoSimulation:
                                         if self.generator.config.signals else None)[0]
         return self.place(scene, all_tokens, source, ex, seed=s, p_mask=p)
 
+    @_sumo_gone
     def ego_window(self, ego: str, ahead_m: float = 0.0, size: float = 100.0) -> Window:
         """The window centred ``ahead_m`` metres in front of vehicle ``ego``, turned with it."""
         x, y = self.sim.vehicle.getPosition(ego)
         cx, cy, yaw = sumo_to_pose(x, y, self.sim.vehicle.getAngle(ego), self.sim.vehicle.getLength(ego))
         return Window(cx + ahead_m * np.cos(yaw), cy + ahead_m * np.sin(yaw), float(yaw), size)
 
+    @_sumo_gone
     def seed_around(self, ego: str, tokens: list[dict] = (), ahead_m: float = 0.0, **kw) -> Seeding:
         """Seed the window ``ahead_m`` metres in front of vehicle ``ego`` (turned with it)."""
         seeding = self.seed_window(self.ego_window(ego, ahead_m), tokens, **kw)
         self._last_seed_xy[ego] = np.asarray(self.sim.vehicle.getPosition(ego))
         return seeding
 
+    @_sumo_gone
     def reseed_ahead(self, ego: str, every_m: float = 60.0, ahead_m: float = 60.0, **kw) -> Seeding | None:
         """Once the ego has driven ``every_m`` metres since its last seeding, seed the window
         ``ahead_m`` metres in front of it; otherwise None. Call it each step."""
@@ -249,6 +278,7 @@ class CoSimulation:
             return None
         return self.seed_around(ego, ahead_m=ahead_m, **kw)
 
+    @_sumo_gone
     def follow(self, seeding: Seeding, tau: float) -> int:
         """Hold every seeded agent on its generated future: place it at its interpolated pose and
         speed for ``tau`` seconds after seeding (0 < tau <= 2); the caller then steps. Returns how
@@ -271,10 +301,13 @@ class CoSimulation:
                                      keepRoute=self.seeder.keep_route)
                 sim.vehicle.setPreviousSpeed(vid, float(speed))
                 moved += 1
-            except Exception:  # a vehicle SUMO removed meanwhile: leave it
+            except Exception as e:  # a vehicle SUMO removed meanwhile: leave it (not SUMO itself gone)
+                if type(e).__name__ == "FatalTraCIError":
+                    raise
                 continue
         return moved
 
+    @_sumo_gone
     def replay_future(self, seeding: Seeding, seconds: float = 2.0) -> None:
         """Step the simulation for ``seconds`` (<= 2) with every agent on its generated future,
         then hand it to SUMO (for hosts that let the co-simulation step)."""
@@ -283,6 +316,7 @@ class CoSimulation:
             self.follow(seeding, k * dt)
             self.sim.simulationStep()
 
+    @_sumo_gone
     def verify(self, seeding: Seeding, warn: bool = True) -> Seeding:
         """After the host's next step: agents not within 0.5 m / 0.1 rad of their generated pose, or
         not in SUMO at all (refused); then none faster than it can stop behind its leader
