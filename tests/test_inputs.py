@@ -270,3 +270,40 @@ def test_a_scenario_without_a_car_lane_ends_with_nothing_generated(tmp_path):
                         os.path.join(os.path.dirname(cfg), "rail", "net.net.xml"), "-o", str(tmp_path / "n")],
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 2 and p.stderr.count("\n") == 1 and "no lane a passenger car may use" in p.stderr
+
+
+def test_the_fleet_stops_and_programs_are_read_through_includes_and_gzip(tmp_path, grid):
+    """The readers of vTypes and their distributions (sim/fleet.py, fill/vtypes.py,
+    fill/en_route.py), of stopping places (sim/stops.py), of signal programs (fill/programs.py) and
+    of the network's head (map/network.py) read through <include> and a gzipped file without .gz in
+    its name, as SUMO does."""
+    import shutil
+
+    from sumo_scendiff.fill.en_route import write_vtypes
+    from sumo_scendiff.fill.programs import signal_programs
+    from sumo_scendiff.fill.vtypes import vtype_table
+    from sumo_scendiff.map.network import Network
+    from sumo_scendiff.sim.fleet import file_mix, vtype_distributions
+    from sumo_scendiff.sim.stops import place_ends, stopping_places
+    _write(tmp_path / "parts" / "inner.xml", ADD.replace("<add>", "<additional>").replace("</add>", "</additional>")
+           + "", gz=True)
+    add = _write(tmp_path / "main.add.xml", '<add><include href="parts/inner.xml"/>'
+                 '<tlLogic id="B1" type="static" programID="x" offset="0:00:10"><phase duration="0:00:30" state="G"/>'
+                 '<phase duration="5" state="y"/></tlLogic></add>')
+    _write(tmp_path / "parts" / "r.xml", ROUTES, gz=True)
+    routes = _write(tmp_path / "d.rou.xml", '<routes><include href="parts/r.xml"/></routes>')
+    dists = vtype_distributions([add])
+    assert dists == {"mix": pytest.approx({"small": 0.7, "van": 0.3})}
+    mix = file_mix([routes], dists)
+    assert mix["small"] > 0 and mix["van"] > 0 and mix["bus"] > 0
+    assert vtype_table([add], lambda el: el.get("vClass") or "passenger") == \
+        {"small": "passenger", "van": "delivery", "bus": "bus", "mix": "passenger"}
+    assert sorted(write_vtypes([add], str(tmp_path / "types.add.xml"))) == ["bus", "mix"]
+    assert stopping_places([add]) == {"bs1": "A0B0_0", "bs2": "B0C0_0"}
+    assert place_ends([add], grid) == {"bs1": ("A0B0", 45.0), "bs2": ("B0C0", 65.0)}
+    program = signal_programs([add])["B1"]
+    assert program.phases == ((30.0, "G"), (5.0, "y")) and program.offset == 10.0
+    hidden = tmp_path / "hidden.net.xml"          # gzipped, its name without .gz
+    with open(grid.path, "rb") as f, gzip.open(hidden, "wb") as g:
+        shutil.copyfileobj(f if not grid.path.endswith(".gz") else gzip.open(grid.path), g)
+    assert len(Network.load(str(hidden)).lanes) == len(grid.lanes)

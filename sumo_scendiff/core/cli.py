@@ -58,13 +58,12 @@ def joined(parser: argparse.ArgumentParser, args=None) -> list[str]:
 
 def sumo_time(value: str) -> float:
     """An argparse type: a time as SUMO reads one, seconds or clock time ``[[D:]H:]M:S``
-    (sumolib's ``parseTime``, as the route files' times are read), at or after 0."""
-    from sumolib.miscutils import parseTime
-    try:
-        t = float(parseTime(value))
-    except (ValueError, TypeError):
-        raise argparse.ArgumentTypeError(f"not a time in seconds or H:M:S: {value!r}") from None
-    if not 0 <= t < float("inf"):     # NaN too
+    (:func:`~sumo_scendiff.core.sumo_xml.seconds`, as the route files' times are read), at or after 0."""
+    from .sumo_xml import seconds
+    t = seconds(value)
+    if t is None:
+        raise argparse.ArgumentTypeError(f"not a time in seconds or H:M:S: {value!r}")
+    if not 0 <= t < float("inf"):
         raise argparse.ArgumentTypeError(f"a time must be >= 0 seconds, got {value!r}")
     return t
 

@@ -165,7 +165,7 @@ def _amount(o, net, gen, tiles, routes, begin, additional=(), options=()) -> tup
         if o.demand_level_only:
             return targets, gen.has_density, src, None
         files = [*routes, *additional]
-        classes = vtype_table(files, lambda el: getattr(el, "vClass", None) or "passenger")
+        classes = vtype_table(files, lambda el: el.get("vClass") or "passenger")
         placed, skipped = place_en_route(net, est, vtype_bodies(files), classes)
         # each core keeps the vehicles placed in it: an edge's queue stands in the core of its stop
         # line, not spread over the edge as the per-edge density has it

@@ -52,16 +52,16 @@ def write_vtypes(route_files, path: str) -> list[str]:
     """An additional file at ``path`` with the vType and vTypeDistribution definitions of
     ``route_files`` (top level; a distribution with the vTypes inside it), so that a SUMO started
     without the demand knows its types; returns their ids ([]: none, no file written)."""
-    import gzip
+    import copy
     import xml.etree.ElementTree as ET
+
+    from ..core.sumo_xml import elements
     found: list = []
-    for f in route_files:
-        for _, el in ET.iterparse(gzip.open(f) if f.endswith(".gz") else f, events=("end",)):
-            if el.tag in ("vType", "vTypeDistribution") and el.get("id") and \
-                    el.get("id") not in {e.get("id") for e in found}:
-                found.append(el)
-            elif el.tag in ("vehicle", "trip", "flow", "route", "person", "personFlow"):
-                el.clear()     # a large demand is read without holding it
+    # read as SUMO reads them (core.sumo_xml: includes, gzip, any root); the reader lets each
+    # element go once handed over, so the definitions kept are copies
+    for _, el in elements(route_files, ("vType", "vTypeDistribution")):
+        if el.get("id") and el.get("id") not in {e.get("id") for e in found}:
+            found.append(copy.deepcopy(el))
     # a vType inside a distribution is defined with it: not again on its own
     inner = {c.get("id") for e in found if e.tag == "vTypeDistribution" for c in e}
     found = [e for e in found if e.get("id") not in inner]

@@ -83,29 +83,30 @@ class Program:
 def signal_programs(paths) -> dict[str, Program]:
     """Per traffic light, its :class:`Program` in ``paths`` (the network, then additional files: a
     later file's program of a light replaces an earlier one, as SUMO loads them; of several
-    programs in one file, the first)."""
-    from sumolib.miscutils import parseTime     # SUMO's times: seconds or h:m:s
-    from sumolib.xml import parse
+    programs in one file, the first). The files are read as SUMO reads them (core.sumo_xml:
+    includes, gzip, any root); a time SUMO would not read leaves the light out (SUMO names it)."""
+    from ..core.sumo_xml import elements, seconds     # SUMO's times: seconds or h:m:s
     out: dict[str, Program] = {}
     for path in paths:
         seen: set[str] = set()
-        for tl in parse(path, "tlLogic"):
-            if tl.id in seen or not tl.hasChild("phase"):
+        for _, tl in elements([path], ("tlLogic",)):
+            phases = tl.findall("phase")
+            if tl.get("id") in seen or not phases:
                 continue
-            seen.add(tl.id)
-            phases = tuple((parseTime(ph.duration), ph.state) for ph in tl.getChild("phase"))
-            if sum(d for d, _ in phases) <= 0:
-                continue
-            kind = getattr(tl, "type", None) or "static"
+            seen.add(tl.get("id"))
+            durations = [seconds(ph.get("duration")) for ph in phases]
+            kind = tl.get("type") or "static"
             bounds: tuple = ()
-            max_gap = MAX_GAP
             if kind == "actuated":
-                bounds = tuple((parseTime(getattr(ph, "minDur", None) or ph.duration),
-                                parseTime(getattr(ph, "maxDur", None) or ph.duration)) for ph in tl.getChild("phase"))
-                params = {p.key: p.value for p in tl.getChild("param")} if tl.hasChild("param") else {}
-                max_gap = float(params.get("max-gap", MAX_GAP))
-            out[tl.id] = Program(phases, parseTime(getattr(tl, "offset", None) or "0"), kind == "static",
-                                 bounds, max_gap)
+                bounds = tuple((seconds(ph.get("minDur") or ph.get("duration")),
+                                seconds(ph.get("maxDur") or ph.get("duration"))) for ph in phases)
+            offset = seconds(tl.get("offset") or "0")
+            if None in durations or offset is None or any(None in b for b in bounds) or sum(durations) <= 0:
+                continue
+            params = {p.get("key"): p.get("value") for p in tl.findall("param")}
+            max_gap = float(params.get("max-gap", MAX_GAP)) if kind == "actuated" else MAX_GAP
+            out[tl.get("id")] = Program(tuple(zip(durations, (ph.get("state") for ph in phases))), offset,
+                                        kind == "static", bounds, max_gap)
     return out
 
 

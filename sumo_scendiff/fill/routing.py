@@ -21,9 +21,8 @@ import subprocess
 import tempfile
 from dataclasses import dataclass
 
-# a flow of random departures (duarouter hangs on one with --begin)
-_PROBABILITY_FLOW = re.compile(rb"<flow\b[^>]*\bprobability=")
-_FROM_JUNCTION = re.compile(rb"\b(?:fromJunction|toJunction|viaJunctions)=")
+# a trip's ends at junctions (SUMO and duarouter need junction-taz for them)
+_JUNCTION_ATTRS = ("fromJunction", "toJunction", "viaJunctions")
 # what SUMO refuses at loading and duarouter, told to ignore errors, only warns of
 _UNKNOWN = re.compile(r"The (vehicle type|route|route distribution) '[^']*' for .* is not known")
 # duarouter's random choices (probability flows, distributions) with SUMO's default seed: the draws
@@ -59,8 +58,9 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
     from ..core.tools import sumo_binary, sumo_defaults
     if depart_speed is None:
         depart_speed = sumo_defaults().get("default.departspeed", "0")
+    traits = _traits(route_files)
     if not junction_taz:
-        if any(_search(p, _FROM_JUNCTION) for p in route_files):
+        if traits.from_junction:
             raise RoutingError("trips from or to junctions (fromJunction/toJunction) need SUMO's junction-taz "
                                "option, which the scenario does not set (SUMO refuses them too)")
     with tempfile.TemporaryDirectory(prefix="scendiff-route-") as work:
@@ -76,7 +76,7 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
         # duarouter 1.28 never returns from a probability flow that began before its --begin: with
         # one, the departures before ``since`` are routed too and left out here
         # (and from a --begin before 0 warns that there is no route input, routing them all the same)
-        if since > 0 and not any(_has_probability_flow(p) for p in route_files):
+        if since > 0 and not traits.probability_flow:
             args += ["--begin", f"{since:.3f}"]
         if additional:
             args += ["-a", ",".join(os.path.abspath(p) for p in additional)]
@@ -94,50 +94,52 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
         # what it could not route, and why, each kind of warning once (a flaw repeated over a demand
         # would otherwise be thousands of lines)
         echo(done.stderr, prefix="duarouter: ", warnings_only=True)
-        departures, triggered = _read(out, since, until, depart_speed, _repeats(route_files))
+        departures, triggered = _read(out, since, until, depart_speed, traits.repeats)
         return departures, triggered + sum("has no valid route" in line for line in done.stderr.splitlines())
 
 
-def _repeats(route_files) -> dict[tuple[str, ...], int]:
-    """Routes driven more than once (``repeat``: a bus loop), edges -> repetitions; duarouter's
-    output writes such a route once, without the attribute."""
-    from sumolib.xml import parse
-    out = {}
-    for path in route_files:
-        if not _search(path, re.compile(rb"\brepeat=")):
-            continue
-        for el in parse(path, "route"):
-            if getattr(el, "repeat", None) and getattr(el, "edges", None):
-                try:
-                    out[tuple(el.edges.split())] = int(el.repeat)
-                except ValueError:
-                    continue      # SUMO names the bad value when it loads the file
-    return out
+@dataclass(frozen=True)
+class _Traits:
+    from_junction: bool      # a trip or flow between junctions (fromJunction, toJunction, viaJunctions)
+    probability_flow: bool   # a flow of random departures (duarouter hangs on one with --begin)
+    repeats: dict            # routes driven more than once (``repeat``: a bus loop), edges -> repetitions
 
 
-def _search(path: str, pattern: re.Pattern) -> bool:
-    import gzip
-    with (gzip.open if path.endswith(".gz") else open)(path, "rb") as f:
-        return pattern.search(f.read()) is not None
-
-
-def _has_probability_flow(path: str) -> bool:
-    return _search(path, _PROBABILITY_FLOW)
+def _traits(route_files) -> _Traits:
+    """What of the demand changes how duarouter is run and its output read, in one pass over the
+    files read as SUMO reads them (core.sumo_xml: includes, gzip, any root). duarouter's output
+    writes a repeated route once, without the attribute."""
+    from ..core.sumo_xml import XmlError, elements
+    junction = probability = False
+    repeats: dict[tuple[str, ...], int] = {}
+    try:
+        for _, el in elements(route_files, ("vehicle", "trip", "flow", "route")):
+            junction |= any(el.get(a) for a in _JUNCTION_ATTRS)
+            probability |= el.tag == "flow" and el.get("probability") is not None
+            for r in [el] if el.tag == "route" else el.findall("route"):
+                if r.get("repeat") and r.get("edges"):
+                    try:
+                        repeats[tuple(r.get("edges").split())] = int(r.get("repeat"))
+                    except ValueError:
+                        continue      # SUMO names the bad value when it loads the file
+    except XmlError:
+        pass                          # a broken file: duarouter names it in its own words
+    return _Traits(junction, probability, repeats)
 
 
 def _read(path: str, since: float, until: float, depart_speed: str = "0",
           repeats: dict[tuple[str, ...], int] | None = None) -> tuple[list[Departure], int]:
     """The departures of duarouter's output from ``since`` to ``until``, and how many depart on a
     trigger (no time); a route of ``repeats`` driven its times over."""
-    from sumolib.miscutils import parseTime
     from sumolib.xml import parse
+
+    from ..core.sumo_xml import seconds
     named = {el.id: tuple(el.edges.split()) for el in parse(path, "route")
              if getattr(el, "id", None) and getattr(el, "edges", None)}
     out, triggered = [], 0
     for el in parse(path, "vehicle"):
-        try:
-            depart = float(parseTime(el.depart))
-        except (TypeError, ValueError):     # "triggered", "containerTriggered", "split"
+        depart = seconds(el.depart)
+        if depart is None:                  # "triggered", "containerTriggered", "split"
             triggered += 1
             continue
         if not since <= depart <= until:

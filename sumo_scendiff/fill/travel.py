@@ -101,8 +101,8 @@ def vtype_drivers(paths) -> dict[str, Driver]:
     """The :class:`Driver` of every vType in ``paths`` (route and additional files) by id, and of
     every vTypeDistribution (its first member's)."""
     def driver(el) -> Driver:
-        cls = getattr(el, "vClass", None) or "passenger"
-        krauss = (getattr(el, "carFollowModel", None) or "Krauss").startswith("Krauss")
+        cls = el.get("vClass") or "passenger"
+        krauss = (el.get("carFollowModel") or "Krauss").startswith("Krauss")
         return Driver(number(el, "speedFactor", 1.0), number(el, "maxSpeed", CLASS_MAX_SPEED.get(cls, 55.56)),
                       number(el, "accel", CLASS_ACCEL.get(cls, 2.6)), number(el, "decel", CLASS_DECEL.get(cls, 4.5)),
                       number(el, "sigma", 0.5) if krauss else 0.0)

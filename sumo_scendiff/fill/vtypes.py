@@ -46,7 +46,7 @@ DEFAULT_BODY = Body(*CLASS_SIZE["passenger"])   # SUMO's DEFAULT_VEHTYPE
 def number(el, name: str, default: float) -> float:
     """``el``'s attribute ``name`` as a number (a distribution such as "normc(1,0.1,0.2,2)": its
     mean), else ``default``."""
-    v = getattr(el, name, None)
+    v = el.get(name)
     try:
         return float(v) if v is not None else default
     except ValueError:
@@ -61,7 +61,7 @@ def vtype_bodies(paths) -> dict[str, Body]:
     """The :class:`Body` of every vType in ``paths`` (route and additional files) by id, and of every
     vTypeDistribution (its first member's)."""
     def body(el) -> Body:
-        cls = getattr(el, "vClass", None) or "passenger"
+        cls = el.get("vClass") or "passenger"
         length, width = CLASS_SIZE.get(cls, CLASS_SIZE["passenger"])
         return Body(number(el, "length", length), number(el, "width", width),
                     number(el, "minGap", CLASS_MIN_GAP.get(cls, DEFAULT_MIN_GAP)))
@@ -69,15 +69,16 @@ def vtype_bodies(paths) -> dict[str, Body]:
 
 
 def vtype_table(paths, of) -> dict:
-    """``of(element)`` of every vType in ``paths`` (route and additional files) by id, and of every
-    vTypeDistribution (its first member's; a distribution lists members or holds vTypes)."""
-    from sumolib.xml import parse
-
+    """``of(element)`` (an ElementTree element) of every vType in ``paths`` (route and additional
+    files, read as SUMO reads them: core.sumo_xml) by id, and of every vTypeDistribution (its first
+    member's; a distribution lists members or holds vTypes)."""
+    from ..core.sumo_xml import elements
     from ..sim.fleet import vtype_distributions
     out: dict = {}
-    for path in paths:          # (one pass per kind: sumolib empties a child it also yields)
-        for el in parse(path, "vType"):
-            out[el.id] = of(el)
+    for _, el in elements(paths, ("vType", "vTypeDistribution")):
+        for vt in ([el] if el.tag == "vType" else el.findall("vType")):
+            if vt.get("id"):
+                out[vt.get("id")] = of(vt)
     for name, members in vtype_distributions(paths).items():
         first = next((m for m in members if m in out), None)
         if first is not None and name not in out:

@@ -13,7 +13,6 @@ window query depends on what lies in the window, not on the size of the network.
 from __future__ import annotations
 
 import gc
-import gzip
 import os
 from dataclasses import dataclass
 from functools import cached_property
@@ -95,9 +94,9 @@ def _check_file(path: str) -> None:
         raise NetworkError(f"{path}: is a directory, not a SUMO network file")
     if os.path.getsize(path) == 0:
         raise NetworkError(f"{path}: empty file")
-    opener = gzip.open if path.endswith(".gz") else open
+    from ..core.sumo_xml import open_xml     # gzipped or not by its bytes, as SUMO and readNet read it
     try:
-        with opener(path, "rb") as f:
+        with open_xml(path) as f:
             head = f.read(4096)
     except (OSError, EOFError) as e:
         raise NetworkError(f"{path}: cannot read ({e})") from None

@@ -74,55 +74,55 @@ def read_vtype(sim, tid: str) -> VType:
 
 def vtype_distributions(paths: Sequence[str]) -> dict[str, dict[str, float]]:
     """Every vTypeDistribution in ``paths``: id -> member vType id -> probability (SUMO's: a member's
-    own ``probability``, or the distribution's ``probabilities`` list, else 1; normalised)."""
-    from sumolib.xml import parse
+    own ``probability``, or the distribution's ``probabilities`` list, else 1; normalised). The
+    files are read as SUMO reads them (core.sumo_xml: includes, gzip, any root)."""
+    from ..core.sumo_xml import elements
     out: dict[str, dict[str, float]] = {}
-    for path in paths:
-        for el in parse(path, "vTypeDistribution"):
-            names = (getattr(el, "vTypes", None) or "").split()
-            probs = [float(p) for p in (getattr(el, "probabilities", None) or "").split()]
-            members = {n: probs[k] if k < len(probs) else 1.0 for k, n in enumerate(names)}
-            for c in el.getChild("vType") if el.hasChild("vType") else []:
-                members[c.id] = float(getattr(c, "probability", None) or 1.0)
-            total = sum(members.values())
-            if total > 0:
-                out[el.id] = {n: p / total for n, p in members.items()}
+    for _, el in elements(paths, ("vTypeDistribution",)):
+        names = (el.get("vTypes") or "").split()
+        probs = [float(p) for p in (el.get("probabilities") or "").split()]
+        members = {n: probs[k] if k < len(probs) else 1.0 for k, n in enumerate(names)}
+        for c in el.findall("vType"):
+            members[c.get("id")] = float(c.get("probability") or 1.0)
+        total = sum(members.values())
+        if total > 0:
+            out[el.get("id")] = {n: p / total for n, p in members.items()}
     return out
 
 
 def file_mix(paths: Sequence[str], dists: Mapping[str, Mapping[str, float]]) -> Counter:
     """The vehicles the route files ``paths`` depart, per vType (a flow's: :func:`flow_count`; a
     distribution's vehicles shared by its probabilities)."""
-    from sumolib.xml import parse
+    from ..core.sumo_xml import elements
     mix: Counter = Counter()
-    for path in paths:
-        for el in parse(path, ["vehicle", "trip", "flow"]):
-            n = flow_count(el) if el.name == "flow" else 1.0
-            tid = getattr(el, "type", None) or "DEFAULT_VEHTYPE"
-            for member, p in dists.get(tid, {tid: 1.0}).items():
-                mix[member] += n * p
+    for _, el in elements(paths, ("vehicle", "trip", "flow")):
+        n = flow_count(el) if el.tag == "flow" else 1.0
+        tid = el.get("type") or "DEFAULT_VEHTYPE"
+        for member, p in dists.get(tid, {tid: 1.0}).items():
+            mix[member] += n * p
     return mix
 
 
 def flow_count(el) -> float:
     """About how many vehicles a ``<flow>`` departs: its ``number``, else its span over its
-    ``period`` or at its ``vehsPerHour`` or ``probability`` per second; one where it gives no span."""
-    from sumolib.miscutils import parseTime
-    if getattr(el, "number", None):
-        return float(el.number)
-    try:
-        span = parseTime(el.end) - parseTime(getattr(el, "begin", None) or "0")
-    except (AttributeError, TypeError, ValueError):   # no end (or one SUMO reads otherwise)
+    ``period`` or at its ``vehsPerHour`` or ``probability`` per second; one where it gives no span.
+    ``el``: an ElementTree element (core.sumo_xml)."""
+    from ..core.sumo_xml import seconds
+    if el.get("number"):
+        return float(el.get("number"))
+    end, begin = seconds(el.get("end")), seconds(el.get("begin") or "0")
+    if end is None or begin is None:       # no end (or one SUMO reads otherwise)
         return 1.0
-    period = getattr(el, "period", None) or ""
+    span = end - begin
+    period = el.get("period") or ""
     if period.startswith("exp("):          # SUMO's random departures at this rate per second
         rate = float(period[4:].rstrip(")"))
     elif period:
-        rate = 1.0 / float(period)
-    elif getattr(el, "vehsPerHour", None):
-        rate = float(el.vehsPerHour) / 3600.0
+        rate = 1.0 / (seconds(period) or float("inf"))
+    elif el.get("vehsPerHour"):
+        rate = float(el.get("vehsPerHour")) / 3600.0
     else:
-        rate = float(getattr(el, "probability", None) or 0.0)
+        rate = float(el.get("probability") or 0.0)
     return max(span * rate, 1.0)
 
 

@@ -31,29 +31,25 @@ NUDGE_M = 1.0
 
 
 def _time(value: str | None) -> float:
-    from sumolib.miscutils import parseTime
-    if value in (None, ""):
-        return INVALID
-    try:
-        return float(parseTime(value))
-    except ValueError:
-        return INVALID
+    """A SUMO time (core.sumo_xml.seconds), "not given" or unreadable as :data:`INVALID`."""
+    from ..core.sumo_xml import seconds
+    t = seconds(value) if value else None
+    return INVALID if t is None else t
 
 
 def _places(additional):
-    """Every stopping place element of the additional files (any tag of :data:`PLACES` with a lane)."""
-    from sumolib.xml import parse
-    for path in additional:
-        for tag in PLACES:
-            for el in parse(path, tag):
-                if getattr(el, "lane", None):
-                    yield el
+    """Every stopping place element of the additional files (any tag of :data:`PLACES` with a lane),
+    read as SUMO reads them (core.sumo_xml: includes, gzip, any root), as (id, lane, endPos)."""
+    from ..core.sumo_xml import elements
+    for _, el in elements(additional, PLACES):
+        if el.get("lane"):
+            yield el.get("id"), el.get("lane"), el.get("endPos")
 
 
 def stopping_places(additional) -> dict[str, str]:
     """Every stopping place (bus and train stops, container stops, charging stations, parking
     areas) of the additional files: id -> its lane."""
-    return {el.id: el.lane for el in _places(additional)}
+    return {pid: lane for pid, lane, _ in _places(additional)}
 
 
 def place_ends(additional, net) -> dict[str, tuple[str, float]]:
@@ -61,13 +57,13 @@ def place_ends(additional, net) -> dict[str, tuple[str, float]]:
     lane), as SUMO reads ``endPos`` (default the lane's end, a negative one from the lane's end)."""
     snet = net.sumo_net
     out = {}
-    for el in _places(additional):
-        edge = el.lane.rpartition("_")[0]
+    for pid, lane, end_pos in _places(additional):
+        edge = lane.rpartition("_")[0]
         if not snet.hasEdge(edge):
             continue                     # SUMO names the stray lane when it loads the file
-        length = snet.getLane(el.lane).getLength()
-        end = _time(getattr(el, "endPos", None))     # a plain number; "not given" as INVALID
-        out[el.id] = (edge, length if end == INVALID else end + length if end < 0 else end)
+        length = snet.getLane(lane).getLength()
+        end = _time(end_pos)             # a plain number; "not given" as INVALID
+        out[pid] = (edge, length if end == INVALID else end + length if end < 0 else end)
     return out
 
 
