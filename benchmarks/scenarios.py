@@ -33,7 +33,8 @@ For each scenario ``run`` does, every step a subprocess with its own time limit:
 
 T is the scenario's begin (its configuration's, unless the registry names one) plus ``offset``; the
 area is the registry's, else a square of ``AREA_SIDE`` m about the median of the car edges' junctions.
-Placement is the share of scene.json / fill.json agents whose status is ``placed``.
+Placement is the share of scene.json / fill.json agents whose status is ``placed`` among those the product
+tried to seed (placed, misplaced, refused); dropped and conflicting ones are counted beside it.
 A step after a failed one that it needs is ``skip``. One table: markdown (``--markdown``) and JSON
 (``--results``), with the first failing step's one line and its command.
 """
@@ -433,9 +434,17 @@ def placement(doc_path: Path) -> dict | None:
             for v in node:
                 walk(v)
     walk(json.loads(doc_path.read_text()))
-    total = sum(counts.values())
-    return {"agents": total, **counts,
-            "placed_share": round(counts.get("placed", 0) / total, 4) if total else None}
+    return {"agents": sum(counts.values()), **counts, "placed_share": placed_share(counts)}
+
+
+SEEDED = ("placed", "misplaced", "refused")   # the agents the product tried to put into SUMO
+
+
+def placed_share(counts: dict) -> float | None:
+    """Placed among the agents it tried to seed: a ``dropped`` agent is the model's copy of a vehicle
+    already there, a ``conflict`` one overlapped a vehicle seeded before (each with its reason)."""
+    tried = sum(counts.get(k, 0) for k in SEEDED)
+    return round(counts.get("placed", 0) / tried, 4) if tried else None
 
 
 def commands(cfg: Path, t: float, area: tuple, out: Path, scenes: int = 2, rollout: float = ROLL) -> dict:
@@ -490,6 +499,10 @@ def run_scenario(sc: Scenario, cache: Path, mirror: Path | None = None) -> dict:
         if name in NEEDS and not row["steps"][NEEDS[name]]["ok"]:
             row["steps"][name] = {"ok": None, "error": f"skip: {NEEDS[name]} failed"}
             continue
+        if name in NEEDS and not Path(cmd[2]).is_file():
+            # the product finished and said why it exported nothing (a network without car lanes)
+            row["steps"][name] = {"ok": None, "error": f"skip: {NEEDS[name]} wrote no {Path(cmd[2]).name}"}
+            continue
         limit = sc.timeout.get(name, TIMEOUT[name])
         row["steps"][name] = step(cmd, limit, out / "logs" / f"{name}.log", out)
     row["sumo_running_at_T"] = running_at(out / "sumo_summary.xml", t)
@@ -514,8 +527,11 @@ def first_failure(row: dict) -> tuple:
 
 def _share(p: dict | None) -> str:
     if not p or not p.get("agents"):
-        return "–"
-    return f"{100 * p['placed_share']:.1f} % of {p['agents']}"
+        return "–" if p is None else "0 agents"
+    share, tried = placed_share(p), sum(p.get(k, 0) for k in SEEDED)
+    text = f"{100 * share:.1f} % of {tried}" if share is not None else "none seeded"
+    others = [f"{p[k]} {k}" for k in sorted(p) if k not in SEEDED + ("agents", "placed_share") and p[k]]
+    return text + (f" ({', '.join(others)})" if others else "")
 
 
 def _or_dash(v) -> str:
