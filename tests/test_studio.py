@@ -95,6 +95,7 @@ def test_snap_finds_the_car_lane_not_the_sidewalk(studio):
     ("/api/generate", {"tokens": {}}, None, 400, "center: expected [x, y]"),
     ("/api/generate", {"center": CENTER, "density": -4}, None, 400, "density: expected a number"),
     ("/api/generate", {"center": [9000.0, 9000.0]}, None, 400, "off the network"),
+    ("/api/generate", {"center": CENTER, "yaw": "north"}, None, 400, "yaw: expected a number"),
     ("/api/generate", {"center": CENTER, "tokens": {"agents": [{"edge": "nope", "pos": 3.0}]}}, None, 400,
      "no edge 'nope'"),
     ("/api/keep", {"draft": "../..", "scene": "scene_000", "name": "x"}, None, 400, "keep: expected"),
@@ -142,7 +143,8 @@ def test_generate_keep_replay_and_run_gives_the_same_scene(studio, tmp_path):
     assert status == 200, doc
     scene = doc["scenes"][0]
     assert scene["window"] == {"cx": CENTER[0], "cy": CENTER[1], "yaw": 0.0, "size": 100.0}
-    assert sum(scene["counts"].values()) - scene["counts"]["generated"] == scene["counts"]["generated"]
+    n = scene["counts"]   # records add up: each generated agent has one status
+    assert n["placed"] + n["misplaced"] + n["refused"] + n["dropped"] == n["generated"] == len(scene["agents"])
     bus = [a for a in scene["agents"] if a["source"] == "user" and a["token"] == 0]
     assert len(bus) == 1 and bus[0]["vclass"] == "bus" and len(bus[0]["path"]) == 5
     assert all(a["reason"] for a in scene["agents"] if a["status"] in ("refused", "dropped"))

@@ -49,9 +49,9 @@ def flags(body: dict, tokens_path: str, out: str) -> list[str]:
             raise StudioError(f"center: expected [x, y] in network metres, got {c!r}")
         x, y = (_num({"center": v}, "center", -1e9, 1e9) for v in c)
         args += ["--center", f"{float(x)!r},{float(y)!r}"]
-        if _num(body, "yaw", -10.0, 10.0, 0.0):
-            raise StudioError("yaw: run places a --center window facing east (yaw 0); a turned window "
-                              "needs run's --yaw, which this version has not")
+        yaw = _num(body, "yaw", -10.0, 10.0, 0.0)
+        if yaw:   # a turned window: run's --yaw where run has it (run_flags names it where not)
+            args += ["--yaw", repr(float(yaw))]
     density = body.get("density")
     if isinstance(density, str) and density in ("auto", "model"):
         args += ["--density", density]
@@ -83,7 +83,10 @@ def run_flags(studio, args: list[str]) -> tuple[dict, list[str]]:
             with claim(o.out):
                 summary = run.run(o)
         except SystemExit:   # argparse: usage + one line
-            raise StudioError(err.getvalue().strip().splitlines()[-1]) from None
+            line = err.getvalue().strip().splitlines()[-1]
+            if "unrecognized arguments: --yaw" in line:
+                line = "yaw: run places a --center window facing east (yaw 0); this run has no --yaw to turn it"
+            raise StudioError(line) from None
         except (run.RunError, NetworkError, CheckpointError, SimError, TokenFileError, LocationError,
                 FileExistsError, OutputError) as e:
             raise StudioError(str(e)) from None

@@ -326,7 +326,7 @@ function editToken(ev) {
 
 // ---- window ---------------------------------------------------------------------------------------
 function placeWindow(x, y) {
-  S.win = { cx: x, cy: y, yaw: S.win ? S.win.yaw : 0 };
+  S.win = { cx: x, cy: y, yaw: S.win && !S.win.ego ? S.win.yaw : 0 };   // an ego window's yaw is run's, not the user's
   showWindow(); redraw();
 }
 
@@ -406,7 +406,7 @@ async function generate() {
     S.result = await api("/api/generate", body);
     S.scene = 0;
     const w = S.result.scenes[0].window;
-    if (ego) S.win = { cx: w.cx, cy: w.cy, yaw: w.yaw };
+    if (ego) { S.win = { cx: w.cx, cy: w.cy, yaw: w.yaw, ego: true }; showWindow(); }
     $("gen-status").textContent = `${S.result.scenes.length} scene(s) in ${((performance.now() - t0) / 1000).toFixed(1)} s. ` +
       `The same with the CLI: ${S.result.command}` + (S.result.warnings.length ? "\n" + S.result.warnings.join("\n") : "");
     $("keep-box").hidden = false;
