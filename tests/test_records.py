@@ -29,7 +29,7 @@ def _check_counts(doc: dict, roll: dict) -> None:
             assert a["reason"], a
         if a["token"] is not None and a["token_source"] != "user":   # the model's copy of a kept vehicle
             assert a["status"] == "dropped" and "already there" in a["reason"]
-    assert doc["counts"] == {"generated": len(doc["agents"]), **counts}
+    assert {k: doc["counts"][k] for k in ("generated", *STATUSES)} == {"generated": len(doc["agents"]), **counts}
     assert {k: roll[k] for k in doc["counts"]} == doc["counts"]
 
 
@@ -102,7 +102,8 @@ def test_a_cosimulation_records_agents_dropped_beside_the_hosts_vehicles(cross_n
     assert seeding.before_reason == ["the model's copy of vehicle 'host0', already there",
                                      "its box overlaps vehicle 'host1', already there"]
     assert seeding.lost_tokens() == {0: "its vehicle was dropped: its box overlaps vehicle 'host1', already there"}
-    assert seeding.counts() == {"generated": 5, "placed": 2, "misplaced": 0, "refused": 1, "dropped": 2}
+    assert seeding.counts() == {"generated": 5, "placed": 2, "misplaced": 0, "refused": 1, "dropped": 2,
+                                "copies_of_existing": 1}
 
 
 TOKENS = {"frame": "world", "agents": [

@@ -49,6 +49,7 @@ from .sumo import died
 
 EXISTING_MARGIN = 10.0   # m beyond the window where existing vehicles still block generated ones
 OVERLAP_BUFFER = 0.3     # m of clearance kept around existing vehicles
+LOOSE_HEADING = 0.5      # rad: a token's own vehicle may turn this far from its heading (Seeding.lost_tokens)
 
 
 @dataclass
@@ -108,12 +109,12 @@ class Seeding:
             k = line.split(" ", 2)[1] if line.startswith("token ") else ""
             if k.isdigit():
                 said.setdefault(int(k), line)
-        agent = {t: i for i, t in enumerate(self.token_of) if t is not None}
+        user = [k for k, (t, src) in enumerate(zip(self.tokens, self.token_source))
+                if src == "user" and t.get("x") is not None]
+        agent = self._stands_for(user)
         early = {t: why for t, why in zip(self.before_token, self.before_reason) if t is not None}
         out = {}
-        for k, (t, src) in enumerate(zip(self.tokens, self.token_source)):
-            if src != "user" or t.get("x") is None:
-                continue
+        for k in user:
             if k in agent:
                 status, why = self.report.status(agent[k])
                 if status in ("refused", "dropped"):
@@ -123,6 +124,21 @@ class Seeding:
             else:
                 out[k] = said.get(k, "the model drew no vehicle there")
         return out
+
+    def _stands_for(self, user: list[int]) -> dict[int, int]:
+        """Token index -> the seeded agent standing for it: the one matched to it (``token_of``), else
+        among the agents matched to none the one within the matching distance and LOOSE_HEADING of it
+        (a vehicle snapped onto a curved lane turns further from a token's heading than the paper's
+        matching allows, but it is that token's vehicle)."""
+        agent = {t: i for i, t in enumerate(self.token_of) if t is not None}
+        left = [k for k in user if k not in agent]
+        free = [i for i, t in enumerate(self.token_of) if t is None]
+        if left and free:
+            tb = np.array([[self.tokens[k]["x"], self.tokens[k]["y"], np.nan if self.tokens[k].get("heading") is None
+                            else self.tokens[k]["heading"]] for k in left], np.float64)
+            gi, ti = match_agents(self.scene.boxes[free, :3], tb, max_heading=LOOSE_HEADING)
+            agent.update({left[int(t)]: free[int(g)] for g, t in zip(gi, ti)})
+        return agent
 
 
 def token_assignment(scene: Scene, tokens: list[dict]) -> list[int | None]:
