@@ -26,6 +26,8 @@ import time
 
 LOCK = ".lock"
 RACE_TRIES = 100      # tries to create and lock a directory other processes create or remove meanwhile
+# a file system that takes no more: full, over quota, a file too large, mounted read-only
+_FULL = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS})
 _PARTIAL = re.compile(r"^(?P<final>.+)\.partial(?:-(?P<pid>\d+))?$")
 
 
@@ -93,18 +95,18 @@ def _lock(directory: str) -> Claim:
             # made by a process that got there first, or removed by an owner that just released it:
             # try again; a race ends within a few tries, a path that cannot hold a folder does not
             if os.path.exists(directory) and not os.path.isdir(directory):
-                raise OutputError(f"{directory}: exists and is not a directory") from None
+                raise OutputError(f"{final_name(directory)}: exists and is not a directory") from None
             if attempt >= RACE_TRIES:
-                raise OutputError(f"{directory}: cannot be created ({e.strerror or e})") from None
+                raise OutputError(f"{final_name(directory)}: cannot be created ({e.strerror or e})") from None
             continue
         except OSError as e:
-            raise OutputError(f"{directory}: not writable ({e.strerror or e})") from None
+            raise OutputError(f"{final_name(directory)}: not writable ({e.strerror or e})") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as e:
             os.close(fd)
             if e.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
-                raise OutputError(f"{directory}: cannot lock ({e.strerror or e})") from None
+                raise OutputError(f"{final_name(directory)}: cannot lock ({e.strerror or e})") from None
             raise OutputBusy(f"{directory}: in use by {_holder(path)}, which writes there now "
                              f"(wait for it to end or choose another output directory)") from None
         # An owner removes the lock file before unlocking it: the file this process locked may
@@ -129,8 +131,30 @@ def claim(directory: str):
     owner = _lock(directory)
     try:
         yield owner
+    except OSError as e:
+        refused = write_refused(e, owner.directory)
+        if refused is None:
+            raise
+        raise refused from None
     finally:
         owner.release()
+
+
+def write_refused(e: OSError, directory: str) -> OutputError | None:
+    """A write the file system refused inside ``directory`` (full, read-only, over quota, not
+    permitted) as the one-line :class:`OutputError` naming the directory (its final name, not the
+    ``.partial`` one); None for any other error (a bug, or an input that cannot be read)."""
+    inside = bool(e.filename) and os.path.abspath(str(e.filename)).startswith(os.path.abspath(directory) + os.sep)
+    if e.errno not in _FULL and not (e.errno in (errno.EACCES, errno.EPERM) and inside):
+        return None
+    where = directory if inside or not e.filename else os.path.dirname(os.path.abspath(str(e.filename)))
+    return OutputError(f"{final_name(where)}: cannot write there ({e.strerror or e})")
+
+
+def final_name(path: str) -> str:
+    """``path`` with each ``.partial`` folder named by its final name: what the user asked for."""
+    parts = path.split(os.sep)
+    return os.sep.join(m.group("final") if (m := _PARTIAL.match(p)) else p for p in parts)
 
 
 def partial_path(final: str) -> str:

@@ -301,7 +301,9 @@ def _random_trips(net_file: str, path: str, begin: float, period: float, seed: i
                               capture_output=True, text=True)
         if done.returncode != 0 or not os.path.exists(path):
             msg = (done.stderr or done.stdout).strip().splitlines()
-            raise InflowError(f"randomTrips.py failed: {msg[-1] if msg else done.returncode}")
+            from ..core.outputs import final_name
+            raise InflowError(f"randomTrips.py failed writing into {final_name(os.path.dirname(os.path.abspath(path)))}: "
+                              f"{msg[-1] if msg else done.returncode}")
         routes = os.path.join(work, "routes.rou.xml")
         if not os.path.exists(routes):
             return []

@@ -42,6 +42,7 @@ class EdgeData:
     def read(cls, path: str, net=None) -> "EdgeData":
         """Read ``path``; with ``net``, it must name at least one of the network's edges."""
         import xml.sax
+        from xml.etree.ElementTree import ParseError
 
         from sumolib.miscutils import parseTime    # seconds, or h:m:s (--human-readable-time)
         from sumolib.xml import parse
@@ -62,7 +63,7 @@ class EdgeData:
                     if d is not None:
                         dens[e.id] = d
                 intervals.append(Interval(begin, end, dens))
-        except (xml.sax.SAXException, AttributeError, ValueError, TypeError) as e:
+        except (xml.sax.SAXException, ParseError, AttributeError, ValueError, TypeError) as e:
             raise EdgeDataError(f"{path}: not a SUMO edgeData file ({str(e).splitlines()[0]})") from None
         if not intervals:
             raise EdgeDataError(f"{path}: not a SUMO edgeData file (no <interval> element)")

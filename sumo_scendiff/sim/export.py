@@ -17,10 +17,10 @@ import os
 import shutil
 from xml.sax.saxutils import quoteattr
 
-import cv2
 import numpy as np
 
 from ..core.geometry import sumo_to_pose, wrap_angle
+from ..core.files import write_png
 from ..core.outputs import partial_path, publish
 from ..map.picture import draw_scene
 from ..tokens.features import is_pinnable
@@ -265,7 +265,7 @@ def write_picture(path: str, seeding, net, ego=None) -> None:
              f"(placed {c['placed']}, misplaced {c['misplaced']}, refused {c['refused']}, dropped {c['dropped']})")
     img = draw_scene(net, scene, pixels=800, token_xy=np.array(xy).reshape(-1, 2), title=title,
                      kinds=kinds, kept=np.array(kept).reshape(-1, 5), ego=ego)
-    cv2.imwrite(path, img)
+    write_png(path, img)
 
 
 class ScenarioWriter:

@@ -102,6 +102,8 @@ def read_sumocfg(path: str, skip: frozenset[str] = frozenset()) -> dict:
                     raise ScenarioError(f"{path}: {opt.name}: {g}: no such file (give -n/-r/-a to use "
                                         "other files)")
             if opt.name in _FILES:
+                if not files:
+                    raise ScenarioError(f"{path}: {opt.name}: names no file")
                 out["net"] = files[0]
             else:
                 out[_LISTS[opt.name]] = tuple(files)

@@ -456,6 +456,8 @@ class Seeder(Settling, StopLines):
                 sim.vehicle.moveToXY(vid, "" if lane.internal else lane.edge, lane.index,
                                      float(fx), float(fy), float(angle), keepRoute=self.keep_route)
             except Exception as e:  # libsumo.TraCIException / traci.TraCIException
+                if type(e).__name__ == "FatalTraCIError":    # SUMO itself gone, not a refusal
+                    raise
                 report.refused[i] = str(e).splitlines()[0] if str(e) else type(e).__name__
                 self._withdraw(vid)
                 continue

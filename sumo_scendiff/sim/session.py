@@ -28,12 +28,15 @@ from .cosim import CoSimulation, Existing
 from .export import ScenarioWriter
 from .fleet import Fleet
 from .rollout import rollout
-from .sumo import SimConfig, SimError, close, start
+from .sumo import SimConfig, SimError, close, died, start
 
 
-def _stopped(e: BaseException) -> BaseException:
+def _stopped(e: BaseException, sim=None) -> BaseException:
     """SUMO stopping on the demand (an unknown vType, a route with no connection) as a SimError of one
-    line; any other exception as it is."""
+    line, SUMO's process ending meanwhile (traci ``sim``) as SumoDied; any other exception as it is."""
+    gone = died(e, sim) if sim is not None else None
+    if gone is not None:
+        return gone
     if type(e).__name__ not in ("TraCIException", "FatalTraCIError"):
         return e
     msg = str(e).strip().splitlines()
@@ -60,7 +63,7 @@ class Session:
                 with self._said():
                     warm_up(self.sim)
             except Exception as e:   # SUMO stopping on the demand (an unknown vType, a broken route)
-                raise _stopped(e) from None
+                raise _stopped(e, self.sim) from None
             fd, self.base = tempfile.mkstemp(suffix=".xml.gz", prefix="scendiff-base-")
             os.close(fd)
             self.sim.simulation.saveState(self.base)
@@ -157,4 +160,4 @@ class Session:
             return row
         except BaseException as e:
             writer.abandon()
-            raise _stopped(e) from None
+            raise _stopped(e, self.sim) from None

@@ -12,6 +12,7 @@ leaves them out) and quiets SUMO's console (:data:`QUIET_OPTIONS`); docs/sumo-op
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 from dataclasses import dataclass, field
@@ -21,6 +22,12 @@ from ..core.tools import sumo_binary
 
 class SimError(RuntimeError):
     """SUMO refused to start (bad route file, ...): the message is SUMO's first error line."""
+
+
+class SumoDied(SimError):
+    """The SUMO process of a traci simulation ended in the middle of it (killed, crashed, closed by
+    someone else); the one-line message holds its last words (:func:`last_words`). What the
+    co-simulation API raises for it; the commands end on it in one line, exit 2."""
 
 
 PRODUCT_STEP_LENGTH = 0.5   # s: a bare network's step, where no scenario gives one (docs/sumo-options.md)
@@ -162,16 +169,82 @@ def start(cfg: SimConfig, quiet: bool = True):
                        "and open the exported scenario.sumocfg where there is a screen")
     try:
         if cfg.gui or cfg.traci:
-            import traci
-            binary = sumo_binary("sumo-gui") if cfg.gui else sumo_binary("sumo")
-            traci.start([binary] + args + (["--start"] if cfg.gui else []))
-            return traci
+            return _start_traci([sumo_binary("sumo-gui") if cfg.gui else sumo_binary("sumo")] + args
+                                + (["--start"] if cfg.gui else []))
         return _start_libsumo(args)
     except SimError:
         raise
     except Exception as e:  # traci's FatalTraCIError: SUMO printed the cause
         msg = str(e).strip().splitlines()
         raise SimError(msg[-1] if msg else f"SUMO failed to start ({type(e).__name__})") from None
+
+
+def _start_traci(cmd: list[str]):
+    """``cmd`` as a process of its own driven through traci (as traci.start does), its console
+    output kept in a temporary file: its first error if it refuses to start, its last words if it
+    ends in the middle (:func:`last_words`)."""
+    import subprocess
+    import tempfile
+
+    import traci
+    from sumolib.miscutils import getFreeSocketPort
+
+    from ..core.sumo_log import first_error
+    log = tempfile.NamedTemporaryFile(prefix="scendiff-sumo-", suffix=".log", delete=False)
+    port = getFreeSocketPort()
+    proc = subprocess.Popen(cmd + ["--remote-port", str(port)], stdout=log, stderr=subprocess.STDOUT)
+    proc.console = log.name        # read by last_words, removed by close
+    try:
+        traci.init(port, proc=proc)
+    except Exception:              # traci's FatalTraCIError: SUMO stopped while loading
+        proc.wait()
+        with open(log.name, errors="replace") as f:
+            cause = first_error(f.read())
+        os.remove(log.name)
+        raise SimError(f"SUMO refused to start: {cause}" if cause else
+                       f"SUMO (process {proc.pid}) ended while loading: {_how(proc.returncode)}") from None
+    return traci
+
+
+def _how(code: int) -> str:
+    """How a process ended, from its exit code (a negative one: the signal that killed it)."""
+    import signal
+    if code < 0 and -code in signal.Signals._value2member_map_:
+        return f"killed by {signal.Signals(-code).name}"
+    return f"exit code {code}"
+
+
+def _process(sim):
+    """The SUMO process of a traci connection (None for libsumo, or a connection without one)."""
+    try:   # the traci module (its current connection, labelled or not) or a traci Connection
+        conn = sim.getConnection(sim.getLabel()) if hasattr(sim, "getLabel") else sim
+        return conn._process
+    except Exception:
+        return None
+
+
+def last_words(sim, wait_s: float = 2.0) -> str:
+    """How the SUMO of traci connection ``sim`` ended, in one line: the signal that killed it or its
+    exit code, and its last console line where the product started it (sim.sumo.start)."""
+    import subprocess
+    proc = _process(sim)
+    if proc is None:
+        return "its connection was closed"
+    try:
+        code = proc.wait(timeout=wait_s)
+    except subprocess.TimeoutExpired:
+        return f"process {proc.pid} closed the connection and still runs"
+    said = ""
+    if getattr(proc, "console", None) and os.path.exists(proc.console):
+        with open(proc.console, errors="replace") as f:
+            lines = [ln.strip() for ln in f.read().splitlines() if ln.strip()]
+        said = f"; its last words: {lines[-1]}" if lines else "; it said nothing"
+    return f"SUMO (process {proc.pid}) ended in the middle of the simulation: {_how(code)}{said}"
+
+
+def died(e: BaseException, sim) -> SumoDied | None:
+    """``e`` as :class:`SumoDied` where it is traci's word that SUMO is gone, else None."""
+    return SumoDied(last_words(sim)) if type(e).__name__ == "FatalTraCIError" else None
 
 
 def _start_libsumo(args: list[str]):
@@ -203,7 +276,11 @@ def start_config(path: str):
 
 
 def close(sim) -> None:
+    proc = _process(sim)
     try:
         sim.close()
     except Exception:  # already closed (sumo-gui window closed by the user)
         pass
+    if getattr(proc, "console", None):
+        with contextlib.suppress(OSError):
+            os.remove(proc.console)

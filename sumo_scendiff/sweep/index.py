@@ -75,6 +75,7 @@ def contact_sheet(out: str, rows: list[dict], tile: int = 480, per_page: int = 2
 
     import cv2
 
+    from ..core.files import write_png
     from ..map.picture import contact_sheets
     images, captions = [], []
     for r in [r for r in rows if r["status"] == "ok"]:
@@ -91,7 +92,7 @@ def contact_sheet(out: str, rows: list[dict], tile: int = 480, per_page: int = 2
     ncol = min(ncol, int(np.ceil(np.sqrt(min(len(images), per_page)))))
     for k, sheet in enumerate(contact_sheets(images, captions, tile=tile, ncol=ncol, per_page=per_page)):
         tmp = sheet_path(out, k)[:-4] + ".partial.png"
-        cv2.imwrite(tmp, sheet)
+        write_png(tmp, sheet)
         os.replace(tmp, sheet_path(out, k))
     return sheet_path(out, 0)
 

@@ -34,6 +34,11 @@ SCENARIO_KEYS = {"network": str, "location": str, "token_set": str, "p_mask": fl
                  "density": None, "vehicles": None}
 
 
+# a sweep's scenarios at most (docs/sweeps.md): a spec asking for more is a typo, not a plan,
+# and its cross product would never end being listed
+MAX_SCENARIOS = 100_000
+
+
 class SpecError(ValueError):
     """One line: the spec file, the key, the problem."""
 
@@ -104,6 +109,10 @@ class Spec:
             combos = [(e["network"], e["location"], e["token_set"], e.get("p_mask"),
                        (e.get("density"), e.get("vehicles")), e["seed"]) for e in self.explicit]
         else:   # without density/vehicles the level axis is one (None, None): today's plan and ids
+            axes = (self.networks, self.locations, self.token_sets, self.p_masks, self.levels, self.seeds)
+            if math.prod(map(len, axes)) > MAX_SCENARIOS:
+                raise SpecError(f"{self.source}: the cross product holds {math.prod(map(len, axes)):,} scenarios, "
+                                f"more than {MAX_SCENARIOS:,}")
             combos = list(itertools.product(self.networks, self.locations, self.token_sets,
                                             self.p_masks, self.levels, self.seeds))
         if not combos:
@@ -173,8 +182,8 @@ def _locations(source: str, raw: list) -> list[str]:
         if ("auto" in e) == ("center" in e):
             raise _err(source, f"locations[{i}]", "give either auto = N or center = [x, y]")
         if "auto" in e:
-            if e["auto"] < 1:
-                raise _err(source, f"locations[{i}].auto", "must be >= 1")
+            if not 1 <= e["auto"] <= MAX_SCENARIOS:
+                raise _err(source, f"locations[{i}].auto", f"must be in [1, {MAX_SCENARIOS}], got {e['auto']}")
             out += [f"auto:{k}" for k in range(e["auto"])]
         else:
             c = e["center"]
@@ -233,10 +242,15 @@ def _token_sets(source: str, raw: list) -> dict[str, Any]:
         if "vary" in e:  # {feature: [values]} for the first agent (the key vehicle)
             if not body.get("agents"):
                 raise _err(source, f"token_sets[{i}].vary", "needs at least one agent to vary")
+            for j, a in enumerate(body["agents"]):   # copied for each variant below
+                if not isinstance(a, dict):
+                    raise _err(source, f"token_sets[{i}].agents[{j}]", f"must be a table, got {a!r}")
             axes = list(e["vary"].items())
             for feat, values in axes:
                 if not isinstance(values, list) or not values:
                     raise _err(source, f"token_sets[{i}].vary.{feat}", "must be a non-empty list")
+            if math.prod(len(v) for _, v in axes) > MAX_SCENARIOS:
+                raise _err(source, f"token_sets[{i}].vary", f"more than {MAX_SCENARIOS} variants")
             variants = []
             for combo in itertools.product(*[v for _, v in axes]):
                 agents = [dict(a) for a in body["agents"]]
@@ -272,6 +286,8 @@ def parse_spec(data: dict, source: str, here: str = ".") -> Spec:
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 1):
             raise _err(source, "p_mask", f"values must be numbers in [0, 1], got {v!r}")
     seeds = data.get("seeds", [0])
+    if isinstance(seeds, int) and not isinstance(seeds, bool) and seeds > MAX_SCENARIOS:
+        raise _err(source, "seeds", f"a count must be <= {MAX_SCENARIOS}, got {seeds}")
     seeds = list(range(seeds)) if isinstance(seeds, int) else seeds
     if not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds):
         raise _err(source, "seeds", f"must be integers (or a count), got {seeds!r}")

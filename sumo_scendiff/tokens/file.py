@@ -284,4 +284,4 @@ def _references(user: dict, given: Mapping, source: str, where: str) -> dict:
 
 
 def _is_integer(v: Any) -> bool:
-    return _is_number(v) and float(v) == int(v)
+    return _is_number(v) and math.isfinite(v) and float(v) == int(v)
