@@ -26,7 +26,7 @@ _EXPORTS = {
     "ScenarioGenerator": "generation.generator", "GenerationConfig": "generation.config",
     "DEFAULT_CHECKPOINT": "generation.generator",
     # sim
-    "SimConfig": "sim.sumo", "SimError": "sim.sumo", "start": "sim.sumo", "Seeder": "sim.seeding",
+    "SimConfig": "sim.sumo", "SimError": "sim.sumo", "SumoDied": "sim.sumo", "start": "sim.sumo", "Seeder": "sim.seeding",
     "CoSimulation": "sim.cosim", "Session": "sim.session", "ScenarioWriter": "sim.export",
     "rollout": "sim.rollout",
     # applications
