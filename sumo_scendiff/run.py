@@ -230,6 +230,8 @@ def _windows(o, net, sim, cosim):
 
 
 def run(o) -> dict:
+    from dataclasses import replace
+
     from .sim.preflight import preflight
     from .sim.scenario import ScenarioError, scenario_from_files
     timing = {}
@@ -273,7 +275,10 @@ def run(o) -> dict:
     edge_data = _edge_data(o, net)
     spec = load_tokens(o.tokens, net=net) if o.tokens else None
     kept = _check_output(o)
-    gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig.from_options(o))
+    # a density in veh/km (asked, or the host's) is kept as SUMO's edgeData counts it; --vehicles N
+    # is N vehicles, one by one
+    gen = ScenarioGenerator.load(o.checkpoint, replace(GenerationConfig.from_options(o),
+                                                       count_on_edges=o.vehicles is None))
     # with demand SUMO starts at the configuration's begin, else the demand's first departure (before
     # it the network is empty), and runs up to the seeding time; without, it starts at --begin
     start = (scen.begin if scen.begin is not None else first) if routes else \
@@ -302,7 +307,7 @@ def run(o) -> dict:
         t = time.perf_counter()
         # road references (edge/lane/pos, ahead/lane_offset) resolved on the network once, here, so
         # the summary's token matching and the warnings see the tokens generation sees
-        user = [resolve_tokens(net, w, spec.for_window(w)) if spec else [] for w in windows]
+        user = [resolve_tokens(net, w, spec.for_window(w), spec.source) if spec else [] for w in windows]
         fleet = Fleet(session.sim, {})   # a token's vtype: one of the scenario's, its size
         user = [fleet.token_vtypes(u, o.tokens) for u in user]
         for k, (w, u) in enumerate(zip(windows, user)):

@@ -9,7 +9,7 @@ import pytest
 from sumo_scendiff.core.geometry import TIMES, Window
 from sumo_scendiff.core.scene import Scene
 from sumo_scendiff.generation.generator import trim_to_count
-from sumo_scendiff.generation.infill import add_new_agents, in_area, scene_tokens
+from sumo_scendiff.generation.infill import add_new_agents, scene_tokens
 
 
 def test_trim_keeps_the_tokens_then_the_most_probable():
@@ -58,13 +58,11 @@ def test_a_requested_density_is_the_windows_vehicle_count(city, gen):
             if city.car_lane_km(w) > 0.3][:3]
     want = [int(np.round(20.0 * city.car_lane_km(w))) for w in wins]
     scenes = gen.generate(city, wins, seed=0, density=20.0)
-    # the count is of the vehicles whose front is on a normal edge (what SUMO's edgeData counts);
-    # those whose front is inside a junction are kept beside it
-    got = [int(in_area(s, None, city).sum()) for s in scenes]
+    got = [len(s) for s in scenes]
     # the model alone, the density only a condition, draws its own count: above the request in
     # some windows, below in others
-    own = [int(in_area(s, None, city).sum()) for s in gen.generate(
-        city, wins, seed=0, density=20.0, config=replace(gen.config, match_density=False, infill_passes=0))]
+    own = [len(s) for s in gen.generate(city, wins, seed=0, density=20.0,
+                                        config=replace(gen.config, match_density=False, infill_passes=0))]
     assert own != want
     for o, g, w in zip(own, got, want):
         assert g == w if o >= w else o <= g <= w      # trimmed to the count, or filled towards it
@@ -94,3 +92,22 @@ def test_a_stochastic_sampler_draws_each_windows_noise_from_its_own_seed(gen, ci
     np.testing.assert_allclose(one[0].boxes, many[1].boxes, atol=1.5e-3)
     ode = gen.generate(city, wins, noise_seeds=[11, 12, 13], config=replace(cfg, sampler="dpmpp-2m"))
     assert any(len(a) != len(b) or not np.allclose(a.boxes, b.boxes) for a, b in zip(many, ode))
+
+
+def test_a_density_in_veh_per_km_counts_the_vehicles_on_edges_as_edgedata_does(city, gen):
+    """With count_on_edges (a density asked in veh/km), the count is of the vehicles whose front is
+    on a normal edge, as SUMO's edgeData density counts them; one nosing into a junction is kept
+    beside it. Without it (a count of vehicles), every vehicle counts."""
+    from sumo_scendiff.generation.infill import in_area
+    rng = np.random.default_rng(5)
+    xy, yaw = city.random_road_points(40, rng)
+    wins = [w for w in (Window(float(x), float(y), float(h)) for (x, y), h in zip(xy, yaw))
+            if city.car_lane_km(w) > 0.3][:4]
+    want = [int(np.round(30.0 * city.car_lane_km(w))) for w in wins]
+    edges = gen.generate(city, wins, seed=0, density=30.0, config=replace(gen.config, count_on_edges=True))
+    every = gen.generate(city, wins, seed=0, density=30.0)
+    on_edges = [int(in_area(s, None, city).sum()) for s in edges]
+    assert sum(on_edges) >= 0.9 * sum(want) and all(g <= w for g, w in zip(on_edges, want))
+    assert all(len(s) <= w for s, w in zip(every, want))
+    # the windows hold vehicles inside junctions: beside the count with the rule, within it without
+    assert sum(len(s) for s in edges) > sum(on_edges)

@@ -195,6 +195,8 @@ def _phase(progress: bool, text: str) -> None:
 
 
 def run(o, folder: str) -> dict:
+    from dataclasses import replace
+
     import shapely
 
     from ..sim.preflight import preflight
@@ -234,7 +236,7 @@ def run(o, folder: str) -> dict:
         try:
             span = demand_span(routes, {ln.edge for ln in net.lanes}, scen.additional,
                                begin=scen.begin, end=scen.end)
-            begin = seeding_time(o.begin, scen.begin, span, routes)
+            begin = seeding_time(o.begin, scen.begin, span, routes, config_end=scen.end)
         except DemandError as e:
             raise FillError(str(e)) from None
     try:
@@ -244,7 +246,10 @@ def run(o, folder: str) -> dict:
     if not tiles:
         raise FillError(f"--area: no car lane inside {','.join(f'{v:g}' for v in o.area)} (the network's "
                         f"car lanes span {','.join(f'{v:.0f}' for v in net.bounds)})")
-    gen = ScenarioGenerator.load(o.checkpoint, GenerationConfig.from_options(o))
+    # a density asked in veh/km (or read from edgeData) is kept as SUMO's edgeData counts it; a
+    # demand's vehicles are counted one by one
+    gen_cfg = replace(GenerationConfig.from_options(o), count_on_edges=o.density is not None or bool(o.edge_data))
+    gen = ScenarioGenerator.load(o.checkpoint, gen_cfg)
     # started here, the workers load their model while this process prepares the rest
     with tile_engine(net, gen, o.workers, o.ray_address, o.checkpoint) as engine:
         if routes:

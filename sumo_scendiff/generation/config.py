@@ -44,6 +44,10 @@ class GenerationConfig:
     threshold: float = _setting(0.8, "box probability threshold (paper sec. 4.1)", kind=float,
                                 above=0.0, maximum=1.0)
     batch_size: int = 32         # windows per model call (not a user setting)
+    # a requested density counts only the vehicles whose front is on a normal edge, as SUMO's edgeData
+    # density counts them (a density in veh/km); off: every vehicle (a count of vehicles: --vehicles,
+    # a demand's own vehicles). Set by the command from what was asked, not a user setting
+    count_on_edges: bool = False
     # a second UNet pass only for batches that carry tokens
     guidance: float = _setting(3.0, "classifier-free guidance weight of the agent tokens (1 = off)",
                                kind=float, minimum=0.0)

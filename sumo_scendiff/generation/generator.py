@@ -259,7 +259,7 @@ class ScenarioGenerator:
                 drawn, _ = match_agents(boxes[:, :3], np.c_[asked, np.full(len(asked), np.nan)], ASKED_RADIUS)
                 mine[drawn] = False
             unplaced = len(rows) - int((owner >= 0).sum())     # tokens place_rows will still place
-            ok = trim_to_count(prob[keep], mine, count - unplaced, area_mask(window, boxes, area, net))
+            ok = trim_to_count(prob[keep], mine, count - unplaced, area_mask(window, boxes, area, net if cfg.count_on_edges else None))
             keep, boxes, traj, owner, paced = keep[ok], boxes[ok], traj[ok], owner[ok], paced[ok]
         score = np.round(prob[keep], 4).tolist()
         cell = keep.tolist()
@@ -360,7 +360,7 @@ class ScenarioGenerator:
                     ids = set(net.lights_in(w))
                     out[-1].meta["signals"] = {i: v for i, v in (lights or {}).items() if i in ids}
         for p in range(1, cfg.infill_passes + 1):
-            short = [k for k, c in enumerate(counts) if c is not None and in_area(out[k], areas[k], net).sum() < c]
+            short = [k for k, c in enumerate(counts) if c is not None and in_area(out[k], areas[k], net if cfg.count_on_edges else None).sum() < c]
             for s in range(0, len(short), cfg.batch_size):
                 self._infill(net, windows, short[s:s + cfg.batch_size], out, counts, areas, tokens, toks,
                              seeds, dens, sig, cfg, p)
@@ -393,7 +393,8 @@ class ScenarioGenerator:
             second = self._scene(windows[k], prob[i], boxes[i], traj[i], cfg, net, toks2[i],
                                  pinned_poses(dicts[i]), floor=True)
             taken = np.concatenate([out[k].boxes[:, :2], token_positions(toks[k]).reshape(-1, 2)])
-            out[k] = add_new_agents(out[k], second, counts[k], taken, ASKED_RADIUS, areas[k], net)
+            out[k] = add_new_agents(out[k], second, counts[k], taken, ASKED_RADIUS, areas[k],
+                                    net if cfg.count_on_edges else None)
 
     @staticmethod
     def _condition(net, windows: Sequence[Window], dens: np.ndarray | None) -> np.ndarray | None:

@@ -315,11 +315,16 @@ class Network:
         return np.sort(self.junction_tree.query(box, predicate="intersects"))
 
     def in_junction(self, points) -> np.ndarray:
-        """Per point (N, 2 world), whether it lies inside a junction's shape."""
+        """Per point (N, 2 world), whether it lies inside a junction's shape and on no lane of a
+        normal edge (a lane's end may reach into the junction's outline: a point there is on it)."""
         pts = shapely.points(np.asarray(points, np.float64).reshape(-1, 2))
         inside = np.zeros(len(pts), bool)
         if len(pts) and len(self.junctions):
             inside[self.junction_tree.query(pts, predicate="within")[0]] = True
+        if inside.any():   # a front at its lane's very end stands on the lane's outline: 0.5 m of slack
+            at, lane = self.lane_tree.query(pts[inside], predicate="dwithin", distance=0.5)
+            normal = np.array([self.lanes[i].function == "" for i in lane.tolist()], bool)
+            inside[np.flatnonzero(inside)[np.unique(at[normal])]] = False
         return inside
 
     def has_road(self, window) -> bool:

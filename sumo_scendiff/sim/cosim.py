@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import functools
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import shapely
@@ -264,7 +264,9 @@ class CoSimulation:
         s = self.seed + self.count if seed is None else seed
         density = default_density(density, vehicles, host_has_traffic(self.sim), self.generator.has_density)
         target = window_target(self.net, window, density, vehicles, sim=self.sim)
-        scene = self.generator.generate(self.net, [window], tokens=[all_tokens], p_mask=p, seed=s,
+        # a density in veh/km (asked, or the host's) is kept as SUMO's edgeData counts it
+        cfg = replace(self.generator.config, count_on_edges=vehicles is None)
+        scene = self.generator.generate(self.net, [window], tokens=[all_tokens], p_mask=p, seed=s, config=cfg,
                                         density=None if target is None else [target],
                                         signals=light_states(self.sim, self.net.lights_in(window))
                                         if self.generator.config.signals else None)[0]
