@@ -26,14 +26,18 @@ AHEAD_RADIUS = 5.0          # m: how far from the point ahead the window's lane 
 AHEAD_MAX_ANGLE = np.pi / 3  # rad: the lane runs along the window's axis within this
 
 
-def resolve_tokens(net, window: Window, tokens: Sequence | np.ndarray | None):
+def resolve_tokens(net, window: Window, tokens: Sequence | np.ndarray | None, source: str = ""):
     """``tokens`` (one window's dicts) with network references replaced by window-frame ``x``,
-    ``y`` and ``heading``; other tokens, and encoded token arrays, are returned as they are."""
+    ``y`` and ``heading``; other tokens, and encoded token arrays, are returned as they are.
+    ``source``: the token file, named first in an error."""
     if tokens is None or isinstance(tokens, np.ndarray):
         return tokens
     if not any(isinstance(t, Mapping) and any(k in t for k in REFERENCE_KEYS) for t in tokens):
         return tokens
-    return [resolve_token(net, window, t, i) if isinstance(t, Mapping) else t for i, t in enumerate(tokens)]
+    try:
+        return [resolve_token(net, window, t, i) if isinstance(t, Mapping) else t for i, t in enumerate(tokens)]
+    except TokenFileError as e:
+        raise TokenFileError(f"{source}: {e}" if source else str(e)) from None
 
 
 def _lane(net, edge: str, index: int, where: str, key: str) -> int:
