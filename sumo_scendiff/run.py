@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import sys
@@ -44,6 +45,9 @@ def get_options(args=None):
                    help="comma-separated additional files (vTypes, TLS programs, detectors, stops)")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--center", metavar="X,Y", help="window centre in network coordinates")
+    p.add_argument("--yaw", type=float, default=0.0, metavar="RAD",
+                   help="with --center: the window turned by this angle (radians counter-clockwise from "
+                        "east; the window's x axis, the frame of window-frame tokens)")
     where.add_argument("--ego", metavar="ID", help="seed the window around and ahead of this vehicle of "
                        "the demand, once it has driven --ego-after seconds")
     p.add_argument("--ego-after", type=float, default=20.0, metavar="SECONDS",
@@ -101,6 +105,10 @@ def get_options(args=None):
         p.error(str(e))
     if o.edge_data and o.density != "auto":
         p.error("--edge-data: needs --density auto (it sets the level --density auto reads)")
+    if o.yaw and not o.center:
+        p.error("--yaw: turns a --center window; give --center X,Y with it")
+    if not math.isfinite(o.yaw):
+        p.error(f"--yaw must be a finite angle in radians, got {o.yaw}")
     if not o.ego_after >= 0:
         p.error(f"--ego-after must be >= 0 seconds, got {o.ego_after}")
     if o.begin is not None and o.ego:
@@ -225,7 +233,7 @@ def _windows(o, net, sim, cosim):
         return [(w, "ego")] * o.scenes
     if o.center:
         x, y = parse_center(o.center)
-        return [(window_at(net, x, y), "center")] * o.scenes
+        return [(window_at(net, x, y, yaw=o.yaw), "center")] * o.scenes
     return [(loc.window, loc.kind) for loc in auto_windows(net, o.scenes, seed=o.seed)]
 
 

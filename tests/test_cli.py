@@ -30,3 +30,16 @@ def test_only_coordinate_flags_are_joined():
     assert joined(p, ["--center", "-v"]) == ["--center", "-v"]     # a flag after it stays a flag
     with pytest.raises(SystemExit):
         p.parse_args(joined(p, ["--center", "-v"]))
+
+
+def test_run_turns_a_center_window_by_yaw(capsys):
+    """run --center X,Y --yaw RAD: the window turned (a negative angle is a value too); --yaw alone
+    or not finite is one line and exit 2."""
+    from sumo_scendiff.run import get_options as run_options
+    assert run_options(["-n", "x.net.xml", "--center", "5,3", "--yaw", "-0.5"]).yaw == -0.5
+    for bad, says in ((["--yaw", "1"], "--yaw: turns a --center window"),
+                      (["--center", "5,3", "--yaw", "nan"], "--yaw must be a finite angle")):
+        with pytest.raises(SystemExit) as e:
+            run_options(["-n", "x.net.xml", *bad])
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and says in err.strip().splitlines()[-1]
