@@ -13,6 +13,7 @@ leaves them out) and quiets SUMO's console (:data:`QUIET_OPTIONS`); docs/sumo-op
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import sys
 from dataclasses import dataclass, field
@@ -30,6 +31,7 @@ class SumoDied(SimError):
     co-simulation API raises for it; the commands end on it in one line, exit 2."""
 
 
+CONNECT_TRIES = 1200        # traci connection tries 50 ms apart while SUMO loads (a minute)
 PRODUCT_STEP_LENGTH = 0.5   # s: a bare network's step, where no scenario gives one (docs/sumo-options.md)
 SUMO_STEP_LENGTH = 1.0      # s: SUMO's own default --step-length
 
@@ -194,8 +196,10 @@ def _start_traci(cmd: list[str]):
     port = getFreeSocketPort()
     proc = subprocess.Popen(cmd + ["--remote-port", str(port)], stdout=log, stderr=subprocess.STDOUT)
     proc.console = log.name        # read by last_words, removed by close
-    try:
-        traci.init(port, proc=proc)
+    try:   # traci.init, polling every 50 ms rather than each second, without its "Retrying" lines
+        with contextlib.redirect_stdout(io.StringIO()):
+            traci.connect(port, numRetries=CONNECT_TRIES, proc=proc, waitBetweenRetries=0.05, label="default")
+        traci.switch("default")
     except Exception:              # traci's FatalTraCIError: SUMO stopped while loading
         proc.wait()
         with open(log.name, errors="replace") as f:
