@@ -228,3 +228,13 @@ def test_options_outside_any_section_go_by_the_section_sumo_files_them_under(tmp
                    '<num-clients value="1"/><seed value="3"/><start value="true"/>'
                    '<time-to-teleport value="-1"/></configuration>')
     assert scenario_from_files(str(cfg)).options == (("time-to-teleport", "-1"),)
+
+
+def test_how_strictly_sumo_reads_the_files_is_carried(tmp_path, grid):
+    """A configuration's xml-validation (a report option) decides whether SUMO loads its files at all
+    (SUMO's bicycle game gives flows a beginLane its schema does not declare): carried, unlike the
+    other report options."""
+    cfg = tmp_path / "v.sumocfg"
+    cfg.write_text(f'<configuration><input><net-file value="{grid.path}"/></input><report>'
+                   '<verbose value="true"/><xml-validation value="never"/></report></configuration>')
+    assert scenario_from_files(str(cfg)).options == (("xml-validation", "never"),)

@@ -131,13 +131,17 @@ def run_options(path: str) -> tuple[tuple[str, str], ...]:
             continue
         opts = [section] if section.get("value") is not None else list(section)
         if section.get("value") is None and section.tag in _NOT_CARRIED:
+            # how strictly SUMO reads the files (a report option) decides whether it loads them at all
+            out += [(o.tag, o.get("value")) for o in section if isinstance(o.tag, str)
+                    and o.tag.startswith("xml-validation") and o.get("value") is not None]
             continue
         for opt in opts:
             name, value = opt.tag, opt.get("value")
             # an option outside any section (SUMO reads those too) goes by the section SUMO files it
             # under: a TraCI port given so would make every in-process run wait for a client
             if (not isinstance(name, str) or value is None or name in _LISTS or name in _FILES or name in _TIMES
-                    or (opt is section and sections.get(name) in _NOT_CARRIED_LOOSE)
+                    or (opt is section and sections.get(name) in _NOT_CARRIED_LOOSE
+                        and not name.startswith("xml-validation"))
                     or "output" in name or name.endswith(("-file", "-files", "-log", ".file"))):
                 continue
             out.append((name, value))
