@@ -184,3 +184,67 @@ def test_a_sweep_on_a_full_disk_resumes_where_it_stopped(grid_net, tmp_path):
         assert p.returncode == 0, p.stderr
         assert sorted(n for n in os.listdir(out) if n.startswith("s0")) == [f"s{k:04d}" for k in range(8)]
         assert (out / "contact_sheet.png").is_file() and not list(out.glob("*.partial*"))
+
+
+class Dying:
+    """A worker whose process dies (SIGKILL) on the tasks it is told to, as often as told."""
+
+    def __init__(self, folder: str):
+        self.folder = folder
+
+    def run(self, k: int, deaths: int) -> int:
+        import signal
+        marks = [n for n in os.listdir(self.folder) if n.startswith(f"{k}.")]
+        if len(marks) < deaths:
+            open(os.path.join(self.folder, f"{k}.{len(marks)}"), "w").close()
+            os.kill(os.getpid(), signal.SIGKILL)
+        return k * k
+
+
+def test_a_killed_worker_s_task_runs_again(tmp_path):
+    """Task 3's worker killed twice: its task and those running beside it run again, every result
+    once; a task whose worker dies three times is an error naming it."""
+    from sumo_scendiff.core.pool import TASK_TRIES, EngineError, LocalPool
+    with LocalPool(Dying, (str(tmp_path),), workers=2) as pool:
+        got = list(pool.map_unordered([(k, 2 if k == 3 else 0) for k in range(8)]))
+    assert sorted(got) == [(k, k * k) for k in range(8)]
+    with pytest.raises(EngineError, match=rf"tile 5: its worker process died {TASK_TRIES} times"):
+        with LocalPool(Dying, (str(tmp_path),), workers=2) as pool:
+            list(pool.map_unordered([(k, 9 if k == 5 else 0) for k in range(4, 7)], name=lambda t: f"tile {t[0]}"))
+
+
+def _workers_of(pid: int) -> list[int]:
+    """The Python worker processes of process ``pid`` (its children that are not SUMO)."""
+    out = []
+    for task in os.listdir(f"/proc/{pid}/task"):
+        with open(f"/proc/{pid}/task/{task}/children") as f:
+            for child in map(int, f.read().split()):
+                with open(f"/proc/{child}/cmdline", "rb") as c:
+                    if b"python" in os.path.basename(c.read().split(b"\0")[0]):
+                        out.append(child)
+    return out
+
+
+@pytest.mark.slow    # two sweeps of two workers
+def test_a_sweep_whose_worker_is_killed_writes_what_an_undisturbed_one_does(grid_net, tmp_path):
+    import signal
+    import time
+    spec = tmp_path / "spec.toml"
+    spec.write_text(f'networks = ["{grid_net}"]\nlocations = [{{auto = 2}}]\nseeds = 4\nrollout = 5.0\n')
+    base = ["--spec", str(spec), "--workers", "2", "--no-pictures"]
+    assert _cli("sweep", *base, "--out", str(tmp_path / "whole")).returncode == 0
+    out = tmp_path / "killed"
+    sweep = subprocess.Popen([sys.executable, "-m", "sumo_scendiff.sweep", *base, "--out", str(out)],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    victim = None
+    while sweep.poll() is None and victim is None:   # a worker, once the first scenario is written
+        time.sleep(0.05)
+        written = out.is_dir() and any(n.startswith("s0") and "." not in n for n in os.listdir(out))
+        victim = next(iter(_workers_of(sweep.pid)), None) if written else None
+    assert victim is not None, "the sweep ended before a worker could be killed"
+    os.kill(victim, signal.SIGKILL)
+    _, err = sweep.communicate(timeout=600)
+    assert sweep.returncode == 0, err
+    for name in ("index.csv", "index.jsonl"):
+        assert (out / name).read_text() == (tmp_path / "whole" / name).read_text()
+    assert not list(out.glob("*.partial*")) and not list(out.glob("*.failed.json"))

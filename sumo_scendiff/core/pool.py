@@ -21,6 +21,9 @@ from .procs import die_with_parent
 RAY_HINT = "pip install 'sumo-scendiff[ray]'"
 
 
+TASK_TRIES = 3      # deaths of the worker running a task before the task is given up (an error)
+
+
 class EngineError(RuntimeError):
     """The engine cannot run (Ray missing, cluster unreachable, a worker that cannot start): one line."""
 
@@ -74,28 +77,60 @@ def _run(item):
 
 
 class LocalPool:
-    """``workers`` spawned processes, each building ``factory(*args, **kwargs)`` once."""
+    """``workers`` spawned processes, each building ``factory(*args, **kwargs)`` once. A worker that
+    dies in the middle (SIGKILL, out of memory) takes the pool with it: a new pool runs the tasks
+    that were running again; a task running at :data:`TASK_TRIES` deaths is an EngineError naming it."""
 
     def __init__(self, factory, args=(), kwargs=None, workers: int = 2):
-        import multiprocessing as mp
-        ctx = mp.get_context("spawn")   # no fork: torch's and SUMO's state does not survive one
-        self.pool = ctx.Pool(workers, initializer=_init, initargs=(factory, tuple(args), dict(kwargs or {}),
-                                                                  os.getpid()))
+        self.workers = workers
+        self._initargs = (factory, tuple(args), dict(kwargs or {}), os.getpid())
+        self.pool = self._start()
 
-    def map_unordered(self, tasks):
-        yield from self.pool.imap_unordered(_run, enumerate(tasks))
+    def _start(self):
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+        # spawn, no fork: torch's and SUMO's state does not survive one
+        return ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"), initializer=_init,
+                                   initargs=self._initargs)
+
+    def map_unordered(self, tasks, name=None):
+        """(index, result) of each task as they finish; ``name(task)``: how an error names a task."""
+        from concurrent.futures import FIRST_COMPLETED, wait
+        from concurrent.futures.process import BrokenProcessPool
+        tasks, deaths = list(tasks), {}
+        todo, running = list(range(len(tasks)))[::-1], {}
+        while todo or running:
+            while todo and len(running) < self.workers:   # no more queued than run: a death costs those only
+                i = todo.pop()
+                running[self.pool.submit(_run, (i, tasks[i]))] = i
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            broken = [f for f in done if isinstance(f.exception(), BrokenProcessPool)]
+            for f in done:
+                if f not in broken:
+                    del running[f]
+                    yield f.result()
+            if not broken:
+                continue
+            lost = sorted(running.values())    # every task the dead pool held
+            running.clear()
+            self.pool.shutdown(wait=True, cancel_futures=True)
+            for i in lost:
+                deaths[i] = deaths.get(i, 0) + 1
+                if deaths[i] >= TASK_TRIES:
+                    what = name(tasks[i]) if name else f"task {i + 1} of {len(tasks)}"
+                    raise EngineError(f"{what}: its worker process died {TASK_TRIES} times while running it "
+                                      f"(killed, or out of memory)")
+            todo += lost[::-1]
+            self.pool = self._start()
 
     def __enter__(self):
         return self
 
     def __exit__(self, exc_type, *exc):
-        if exc_type is None:
-            # workers that exit on their own release what they registered with the parent's resource
-            # tracker (tqdm's lock): terminated ones leave "leaked semaphore" warnings on stderr
-            self.pool.close()
-        else:
-            self.pool.terminate()   # nobody wants the results
-        self.pool.join()
+        if exc_type is not None:    # nobody wants the results (an error, Ctrl-C): the workers end now
+            for proc in (getattr(self.pool, "_processes", None) or {}).values():
+                proc.terminate()
+        self.pool.shutdown(wait=True, cancel_futures=True)
         return False
 
 

@@ -61,7 +61,7 @@ def run_local(all_tasks, spec: Spec, out: str, workers: int, checkpoint=None, ba
             w.close()
         return
     with LocalPool(Worker, (spec, out, checkpoint), {"threads": _threads(workers)}, workers) as pool:
-        for _, done in pool.map_unordered(all_tasks):
+        for _, done in pool.map_unordered(all_tasks, name=lambda t: "scenarios " + ", ".join(s.id for s in t[0])):
             if bar is not None:
                 bar.update(len(done))
 

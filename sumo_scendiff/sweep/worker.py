@@ -123,6 +123,8 @@ class Worker:
         from ..sim.sumo import SimError
         from ..tokens.file import TokenFileError
         bad = (NetworkError, LocationError, TokenFileError, SimError, DemandError, OSError)
+        # a batch run again after its worker died (core.pool) keeps what that worker completed
+        done = frozenset(done) | {s.id for s in scenarios if os.path.isdir(os.path.join(self.out, s.id))}
         first = scenarios[0]
         entry = self.spec.networks[first.network]
         try:
