@@ -248,3 +248,14 @@ def test_a_sweep_whose_worker_is_killed_writes_what_an_undisturbed_one_does(grid
     for name in ("index.csv", "index.jsonl"):
         assert (out / name).read_text() == (tmp_path / "whole" / name).read_text()
     assert not list(out.glob("*.partial*")) and not list(out.glob("*.failed.json"))
+
+
+@pytest.mark.slow    # a local Ray instance
+def test_a_killed_ray_actor_s_task_runs_again(tmp_path):
+    pytest.importorskip("ray")
+    from sumo_scendiff.core.pool import TASK_TRIES, EngineError, RayPool
+    with RayPool(Dying, (str(tmp_path),), workers=2, address="local") as pool:
+        got = list(pool.map_unordered([(k, 2 if k == 3 else 0) for k in range(8)]))
+        assert sorted(got) == [(k, k * k) for k in range(8)]
+        with pytest.raises(EngineError, match=rf"tile 9: the Ray actor running it died {TASK_TRIES} times"):
+            list(pool.map_unordered([(9, 9)], name=lambda t: f"tile {t[0]}"))

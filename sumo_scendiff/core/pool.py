@@ -152,21 +152,36 @@ class RayPool:
                 raise EngineError(f"Ray: cannot start or reach {address or 'a local instance'} "
                                   f"({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
         actor = ray.remote(num_cpus=1)(factory)
-        self.actors = [actor.remote(*args, **(kwargs or {})) for _ in range(workers)]
+        self._new = lambda: actor.remote(*args, **(kwargs or {}))
+        self.actors = [self._new() for _ in range(workers)]
         self.closes = hasattr(factory, "close")
 
-    def map_unordered(self, tasks):
+    def map_unordered(self, tasks, name=None):
+        """(index, result) of each task as they finish. An actor that dies in the middle of a task
+        is replaced and the task run again; one whose actor dies :data:`TASK_TRIES` times is an
+        EngineError naming it (``name(task)``)."""
+        from ray.exceptions import RayActorError
         ray, tasks = self.ray, list(tasks)
-        idle, running, nxt = list(self.actors), {}, 0
-        while nxt < len(tasks) or running:
-            while idle and nxt < len(tasks):
-                a = idle.pop()
-                running[a.run.remote(*tasks[nxt])] = (nxt, a)
-                nxt += 1
+        idle, running, deaths, todo = list(self.actors), {}, {}, list(range(len(tasks)))[::-1]
+        while todo or running:
+            while idle and todo:
+                a, i = idle.pop(), todo.pop()
+                running[a.run.remote(*tasks[i])] = (i, a)
             [ref], _ = ray.wait(list(running), num_returns=1)
             i, a = running.pop(ref)
+            try:
+                result = ray.get(ref)
+            except RayActorError:
+                deaths[i] = deaths.get(i, 0) + 1
+                if deaths[i] >= TASK_TRIES:
+                    what = name(tasks[i]) if name else f"task {i + 1} of {len(tasks)}"
+                    raise EngineError(f"{what}: the Ray actor running it died {TASK_TRIES} times") from None
+                self.actors[self.actors.index(a)] = a = self._new()
+                todo.append(i)
+                idle.append(a)
+                continue
             idle.append(a)
-            yield i, ray.get(ref)
+            yield i, result
 
     def __enter__(self):
         return self

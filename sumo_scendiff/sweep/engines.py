@@ -48,6 +48,11 @@ def _threads(workers: int) -> int:
     return GENERATION_THREADS
 
 
+def _names(task: Task) -> str:
+    """A task as an error names it: its scenarios."""
+    return "scenarios " + ", ".join(s.id for s in task[0])
+
+
 def run_local(all_tasks, spec: Spec, out: str, workers: int, checkpoint=None, bar=None) -> None:
     from .worker import Worker
     if workers <= 1:
@@ -61,7 +66,7 @@ def run_local(all_tasks, spec: Spec, out: str, workers: int, checkpoint=None, ba
             w.close()
         return
     with LocalPool(Worker, (spec, out, checkpoint), {"threads": _threads(workers)}, workers) as pool:
-        for _, done in pool.map_unordered(all_tasks, name=lambda t: "scenarios " + ", ".join(s.id for s in t[0])):
+        for _, done in pool.map_unordered(all_tasks, name=_names):
             if bar is not None:
                 bar.update(len(done))
 
@@ -71,7 +76,7 @@ def run_ray(all_tasks, spec: Spec, out: str, workers: int, checkpoint=None, bar=
     from .worker import Worker
     with RayPool(Worker, (spec, out, checkpoint), {"threads": 1}, workers, address,
                  flag="--engine ray") as pool:
-        for _, done in pool.map_unordered(all_tasks):
+        for _, done in pool.map_unordered(all_tasks, name=_names):
             if bar is not None:
                 bar.update(len(done))
 
