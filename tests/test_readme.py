@@ -180,3 +180,20 @@ def test_readme_inline_flags_exist():
     pending = set().union(*PENDING.values())
     missing = sorted(f for f in flags if f not in SUMO_OPTIONS and f not in pending and not knows(known, f))
     assert not missing, f"README names flags no parser knows: {missing}"
+
+
+# ---- a guide, not a notebook -------------------------------------------------------------------
+def test_readme_is_a_guide():
+    """Short enough to read in one sitting; its figures point at committed files or commands, not
+    at one machine's `runs/`; no dates, rounds or commit prefixes in its tables; links resolve."""
+    text = README.read_text()
+    assert len(text.split("\n")) <= 251, f"README.md has {len(text.splitlines())} lines (at most 250)"
+    assert "runs/" not in text, "README.md names a runs/ path (not in git)"
+    for line in text.split("\n"):
+        if line.startswith("|"):
+            for bad in (r"\b20\d\d-\d\d-\d\d\b", r"\bround \d+", r"\b[0-9a-f]{7,8}…"):
+                assert not re.search(bad, line), f"README table cell with {bad!r}: {line[:120]}"
+    for target in re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", text):
+        if "://" not in target:
+            assert (ROOT / target).exists(), f"README links to a missing file: {target}"
+    assert "repository root" in text      # where the commands run from
