@@ -248,6 +248,12 @@ def global_token(p_mask: float | Sequence[float] | np.ndarray, density=None,
 # User-facing validation and batching
 # --------------------------------------------------------------------------------------------
 
+# no road vehicle is near these (docs/tokens.md): a token beyond them is a typo, and its number
+# would overflow the model's float32 tensors
+MAX_SIZE_M = 1000.0
+MAX_SPEED_MS = 1000.0
+
+
 def validate_token_features(features: Mapping[str, Any]) -> dict[str, np.ndarray]:
     """Check user token features and return them as name -> (T,) float64 arrays.
 
@@ -286,6 +292,10 @@ def validate_token_features(features: Mapping[str, Any]) -> dict[str, np.ndarray
             raise TokenError(f"token feature {name!r} must be > 0 metres, got {float(v.min())}")
         if name in ("speed", "final_speed") and (v < 0).any():
             raise TokenError(f"token feature {name!r} must be >= 0 m/s, got {float(v.min())}")
+        top, unit = {"length": (MAX_SIZE_M, "metres"), "width": (MAX_SIZE_M, "metres"),
+                     "speed": (MAX_SPEED_MS, "m/s"), "final_speed": (MAX_SPEED_MS, "m/s")}.get(name, (None, ""))
+        if top is not None and (v > top).any():
+            raise TokenError(f"token feature {name!r} must be <= {top:g} {unit}, got {float(v.max())}")
         if name in ("heading", "heading_to_final") and (np.abs(v) > 2 * np.pi).any():
             raise TokenError(f"token feature {name!r} is in radians, got {float(v[np.abs(v) > 2 * np.pi][0])}")
         if name in ("x", "y") and (np.abs(v) > WINDOW_HALF).any():
