@@ -214,13 +214,13 @@ def test_a_killed_worker_s_task_runs_again(tmp_path):
 
 
 def _workers_of(pid: int) -> list[int]:
-    """The Python worker processes of process ``pid`` (its children that are not SUMO)."""
+    """The worker processes multiprocessing spawned for process ``pid`` (not its resource tracker)."""
     out = []
     for task in os.listdir(f"/proc/{pid}/task"):
         with open(f"/proc/{pid}/task/{task}/children") as f:
             for child in map(int, f.read().split()):
                 with open(f"/proc/{child}/cmdline", "rb") as c:
-                    if b"python" in os.path.basename(c.read().split(b"\0")[0]):
+                    if b"spawn_main" in c.read():
                         out.append(child)
     return out
 
