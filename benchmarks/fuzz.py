@@ -297,7 +297,12 @@ def _read_tokens(ctx: dict, path: str) -> None:
     net = _network(ctx, ctx["net"])
     spec = load_tokens(path, net=net)
     w = Window(100.0, 1.6, 0.0)
-    resolve_tokens(net, w, spec.for_window(w))
+    agents = resolve_tokens(net, w, spec.for_window(w), spec.source)
+    # as generation takes them: encoded, and their exact values in the model's float32 tensors
+    from sumo_scendiff.tokens.encoding import agent_tokens_from_dicts
+    from sumo_scendiff.tokens.raster import exact_values
+    agent_tokens_from_dicts([{k: v for k, v in a.items() if k != "vtype"} for a in agents])
+    exact_values([agents], [len(agents)])
 
 
 def _read_spec(ctx: dict, path: str) -> None:
