@@ -199,10 +199,12 @@ def test_a_vehicle_waiting_on_red_inside_the_junction_goes_to_its_stop_line(cros
         report = seeder.seed(scene, others=(others, np.zeros(1)))
         assert set(report.ids) == {0, 1} and set(report.to_stop_line) == {0, 1} and not report.conflicts
         host_rear = sim.lane.getLength("sc_0") - 3.0 - 5.0
-        north_nose = scene.boxes[1, 1] + 2.3      # northbound: the nose is north of the centre
+        # the host's fleet is SUMO's default type (5 m): the agents are seeded as it (sim/fleet.py)
+        north_nose = scene.boxes[1, 1] + 0.5 * scene.boxes[1, 3]   # northbound: the nose is north of the centre
         assert north_nose == pytest.approx(sim.lane.getShape("sc_0")[0][1] + host_rear - 2.5, abs=0.3)
         end = np.asarray(net.lanes[net.lane_index["wc_0"]].shape[-1])
-        nose = scene.boxes[0, :2] + 2.3 * np.array([math.cos(scene.boxes[0, 2]), math.sin(scene.boxes[0, 2])])
+        nose = scene.boxes[0, :2] + 0.5 * scene.boxes[0, 3] * np.array([math.cos(scene.boxes[0, 2]),
+                                                                         math.sin(scene.boxes[0, 2])])
         assert np.hypot(*(nose - end)) < 0.2 and (scene.speed[0] == 0).all()
         vid = report.ids[0]
         assert sim.vehicle.getRoute(vid)[:2] == ("wc", "ce")

@@ -121,8 +121,10 @@ def test_export_picture_tells_generated_token_and_kept_apart(net, tmp_path):
     scene = _scene(window, [[-30.0, 30.0, 0.0, 4.6, 1.8], [30.0, 30.0, 0.0, 4.6, 1.8]])
     tokens = [{"x": 30.0, "y": 30.0, "heading": 0.0, "length": 4.6, "width": 1.8},
               {"x": 0.0, "y": -30.0, "heading": 0.0, "length": 4.6, "width": 1.8}]
-    seeding = SimpleNamespace(scene=scene, tokens=tokens, token_source=["user", "veh7"], token_of=[None, 0],
-                              seed=0, p_mask=0.5, report=SimpleNamespace(placed=2, refused={}))
+    from sumo_scendiff.sim.cosim import Seeding
+    from sumo_scendiff.sim.seeding import SeedReport
+    seeding = Seeding(scene, SeedReport(ids={0: "sd0", 1: "sd1"}), tokens, ["user", "veh7"], [None, 0],
+                      seed=0, p_mask=0.5)
     path = str(tmp_path / "scene.png")
     write_picture(path, seeding, net)
     img = cv2.imread(path)
