@@ -1,7 +1,15 @@
 """File helpers every layer uses."""
 from __future__ import annotations
 
+import errno
+import gzip
 import hashlib
+import os
+import zlib
+from xml.etree.ElementTree import ParseError, iterparse
+
+# free space under which a file another program left incomplete is taken for a full disk
+FULL_BYTES = 1 << 20
 
 
 def file_sha256(path: str) -> str:
@@ -21,3 +29,19 @@ def write_png(path: str, img) -> None:
         raise ValueError(f"{path}: the image cannot be encoded as PNG")
     with open(path, "wb") as f:
         f.write(buf.tobytes())
+
+
+def check_whole(path: str) -> str:
+    """``path``, written by another program (SUMO's saved state, duarouter's routes), read to its end:
+    those programs do not all fail when the disk refuses a write, and leave the file cut short. Raises
+    OSError (ENOSPC where the file system is full, else EIO) naming the file if it is incomplete."""
+    try:
+        with (gzip.open(path) if path.endswith(".gz") else open(path, "rb")) as f:
+            for _ in iterparse(f):
+                pass
+    except (EOFError, zlib.error, gzip.BadGzipFile, ParseError):
+        st = os.statvfs(os.path.dirname(os.path.abspath(path)))
+        full = st.f_bavail * st.f_frsize < FULL_BYTES
+        raise OSError(errno.ENOSPC if full else errno.EIO,
+                      os.strerror(errno.ENOSPC) if full else "written incomplete", path) from None
+    return path

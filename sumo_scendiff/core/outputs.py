@@ -142,10 +142,10 @@ def claim(directory: str):
 
 def write_refused(e: OSError, directory: str) -> OutputError | None:
     """A write the file system refused inside ``directory`` (full, read-only, over quota, not
-    permitted) as the one-line :class:`OutputError` naming the directory (its final name, not the
+    permitted, failed) as the one-line :class:`OutputError` naming the directory (its final name, not the
     ``.partial`` one); None for any other error (a bug, or an input that cannot be read)."""
     inside = bool(e.filename) and os.path.abspath(str(e.filename)).startswith(os.path.abspath(directory) + os.sep)
-    if e.errno not in _FULL and not (e.errno in (errno.EACCES, errno.EPERM) and inside):
+    if e.errno not in _FULL and not (e.errno in (errno.EACCES, errno.EPERM, errno.EIO) and inside):
         return None
     where = directory if inside or not e.filename else os.path.dirname(os.path.abspath(str(e.filename)))
     return OutputError(f"{final_name(where)}: cannot write there ({e.strerror or e})")

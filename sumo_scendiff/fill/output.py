@@ -9,6 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..core.files import check_whole
 from ..sim.export import write_sumocfg
 from ..sim.fleet import DRAWN_KEY
 from ..sim.seeding import STATUSES
@@ -85,6 +86,7 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
         present = set(sim.vehicle.getIDList())
         ids = [a["vehicle"] for a in agents if a["vehicle"] in present]
         sim.simulation.saveState(os.path.join(folder, "state.xml.gz"))
+        check_whole(os.path.join(folder, "state.xml.gz"))
         state_time = float(sim.simulation.getTime())
         # the portable start departs its vehicles where the state has them, at the state's time: the
         # demand's departures before it are the fill's, and SUMO skips them from the route files

@@ -290,6 +290,7 @@ def _random_trips(net_file: str, path: str, begin: float, period: float, seed: i
                   end: float | None = None) -> list[list[str]]:
     """Run randomTrips.py (validated by duarouter: every trip has a route) into ``path``; returns
     the routes it found. Its intermediate files stay in a temporary folder."""
+    from ..core.files import check_whole
     from ..core.tools import sumo_home, sumo_tool
     args = [sys.executable, sumo_tool("randomTrips.py"), "-n", os.path.abspath(net_file),
             "-o", os.path.abspath(path), "-r", "routes.rou.xml", "-b", f"{begin:g}",
@@ -304,6 +305,7 @@ def _random_trips(net_file: str, path: str, begin: float, period: float, seed: i
             from ..core.outputs import final_name
             raise InflowError(f"randomTrips.py failed writing into {final_name(os.path.dirname(os.path.abspath(path)))}: "
                               f"{msg[-1] if msg else done.returncode}")
+        check_whole(path)
         routes = os.path.join(work, "routes.rou.xml")
         if not os.path.exists(routes):
             return []
