@@ -110,3 +110,30 @@ def test_replay_future_holds_agents_on_their_generated_future(cross_net):
         assert sim.vehicle.getSpeed(vid) < 2.0
     finally:
         sim.close()
+
+
+def test_an_agent_the_host_vehicle_behind_cannot_stop_for_is_dropped(cross_net, cross_scene):
+    """A host vehicle (the caller's ego, say) at 14 m/s 12 m behind a generated car standing in its
+    lane would brake beyond its decel: that car is dropped with the reason; at 2 m/s it is seeded."""
+    import libsumo
+
+    from sumo_scendiff.sim.cosim import Existing
+    net = Network.load(cross_net)
+    scene = cross_scene(net)
+    behind = scene.boxes[1] - [12.0, 0, 0, 0, 0]          # agent 1 stands at the queue's tail
+    sim = start(SimConfig(net=cross_net))
+    try:
+        sim.route.add("r", ["wc", "ce"])
+        sim.vehicle.add("ego", "r", departSpeed="0")
+        sim.simulationStep()
+        cosim = CoSimulation(sim, net, generator=None)
+        for speed, dropped in ((14.0, True), (2.0, False)):
+            ex = Existing(["ego"], np.array([behind], np.float64), np.array([speed]), np.array([False]))
+            seeding = cosim.place(scene, [], [], ex)
+            reasons = [w for w in seeding.before_reason if "cannot stop behind it" in w]
+            assert bool(reasons) == dropped, (speed, seeding.before_reason)
+            for vid in list(seeding.agent_ids):
+                libsumo.vehicle.remove(vid)
+            sim.simulationStep()
+    finally:
+        sim.close()

@@ -45,10 +45,12 @@ from ..map.network import Network
 from .density import default_density, host_has_traffic, window_target
 from .lights import light_states
 from .seeding import Seeder, SeedReport
+from .settle import krauss_safe_speed
 from .sumo import died
 
 EXISTING_MARGIN = 10.0   # m beyond the window where existing vehicles still block generated ones
 OVERLAP_BUFFER = 0.3     # m of clearance kept around existing vehicles
+SAFE_SPEED_SLACK = 0.1   # m/s a host vehicle may be above its safe speed behind a seeded one (rounding)
 LOOSE_HEADING = 0.5      # rad: a token's own vehicle may turn this far from its heading (Seeding.lost_tokens)
 
 
@@ -185,6 +187,43 @@ def _sumo_gone(method):
     return guarded
 
 
+def too_close_ahead(sim, scene: Scene, existing: Existing, why: dict[int, str]) -> dict[int, str]:
+    """The generated agents (index -> why) that would stand nearer ahead of a host vehicle than it can
+    stop behind at its speed (Krauss' safe speed with its own decel, tau and minGap): seeded, they
+    would make the host's vehicle -- the caller's ego among them -- brake beyond its decel. Agents
+    already in ``why`` are left out; once one is dropped, the next ahead is the host's leader."""
+    out: dict[int, str] = {}
+    while True:
+        more = _too_close(sim, scene, existing, {**why, **out})
+        if not more:
+            return out
+        out.update(more)
+
+
+def _too_close(sim, scene: Scene, existing: Existing, why: dict[int, str]) -> dict[int, str]:
+    """One pass of :func:`too_close_ahead`: each host vehicle's nearest leader among the agents."""
+    if not len(existing.ids) or not len(scene):
+        return {}
+    keep = np.array([i not in why for i in range(len(scene))], bool)
+    idx = np.flatnonzero(keep)
+    lead, gap = Seeder.leaders(existing.boxes, scene.boxes[idx])
+    out: dict[int, str] = {}
+    n = len(existing.ids)
+    for e, (j, g) in enumerate(zip(lead.tolist(), gap.tolist())):
+        if j < n:            # its nearest leader is the host's own (or none)
+            continue
+        a, vid = int(idx[j - n]), existing.ids[e]
+        try:
+            b, tau, min_gap = sim.vehicle.getDecel(vid), sim.vehicle.getTau(vid), sim.vehicle.getMinGap(vid)
+        except Exception:    # left the simulation meanwhile
+            continue
+        safe = krauss_safe_speed(g - min_gap, max(float(scene.speed[a, T0]), 0.0), b, tau)
+        if float(existing.speed[e]) > safe + SAFE_SPEED_SLACK:
+            out.setdefault(a, f"{g:.1f} m ahead of vehicle {vid!r}, which cannot stop behind it from "
+                              f"{float(existing.speed[e]):.1f} m/s")
+    return out
+
+
 class CoSimulation:
     """Seeds generated traffic into the caller's simulation. Every method raises
     :class:`~sumo_scendiff.sim.sumo.SumoDied` if the caller's SUMO (traci) ends in the middle."""
@@ -227,6 +266,7 @@ class CoSimulation:
         """Seed a generated ``scene`` whose tokens were ``tokens`` (user's, then existing vehicles')."""
         token_of = token_assignment(scene, tokens)
         why = on_existing(scene, token_of, token_source, existing)
+        why.update(too_close_ahead(self.sim, scene, existing, why))
         idx = np.array([i for i in range(len(scene)) if i not in why], np.int64)
         gone = np.array(sorted(why), np.int64)
         sub = scene.select(idx)
