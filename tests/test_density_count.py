@@ -23,8 +23,12 @@ def test_trim_keeps_the_tokens_then_the_most_probable():
 def test_trim_counts_only_the_agents_in_the_area():
     prob = np.array([0.9, 0.3, 0.95, 0.1, 0.6])
     mine = np.ones(5, bool)
-    counted = np.array([True, True, False, True, True])      # agent 2 outside: kept, not counted
-    assert trim_to_count(prob, mine, 2, counted).tolist() == [0, 2, 4]
+    inside = np.array([True, True, False, True, True])       # agent 2 outside: kept, not counted
+    assert trim_to_count(prob, mine, 2, None, inside).tolist() == [0, 2, 4]
+    # agent 0 inside but not counted (its front in a junction): kept, being more probable than the
+    # last that counts; agent 3, less probable, is not
+    counted = np.array([False, True, False, True, True])
+    assert trim_to_count(prob, mine, 2, counted, inside).tolist() == [0, 1, 2, 4]
 
 
 def _scene(boxes, score) -> Scene:

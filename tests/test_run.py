@@ -102,7 +102,6 @@ def test_run_ego_infill(cross_net, demand, tmp_path, capsys):
     ("ego-never", "never appears"),
     ("unwritable", "not writable"),
     ("foreign-routes", "SUMO refuses to load it: The edge 'x' within the route for vehicle 'a' is not known"),
-    ("begin-outside", "--begin 3600 s (1:00:00) lies outside the demand ("),
 ])
 def test_bad_input_one_line_exit_2(case, expect, cross_net, demand, tmp_path, capsys):
     bad = tmp_path / "bad.toml"
@@ -119,7 +118,6 @@ def test_bad_input_one_line_exit_2(case, expect, cross_net, demand, tmp_path, ca
             "ego-never": ["-n", cross_net, "-r", demand, "--ego", "nobody"],
             "unwritable": ["-n", cross_net, "--center", "0,0", "-o", str(tmp_path / "file" / "sub")],
             "foreign-routes": ["-n", cross_net, "-r", str(foreign), "--center", "0,0"],
-            "begin-outside": ["-n", cross_net, "-r", demand, "--center", "0,0", "--begin", "1:00:00"],
             }[case]
     out = tmp_path / "out"
     code, _, err = _run(args + (["-o", str(out)] if "-o" not in args else []) + ["--rollout", "0"], capsys)
@@ -156,7 +154,8 @@ def test_a_begin_is_a_time_at_or_after_zero(cross_net, tmp_path, capsys, begin):
         assert run_cli.get_options(args).begin == 480.0
         return
     code, _, err = _run(args, capsys)
-    assert code == 2 and "--begin" in err and "a time must be >= 0" in err and not (tmp_path / "o").exists()
+    assert code == 2 and "--begin" in err and not (tmp_path / "o").exists()
+    assert ("not a time" if begin == "nan" else "a time must be >= 0") in err   # NaN is no time SUMO reads
 
 
 def test_cli_defaults_are_the_generators():

@@ -357,7 +357,8 @@ def main(o) -> int:
     s = doc["summary"]
     why = f"; {s['refused']} refused, fill.json says why" if s["refused"] else ""
     print(f"filled {len(doc['tiles'])} tiles: {s['vehicles']} of {s['kept']} drawn vehicles seeded ({s['placed']} at "
-          f"their pose{why}), {s['density_veh_per_km']} veh/km of car lane; "
+          f"their pose{why}), {s['density_veh_per_km']} veh/km of car lane as SUMO's edgeData counts them "
+          f"(+{s['in_junctions']} nosing into junctions); "
           f"density source: {doc['density']['kind']}" + ("" if doc["density"]["applied"] else " (not applied)"))
     print("timing (s): " + ", ".join(f"{k} {v:.1f}" for k, v in doc["timing_s"].items())
           + (f" ({o.workers} workers)" if o.workers > 1 else ""))

@@ -92,17 +92,21 @@ def select_boxes(window: Window, prob: np.ndarray, boxes: np.ndarray, threshold:
     return keep[np.argsort(-prob[keep], kind="stable")]
 
 
-def trim_to_count(prob: np.ndarray, mine: np.ndarray, count: int, counted: np.ndarray | None = None
-                  ) -> np.ndarray:
+def trim_to_count(prob: np.ndarray, mine: np.ndarray, count: int, counted: np.ndarray | None = None,
+                  inside: np.ndarray | None = None) -> np.ndarray:
     """Positions (ascending, so an order by probability is kept) of the agents a scene keeps to
     hold ``count`` vehicles: every agent a token asked for (``~mine``), then the model's own most
-    probable up to the count. With ``counted``, only those agents count (and are trimmed); the
-    others are all kept."""
-    counted = np.ones(len(prob), bool) if counted is None else np.asarray(counted, bool)
-    others = np.flatnonzero(mine & counted)
+    probable until ``count`` of them count. ``inside``: the agents in the area the count is of (the
+    others are all kept; None: every agent); ``counted``: those of them that count (None: all), the
+    others kept only where more probable than the last one that counts."""
+    inside = np.ones(len(prob), bool) if inside is None else np.asarray(inside, bool)
+    counted = inside.copy() if counted is None else np.asarray(counted, bool) & inside
+    others = np.flatnonzero(mine & inside)
     others = others[np.argsort(-prob[others], kind="stable")]
     room = max(0, count - int((~mine & counted).sum()))
-    return np.sort(np.concatenate([np.flatnonzero(~mine | ~counted), others[:room]]))
+    before = np.cumsum(counted[others]) - counted[others]   # counted agents kept before each one
+    take = others[before < room]
+    return np.sort(np.concatenate([np.flatnonzero(~mine | ~inside), take]))
 
 
 class ScenarioGenerator:
@@ -259,7 +263,9 @@ class ScenarioGenerator:
                 drawn, _ = match_agents(boxes[:, :3], np.c_[asked, np.full(len(asked), np.nan)], ASKED_RADIUS)
                 mine[drawn] = False
             unplaced = len(rows) - int((owner >= 0).sum())     # tokens place_rows will still place
-            ok = trim_to_count(prob[keep], mine, count - unplaced, area_mask(window, boxes, area, net if cfg.count_on_edges else None))
+            ok = trim_to_count(prob[keep], mine, count - unplaced,
+                               area_mask(window, boxes, area, net if cfg.count_on_edges else None),
+                               area_mask(window, boxes, area))
             keep, boxes, traj, owner, paced = keep[ok], boxes[ok], traj[ok], owner[ok], paced[ok]
         score = np.round(prob[keep], 4).tolist()
         cell = keep.tolist()

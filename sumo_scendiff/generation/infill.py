@@ -68,7 +68,9 @@ def add_new_agents(first: Scene, second: Scene, count: int, taken: np.ndarray, r
         ok[np.unique(a)] = False
     score = np.asarray(second.meta.get("score", np.ones(len(second))), np.float64)
     new = np.flatnonzero(ok)
-    new = np.sort(new[np.argsort(-score[new], kind="stable")][:room])
+    new = new[np.argsort(-score[new], kind="stable")]
+    counts = in_area(second, area, net)[new]           # the most probable until room of them count
+    new = np.sort(new[np.cumsum(counts) - counts < room])
     if not len(new):
         return first
     extra = second.select(new)
