@@ -61,7 +61,8 @@ def _replay_finds_placed(folder, doc: dict) -> int:
 def test_records_add_up_and_a_replay_finds_every_placed_agent(cross_net, demand, tmp_path, capsys):
     out = tmp_path / "out"
     code, stdout, err = _run(["-n", cross_net, "-r", demand, "--begin", "15", "--center", "0,0",
-                              "--scenes", "2", "--rollout", "2", "-s", "3", "--steps", "8", "--p-mask", "1", "-o", str(out)], capsys)
+                              "--scenes", "2", "--rollout", "2", "-s", "3", "--steps", "8", "--p-mask", "1", "--density", "40",
+                              "-o", str(out)], capsys)
     assert code == 0, err
     summary = json.load(open(out / "run.json"))
     total = {s: 0 for s in ("generated", *STATUSES)}

@@ -50,6 +50,7 @@ from .sumo import died
 
 EXISTING_MARGIN = 10.0   # m beyond the window where existing vehicles still block generated ones
 OVERLAP_BUFFER = 0.3     # m of clearance kept around existing vehicles
+GUARD_MARGIN = 60.0      # m beyond the window whose host vehicles must be able to stop behind the agents
 SAFE_SPEED_SLACK = 0.1   # m/s a host vehicle may be above its safe speed behind a seeded one (rounding)
 LOOSE_HEADING = 0.5      # rad: a token's own vehicle may turn this far from its heading (Seeding.lost_tokens)
 
@@ -187,6 +188,15 @@ def _sumo_gone(method):
     return guarded
 
 
+def _with(existing: Existing, more: Existing) -> Existing:
+    """``existing`` and the vehicles of ``more`` it does not name."""
+    add = [k for k, vid in enumerate(more.ids) if vid not in set(existing.ids)]
+    return Existing(existing.ids + [more.ids[k] for k in add],
+                    np.concatenate([existing.boxes.reshape(-1, 5), more.boxes[add].reshape(-1, 5)]),
+                    np.concatenate([np.asarray(existing.speed, np.float64).reshape(-1), more.speed[add]]),
+                    np.concatenate([existing.inside, more.inside[add]]))
+
+
 def too_close_ahead(sim, scene: Scene, existing: Existing, why: dict[int, str]) -> dict[int, str]:
     """The generated agents (index -> why) that would stand nearer ahead of a host vehicle than it can
     stop behind at its speed (Krauss' safe speed with its own decel, tau and minGap): seeded, they
@@ -237,9 +247,10 @@ class CoSimulation:
 
     # ---- the host's vehicles ------------------------------------------------------------------
     @_sumo_gone
-    def existing(self, window: Window) -> Existing:
+    def existing(self, window: Window, margin: float = EXISTING_MARGIN) -> Existing:
+        """The host's vehicles within ``margin`` m of the window (those inside it become tokens)."""
         sim, ids, boxes, speed = self.sim, [], [], []
-        reach = window.size * np.sqrt(0.5) + EXISTING_MARGIN
+        reach = window.size * np.sqrt(0.5) + margin
         for vid in sim.vehicle.getIDList():
             x, y = sim.vehicle.getPosition(vid)
             if np.hypot(x - window.cx, y - window.cy) > reach:
@@ -255,7 +266,7 @@ class CoSimulation:
             local[:, :2] = window.world_to_scene(b[:, :2])
             local[:, 2] = window.yaw_to_scene(b[:, 2])
         inside = window.contains(local[:, :2]) if len(b) else np.zeros(0, bool)
-        keep = window.contains(local[:, :2], margin=-EXISTING_MARGIN) if len(b) else inside
+        keep = window.contains(local[:, :2], margin=-margin) if len(b) else inside
         return Existing([i for i, k in zip(ids, keep) if k], local[keep],
                         np.asarray(speed, np.float64).reshape(-1)[keep], inside[keep])
 
@@ -266,7 +277,8 @@ class CoSimulation:
         """Seed a generated ``scene`` whose tokens were ``tokens`` (user's, then existing vehicles')."""
         token_of = token_assignment(scene, tokens)
         why = on_existing(scene, token_of, token_source, existing)
-        why.update(too_close_ahead(self.sim, scene, existing, why))
+        # the host's vehicles that could reach the window's agents, the caller's ego behind it too
+        why.update(too_close_ahead(self.sim, scene, _with(existing, self.existing(scene.window, GUARD_MARGIN)), why))
         idx = np.array([i for i in range(len(scene)) if i not in why], np.int64)
         gone = np.array(sorted(why), np.int64)
         sub = scene.select(idx)
