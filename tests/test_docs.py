@@ -1,0 +1,84 @@
+"""README.md and docs/ are references: what is true now, their figures from committed files.
+
+* no work log: no "round N", no numbered work-log headings, no `runs/` paths (one machine's folders);
+* every ``results/...`` file they name is in git, and every relative link resolves;
+* the tables ``benchmarks/report.py`` draws from ``results/*.json`` are as the JSON says.
+CHANGELOG.md and the weights card (sumo_scendiff/weights/README.md) may name rounds: they are history.
+"""
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+import report  # noqa: E402
+
+WORK_LOG_HEADING = re.compile(r"^#{1,6}\s+(\d+[.)]\s|(session|round|item|step)\s+\d+)", re.I)
+
+
+def _name(path: Path) -> str:
+    return str(path.relative_to(ROOT))
+
+
+def _prose(path: Path) -> list[tuple[int, str]]:
+    return list(enumerate(path.read_text().split("\n"), 1))
+
+
+@pytest.mark.parametrize("path", DOCS, ids=_name)
+def test_no_work_log(path):
+    bad = []
+    for n, line in _prose(path):
+        if re.search(r"\bround \d+", line, re.I):
+            bad.append(f"{_name(path)}:{n}: names a round: {line.strip()[:100]}")
+        if "runs/" in line:
+            bad.append(f"{_name(path)}:{n}: names a runs/ path (not in git): {line.strip()[:100]}")
+        if WORK_LOG_HEADING.match(line):
+            bad.append(f"{_name(path)}:{n}: a numbered work-log heading: {line.strip()}")
+    assert not bad, "\n".join(bad)
+
+
+def _tracked() -> set[str]:
+    out = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    return set(out.split("\n"))
+
+
+def test_results_files_they_name_are_committed():
+    tracked, missing = _tracked(), []
+    for path in DOCS:
+        for n, line in _prose(path):
+            for ref in re.findall(r"(?<![\w/.])(results/[\w.-]+\.(?:json|md|csv))", line):
+                if ref not in tracked:
+                    missing.append(f"{_name(path)}:{n}: {ref} is not in git")
+    assert not missing, "\n".join(missing)
+
+
+@pytest.mark.parametrize("path", DOCS, ids=_name)
+def test_links_resolve(path):
+    text = re.sub(r"```.*?```", "", path.read_text(), flags=re.S)
+    broken = [t for t in re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)
+              if "://" not in t and not t.startswith("mailto:") and not (path.parent / t).exists()]
+    assert not broken, f"{_name(path)} links to missing files: {broken}"
+
+
+def test_report_tables_match_the_committed_results():
+    stale = [_name(p) for p, text in report.render().items() if p.read_text() != text]
+    assert not stale, f"tables out of date with results/*.json (python benchmarks/report.py): {stale}"
+    included = {r.name for r in report.results().values()
+                if any(r.markers()[0] in p.read_text() for p in DOCS)}
+    assert {"corpus", "density_edgedata"} <= included
+
+
+def test_report_fills_between_markers_and_refuses_an_open_one():
+    b, e = "<!-- results:x -->", "<!-- /results:x -->"
+    text = f"a\n{b}\nold\n{e}\nb\n{b}\n{e}\n"
+    assert report.fill_in(text, b, e, "| new |\n", "doc") == f"a\n{b}\n| new |\n{e}\nb\n{b}\n| new |\n{e}\n"
+    with pytest.raises(ValueError, match="doc"):
+        report.fill_in(f"{b}\nno end\n", b, e, "t", "doc")
+    table = report.generic_table({"rows": [{"net": "a|b", "veh_km": 19.5}, {"net": "c"}]})
+    assert table == "| net | veh_km |\n|---|---|\n| a\\|b | 19.5 |\n| c | – |\n"
