@@ -177,3 +177,29 @@ def test_a_network_without_car_lanes_finishes_with_nothing_to_generate(corpus, t
     assert run["scenes"] == [] and "no car lane" in json.dumps(run)
     assert "no car lane" in (out / "fill" / "fill.json").read_text()
     assert not (out / "run" / "scene_000").exists() and not (out / "fill" / "state.xml.gz").exists()
+
+
+def test_the_scenarios_car_following_model_travels_with_the_seeded_vehicles(corpus, tmp_path):
+    """A seeded vehicle copies one of the scenario's vTypes; the portable start writes that definition
+    (here IDM with its delta), not only the Krauss parameters TraCI can read back."""
+    cfg = _copy("game_cross", tmp_path, corpus)
+    routes = cfg.parent / "cross" / "cross.rou.xml"
+    routes.write_text(routes.read_text().replace('<vType id="passenger" ',
+                                                 '<vType id="passenger" carFollowModel="IDM" delta="3.5" '))
+    out = tmp_path / "fill"
+    done = subprocess.run([sys.executable, "-m", "sumo_scendiff.fill", "-c", str(cfg), "--begin", "60",
+                           "-o", str(out)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    fill = json.loads((out / "fill.json").read_text())
+    passenger = [a["vehicle"] for a in fill["agents"] if a.get("vtype") == "passenger" and a.get("vehicle")]
+    assert passenger, "no vehicle was seeded as the scenario's passenger type"
+    import xml.etree.ElementTree as ET
+    start = ET.parse(out / "start.rou.xml").getroot()
+    types = {t.get("id"): t for t in start.iter("vType")}
+    for v in start.iter("vehicle"):
+        if v.get("id") in passenger:
+            t = types[v.get("type")]
+            assert t.get("carFollowModel") == "IDM" and t.get("delta") == "3.5" and t.get("probability") is None
+    ref = subprocess.run([corpus._sumo(), "-c", str(out / "start.sumocfg"), "--end", "70"],
+                         capture_output=True, text=True)
+    assert ref.returncode == 0 and "Error" not in ref.stderr, ref.stderr

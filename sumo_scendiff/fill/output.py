@@ -90,7 +90,8 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
         state_time = float(sim.simulation.getTime())
         # the portable start departs its vehicles where the state has them, at the state's time: the
         # demand's departures before it are the fill's, and SUMO skips them from the route files
-        exact = write_start_routes(os.path.join(folder, "start.rou.xml"), sim, ids, net, state_time)
+        exact = write_start_routes(os.path.join(folder, "start.rou.xml"), sim, ids, net, state_time,
+                                   vtype_files=list(routes) + list(cfg.additional))
         inflow = {"file": None, "reason": "the demand continues (its route files are in the configurations)"}
         if not routes:
             # the state and start routes are written: now drive the filled network on, with the

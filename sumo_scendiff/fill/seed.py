@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..sim.export import write_routes
+from ..sim.export import loaded_files, write_routes
 from ..sim.fleet import Fleet
 from ..sim.seeding import Seeder
 from ..sim.stops import add_stops, drop_passed
@@ -157,11 +157,12 @@ def _give_stops(sim, rep, mine) -> list[str]:
     return out
 
 
-def write_start_routes(path: str, sim, ids, net, begin: float) -> dict[str, bool]:
+def write_start_routes(path: str, sim, ids, net, begin: float, vtype_files=()) -> dict[str, bool]:
     """start.rou.xml: every seeded vehicle departing at ``begin`` where it stands (its vType, its
     remaining route, departLane/departPos/departPosLat/departSpeed); vehicles inside a junction
-    start at the end of the lane leading into it (``exact`` False)."""
-    exact = write_routes(path, sim, ids, net)
+    start at the end of the lane leading into it (``exact`` False). ``vtype_files``: the scenario's
+    files defining the vTypes the seeded vehicles copy."""
+    exact = write_routes(path, sim, ids, net, vtype_files=list(vtype_files) + list(loaded_files(sim)))
     if begin:
         # export.write_routes departs everyone at 0 (a scene folder starts at 0); here at --begin
         with open(path) as f:

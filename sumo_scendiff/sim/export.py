@@ -26,7 +26,7 @@ from ..map.picture import draw_scene
 from ..tokens.features import is_pinnable
 from .additional import output_folders
 from .bundle import bundle
-from .fleet import DRAWN_KEY
+from .fleet import DRAWN_KEY, PARENT_PARAM
 from .stops import stops_xml
 
 FORMAT, VERSION = "sumo-scendiff-scenario", 1
@@ -109,7 +109,53 @@ def scene_document(seeding, net, sim, info: dict) -> dict:
             "agents": _agents(seeding, sim)}
 
 
-def _vehicle_xml(sim, vid: str, net) -> tuple[str, str, str, bool]:
+def declared_vtypes(paths) -> dict:
+    """vType id -> its element in ``paths`` (route or additional files, read as SUMO reads them), for
+    the definitions TraCI cannot read back: the car-following and lane-changing models and their
+    parameters."""
+    import copy
+
+    from ..core.sumo_xml import elements
+    return {el.get("id"): copy.deepcopy(el) for _, el in elements([p for p in paths if os.path.isfile(p)], ("vType",))
+            if el.get("id")}
+
+
+def loaded_files(sim) -> list[str]:
+    """The route and additional files the running SUMO loaded."""
+    out = []
+    for option in ("route-files", "additional-files"):
+        try:
+            out += sim.simulation.getOption(option).replace(",", " ").split()
+        except Exception:   # a SUMO without getOption
+            pass
+    return out
+
+
+def _vtype_xml(sim, tid: str, declared: dict) -> str:
+    """A seeded vehicle's own vType: where it copies one of the scenario's (sim/fleet.py), that
+    definition under the copy's id and with its fitted minGap; else its box and the Krauss
+    parameters it drives with."""
+    import copy
+    import xml.etree.ElementTree as ET
+    vt = sim.vehicletype
+    parent = declared.get(vt.getParameter(tid, PARENT_PARAM))
+    if parent is not None:
+        el = copy.deepcopy(parent)
+        el.attrib.pop("probability", None)    # a member of a vTypeDistribution stands alone here
+        el.set("id", tid)
+        el.set("minGap", f"{vt.getMinGap(tid):.3f}")
+        el.tail = None
+        return "    " + ET.tostring(el, encoding="unicode").strip()
+    color = ",".join(str(c) for c in vt.getColor(tid))
+    return (f'    <vType id={quoteattr(tid)} vClass="{vt.getVehicleClass(tid)}" length="{vt.getLength(tid):.3f}" '
+            f'width="{vt.getWidth(tid):.3f}" minGap="{vt.getMinGap(tid):.3f}" accel="{vt.getAccel(tid):g}" '
+            f'decel="{vt.getDecel(tid):g}" emergencyDecel="{vt.getEmergencyDecel(tid):g}" '
+            f'sigma="{vt.getImperfection(tid):g}" tau="{vt.getTau(tid):g}" maxSpeed="{vt.getMaxSpeed(tid):g}" '
+            f'speedFactor="normc({vt.getSpeedFactor(tid):g},{vt.getSpeedDeviation(tid):g},0.2,2)" '
+            f'emissionClass={quoteattr(vt.getEmissionClass(tid))} color="{color}"/>')
+
+
+def _vehicle_xml(sim, vid: str, net, declared: dict) -> tuple[str, str, str, bool]:
     """(vType, route, vehicle) XML for a present vehicle departing where it stands now, and
     whether that is exact. A vehicle inside a junction departs on its internal edge (SUMO accepts a
     route that starts with one, and finds the internal lanes between it and the next normal edge);
@@ -117,15 +163,8 @@ def _vehicle_xml(sim, vid: str, net) -> tuple[str, str, str, bool]:
     entering, at its start and with SUMO's insertion checks."""
     tid = sim.vehicle.getTypeID(vid)
     vt = sim.vehicletype
-    # its box and the driving parameters it drives with (a demand's type copied by the seeder keeps
-    # its own), so that the start drives as the state does
-    color = ",".join(str(c) for c in vt.getColor(tid))
-    vtype = (f'    <vType id={quoteattr(tid)} vClass="{vt.getVehicleClass(tid)}" length="{vt.getLength(tid):.3f}" '
-             f'width="{vt.getWidth(tid):.3f}" minGap="{vt.getMinGap(tid):.3f}" accel="{vt.getAccel(tid):g}" '
-             f'decel="{vt.getDecel(tid):g}" emergencyDecel="{vt.getEmergencyDecel(tid):g}" '
-             f'sigma="{vt.getImperfection(tid):g}" tau="{vt.getTau(tid):g}" maxSpeed="{vt.getMaxSpeed(tid):g}" '
-             f'speedFactor="normc({vt.getSpeedFactor(tid):g},{vt.getSpeedDeviation(tid):g},0.2,2)" '
-             f'emissionClass={quoteattr(vt.getEmissionClass(tid))} color="{color}"/>')
+    # so that the start drives as the state does
+    vtype = _vtype_xml(sim, tid, declared)
     edges = list(sim.vehicle.getRoute(vid))[sim.vehicle.getRouteIndex(vid):]
     lane = sim.vehicle.getLaneID(vid)
     exact = bool(lane) and (not lane.startswith(":") or len(edges) > 1)
@@ -147,19 +186,21 @@ def _vehicle_xml(sim, vid: str, net) -> tuple[str, str, str, bool]:
            f'depart="0" departLane="{lane_index}" departPos="{pos:.3f}" departPosLat="{lat:.3f}" '
            f'departSpeed="{sim.vehicle.getSpeed(vid):.3f}" speedFactor="{sim.vehicle.getSpeedFactor(vid):.4f}"'
            + (' insertionChecks="none"' if exact else '')
-           + ("".join(f">\n        {s}" for s in stops) + "\n    </vehicle>" if stops else "/>"))
+           + (">" + "".join(f"\n        {s}" for s in stops) + "\n    </vehicle>" if stops else "/>"))
     return vtype, route, veh, exact
 
 
-def write_routes(path: str, sim, vehicle_ids, net) -> dict[str, bool]:
+def write_routes(path: str, sim, vehicle_ids, net, vtype_files=None) -> dict[str, bool]:
     """scenario.rou.xml: every given vehicle departing at t = 0 where it stands (on-lane ones at
-    their exact lane position and lateral offset). Returns vehicle id -> exact."""
+    their exact lane position and lateral offset). ``vtype_files``: where the scenario's vTypes are
+    defined (default: the files the running SUMO loaded). Returns vehicle id -> exact."""
     types, routes, vehicles, exact = {}, [], [], {}
     present = set(sim.vehicle.getIDList())
+    declared = declared_vtypes(loaded_files(sim) if vtype_files is None else vtype_files)
     for vid in vehicle_ids:
         if vid not in present:
             continue
-        vtype, route, veh, exact[vid] = _vehicle_xml(sim, vid, net)
+        vtype, route, veh, exact[vid] = _vehicle_xml(sim, vid, net, declared)
         types[sim.vehicle.getTypeID(vid)] = vtype
         routes.append(route)
         vehicles.append(veh)

@@ -51,6 +51,10 @@ LISTED = 12          # vType ids an unknown name's error lists
 DRAWN_KEY = "fleet"   # scene.meta: agent index -> (vType id, drawn length, drawn width)
 
 
+# a generic parameter of a seeded vehicle's own vType naming the scenario vType it copies
+PARENT_PARAM = "scendiff.parent"
+
+
 @dataclass(frozen=True)
 class VType:
     id: str

@@ -41,7 +41,7 @@ import shapely
 from ..core.geometry import OVERLAP_AREA, T0, box_polygons, pose_to_sumo, wrap_angle
 from ..core.scene import VEHICLE_CLASSES, Scene
 from ..map.network import Network
-from .fleet import Fleet
+from .fleet import PARENT_PARAM, Fleet
 from .junctions import JunctionConflicts
 from .routes import RouteChooser
 from .settle import DEFAULT_MIN_GAP, MIN_GAP_MARGIN, Settling, krauss_safe_speed
@@ -307,6 +307,9 @@ class Seeder(Settling, StopLines):
         if parent is not None and parent in self._known_types():
             t.copy(parent, tid)
             t.setMinGap(tid, min(float(min_gap), float(t.getMinGap(parent))))
+            # an export writes the parent's own definition (its car-following model and parameters,
+            # which TraCI cannot read back)
+            t.setParameter(tid, PARENT_PARAM, parent)
             return tid
         t.copy("DEFAULT_VEHTYPE", tid)
         t.setVehicleClass(tid, VEHICLE_CLASSES[int(vclass)])
