@@ -17,7 +17,9 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT / "tests"))
 import report  # noqa: E402
+import test_readme  # noqa: E402  (its command parsing, one definition)
 
 WORK_LOG_HEADING = re.compile(r"^#{1,6}\s+(\d+[.)]\s|(session|round|item|step)\s+\d+)", re.I)
 
@@ -82,3 +84,31 @@ def test_report_fills_between_markers_and_refuses_an_open_one():
         report.fill_in(f"{b}\nno end\n", b, e, "t", "doc")
     table = report.generic_table({"rows": [{"net": "a|b", "veh_km": 19.5}, {"net": "c"}]})
     assert table == "| net | veh_km |\n|---|---|\n| a\\|b | 19.5 |\n| c | – |\n"
+
+
+# the package's command-line programs (each has its own --help); other `python -m` lines name scripts
+CLIS = {"run", "fill", "sweep", "evaluate", "train", "data", "export", "studio"}
+
+
+def doc_commands(path: Path) -> list[str]:
+    """Every `python -m sumo_scendiff.X ...` of a document, in code blocks and in inline code."""
+    text, found = path.read_text(), []
+    for code in re.findall(r"```\w*\n(.*?)```", text, re.S):
+        for cmd in test_readme.commands(code):
+            found += [part.strip()[part.strip().index("python -m"):] for part in re.split(r"&&|\|\||;", cmd)
+                      if "python -m sumo_scendiff." in part]
+    prose = re.sub(r"\s*\n\s*", " ", re.sub(r"```.*?```", "", text, flags=re.S))
+    return found + [s for s in re.findall(r"`([^`]+)`", prose) if s.startswith("python -m sumo_scendiff.")]
+
+
+@pytest.mark.slow   # each program's --help in a subprocess
+@pytest.mark.parametrize("path", DOCS[1:], ids=_name)
+def test_doc_commands_use_flags_their_programs_know(path):
+    unknown = []
+    for cmd in doc_commands(path):
+        module, stage, flags = test_readme.split_command(cmd)
+        if module.split(".")[0] not in CLIS or "." in module:
+            continue
+        h = test_readme.help_text(module, stage)
+        unknown += [f"{module}: {f} ({cmd[:100]})" for f in flags if not test_readme.knows(h, f)]
+    assert not unknown, f"{_name(path)}: flags no parser knows:\n" + "\n".join(sorted(set(unknown)))
