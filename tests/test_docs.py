@@ -7,6 +7,7 @@ CHANGELOG.md and the weights card (sumo_scendiff/weights/README.md) may name rou
 """
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -112,3 +113,14 @@ def test_doc_commands_use_flags_their_programs_know(path):
         h = test_readme.help_text(module, stage)
         unknown += [f"{module}: {f} ({cmd[:100]})" for f in flags if not test_readme.knows(h, f)]
     assert not unknown, f"{_name(path)}: flags no parser knows:\n" + "\n".join(sorted(set(unknown)))
+
+
+def test_readme_corpus_row_is_the_committed_corpus():
+    """The README's corpus figure is results/corpus.json's: scenarios with no failed step (a step
+    skipped because the product exported nothing, and said why, is not a failure)."""
+    rows = json.loads((ROOT / "results" / "corpus.json").read_text())["scenarios"]
+    passed = sum(all(s.get("ok") is not False for s in r["steps"].values()) for r in rows)
+    (row,) = [ln for ln in (ROOT / "README.md").read_text().split("\n") if "results/corpus.json" in ln]
+    assert f"{passed} of {len(rows)}" in row, f"README's corpus row should read {passed} of {len(rows)}: {row}"
+    corpus_md = re.sub(r"\s+", " ", (ROOT / "docs" / "corpus.md").read_text())
+    assert f"Of {len(rows)} scenarios, {passed} pass" in corpus_md, "docs/corpus.md's count differs"
