@@ -68,6 +68,12 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
 
 
+def default_p_mask(tokens) -> float:
+    """The global p_mask token where nobody gives one: 1.0 (the model draws the whole scene) for a
+    window without agent tokens, else 0.5 (docs/tokens.md)."""
+    return 0.5 if len(tokens) else 1.0
+
+
 @dataclass(frozen=True)
 class TokenSpec:
     """A parsed token file: frame, global p_mask and one feature dict per agent token."""
@@ -76,6 +82,12 @@ class TokenSpec:
     p_mask: float
     agents: tuple[dict, ...]
     source: str
+    p_mask_given: bool = True    # False: p_mask is the default for the file's own agents
+
+    def asked_p_mask(self) -> float | None:
+        """The file's ``p_mask`` where it gives one; None lets a window's own tokens decide
+        (:func:`default_p_mask`: the vehicles already there count too)."""
+        return self.p_mask if self.p_mask_given else None
 
     def for_window(self, window) -> list[dict]:
         """Agent dicts in the frame of ``window`` (a :class:`~sumo_scendiff.core.geometry.Window`).
@@ -163,10 +175,11 @@ def parse_tokens(data: Mapping[str, Any], source: str) -> TokenSpec:
     if frame not in FRAMES:
         raise _error(source, f'frame must be "window" or "world", got {frame!r}')
     agents = _parse_agents(data.get("agents", []), frame, source)
-    p_mask = data.get("p_mask", 0.5 if agents else 1.0)
+    p_mask = data.get("p_mask", default_p_mask(agents))
     if not _is_number(p_mask) or not 0.0 <= p_mask <= 1.0:
         raise _error(source, f"p_mask must be a number in [0, 1], got {p_mask!r}")
-    return TokenSpec(frame=frame, p_mask=float(p_mask), agents=agents, source=source)
+    return TokenSpec(frame=frame, p_mask=float(p_mask), agents=agents, source=source,
+                     p_mask_given="p_mask" in data)
 
 
 def _parse_agents(raw: Any, frame: str, source: str) -> tuple[dict, ...]:
