@@ -1,0 +1,97 @@
+"""sim/warmup.py: the demand run to T in one call, its state saved and started from when asked again."""
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from sumo_scendiff.sim.sumo import SimConfig, close, start
+from sumo_scendiff.sim.warmup import WarmUpError, cached_state, start_warm, state_key, warm_config, warm_up
+
+DEMAND = """<routes>
+  <vType id="car" accel="2.6" decel="4.5" sigma="0.5" length="5"/>
+  <route id="we" edges="wc ce"/><route id="sn" edges="sc cn"/><route id="ws" edges="wc cs"/>
+  <flow id="f_we" type="car" route="we" begin="0" end="400" period="7"/>
+  <flow id="f_sn" type="car" route="sn" begin="0" end="400" probability="0.12"/>
+  <vehicle id="late" type="car" route="ws" depart="150"/>
+</routes>
+"""
+
+
+@pytest.fixture()
+def scenario(cross_net, tmp_path):
+    routes = tmp_path / "demand.rou.xml"
+    routes.write_text(DEMAND)
+    return SimConfig(net=cross_net, routes=(str(routes),), step_length=1.0, begin=0.0)
+
+
+def _snapshot(sim) -> dict:
+    v = sim.vehicle
+    return {vid: (round(v.getPosition(vid)[0], 3), round(v.getPosition(vid)[1], 3), round(v.getSpeed(vid), 3))
+            for vid in v.getIDList()}
+
+
+def _stepped(cfg, until: float, then: float = 0.0) -> tuple[dict, dict]:
+    """The vehicles at ``until`` stepping one step at a time (the reference), and ``then`` s later."""
+    sim = start(cfg)
+    try:
+        while sim.simulation.getTime() < until - 1e-9:
+            sim.simulationStep()
+        at = _snapshot(sim)
+        for _ in range(int(then)):
+            sim.simulationStep()
+        return at, _snapshot(sim)
+    finally:
+        close(sim)
+
+
+def test_one_call_is_the_step_by_step_run(scenario, tmp_path):
+    ref, _ = _stepped(scenario, 200.0)
+    sim = start(scenario)
+    try:
+        assert warm_up(sim, 200.0) is None        # no cfg: nothing saved
+        assert sim.simulation.getTime() == pytest.approx(200.0)
+        assert _snapshot(sim) == ref and len(ref) > 3
+        with pytest.raises(WarmUpError, match="already at 200"):
+            warm_up(sim, 100.0)
+    finally:
+        close(sim)
+
+
+def _continued(sim, seconds: int) -> tuple[dict, dict]:
+    try:
+        at = _snapshot(sim)
+        for _ in range(seconds):
+            sim.simulationStep()
+        return at, _snapshot(sim)
+    finally:
+        close(sim)
+
+
+def test_the_saved_state_is_started_from_and_continues_the_same(scenario, tmp_path):
+    folder, warming = str(tmp_path / "states"), warm_config(scenario)
+    ref, _ = _stepped(warming, 200.0)     # the scenario as stock SUMO runs it, one step at a time
+    assert cached_state(warming, 200.0, folder) is None
+    sim = start_warm(scenario, 200.0, folder=folder)
+    assert sim.simulation.getTime() == pytest.approx(200.0)
+    first = _continued(sim, 60)
+    path = cached_state(warming, 200.0, folder)
+    assert path is not None and os.listdir(folder) == [os.path.basename(path)]
+    stamp = os.stat(path).st_mtime_ns
+    sim = start_warm(scenario, 200.0, folder=folder)     # from the state: not run again, not rewritten
+    assert sim.simulation.getTime() == pytest.approx(200.0)
+    again = _continued(sim, 60)
+    assert first[0] == ref          # the demand's vehicles at T as SUMO ran them
+    assert again == first           # and on: the flows go on the same way, none inserted twice
+    assert os.stat(path).st_mtime_ns == stamp
+
+
+def test_the_key_follows_the_inputs_contents_and_the_time(scenario):
+    key = state_key(scenario, 200.0)
+    assert state_key(scenario, 200.0) == key
+    assert state_key(scenario, 201.0) != key
+    assert state_key(warm_config(scenario), 200.0) != key      # without the seeding's options
+    assert state_key(warm_config(scenario, rng=False), 200.0) == state_key(warm_config(scenario), 200.0)
+    with open(scenario.routes[0], "a") as f:
+        f.write("<!-- edited -->\n")
+    assert state_key(scenario, 200.0) != key
