@@ -9,8 +9,9 @@ Every result is a JSON file in ``results/`` written by its benchmark (``-o``/``-
 document includes its table between ``<!-- results:NAME -->`` and ``<!-- /results:NAME -->`` lines
 (the corpus keeps ``<!-- corpus-table -->``, which its own script writes too); this script writes
 each table from its file, so a figure in the docs is the committed file's. A results file unknown
-here is drawn as a generic table of its ``rows`` (a list of objects), and its top-level ``command``
-(a string or an argument list, run from the repository root) is what ``--run NAME`` runs.
+here is drawn as its own ``table`` (markdown) or else a table of its ``rows`` (a list of objects),
+and its top-level ``command`` (a string or an argument list, run from the repository root) is what
+``--run NAME`` runs.
 
 ``emit`` is also here: the benchmark scripts' markdown report, printed and written with ``-o``.
 """
@@ -50,7 +51,10 @@ def _cell(value) -> str:
 
 
 def generic_table(doc) -> str:
-    """A results file's ``rows`` (objects) as a table, their keys as columns in first-seen order."""
+    """A results file's own markdown ``table`` where it writes one, else its ``rows`` (objects) as a
+    table, their keys as columns in first-seen order."""
+    if isinstance(doc, dict) and isinstance(doc.get("table"), str):
+        return doc["table"].rstrip("\n") + "\n"
     rows = doc.get("rows") if isinstance(doc, dict) else doc
     if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
         raise ValueError("no 'rows' list of objects to draw")

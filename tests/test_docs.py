@@ -85,6 +85,7 @@ def test_report_fills_between_markers_and_refuses_an_open_one():
         report.fill_in(f"{b}\nno end\n", b, e, "t", "doc")
     table = report.generic_table({"rows": [{"net": "a|b", "veh_km": 19.5}, {"net": "c"}]})
     assert table == "| net | veh_km |\n|---|---|\n| a\\|b | 19.5 |\n| c | – |\n"
+    assert report.generic_table({"rows": [], "table": "| own |\n|---|"}) == "| own |\n|---|\n"
 
 
 # the package's command-line programs (each has its own --help); other `python -m` lines name scripts
