@@ -78,3 +78,17 @@ def test_evaluate_tokens_prints_the_three_token_tables_with_progress(tmp_path, c
     assert [r["features"] for r in tables["speed"]] == ["pose + extents", "+ speed", "+ speed + final speed"]
     # the shipped model places the pinned tokens of the recorded crossing
     assert tables["mask"][0]["match_rate"] > 0.8
+
+
+def test_pictures_are_one_complete_png(cross_net, cross_scene, tmp_path):
+    import cv2
+
+    from sumo_scendiff.evaluate.__main__ import save_pictures
+    from sumo_scendiff.map.network import Network
+    net = Network.load(cross_net)
+    scene = cross_scene(net)
+    path = tmp_path / "pics" / "cross.png"
+    save_pictures(net, {"Ground truth": [scene], "Model": [scene]}, str(path))
+    img = cv2.imread(str(path))
+    assert img is not None and img.shape[1] > img.shape[0] > 0     # two tiles side by side
+    assert [p.name for p in path.parent.iterdir()] == ["cross.png"]

@@ -217,17 +217,15 @@ def evaluate_net(net: Network, o, pool: SceneStore, models: dict) -> dict:
 
 def save_pictures(net: Network, tiles: dict, path: str) -> None:
     """One row per shown window, one column per method (ground truth first)."""
-    import cv2
-
+    from ..core.files import write_png
+    from ..core.outputs import partial_path
     from ..map.picture import contact_sheet, draw_scene
     rows = [[draw_scene(net, scenes[r], 320, title=name) for name, scenes in tiles.items()]
             for r in range(len(next(iter(tiles.values()))))]
     if rows:
-        from ..core.outputs import partial_path
         os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
         tmp = partial_path(path)   # complete or absent, never a half-written picture
-        with open(tmp, "wb") as f:
-            f.write(cv2.imencode(".png", contact_sheet(rows))[1].tobytes())
+        write_png(tmp, contact_sheet(rows))
         os.replace(tmp, path)
 
 
