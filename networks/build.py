@@ -36,6 +36,7 @@ sys.dont_write_bytecode = True   # keep networks/ free of __pycache__
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import _organic  # noqa: E402
 import _specs  # noqa: E402
+import _wide  # noqa: E402
 from _city import city  # noqa: E402
 
 try:
@@ -68,9 +69,16 @@ BUILDERS = [
     _organic.organic_turnlanes,
     _organic.grid_turnlanes_tls,
     city,
+    _wide.osm_irregular,
+    _wide.osm_suburb,
+    _wide.arterial_lights,
+    _wide.dense_urban_grid,
 ]
 # held-out evaluation nets: one grid variant, one tls arterial, one random net, and the city demo
 HELDOUT = [_specs.grid5x5_jitter, _specs.arterial_tls, _specs.random_sparse, city]
+# shaped like the real cities evaluation runs on: only in the "train_wide" split (the training
+# networks and these), so that "train" and what recipes record from it stay as they were
+WIDE = [_wide.osm_irregular, _wide.osm_suburb, _wide.arterial_lights, _wide.dense_urban_grid]
 
 
 def sumo_binary(name):
@@ -102,11 +110,20 @@ def fmt(value):
 
 
 def write_plain(path, root, elements):
-    """Write a plain-XML file; elements is a list of (tag, attribute dict)."""
+    """Write a plain-XML file; elements is a list of (tag, attribute dict) or (tag, attribute dict,
+    children: a list of (tag, attribute dict), e.g. an edge's ``split`` elements)."""
+    def attributes(attrs):
+        return " ".join('%s="%s"' % (k, fmt(v)) for k, v in attrs.items())
     with open(path, "w", encoding="utf-8") as f:
         f.write('<?xml version="1.0" encoding="UTF-8"?>\n<%s>\n' % root)
-        for tag, attrs in elements:
-            f.write("    <%s %s/>\n" % (tag, " ".join('%s="%s"' % (k, fmt(v)) for k, v in attrs.items())))
+        for tag, attrs, *children in elements:
+            if not children or not children[0]:
+                f.write("    <%s %s/>\n" % (tag, attributes(attrs)))
+                continue
+            f.write("    <%s %s>\n" % (tag, attributes(attrs)))
+            for ctag, cattrs in children[0]:
+                f.write("        <%s %s/>\n" % (ctag, attributes(cattrs)))
+            f.write("    </%s>\n" % tag)
         f.write("</%s>\n" % root)
 
 
@@ -142,8 +159,11 @@ class Workspace:
 
     def netconvert(self, nodes, edges, *args, roundabouts=()):
         write_plain(os.path.join(self.tmpdir, self.name + ".nod.xml"), "nodes", [("node", n) for n in nodes])
+        # an edge's "splits" (lane changes along it, e.g. a turn pocket) are child elements
         write_plain(os.path.join(self.tmpdir, self.name + ".edg.xml"), "edges",
-                    [("edge", e) for e in edges] + [("roundabout", r) for r in roundabouts])
+                    [("edge", {k: v for k, v in e.items() if k != "splits"},
+                      [("split", sp) for sp in e.get("splits", ())]) for e in edges]
+                    + [("roundabout", r) for r in roundabouts])
         self.expect_roundabouts = len(roundabouts)
         self._run("netconvert", ["-n", self.name + ".nod.xml", "-e", self.name + ".edg.xml"] + list(args))
 
@@ -248,8 +268,11 @@ def doc(builder):
     return " ".join(builder.__doc__.split())
 
 
+def split_of(builder):
+    return "heldout" if builder in HELDOUT else "train_wide" if builder in WIDE else "train"
+
+
 def write_readme(out_dir, rows, seed):
-    heldout = {b.__name__ for b in HELDOUT}
     lines = [
         "# Road networks",
         "",
@@ -263,7 +286,8 @@ def write_readme(out_dir, rows, seed):
         "",
         "All nets: right-hand traffic, 3.2 m lanes, internal links, deterministic output "
         "(rebuilding with the same seed and SUMO version gives byte-identical files). "
-        "`splits.json` lists train / held-out nets; `city.net.xml` (~2x2 km) is the demo and a held-out net.",
+        "`splits.json` lists train / train_wide / held-out nets; `city.net.xml` (~2x2 km) is the demo and a "
+        "held-out net.",
         "",
         "| network | split | description | extent (m) | edges | lanes (drivable / sidewalk) | "
         "crossings | junction types | TLS | roundabouts | speeds (m/s) | SCC | size (KB) |",
@@ -273,7 +297,7 @@ def write_readme(out_dir, rows, seed):
         name = builder.__name__
         jt = ", ".join("%s %d" % kv for kv in st["junctions"].items())
         lines.append("| `%s.net.xml` | %s | %s | %.0f x %.0f | %d | %d (%d / %d) | %d | %s | %d | %d | %s | %.0f%% | %.0f |" % (
-            name, "heldout" if name in heldout else "train", doc(builder), st["extent"][0], st["extent"][1],
+            name, split_of(builder), doc(builder), st["extent"][0], st["extent"][1],
             st["edges"], st["lanes"], st["drivable_lanes"], st["sidewalks"], st["crossings"], jt, st["tls"],
             st["roundabouts"], " ".join("%g" % s for s in st["speeds"]), 100 * st["scc"], st["size_kb"]))
     lines += [
@@ -282,6 +306,20 @@ def write_readme(out_dir, rows, seed):
         "passenger edges in the largest strongly connected component (nets without u-turns "
         "or with one-way entries are not fully strongly connected by design).",
         "",
+        "The `train_wide` split is `train` plus four networks (`_wide.py`) shaped like the real cities "
+        "evaluation runs on (`../shared/nets`, read with sumolib, not copied). Those differ from `train` "
+        "in their streets: car edges of median length 30-110 m (`train`: mostly 65-200 m), 30 km/h "
+        "for 15-50 % of the lane length and 50 km/h for most of the rest (`train`: 50-60 km/h, up to "
+        "120 km/h; no 30 km/h in 10 of 15 networks), right-before-left junctions in every city but one, "
+        "10-20 % one-way streets, mostly 1-lane streets beside 2-4 lane arterials, and actuated lights "
+        "beside fixed-time ones (Berlin, Wildau; `train` has only fixed-time lights). The four "
+        "networks add those: irregular street graphs from `netgenerate --rand` with dead ends and bent "
+        "edges (`osm_irregular`, `osm_suburb`), street classes (arterial, collector, residential) with "
+        "their speeds, lanes and priorities, 30 km/h right-before-left zones with some 20 km/h streets, "
+        "one-way residential streets (kept while every junction reaches every other), left-turn "
+        "pockets before the lights of multi-lane arterials (`arterial_lights`), both light types, and "
+        "short inner-city blocks (`dense_urban_grid`).",
+        "",
     ]
     with open(os.path.join(out_dir, "README.md"), "w", encoding="utf-8", newline="\n") as f:
         f.write("\n".join(lines))
@@ -289,9 +327,10 @@ def write_readme(out_dir, rows, seed):
 
 def write_splits(out_dir):
     heldout = [b.__name__ + ".net.xml" for b in BUILDERS if b in HELDOUT]
-    train = [b.__name__ + ".net.xml" for b in BUILDERS if b not in HELDOUT]
+    train = [b.__name__ + ".net.xml" for b in BUILDERS if b not in HELDOUT and b not in WIDE]
+    wide = train + [b.__name__ + ".net.xml" for b in WIDE]
     with open(os.path.join(out_dir, "splits.json"), "w", encoding="utf-8", newline="\n") as f:
-        json.dump({"train": train, "heldout": heldout}, f, indent=2)
+        json.dump({"train": train, "train_wide": wide, "heldout": heldout}, f, indent=2)
         f.write("\n")
 
 
@@ -304,6 +343,8 @@ def get_options(args=None):
     parser.add_argument("-v", "--verbose", action="store_true", help="print tool commands and output")
     parser.add_argument("--describe", action="store_true",
                         help="do not build; only describe/validate existing nets and write README.md/splits.json")
+    parser.add_argument("--only", nargs="+", metavar="NAME", choices=[b.__name__ for b in BUILDERS],
+                        help="build only these nets; describe the others as they are in the output directory")
     return parser.parse_args(args)
 
 
@@ -313,7 +354,7 @@ def main(options):
     rows = []
     for builder in items:
         start = time.time()
-        if options.describe:
+        if options.describe or (options.only and builder.__name__ not in options.only):
             path, expect = os.path.join(options.output_dir, builder.__name__ + ".net.xml"), 0
         else:
             path, expect = build(builder, options.output_dir, options.seed, options.verbose)

@@ -99,8 +99,9 @@ def test_networks_build_reproduces_the_repository_networks(tmp_path):
         with open(os.path.join(root, name), "rb") as f:
             assert (tmp_path / name).read_bytes() == f.read(), name
     splits = json.loads((tmp_path / "splits.json").read_text())
-    assert set(splits["train"]) | set(splits["heldout"]) == set(built)
-    assert not set(splits["train"]) & set(splits["heldout"])
+    assert set(splits["train_wide"]) | set(splits["heldout"]) == set(built)
+    assert set(splits["train"]) < set(splits["train_wide"])
+    assert not set(splits["train_wide"]) & set(splits["heldout"])
 
 
 def test_car_lane_km_counts_the_lanes_inside_the_window(diagonal_net):
