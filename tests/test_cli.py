@@ -43,3 +43,32 @@ def test_run_turns_a_center_window_by_yaw(capsys):
             run_options(["-n", "x.net.xml", *bad])
         err = capsys.readouterr().err
         assert e.value.code == 2 and says in err.strip().splitlines()[-1]
+
+
+def _scendiff(*args):
+    """The installed ``scendiff`` console script (pyproject's [project.scripts])."""
+    import shutil
+    import subprocess
+    exe = shutil.which("scendiff")
+    assert exe, "scendiff is not installed: pip install -e ."
+    return subprocess.run([exe, *args], capture_output=True, text=True, timeout=300)
+
+
+def test_the_scendiff_command_dispatches_to_each_tool(tmp_path):
+    """scendiff TOOL runs python -m sumo_scendiff.TOOL: its help, its one-line errors and exit 2;
+    an unknown tool is one line and exit 2 too."""
+    from sumo_scendiff.console import TOOLS
+    assert {"run", "fill", "sweep", "evaluate", "train", "studio"} <= set(TOOLS)
+    top = _scendiff("--help")
+    assert top.returncode == 0 and all(t in top.stdout for t in TOOLS)
+    helped = _scendiff("run", "--help")
+    assert helped.returncode == 0 and "--net-file" in helped.stdout and "--tokens" in helped.stdout
+    missing = str(tmp_path / "missing.net.xml")
+    bad = _scendiff("run", "-n", missing, "-o", str(tmp_path / "out"))
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and missing in bad.stderr, bad.stderr
+    assert not (tmp_path / "out").exists()
+    fill = _scendiff("fill", "--help")
+    assert fill.returncode == 0 and "--density" in fill.stdout
+    unknown = _scendiff("runn")
+    assert unknown.returncode == 2 and unknown.stderr.strip().splitlines() == [
+        unknown.stderr.strip()] and "'runn'" in unknown.stderr

@@ -2,7 +2,7 @@
 
 Data flows one way: core -> map -> tokens -> model -> generation -> sim -> data -> export -> the applications
 (train, evaluate, sweep, fill) -> the ``run`` CLI -> the studio (a web app over ``run``) -> the
-package's re-exports. A module may import
+``scendiff`` command -> the package's re-exports. A module may import
 from its own layer or a lower one, never from a higher one or a sibling application, and no chain
 of imports may come back to where it started (docs/architecture.md).
 """
@@ -16,7 +16,8 @@ import pytest
 PKG = "sumo_scendiff"
 ROOT = os.path.join(os.path.dirname(__file__), "..", PKG)
 LAYERS = [{"core"}, {"map"}, {"tokens"}, {"model"}, {"generation"}, {"sim"}, {"data"}, {"export"},
-          {"train", "evaluate", "sweep", "fill"}, {"run"}, {"studio"}, {"__init__"}]
+          {"train", "evaluate", "sweep", "fill"}, {"run"}, {"studio"}, {"console"},
+          {"__init__"}]
 RANK = {room: k for k, rooms in enumerate(LAYERS) for room in rooms}
 
 
