@@ -348,3 +348,12 @@ def test_the_picture_draws_the_file_beside_scene_png(exported, tmp_path):
     draw(exported, out)
     img = cv2.imread(out)
     assert img is not None and img.shape[1] > img.shape[0] > 200   # two panels side by side
+
+
+def test_the_picture_refuses_a_folder_not_exported_in_one_line(tmp_path):
+    for args, words in (([], "required: folder, output"),
+                        ([str(tmp_path), str(tmp_path / "p.png")], "no scene.png, scenario.xosc, scenario.xodr")):
+        res = subprocess.run([sys.executable, "-m", "sumo_scendiff.export.picture", *args],
+                             capture_output=True, text=True)
+        assert res.returncode == 2 and words in res.stderr and "Traceback" not in res.stderr
+    assert not (tmp_path / "p.png").exists()

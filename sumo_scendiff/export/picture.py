@@ -72,5 +72,31 @@ def draw(folder: str, out: str) -> None:
     plt.close(fig)
 
 
+def get_options(args=None):
+    import argparse
+    ap = argparse.ArgumentParser(prog="python -m sumo_scendiff.export.picture",
+                                 description="an exported scene folder drawn from its scenario.xosc and "
+                                             "scenario.xodr, beside its scene.png")
+    ap.add_argument("folder", help="a scene folder exported as OpenSCENARIO (python -m sumo_scendiff.export)")
+    ap.add_argument("output", help="the PNG to write")
+    o = ap.parse_args(args)
+    o.parser = ap
+    missing = [f for f in ("scene.png", "scenario.xosc", "scenario.xodr") if not os.path.isfile(os.path.join(o.folder, f))]
+    if missing:
+        ap.exit(2, f"{ap.prog}: error: {o.folder}: no {', '.join(missing)} (export the folder first: "
+                   f"python -m sumo_scendiff.export {o.folder})\n")
+    if os.path.exists(o.output) and not o.output.lower().endswith(".png"):
+        ap.exit(2, f"{ap.prog}: error: {o.output}: exists and is not a PNG; not overwritten\n")
+    return o
+
+
+def main(o) -> int:
+    try:
+        draw(o.folder, o.output)
+    except (OSError, ValueError, ET.ParseError) as e:
+        o.parser.exit(2, f"{o.parser.prog}: error: {e}\n")
+    return 0
+
+
 if __name__ == "__main__":
-    draw(sys.argv[1], sys.argv[2])
+    sys.exit(main(get_options()))
