@@ -183,20 +183,42 @@ def _edge_data(o, net):
         raise RunError(f"--edge-data: {e}") from None
 
 
-def _targets(o, net, windows, session, edge_data, host: bool, has_density: bool) -> list[float | None]:
-    """Each window's density target (veh per km of car lane) from --density/--vehicles (neither:
-    the host's own level where there is demand, ``sim.density.default_density``), or None."""
+def _level(o, density) -> str | None:
+    """The traffic level of run.json: as asked, or the default one says it is the default."""
+    if o.vehicles is not None:
+        return f"vehicles {o.vehicles}"
+    if density is None:
+        return "model"
+    return density if o.density is not None else f"{density} (default with demand)"
+
+
+def _requests(o, net, session, windows, spec, gen, edge_data, host: bool) -> list:
+    """Each window's request to the generator (sim/request.py): the user's tokens, the vehicles
+    already there, p_mask, density target and lights, as the simulation shows them at the seeding
+    time; the user's tokens heading against their road warned about, one line each."""
     from .map.edgedata import EdgeDataError
-    from .sim.density import default_density, host_has_traffic, window_target
-    when = session.sim.simulation.getTime()
-    density = default_density(o.density, o.vehicles, host and host_has_traffic(session.sim), has_density)
-    o.level = (f"vehicles {o.vehicles}" if o.vehicles is not None else "model" if density is None
-               else density if o.density is not None else f"{density} (default with demand)")
+    from .sim.fleet import Fleet
+    from .sim.request import DensityUnsupported, window_request
+    fleet = Fleet.read(session.sim)    # a token's vtype: one of the scenario's, its size
+    asked_p_mask = o.p_mask if o.p_mask is not None else spec.asked_p_mask() if spec else None
+    out = []
     try:
-        return [window_target(net, w, density, o.vehicles, sim=session.sim if host else None,
-                              edge_data=edge_data, time=when) for w in windows]
+        for k, w in enumerate(windows):
+            existing = session.existing(w)
+            req = window_request(net, session.sim, w, existing, spec.for_window(w) if spec else [],
+                                 source=spec.source if spec else "tokens", fleet=fleet,
+                                 p_mask=asked_p_mask, density=o.density, vehicles=o.vehicles, host=host,
+                                 has_density=gen.has_density, edge_data=edge_data,
+                                 signals=gen.config.signals)
+            for line in req.warnings:
+                print(f"{PROG}: warning: scene_{k:03d}: {o.tokens}: {line}", file=sys.stderr)
+            out.append(req)
     except EdgeDataError as e:
         raise RunError(f"--edge-data: {e}") from None
+    except DensityUnsupported:
+        raise RunError(f"--density/--vehicles: {o.checkpoint or 'the shipped model'} has no density "
+                       f"condition (trained before it); leave them out or use a newer model") from None
+    return out
 
 
 def _warm_up(sim, o, at: float | None, progress: bool) -> None:
@@ -237,33 +259,95 @@ def _windows(o, net, sim, cosim):
     return [(loc.window, loc.kind) for loc in auto_windows(net, o.scenes, seed=o.seed)]
 
 
-def run(o) -> dict:
-    from dataclasses import replace
-
+def _scenario(o):
+    """The user's inputs judged by SUMO itself, before the model is even imported."""
     from .sim.preflight import preflight
     from .sim.scenario import ScenarioError, scenario_from_files
-    timing = {}
-    t = time.perf_counter()
-    try:   # the user's inputs judged by SUMO itself before the model is even imported
-        scen = preflight(scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional)))
+    try:
+        return preflight(scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional)))
     except ScenarioError as e:
         raise RunError(str(e)) from None
-    from .core.threads import GENERATION_THREADS, share_cpu
-    threads = share_cpu(default=GENERATION_THREADS)   # before torch is imported (core/threads.py: why one)
+
+
+def _demand_times(o, scen, net) -> tuple[float | None, float | None]:
+    """(the time SUMO starts at, the seeding time it runs the demand up to; None: the ego decides,
+    or there is no demand), as :func:`_session` says."""
+    from .data.demand import DemandError, demand_span, seeding_time
+    if not scen.routes:
+        return (o.begin if o.begin is not None else scen.begin), None
+    try:  # the route files as the set SUMO loads, against this network
+        span = demand_span(scen.routes, {ln.edge for ln in net.lanes}, scen.additional,
+                           begin=scen.begin, end=scen.end)
+        at = seeding_time(o.begin, scen.begin, span, scen.routes, config_end=scen.end) if span and not o.ego else None
+    except DemandError as e:
+        raise RunError(str(e)) from None
+    first = span[0] if span else None
+    return (scen.begin if scen.begin is not None else first), at
+
+
+def _session(o, scen, net, gen, sumo_settings: dict, times: tuple, progress: bool):
+    """The simulation of the scenario and the warm-up that runs its demand up to the seeding time
+    (sim/session.py); with demand SUMO starts at the configuration's begin, else the demand's first
+    departure (before it the network is empty), and without demand at --begin."""
+    from .sim.session import Session
+    from .sim.sumo import SimConfig
+    begin, at = times
+    cfg = SimConfig(net=scen.net, routes=scen.routes, additional=scen.additional, gui=o.gui, traci=o.traci,
+                    seed=o.seed, begin=begin, **sumo_settings)
+    session = Session(cfg, net, gen, quiet=not o.verbose, model_fleet=o.model_fleet)
+    return session, (lambda sim: _warm_up(sim, o, at, progress)) if scen.routes else None
+
+
+def _generate(o, net, gen, requests, progress: bool, timing: dict) -> list:
+    """The scenes of ``requests``, their map rasters drawn with the lights each scene meets."""
     import numpy as np
 
-    from .data.demand import DemandError, demand_span, seeding_time
-    from .generation.generator import GenerationConfig, ScenarioGenerator
-    from .generation.token_check import heading_warnings
-    from .generation.token_resolve import resolve_tokens
-    from .map.network import Network, NoCarLane
     from .map.raster import render_map
-    from .sim.fleet import Fleet
-    from .sim.lights import light_states
-    from .sim.session import Session
-    from .sim.sumo import SimConfig, settings
-    from .tokens.file import load_tokens
+    from .sim.request import generation_inputs
+    t = time.perf_counter()
+    windows = [r.window for r in requests]
+    maps = np.stack([render_map(net, r.window, gen.raster, signals=r.lights) for r in requests])
+    timing["raster"] = time.perf_counter() - t
+    t = time.perf_counter()
+    scenes = gen.generate(net, windows, seed=o.seed, maps=maps, progress=progress,
+                          **generation_inputs(requests))
+    timing["generate"] = time.perf_counter() - t
+    return scenes
 
+
+def _realise(o, net, gen, session, places, requests, scenes, kept: set[str], progress: bool) -> list[dict]:
+    """Seed, export and roll out each scene (--resume: a kept scene's row read back)."""
+    from tqdm import tqdm
+    results = []
+    for k in tqdm(range(len(scenes)), desc="seeding and rolling out", disable=not progress):
+        name, req = f"scene_{k:03d}", requests[k]
+        head = {"scene": name, "location": places[k][1], "target_veh_per_km": req.target}
+        if name in kept:  # --resume: generated in the same batch as now, so the same scene
+            with open(os.path.join(o.out, name, "rollout.json")) as f:
+                results.append({**head, **_counts(net, req.window, json.load(f))})
+            continue
+        info = {"scene": name, "location": places[k][1], "window_index": k,
+                "target_veh_per_km": req.target, "model": gen.config.record(gen),
+                "sumo_options": session.cfg.options()}
+        row = session.realise(scenes[k], req.tokens, req.sources, req.existing, o.out, name, info,
+                              o.rollout, seed=o.seed, p_mask=req.p_mask, force=o.force,
+                              replay=o.replay_future)
+        _warn_lost(o, name, row)
+        results.append({**head, **_counts(net, req.window, row)})
+    return results
+
+
+def run(o) -> dict:
+    from dataclasses import replace
+    t = time.perf_counter()
+    scen = _scenario(o)
+    from .core.threads import GENERATION_THREADS, share_cpu
+    threads = share_cpu(default=GENERATION_THREADS)   # before torch is imported (core/threads.py: why one)
+    from .generation.generator import GenerationConfig, ScenarioGenerator
+    from .map.network import Network, NoCarLane
+    from .sim.density import default_density, host_has_traffic
+    from .sim.sumo import settings
+    from .tokens.file import load_tokens
     progress = sys.stderr.isatty() or o.verbose
     sumo_settings = settings(o, scen)     # the scenario's step length and options, the flags over them
     try:
@@ -272,14 +356,7 @@ def run(o) -> dict:
         if not o.config:     # a bare -n: the user chose a network the model cannot use
             raise
         return _nothing_to_generate(o, scen, f"no car lane: {e}")
-    routes = scen.routes
-    try:  # the route files as the set SUMO loads, against this network
-        span = demand_span(routes, {ln.edge for ln in net.lanes}, scen.additional,
-                           begin=scen.begin, end=scen.end) if routes else None
-        at = seeding_time(o.begin, scen.begin, span, routes, config_end=scen.end) if span and not o.ego else None
-    except DemandError as e:
-        raise RunError(str(e)) from None
-    first = span[0] if span else None
+    times = _demand_times(o, scen, net)   # the demand's problems before the model is loaded
     edge_data = _edge_data(o, net)
     spec = load_tokens(o.tokens, net=net) if o.tokens else None
     kept = _check_output(o)
@@ -287,74 +364,26 @@ def run(o) -> dict:
     # is N vehicles, one by one
     gen = ScenarioGenerator.load(o.checkpoint, replace(GenerationConfig.from_options(o),
                                                        count_on_edges=o.vehicles is None))
-    # with demand SUMO starts at the configuration's begin, else the demand's first departure (before
-    # it the network is empty), and runs up to the seeding time; without, it starts at --begin
-    start = (scen.begin if scen.begin is not None else first) if routes else \
-        (o.begin if o.begin is not None else scen.begin)
-    cfg = SimConfig(net=scen.net, routes=routes, additional=scen.additional, gui=o.gui, traci=o.traci, seed=o.seed, begin=start,
-                    **sumo_settings)
-    session = Session(cfg, net, gen, quiet=not o.verbose, model_fleet=o.model_fleet)
+    session, warm_up = _session(o, scen, net, gen, sumo_settings, times, progress)
+    timing = {}
     try:
-        session.prepare((lambda sim: _warm_up(sim, o, at, progress)) if routes else None)
+        session.prepare(warm_up)
         places = _windows(o, net, session.sim, session.cosim())
-        windows = [w for w, _ in places]
-        _check_kept(o, kept, windows)
-        existing = [session.existing(w) for w in windows]
-        targets = _targets(o, net, windows, session, edge_data, host=bool(routes), has_density=gen.has_density)
-        if any(d is not None for d in targets) and not gen.has_density:
-            raise RunError(f"--density/--vehicles: {o.checkpoint or 'the shipped model'} has no density "
-                           f"condition (trained before it); leave them out or use a newer model")
+        _check_kept(o, kept, [w for w, _ in places])
+        host = bool(scen.routes)
+        level = _level(o, default_density(o.density, o.vehicles, host and host_has_traffic(session.sim),
+                                          gen.has_density))
+        requests = _requests(o, net, session, [w for w, _ in places], spec, gen, edge_data, host)
         timing["load"] = time.perf_counter() - t
-
-        t = time.perf_counter()
-        # the lights as the simulation shows them now: the scene agrees with the signals it meets
-        lights = [light_states(session.sim, net.lights_in(w)) if gen.config.signals else None for w in windows]
-        maps = np.stack([render_map(net, w, gen.raster, signals=s) for w, s in zip(windows, lights)])
-        timing["raster"] = time.perf_counter() - t
-
-        t = time.perf_counter()
-        # road references (edge/lane/pos, ahead/lane_offset) resolved on the network once, here, so
-        # the summary's token matching and the warnings see the tokens generation sees
-        user = [resolve_tokens(net, w, spec.for_window(w), spec.source) if spec else [] for w in windows]
-        fleet = Fleet(session.sim, {})   # a token's vtype: one of the scenario's, its size
-        user = [fleet.token_vtypes(u, o.tokens) for u in user]
-        for k, (w, u) in enumerate(zip(windows, user)):
-            for line in heading_warnings(net, w, u):
-                print(f"{PROG}: warning: scene_{k:03d}: {o.tokens}: {line}", file=sys.stderr)
-        tokens = [u + e.tokens() for u, e in zip(user, existing)]
-        sources = [["user"] * len(u) + e.token_ids() for u, e in zip(user, existing)]
-        p_mask = [o.p_mask if o.p_mask is not None else spec.p_mask if spec else 0.5 if tk else 1.0
-                  for tk in tokens]
-        scenes = gen.generate(net, windows, tokens=tokens, p_mask=p_mask, seed=o.seed, maps=maps,
-                              progress=progress, signals=lights,
-                              density=targets if any(d is not None for d in targets) else None)
-        timing["generate"] = time.perf_counter() - t
-
-        results = []
-        from tqdm import tqdm
-        for k in tqdm(range(len(scenes)), desc="seeding and rolling out", disable=not progress):
-            name = f"scene_{k:03d}"
-            if name in kept:  # --resume: generated in the same batch as now, so the same scene
-                with open(os.path.join(o.out, name, "rollout.json")) as f:
-                    results.append({"scene": name, "location": places[k][1], "target_veh_per_km": targets[k],
-                                    **_counts(net, windows[k], json.load(f))})
-                continue
-            info = {"scene": name, "location": places[k][1], "window_index": k,
-                    "target_veh_per_km": targets[k], "model": gen.config.record(gen),
-                    "sumo_options": cfg.options()}
-            row = session.realise(scenes[k], tokens[k], sources[k], existing[k], o.out, name, info,
-                                  o.rollout, seed=o.seed, p_mask=p_mask[k], force=o.force,
-                                  replay=o.replay_future)
-            _warn_lost(o, name, row)
-            results.append({"scene": name, "location": places[k][1], "target_veh_per_km": targets[k],
-                            **_counts(net, windows[k], row)})
+        scenes = _generate(o, net, gen, requests, progress, timing)
+        results = _realise(o, net, gen, session, places, requests, scenes, kept, progress)
         timing.update(session.timing)
     finally:
         session.close()
     summary = {"network": scen.net, "configuration": scen.config, "output_dir": os.path.abspath(o.out),
                "model_sha256": gen.sha256, "seed": o.seed, "threads": threads,
                "fleet": "model" if o.model_fleet else "scenario",
-               "density": getattr(o, "level", None), "scenes": results, "timing_s": {k: round(v, 3) for k, v in timing.items()}}
+               "density": level, "scenes": results, "timing_s": {k: round(v, 3) for k, v in timing.items()}}
     return _write_summary(o, summary)
 
 

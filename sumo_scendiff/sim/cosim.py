@@ -40,10 +40,8 @@ from ..core.geometry import (
 )
 from ..core.matching import match_agents
 from ..core.scene import Scene
-from ..generation.token_check import heading_warnings
 from ..map.network import Network
-from .density import default_density, host_has_traffic, window_target
-from .lights import light_states
+from .request import generation_inputs, window_request
 from .seeding import Seeder, SeedReport
 from .settle import krauss_safe_speed
 from .sumo import died
@@ -300,29 +298,24 @@ class CoSimulation:
         """Generate around the vehicles already in ``window`` and seed the new agents.
 
         ``tokens``: the caller's agent tokens (window frame, see :mod:`~sumo_scendiff.tokens.encoding`);
-        ``p_mask``: the global scene token (default 1.0 in an empty window, else 0.5);
+        ``p_mask``: the global scene token (default 1.0 for a window without agent tokens, the
+        caller's or the vehicles already there, else 0.5: ``tokens.file.default_p_mask``);
         ``density``: vehicles per km of car lane the window should hold, those already there
         included, "auto" (this simulation's own level around the window, sim.density) or "model"
         (the model's own level); ``vehicles``: that many in the window instead. Neither: "auto"
         while the simulation has traffic of its own, else the model's (``default_density``).
         """
-        for line in heading_warnings(self.net, window, tokens):
+        req = window_request(self.net, self.sim, window, self.existing(window), tokens,
+                             fleet=self.seeder._known_types(), p_mask=p_mask, density=density,
+                             vehicles=vehicles, has_density=self.generator.has_density,
+                             signals=self.generator.config.signals)
+        for line in req.warnings:
             warnings.warn(line, stacklevel=2)
-        tokens = self.seeder._known_types().token_vtypes(tokens, "tokens")   # a vtype's size (sim/fleet.py)
-        ex = self.existing(window)
-        all_tokens = list(tokens) + ex.tokens()
-        source = ["user"] * len(tokens) + ex.token_ids()
-        p = p_mask if p_mask is not None else (1.0 if not all_tokens else 0.5)
         s = self.seed + self.count if seed is None else seed
-        density = default_density(density, vehicles, host_has_traffic(self.sim), self.generator.has_density)
-        target = window_target(self.net, window, density, vehicles, sim=self.sim)
         # a density in veh/km (asked, or the host's) is kept as SUMO's edgeData counts it
         cfg = replace(self.generator.config, count_on_edges=vehicles is None)
-        scene = self.generator.generate(self.net, [window], tokens=[all_tokens], p_mask=p, seed=s, config=cfg,
-                                        density=None if target is None else [target],
-                                        signals=light_states(self.sim, self.net.lights_in(window))
-                                        if self.generator.config.signals else None)[0]
-        return self.place(scene, all_tokens, source, ex, seed=s, p_mask=p)
+        scene = self.generator.generate(self.net, [window], seed=s, config=cfg, **generation_inputs([req]))[0]
+        return self.place(scene, req.tokens, req.sources, req.existing, seed=s, p_mask=req.p_mask)
 
     @_sumo_gone
     def ego_window(self, ego: str, ahead_m: float = 0.0, size: float = 100.0) -> Window:

@@ -9,6 +9,7 @@ import hashlib
 import json
 import os
 
+from ..sim.request import DensityUnsupported, density_target
 from .spec import NetworkEntry, Scenario, Spec
 
 
@@ -30,29 +31,24 @@ def write_failure(out: str, s: Scenario, error: str, **extra) -> None:
     os.replace(tmp, failure_path(out, s.id))
 
 
-class DensityUnsupported(ValueError):
-    """A scenario asks for a traffic level the model cannot condition on."""
+def _unsupported(s: Scenario, target: float, checkpoint: str | None) -> str:
+    """The failure of a scenario asking a traffic level of a model without the density condition."""
+    what = f"density = {s.density!r}" if s.vehicles is None else f"vehicles = {s.vehicles}"
+    if s.density == "auto":
+        what += f" ({target:.1f} veh/km around the window)"
+    return (f"{what}: {checkpoint or 'the shipped model'} has no density condition (trained before it); "
+            f"leave density/vehicles out of the spec or use a newer --checkpoint")
 
 
 def scenario_target(s: Scenario, net, window, sim=None, checkpoint: str | None = None,
                     has_density: bool = True) -> float | None:
-    """The scenario's density target (veh per km of car lane, vehicles already in the window
-    included) from its ``density``/``vehicles``: ``"auto"`` is ``sim``'s own level around the window
-    (the session's simulation of a network with routes) or, without one, None (the model's prior);
-    neither given: as ``sim.density.default_density``.
-    A target the model cannot take (``has_density`` False) raises :class:`DensityUnsupported`."""
-    from ..sim.density import MODEL, default_density, host_has_traffic, window_target
-    asked = s.density not in (None, MODEL) or s.vehicles is not None
-    density = default_density(s.density, s.vehicles, host_has_traffic(sim), has_density)
-    target = window_target(net, window, density, s.vehicles, sim=sim)
-    if asked and target is not None and not has_density:
-        what = f"density = {s.density!r}" if s.vehicles is None else f"vehicles = {s.vehicles}"
-        if s.density == "auto":
-            what += f" ({target:.1f} veh/km around the window)"
-        raise DensityUnsupported(f"{what}: {checkpoint or 'the shipped model'} has no density condition "
-                                 f"(trained before it); leave density/vehicles out of the spec or use a "
-                                 f"newer --checkpoint")
-    return target
+    """The scenario's density target (``sim.request.density_target`` of its ``density``/``vehicles``;
+    ``sim``: the session's simulation where the network has routes). A target the model cannot take
+    (``has_density`` False) raises :class:`DensityUnsupported` naming the spec's key."""
+    try:
+        return density_target(net, window, s.density, s.vehicles, sim=sim, has_density=has_density)
+    except DensityUnsupported as e:
+        raise DensityUnsupported(e.target, _unsupported(s, e.target, checkpoint)) from None
 
 
 class Worker:
@@ -109,6 +105,16 @@ class Worker:
         return window_at(net, x, y, yaw[0] if yaw else 0.0), "center"
 
     # ---- one task -----------------------------------------------------------------------------
+    @staticmethod
+    def _failures() -> tuple[type, ...]:
+        """The errors that fail one scenario (recorded in its .failed.json), not the sweep."""
+        from ..data.demand import DemandError
+        from ..map.locations import LocationError
+        from ..map.network import NetworkError
+        from ..sim.sumo import SimError
+        from ..tokens.file import TokenFileError
+        return (NetworkError, LocationError, TokenFileError, SimError, DemandError, OSError)
+
     def run(self, scenarios: list[Scenario], done: frozenset[str] = frozenset()) -> list[str]:
         """Run scenarios that share network, step length and sampler settings; returns the ids run.
         A scenario whose network, location or tokens fail is recorded as failed, the rest go on.
@@ -116,67 +122,68 @@ class Worker:
         Scenarios in ``done`` (finished before a resume) are generated again but not written: the
         model call then sees the same batch as in an uninterrupted sweep, and float results depend
         on the batch (the classifier-free guidance amplifies that noise)."""
-        from ..data.demand import DemandError
-        from ..map.locations import LocationError
-        from ..map.network import NetworkError
-        from ..sim.lights import light_states
-        from ..sim.sumo import SimError
-        from ..tokens.file import TokenFileError
-        bad = (NetworkError, LocationError, TokenFileError, SimError, DemandError, OSError)
         # a batch run again after its worker died (core.pool) keeps what that worker completed
         done = frozenset(done) | {s.id for s in scenarios if os.path.isdir(os.path.join(self.out, s.id))}
-        first = scenarios[0]
-        entry = self.spec.networks[first.network]
+        entry = self.spec.networks[scenarios[0].network]
         try:
-            session = self.session(entry, first.step_length)
-        except bad as e:
+            session = self.session(entry, scenarios[0].step_length)
+        except self._failures() as e:
             todo = [s for s in scenarios if s.id not in done]
             for s in todo:
                 write_failure(self.out, s, str(e))
             return [s.id for s in todo]
-        ready = []
+        ready = self._requests(scenarios, entry, session, done)
+        if ready:
+            self._generate_and_write(ready, session, done)
+        return [s.id for s in scenarios if s.id not in done]
+
+    def _requests(self, scenarios: list[Scenario], entry: NetworkEntry, session, done) -> list[tuple]:
+        """(scenario, kind of place, its window's request: sim/request.py) of each scenario that
+        has one; a scenario that fails here is recorded as failed."""
+        from ..sim.fleet import Fleet
+        from ..sim.request import window_request
+        fleet = Fleet.read(session.sim)    # a token's vtype: one of the scenario's, its size
+        out = []
         for s in scenarios:
             try:
                 window, kind = self.window(entry, s.location)
-                spec_tokens = self.spec.token_sets[s.token_set]
-                user = spec_tokens.for_window(window)
-                existing = session.existing(window)
-                tokens = user + existing.tokens()
-                sources = ["user"] * len(user) + existing.token_ids()
-                p_mask = s.p_mask if s.p_mask is not None else spec_tokens.p_mask
-                # after existing(): the session's simulation is at the seeding time
-                target = scenario_target(s, session.net, window, session.sim if entry.routes else None,
-                                         self.checkpoint, self.generator.has_density)
-                lights = light_states(session.sim, session.net.lights_in(window)) \
-                    if first.generation.signals else None   # as the scene meets them
-                ready.append((s, window, kind, tokens, sources, existing, p_mask, target, lights))
-            except bad + (DensityUnsupported,) as e:
+                token_set = self.spec.token_sets[s.token_set]
+                # session.existing(): the session's simulation at the seeding time
+                req = window_request(session.net, session.sim, window, session.existing(window),
+                                     token_set.for_window(window), source=token_set.source, fleet=fleet,
+                                     p_mask=s.p_mask if s.p_mask is not None else token_set.asked_p_mask(),
+                                     density=s.density, vehicles=s.vehicles, host=bool(entry.routes),
+                                     has_density=self.generator.has_density, signals=s.generation.signals)
+                out.append((s, kind, req))
+            except DensityUnsupported as e:
+                if s.id not in done:
+                    write_failure(self.out, s, _unsupported(s, e.target, self.checkpoint))
+            except self._failures() as e:
                 if s.id not in done:
                     write_failure(self.out, s, str(e))
-        if ready:
-            cfg = first.generation
-            targets = [r[7] for r in ready]
-            scenes = self.generator.generate(session.net, [r[1] for r in ready], tokens=[r[3] for r in ready],
-                                             p_mask=[r[6] for r in ready], config=cfg,
-                                             noise_seeds=[noise_seed(r[0]) for r in ready],
-                                             density=targets if any(d is not None for d in targets) else None,
-                                             signals=[r[8] for r in ready])
-            for (s, window, kind, tokens, sources, existing, p_mask, target, _), scene in zip(ready, scenes):
-                if s.id in done:
-                    continue
-                info = {"scene": s.id, "location": kind, "sweep": {**s.params(), "kind": kind,
-                                                                    "p_mask_used": p_mask,
-                                                                    "density_target_veh_per_km": target,
-                                                                    "car_lane_km": round(
-                                                                        session.net.car_lane_km(window), 4)},
-                        "model": cfg.record(self.generator),
-                        "sumo_options": session.cfg.options()}
-                try:
-                    session.realise(scene, tokens, sources, existing, self.out, s.id, info, s.rollout,
-                                    seed=s.seed, p_mask=p_mask, replay=s.replay)
-                except bad as e:
-                    write_failure(self.out, s, str(e), density_target_veh_per_km=target)
-        return [s.id for s in scenarios if s.id not in done]
+        return out
+
+    def _generate_and_write(self, ready: list[tuple], session, done) -> None:
+        """The scenes of ``ready`` in one model call, each written as ``run`` writes a scene."""
+        from ..sim.request import generation_inputs
+        cfg = ready[0][0].generation
+        requests = [req for _, _, req in ready]
+        scenes = self.generator.generate(session.net, [r.window for r in requests], config=cfg,
+                                         noise_seeds=[noise_seed(s) for s, _, _ in ready],
+                                         **generation_inputs(requests))
+        for (s, kind, req), scene in zip(ready, scenes):
+            if s.id in done:
+                continue
+            info = {"scene": s.id, "location": kind,
+                    "sweep": {**s.params(), "kind": kind, "p_mask_used": req.p_mask,
+                              "density_target_veh_per_km": req.target,
+                              "car_lane_km": round(session.net.car_lane_km(req.window), 4)},
+                    "model": cfg.record(self.generator), "sumo_options": session.cfg.options()}
+            try:
+                session.realise(scene, req.tokens, req.sources, req.existing, self.out, s.id, info, s.rollout,
+                                seed=s.seed, p_mask=req.p_mask, replay=s.replay)
+            except self._failures() as e:
+                write_failure(self.out, s, str(e), density_target_veh_per_km=req.target)
 
     def close(self) -> None:
         for s in self._sessions.values():
