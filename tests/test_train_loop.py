@@ -25,3 +25,22 @@ def test_average_halves_its_distance_in_one_half_life():
         ema.update(net, step)
     torch.testing.assert_close(ema.model.weight, start + 0.5)
     assert not ema.model.weight.requires_grad  # the average is never trained itself
+
+
+def test_bad_stage_input_raises_and_the_cli_says_one_line(tmp_path):
+    """Library code raises TrainError; the train CLI turns it into one line and exit 2."""
+    import subprocess
+    import sys
+
+    from sumo_scendiff.train.__main__ import get_options
+    from sumo_scendiff.train.loop import TrainError
+    from sumo_scendiff.train.stages import train_autoencoder
+    out = str(tmp_path / "ae")
+    for extra, says in ((["--freeze-encoder"], "--freeze-encoder needs --init-from"),
+                        (["--model-config", '{"C_t": 3}'], "--model-config: C_t 3")):
+        with pytest.raises(TrainError, match=says):
+            train_autoencoder(get_options(["autoencoder", "--data", str(tmp_path), "-o", out, *extra]))
+    p = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "autoencoder", "--data", str(tmp_path),
+                        "-o", out, "--freeze-encoder"], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 2 and p.stderr.strip().splitlines() == [
+        "python -m sumo_scendiff.train: error: --freeze-encoder needs --init-from (a trained encoder to keep)"]

@@ -43,41 +43,39 @@ HELP = {"autoencoder": "train the detection autoencoder (or its decoder alone)",
         "recipe": "run a recipe file (configs/*.json) into OUT, or print its stages"}
 
 
-def get_options(args=None):
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
-                                epilog=__doc__.split("\n\n")[2],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = p.add_subparsers(dest="stage", required=True)
-    for name in ("autoencoder", "diffusion"):
-        s = sub.add_parser(name, help=HELP[name], description=HELP[name])
-        s.add_argument("--data", required=True, nargs="+",
-                       help="training data directory (sumo_scendiff.data); several are read as one")
-        s.add_argument("--val", default=None, nargs="+", help="validation data directory (or several)")
-        s.add_argument("-o", "--output-dir", dest="out", required=True)
-        s.add_argument("--max-minutes", type=float, default=None, help="stop (and save) after this")
-        s.add_argument("-v", "--verbose", action="store_true")
-        for f, default in asdict(TrainConfig()).items():
-            if isinstance(default, bool):
-                s.add_argument("--" + f.replace("_", "-"), action=argparse.BooleanOptionalAction,
-                               default=None)
-            else:
-                s.add_argument("--" + f.replace("_", "-"), type=type(default), default=None)
-        s.add_argument("--model-config", type=json.loads, default={}, metavar="JSON",
-                       help='override model config fields, e.g. \'{"enc_channels": [8, 16, 32, 32]}\'')
-        s.add_argument("--init-from", default=None, metavar="CKPT",
-                       help=f"warm start a new run from the weights of an earlier {name} run (its "
-                            "last.pt; for diffusion its weight average, new input channels at zero) or of "
-                            "an exported model (the shipped one); "
-                            "ignored when resuming")
-        if name == "autoencoder":
-            s.add_argument("--freeze-encoder", action="store_true",
-                           help="train the decoder only (needs --init-from): the latent space stays "
-                                "the same, so a diffusion model trained on it stays valid")
-        if name == "diffusion":
-            s.add_argument("--autoencoder", required=True, help="autoencoder checkpoint (last.pt, or an exported "
-                           "model such as the shipped one)")
-        s.add_argument("--no-map", action="store_true",
-                       help=f"the paper's no-map ablation: the {name} model sees the map as zeros")
+def _add_training_stage(sub, name: str) -> None:
+    """The ``autoencoder`` or ``diffusion`` subcommand: data, output, TrainConfig's fields as flags."""
+    s = sub.add_parser(name, help=HELP[name], description=HELP[name])
+    s.add_argument("--data", required=True, nargs="+",
+                   help="training data directory (sumo_scendiff.data); several are read as one")
+    s.add_argument("--val", default=None, nargs="+", help="validation data directory (or several)")
+    s.add_argument("-o", "--output-dir", dest="out", required=True)
+    s.add_argument("--max-minutes", type=float, default=None, help="stop (and save) after this")
+    s.add_argument("-v", "--verbose", action="store_true")
+    for f, default in asdict(TrainConfig()).items():
+        if isinstance(default, bool):
+            s.add_argument("--" + f.replace("_", "-"), action=argparse.BooleanOptionalAction, default=None)
+        else:
+            s.add_argument("--" + f.replace("_", "-"), type=type(default), default=None)
+    s.add_argument("--model-config", type=json.loads, default={}, metavar="JSON",
+                   help='override model config fields, e.g. \'{"enc_channels": [8, 16, 32, 32]}\'')
+    s.add_argument("--init-from", default=None, metavar="CKPT",
+                   help=f"warm start a new run from the weights of an earlier {name} run (its "
+                        "last.pt; for diffusion its weight average, new input channels at zero) or of "
+                        "an exported model (the shipped one); "
+                        "ignored when resuming")
+    if name == "autoencoder":
+        s.add_argument("--freeze-encoder", action="store_true",
+                       help="train the decoder only (needs --init-from): the latent space stays "
+                            "the same, so a diffusion model trained on it stays valid")
+    if name == "diffusion":
+        s.add_argument("--autoencoder", required=True, help="autoencoder checkpoint (last.pt, or an exported "
+                       "model such as the shipped one)")
+    s.add_argument("--no-map", action="store_true",
+                   help=f"the paper's no-map ablation: the {name} model sees the map as zeros")
+
+
+def _add_export(sub) -> None:
     e = sub.add_parser("export", help=HELP["export"], description=HELP["export"])
     e.add_argument("--autoencoder", required=True)
     e.add_argument("--diffusion", required=True)
@@ -89,6 +87,9 @@ def get_options(args=None):
                         "`calibrate` finds and stores one)")
     e.add_argument("--scene-guidance-sigma", type=float, default=0.0, metavar="SIGMA",
                    help="apply that guidance only at noise levels above SIGMA (0 = at every step)")
+
+
+def _add_calibrate(sub) -> None:
     c = sub.add_parser("calibrate", help=HELP["calibrate"], description=HELP["calibrate"] + ": map-only "
                        "generation of validation windows at each weight; the weight where the agents per "
                        "window meet the ground truth's (interpolated, to one decimal) is written into --model")
@@ -104,6 +105,9 @@ def get_options(args=None):
     c.add_argument("--steps", type=int, default=None, help="sampler steps (default: generation's)")
     c.add_argument("--sampler", choices=SAMPLER_NAMES, default=None, help="default: generation's")
     c.add_argument("-s", "--seed", type=int, default=0)
+
+
+def _add_recipe(sub) -> None:
     r = sub.add_parser("recipe", help=HELP["recipe"], description=HELP["recipe"] + " (sumo_scendiff/train/"
                        "recipe.py describes the format, recipe_run.py the run)")
     r.add_argument("recipe", metavar="RECIPE.json")
@@ -121,19 +125,45 @@ def get_options(args=None):
     r.add_argument("--procs", type=int, default=None, help="training processes (default: the recipe's)")
     r.add_argument("--steps", action="append", default=[], metavar="STAGE=N",
                    help="another step budget for a training stage (its lr drop moves with it)")
+
+
+def _problem(o) -> str | None:
+    """A flag of ``export`` or ``calibrate`` out of its range, as one line; None if all are fine."""
+    if o.stage == "export":
+        if not o.scene_guidance >= 0:
+            return "--scene-guidance must be >= 0"
+        if not o.scene_guidance_sigma >= 0:
+            return "--scene-guidance-sigma must be >= 0"
+    if o.stage == "calibrate":
+        if o.scenes < 1:
+            return "--scenes must be positive"
+        if min(o.weights) < 0 or (o.sigma is not None and o.sigma < 0):
+            return "--weights and --sigma must be >= 0"
+    return None
+
+
+def get_options(args=None):
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
+                                epilog=__doc__.split("\n\n")[2],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="stage", required=True)
+    for name in ("autoencoder", "diffusion"):
+        _add_training_stage(sub, name)
+    _add_export(sub)
+    _add_calibrate(sub)
+    _add_recipe(sub)
     o = p.parse_args(args)
+    if _problem(o):
+        p.exit(2, f"{PROG}: error: {_problem(o)}\n")
     o.parser = p
     return o
 
 
 def export(o) -> None:
     from .export import export_model
-    if not o.scene_guidance >= 0:
-        o.parser.exit(2, f"{PROG}: error: --scene-guidance must be >= 0\n")
-    if not o.scene_guidance_sigma >= 0:
-        o.parser.exit(2, f"{PROG}: error: --scene-guidance-sigma must be >= 0\n")
+    from .loop import TrainError
     if os.path.exists(o.output) and not o.force:
-        o.parser.exit(2, f"{PROG}: error: {o.output}: exists (add --force to replace it)\n")
+        raise TrainError(f"{o.output}: exists (add --force to replace it)")
     sha = export_model(o.autoencoder, o.diffusion, o.output, fp16=o.fp16, scene_guidance=o.scene_guidance,
                        scene_guidance_sigma=o.scene_guidance_sigma)
     print(f"{o.output}: {os.path.getsize(o.output) / 2**20:.1f} MiB, sha256 {sha}")
@@ -141,10 +171,6 @@ def export(o) -> None:
 
 def run_calibrate(o) -> None:
     from ..model import checkpoint as ckpt
-    if o.scenes < 1:
-        o.parser.exit(2, f"{PROG}: error: --scenes must be positive\n")
-    if min(o.weights) < 0 or (o.sigma is not None and o.sigma < 0):
-        o.parser.exit(2, f"{PROG}: error: --weights and --sigma must be >= 0\n")
     ckpt.load(o.model, "scenario-diffusion")   # a wrong file fails before minutes of sampling
     from ..generation.generator import ScenarioGenerator
     density = ScenarioGenerator.load(o.model).has_density
@@ -245,7 +271,7 @@ def main(o) -> int:
 
     from ..data.shards import DataError
     from ..model.checkpoint import CheckpointError
-    from .loop import distributed_setup
+    from .loop import TrainError, distributed_setup
     from .stages import train_autoencoder, train_diffusion
     torch.manual_seed(0)
     np.random.seed(0)
@@ -257,7 +283,7 @@ def main(o) -> int:
         else:
             distributed_setup()
             (train_autoencoder if o.stage == "autoencoder" else train_diffusion)(o)
-    except (CheckpointError, DataError) as e:
+    except (CheckpointError, DataError, TrainError) as e:   # bad input: one line, exit 2
         o.parser.exit(2, f"{PROG}: error: {e}\n")
     return 0
 

@@ -127,6 +127,10 @@ class EMA:
             b_ema.copy_(b)
 
 
+class TrainError(ValueError):
+    """Bad input to a training stage (its flags, data or output directory): one line for the CLI."""
+
+
 class Loop:
     def __init__(self, kind: str, o, cfg, model: nn.Module, opt, step_loss, extra=None, frozen=()):
         self.kind, self.o, self.cfg = kind, o, cfg
@@ -149,12 +153,11 @@ class Loop:
             self.train_set = SceneDataset(o.data, rotate=cfg.rotate, seed=cfg.seed, p_no_signals=cfg.p_no_signals)
             self.val_set = SceneDataset(o.val, rotate=True, seed=12345) if o.val else None
         except DataError as e:
-            o.parser.exit(2, f"{o.parser.prog}: error: {e}\n")
+            raise TrainError(str(e)) from None
         if os.path.exists(self.path):
             self._resume()
         elif os.path.isdir(o.out) and os.listdir(o.out):
-            o.parser.exit(2, f"{o.parser.prog}: error: {o.out}: not empty and holds no last.pt "
-                             f"(choose another --output-dir)\n")
+            raise TrainError(f"{o.out}: not empty and holds no last.pt (choose another --output-dir)")
         self.ddp = _LossModule(self.model, step_loss)
         if world() > 1:
             self.ddp = nn.parallel.DistributedDataParallel(self.ddp)

@@ -1,7 +1,8 @@
 """The two training stages: the detection autoencoder and the latent diffusion model in its latent space.
 
-Each takes the parsed options of its ``train`` subcommand (``o.parser`` reports bad input, exit 2, as
-the training loop does) and runs :class:`~sumo_scendiff.train.loop.Loop` until ``--steps``.
+Each takes the parsed options of its ``train`` subcommand and runs
+:class:`~sumo_scendiff.train.loop.Loop` until ``--steps``; bad input raises
+:class:`~sumo_scendiff.train.loop.TrainError` (the CLI prints its one line and exits 2).
 """
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from ..model.diffusion import DiffusionConfig, ScenarioDiffusion
 from ..tokens.masking import TokenMaskConfig
 from ..tokens.raster import C_T
 from .config import TrainConfig
-from .loop import Loop, conditioning, estimate_latent_scale, load_training, rank
+from .loop import Loop, TrainError, conditioning, estimate_latent_scale, load_training, rank
 from .token_decoder import decoder_conditioning
 
 
@@ -43,7 +44,7 @@ def model_config(o, cls, base: dict | None = None, **fixed):
     try:
         return ckpt.config_from_dict(cls, merged)
     except (ckpt.CheckpointError, TypeError) as e:
-        o.parser.exit(2, f"{o.parser.prog}: error: --model-config: {e}\n")
+        raise TrainError(f"--model-config: {e}") from None
 
 
 def warm_start_record(init: dict, path: str) -> dict:
@@ -64,8 +65,8 @@ def _autoencoder_model(o, saved: dict | None, init: dict | None) -> ScenarioAuto
     model = ScenarioAutoencoder(model_config(o, AutoencoderConfig, base=base,
                                              **({"use_map": False} if o.no_map else {})))
     if model.cfg.C_t not in (0, C_T):
-        o.parser.exit(2, f"{o.parser.prog}: error: --model-config: C_t {model.cfg.C_t}: the token raster has "
-                         f"{C_T} channels (0: a decoder without tokens)\n")
+        raise TrainError(f"--model-config: C_t {model.cfg.C_t}: the token raster has {C_T} channels "
+                         f"(0: a decoder without tokens)")
     return model
 
 
@@ -80,15 +81,15 @@ def train_autoencoder(o) -> None:
         o.freeze_encoder = o.freeze_encoder or "encoder_from_sha256" in saved
     elif init is not None:
         if init["model_config"]["C_z"] != model.cfg.C_z:
-            o.parser.exit(2, f"{o.parser.prog}: error: --model-config: C_z {model.cfg.C_z} differs from "
-                             f"{o.init_from}'s {init['model_config']['C_z']}\n")
+            raise TrainError(f"--model-config: C_z {model.cfg.C_z} differs from "
+                             f"{o.init_from}'s {init['model_config']['C_z']}")
         ckpt.load_state(model, init["state"], o.init_from)
         extra.update(warm_start_record(init, o.init_from))
         if o.freeze_encoder:  # the encoder whose latents a diffusion model may have been trained on
             extra["encoder_from_sha256"] = init.get("encoder_from_sha256", extra["init_from_sha256"])
         print(f"{o.init_from}: warm start from step {init['step']}")
     elif o.freeze_encoder:
-        o.parser.exit(2, f"{o.parser.prog}: error: --freeze-encoder needs --init-from (a trained encoder to keep)\n")
+        raise TrainError("--freeze-encoder needs --init-from (a trained encoder to keep)")
     if o.freeze_encoder:
         model.E.requires_grad_(False)
     opt = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=cfg.lr,
@@ -112,8 +113,8 @@ def train_autoencoder(o) -> None:
 def train_diffusion(o) -> None:
     cfg = train_config(o, DIFFUSION_DEFAULTS)
     if not (0 <= cfg.p_keep_all_tokens and 0 <= cfg.p_map_only and cfg.p_keep_all_tokens + cfg.p_map_only <= 1):
-        o.parser.exit(2, f"{o.parser.prog}: error: --p-keep-all-tokens {cfg.p_keep_all_tokens:g} and --p-map-only "
-                         f"{cfg.p_map_only:g}: need two probabilities summing to at most 1\n")
+        raise TrainError(f"--p-keep-all-tokens {cfg.p_keep_all_tokens:g} and --p-map-only {cfg.p_map_only:g}: "
+                         f"need two probabilities summing to at most 1")
     ae_ck = load_training(o.autoencoder, "autoencoder-train")
     ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ae_ck["model_config"]))
     ckpt.load_state(ae, ae_ck["state"], o.autoencoder)
@@ -127,8 +128,8 @@ def train_diffusion(o) -> None:
     base = _merge(base, {"unet": {"c_z": ae.cfg.C_z}})
     model = ScenarioDiffusion(model_config(o, DiffusionConfig, base=base, use_map=not o.no_map))
     if model.cfg.unet.c_z != ae.cfg.C_z:
-        o.parser.exit(2, f"{o.parser.prog}: error: --model-config: unet.c_z {model.cfg.unet.c_z} differs from "
-                         f"{o.autoencoder}'s latent channels C_z {ae.cfg.C_z}\n")
+        raise TrainError(f"--model-config: unet.c_z {model.cfg.unet.c_z} differs from "
+                         f"{o.autoencoder}'s latent channels C_z {ae.cfg.C_z}")
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     scale = {"value": None}
     mask_cfg = token_mask_config(cfg)
