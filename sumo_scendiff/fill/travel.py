@@ -44,6 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..map.links import gives_way, junction_links
+from ..sim.fleet import DEFAULT_ACCEL, DEFAULT_DECEL
 from .programs import Program, green_shares, minor_green, signal_programs, under_demand
 from .vtypes import CLASS_ACCEL, CLASS_DECEL, CLASS_MAX_SPEED, number, vtype_table
 
@@ -76,8 +77,8 @@ class Driver:
 
     speed_factor: float = 1.0
     max_speed: float = 55.56
-    accel: float = 2.6
-    decel: float = 4.5
+    accel: float = DEFAULT_ACCEL
+    decel: float = DEFAULT_DECEL
     sigma: float = 0.5           # Krauss' dawdling (SUMO's default car-following model)
 
     def cruise(self, limit: float) -> float:
@@ -104,7 +105,8 @@ def vtype_drivers(paths) -> dict[str, Driver]:
         cls = el.get("vClass") or "passenger"
         krauss = (el.get("carFollowModel") or "Krauss").startswith("Krauss")
         return Driver(number(el, "speedFactor", 1.0), number(el, "maxSpeed", CLASS_MAX_SPEED.get(cls, 55.56)),
-                      number(el, "accel", CLASS_ACCEL.get(cls, 2.6)), number(el, "decel", CLASS_DECEL.get(cls, 4.5)),
+                      number(el, "accel", CLASS_ACCEL.get(cls, DEFAULT_ACCEL)),
+                      number(el, "decel", CLASS_DECEL.get(cls, DEFAULT_DECEL)),
                       number(el, "sigma", 0.5) if krauss else 0.0)
 
     return vtype_table(paths, driver)

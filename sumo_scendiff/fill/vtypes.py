@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..sim.fleet import DEFAULT_MIN_GAP   # SUMO's default vType's
+
 # per vClass: maxSpeed (m/s), accel, decel (m/s²), length and width (m); minGap 2.5 m but a bicycle's
 CLASS_MAX_SPEED = {"passenger": 55.56, "private": 55.56, "taxi": 55.56, "evehicle": 55.56,
                    "delivery": 55.56, "emergency": 55.56, "authority": 55.56, "army": 55.56,
@@ -23,7 +25,6 @@ CLASS_SIZE = {"passenger": (5.0, 1.8), "private": (5.0, 1.8), "taxi": (5.0, 1.8)
               "truck": (7.1, 2.4), "trailer": (16.5, 2.55), "bus": (12.0, 2.5), "coach": (14.0, 2.6),
               "motorcycle": (2.2, 0.9), "moped": (2.1, 0.8), "bicycle": (1.6, 0.65)}
 CLASS_MIN_GAP = {"bicycle": 0.5}
-DEFAULT_MIN_GAP = 2.5
 
 
 @dataclass(frozen=True)
