@@ -1,0 +1,75 @@
+"""The on-disk cache of read networks (map/network.py): the same network as reading the file, read
+again when the file changes, never written beside the user's file, and no error where it cannot be written."""
+from __future__ import annotations
+
+import os
+import shutil
+
+import numpy as np
+import pytest
+import shapely
+
+from sumo_scendiff.map.network import Network, cache_entry
+
+
+@pytest.fixture
+def cache_home(tmp_path, monkeypatch):
+    home = tmp_path / "cache-home"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(home))
+    return home
+
+
+def _same(a: Network, b: Network) -> None:
+    assert [ln.id for ln in a.lanes] == [ln.id for ln in b.lanes]
+    for x, y in zip(a.lanes, b.lanes):
+        assert np.array_equal(x.shape, y.shape) and x.width == y.width and x.car == y.car and x.tls == y.tls
+        assert shapely.equals_exact(x.polygon, y.polygon, 0.0)
+    assert [j.id for j in a.junctions] == [j.id for j in b.junctions]
+    assert a.successors == b.successors and a.shared_lanes == b.shared_lanes
+    assert [(k.tls, k.lane, k.via) for k in a.signal_links] == [(k.tls, k.lane, k.via) for k in b.signal_links]
+
+
+def test_a_cached_network_is_the_file_read_again(cache_home, cross2_net):
+    read = Network.load(cross2_net, cache=False)
+    first = Network.load(cross2_net)                   # reads the file, writes the entry
+    entry = cache_entry(cross2_net)
+    assert os.path.isfile(entry.path) and entry.path.startswith(str(cache_home))
+    cached = Network.load(cross2_net)                  # from the entry
+    _same(read, first)
+    _same(read, cached)
+    # sumolib's net works as readNet leaves it: routing (its cache on) and unknown edge types
+    snet = cached.sumo_net
+    route, cost = snet.getShortestPath(snet.getEdge("wc"), snet.getEdge("ce"))
+    assert [e.getID() for e in route] == ["wc", "ce"] and cost > 0
+    assert snet.getEdgeType("no-such-type").id == "DEFAULT_EDGETYPE"
+
+
+def test_a_changed_file_is_read_again(cache_home, tmp_path, cross_net, cross2_net):
+    path = tmp_path / "user" / "city.net.xml"
+    path.parent.mkdir()
+    shutil.copyfile(cross_net, path)
+    one = Network.load(str(path))
+    shutil.copyfile(cross2_net, path)                  # the user rebuilt the network: new size and time
+    two = Network.load(str(path))
+    assert len(two.lanes) == len(Network.load(cross2_net, cache=False).lanes) != len(one.lanes)
+    assert sorted(os.listdir(path.parent)) == ["city.net.xml"]      # nothing written beside it
+
+
+def test_a_broken_entry_is_replaced(cache_home, cross_net):
+    Network.load(cross_net)
+    entry = cache_entry(cross_net)
+    with open(entry.path, "wb") as f:
+        f.write(b"\x80\x05 not a pickle")
+    net = Network.load(cross_net)
+    _same(net, Network.load(cross_net, cache=False))
+    with open(entry.path, "rb") as f:
+        assert f.read(2) == b"\x80\x05" and os.path.getsize(entry.path) > 100
+
+
+def test_a_cache_that_cannot_be_written_is_no_error(tmp_path, monkeypatch, cross_net):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(blocker / "below"))    # a folder below a file: no such folder
+    net = Network.load(cross_net)
+    assert len(net.lanes) == len(Network.load(cross_net, cache=False).lanes)
+    assert not any(p.name.endswith(".partial") for p in tmp_path.rglob("*"))
