@@ -169,10 +169,12 @@ def _files(arg: str | None) -> list[str]:
 def _counts(net, window, row: dict) -> dict:
     """The window's traffic after seeding in traffic terms: vehicles kept from the host simulation,
     generated ones seeded, and their density per km of car lane."""
+    from .core.scene import per_km
     km = net.car_lane_km(window)
     total = row["existing_vehicles"] + row["placed"]
+    density = per_km(total, km)
     return {**row, "vehicles_in_window": total, "car_lane_km": round(km, 4),
-            "density_veh_per_km": round(total / km, 2) if km > 0 else None}
+            "density_veh_per_km": None if density is None else round(density, 2)}
 
 
 def _edge_data(o, net):

@@ -203,3 +203,26 @@ def test_a_fills_density_is_what_sumos_edgedata_reports(tmp_path):
     # an edge's density is per km of the edge (all its lanes): times its length, its vehicles
     vehicles = sum(float(e.density) * net.getEdge(e.id).getLength() / 1000.0 for e in interval.edge if e.density)
     assert vehicles / sum(car_km.values()) == pytest.approx(20.0, rel=0.10)
+
+
+def test_one_rule_for_a_window_without_car_lane(cross_net):
+    """Vehicles per km (core.scene.per_km) is None where a window has no car lane, for a target
+    (--vehicles N) and for a scene's density alike; the jam density is SUMO's default car at its
+    minGap (sim.fleet)."""
+    from sumo_scendiff.core.geometry import Window
+    from sumo_scendiff.core.scene import per_km
+    from sumo_scendiff.map.network import Network
+    from sumo_scendiff.sim.density import JAM_DENSITY, window_target
+    from sumo_scendiff.sim.fleet import DEFAULT_LENGTH, DEFAULT_MIN_GAP
+    net = Network.load(cross_net)
+    away, here = Window(5000.0, 5000.0, 0.0), Window(0.0, 0.0, 0.0)
+    assert net.car_lane_km(away) == 0 and window_target(net, away, vehicles=6) is None
+    assert window_target(net, here, vehicles=6) == pytest.approx(per_km(6, net.car_lane_km(here)))
+    assert per_km(3, 0.0) is None and per_km(0, 0.5) == 0.0 and per_km(3, None) is None
+    assert JAM_DENSITY == pytest.approx(1000.0 / (DEFAULT_LENGTH + DEFAULT_MIN_GAP))
+
+
+def test_sumo_booleans_are_read_as_sumo_reads_them():
+    from sumo_scendiff.core.sumo_xml import boolean
+    assert [boolean(v) for v in ("true", "True", " 1", "yes", "on", "x")] == [True] * 6
+    assert [boolean(v) for v in ("false", "0", "no", "off", "", None)] == [False] * 6

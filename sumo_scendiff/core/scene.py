@@ -34,6 +34,12 @@ def vclass_from_size(length, width) -> np.ndarray:
     return out
 
 
+def per_km(count: float, km: float | None) -> float | None:
+    """Vehicles per km of car lane, the product's density: ``count`` over a window's ``km``; None
+    for a window without car lane (no density, whatever the count)."""
+    return count / km if km is not None and km > 0 else None
+
+
 @dataclass
 class Scene:
     window: Window

@@ -53,6 +53,12 @@ def seconds(value: str | None) -> float | None:
     return None if math.isnan(t) else t
 
 
+def boolean(value) -> bool:
+    """A SUMO boolean attribute or option (``true``, ``1``, ``yes``, ``on``, ``x``, any case); anything
+    else, or nothing, is false."""
+    return str(value).strip().lower() in ("true", "1", "yes", "on", "x")
+
+
 def include_path(including: str, href: str) -> str:
     """Where ``<include href>`` in ``including`` points, as SUMO resolves it."""
     return href if os.path.isabs(href) else os.path.normpath(os.path.join(os.path.dirname(including), href))

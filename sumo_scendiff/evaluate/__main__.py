@@ -27,6 +27,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..core.geometry import Window, wrap_angle
+from ..core.scene import per_km
 from ..data.demand import DemandError, find_demand
 from ..data.shards import SceneStore
 from ..generation.config import GenerationConfig, SettingError
@@ -154,8 +155,8 @@ def lights_of(scenes) -> list[dict | None]:
 
 def true_density(net: Network, scene) -> float:
     """The ground truth's vehicles per km of car lane in its window (what --vehicles N asks for)."""
-    km = net.car_lane_km(scene.window)
-    return len(scene) / km if km > 0 else float("nan")
+    d = per_km(len(scene), net.car_lane_km(scene.window))
+    return float("nan") if d is None else d   # NaN: the generator's "no target"
 
 
 def ground_truth(net: Network, o) -> tuple[str | None, list, list]:

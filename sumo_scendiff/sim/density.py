@@ -13,13 +13,15 @@ import numpy as np
 import shapely
 import shapely.ops
 
+from ..core.scene import per_km
 from ..map.network import window_square
+from .fleet import DEFAULT_LENGTH, DEFAULT_MIN_GAP
 
 AUTO_RADIUS = 300.0   # m: the surroundings whose traffic level a window takes
 QUEUE_ZONE = 30.0     # m before a stop line: a class of its own in host_density (docs/evaluation.md)
 MODEL = "model"       # --density model: the model's own level, with a host too
-# the most a lane holds: cars standing bumper to bumper, SUMO's default car (5 m) and minGap (2.5 m)
-JAM_DENSITY = 1000.0 / 7.5
+# the most a lane holds: SUMO's default cars standing at their minGap
+JAM_DENSITY = 1000.0 / (DEFAULT_LENGTH + DEFAULT_MIN_GAP)
 
 
 class DensityError(ValueError):
@@ -40,7 +42,8 @@ def parse_density(text: str | None, flag: str = "--density") -> float | str | No
         raise DensityError(f"{flag}: must be a finite number >= 0, got {text}")
     if v > JAM_DENSITY:
         raise DensityError(f"{flag}: {text} veh/km is more than a lane holds with its cars standing "
-                           f"(at most {JAM_DENSITY:.0f}: SUMO's default car, 5 m with a 2.5 m gap)")
+                           f"(at most {JAM_DENSITY:.0f}: SUMO's default car, {DEFAULT_LENGTH:g} m with a "
+                           f"{DEFAULT_MIN_GAP:g} m gap)")
     return v
 
 
@@ -117,7 +120,7 @@ def host_density(sim, net, window, radius: float = AUTO_RADIUS, zone: float = QU
             if (x - window.cx) ** 2 + (y - window.cy) ** 2 <= radius ** 2:
                 in_tail = zone > 0 and sim.vehicle.getLanePosition(vid) >= net.lanes[idx[k]].length - zone
                 count[k, 0 if in_tail else 1] += 1
-    plain = float(count.sum()) / km
+    plain = per_km(float(count.sum()), km)
     around: dict = {}
     for k, i in enumerate(idx.tolist()):
         parts = _classes(net, i, tail_km[k], rest_km[k])
@@ -158,9 +161,8 @@ def default_density(density, vehicles, host: bool, has_density: bool):
 def window_target(net, window, density=None, vehicles=None, sim=None, edge_data=None,
                   time: float | None = None) -> float | None:
     """The density (veh per km of car lane) a window is generated at, or None (the model's prior)."""
-    km = net.car_lane_km(window)
     if vehicles is not None:
-        return vehicles / km if km > 0 else None
+        return per_km(vehicles, net.car_lane_km(window))
     if density == MODEL:
         return None
     if density != "auto":

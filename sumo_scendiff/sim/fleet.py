@@ -34,6 +34,11 @@ from ..core.matching import assign
 from ..core.scene import VEHICLE_CLASSES, Scene
 from ..tokens.file import TokenFileError
 
+# SUMO's default vehicle type (DEFAULT_VEHTYPE, a passenger car): what a vehicle drives with where
+# neither its vType nor its vClass says otherwise
+DEFAULT_LENGTH, DEFAULT_WIDTH, DEFAULT_MIN_GAP = 5.0, 1.8, 2.5   # m
+DEFAULT_ACCEL, DEFAULT_DECEL = 2.6, 4.5                          # m/s²
+
 # vClasses the model never draws (it generates road motor vehicles on car lanes)
 NOT_DRAWN = frozenset({"pedestrian", "bicycle", "tram", "rail_urban", "rail", "rail_electric", "rail_fast",
                        "ship", "ignoring", "wheelchair", "scooter", "cable_car", "subway", "aircraft",

@@ -23,6 +23,7 @@ import tempfile
 
 from .additional import NULL, original, quiet_outputs
 from .scenario import ScenarioError, SumoScenario
+from .sumo import SILENT_OPTIONS, as_args
 
 TIMEOUT_S = 60.0
 # options that make SUMO do more than load: their values in the preflight
@@ -88,7 +89,7 @@ def command(scen: SumoScenario) -> list[str]:
         args += ["-r", ",".join(scen.routes)]
     if scen.additional:
         args += ["-a", ",".join(quiet_outputs(scen.additional))]
-    return args + ["--no-step-log", "true", "--no-warnings", "true", "--duration-log.disable", "true"]
+    return args + as_args(SILENT_OPTIONS)
 
 
 def preflight(scen: SumoScenario, timeout: float = TIMEOUT_S) -> SumoScenario:

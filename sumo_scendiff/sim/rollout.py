@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
+from .fleet import DEFAULT_DECEL
+
 BRAKE_MARGIN = 0.05  # m/s^2 above decel before a deceleration counts as emergency braking
 
 
@@ -92,7 +94,7 @@ def rollout(sim, agent_ids, seconds: float, brake_window: float = 10.0,
         for v in [v for v in sim.vehicle.getIDList() if v in ids]:   # SUMO's order: reproducible
             a = float(sim.vehicle.getAcceleration(v))
             speeds.append(float(sim.vehicle.getSpeed(v)))
-            if a < -(decel.get(v, 4.5) + BRAKE_MARGIN):
+            if a < -(decel.get(v, DEFAULT_DECEL) + BRAKE_MARGIN):
                 stats.emergency_brake_steps += 1
                 if (k + 1) * dt <= brake_window:
                     if tracer is not None and v not in braked:

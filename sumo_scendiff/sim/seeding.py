@@ -41,10 +41,10 @@ import shapely
 from ..core.geometry import OVERLAP_AREA, T0, box_polygons, pose_to_sumo, wrap_angle
 from ..core.scene import VEHICLE_CLASSES, Scene
 from ..map.network import Network
-from .fleet import PARENT_PARAM, Fleet
+from .fleet import DEFAULT_MIN_GAP, PARENT_PARAM, Fleet
 from .junctions import JunctionConflicts
 from .routes import RouteChooser
-from .settle import DEFAULT_MIN_GAP, MIN_GAP_MARGIN, Settling, krauss_safe_speed
+from .settle import MIN_GAP_MARGIN, Settling, krauss_safe_speed
 from .stop_lines import StopLines
 
 POS_TOLERANCE, YAW_TOLERANCE = 0.5, 0.1   # m, rad: "present where it was generated"

@@ -21,7 +21,6 @@ MIN_GAP_MARGIN = 0.2   # m: a seeded vehicle's minGap stays this much below its 
 FOE_VISIBILITY = 4.5   # m: netconvert's default foe visibility distance of a link without priority
 LINKS_AHEAD = 2        # links (a turn's entry and its internal junction) settle looks at
 AT_THE_LINE = 0.5      # m: a nose this far past a red stop line is a vehicle at the line (Seeder's POS_TOLERANCE)
-DEFAULT_MIN_GAP = 2.5  # m: SUMO's default minGap
 
 
 def krauss_safe_speed(gap: float, v_leader: float, decel: float, tau: float) -> float:
@@ -246,4 +245,4 @@ class Settling:
         return report
 
 
-__all__ = ["AT_THE_LINE", "DEFAULT_MIN_GAP", "FOE_VISIBILITY", "LINKS_AHEAD", "MIN_GAP_MARGIN", "Settling", "krauss_safe_speed"]
+__all__ = ["AT_THE_LINE", "FOE_VISIBILITY", "LINKS_AHEAD", "MIN_GAP_MARGIN", "Settling", "krauss_safe_speed"]

@@ -25,7 +25,7 @@ import numpy as np
 import shapely
 
 from ..core.geometry import OVERLAP_AREA, T0, box_polygons
-from .settle import DEFAULT_MIN_GAP as QUEUE_GAP   # kept between a moved vehicle and the one ahead
+from .fleet import DEFAULT_MIN_GAP as QUEUE_GAP   # kept between a moved vehicle and the one ahead
 
 CLEARING_SPEED = 3.0   # m/s: slower than this on a red movement inside a junction, it is waiting
 STOP_LINE_GAP = 0.1    # m: a vehicle moved to its stop line stands this far behind it

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 from xml.sax.saxutils import quoteattr
 
+from ..core.sumo_xml import boolean
+
 # SUMO's stop flags (libsumo.constants STOP_*) and the stopping place each names
 PARKING, TRIGGERED, CONTAINER_TRIGGERED = 1, 2, 4
 PLACES = {"busStop": 8, "trainStop": 8, "containerStop": 16, "chargingStation": 32, "parkingArea": 64}
@@ -79,10 +81,6 @@ def stop_seconds(stop: dict) -> float:
     return max(d, 0.0) if d != INVALID else 0.0
 
 
-def _true(value: str | None) -> bool:
-    return str(value).lower() in ("true", "1", "yes", "on", "x")
-
-
 def _sim_end(sim, s: dict) -> tuple[str | None, float | None]:
     """(edge, end position) of a ``<stop>`` (attribute dict) in the running simulation ``sim``."""
     place = next((k for k in PLACES if s.get(k)), None)
@@ -108,8 +106,8 @@ def add_stops(sim, vid: str, stops, at: tuple[str, float] | None = None) -> int:
             edge, end = _sim_end(sim, s)
             if edge == at[0] and end is not None and end < at[1]:
                 continue
-        flags = (PARKING if _true(s.get("parking")) else 0) | (TRIGGERED if _true(s.get("triggered")) else 0) \
-            | (CONTAINER_TRIGGERED if _true(s.get("containerTriggered")) else 0)
+        flags = (PARKING if boolean(s.get("parking")) else 0) | (TRIGGERED if boolean(s.get("triggered")) else 0) \
+            | (CONTAINER_TRIGGERED if boolean(s.get("containerTriggered")) else 0)
         duration, until = _time(s.get("duration")), _time(s.get("until"))
         place = next((k for k in PLACES if s.get(k)), None)
         try:

@@ -40,10 +40,17 @@ SUMO_STEP_LENGTH = 1.0      # s: SUMO's own default --step-length
 ADDED_OPTIONS = {"collision.check-junctions": "true", "save-state.precision": "6"}
 # SUMO's console kept quiet: no difference in what it simulates
 QUIET_OPTIONS = {"no-step-log": "true", "duration-log.disable": "true"}
+# and its warnings too, for a SUMO that only loads, checks or replays what was already reported
+SILENT_OPTIONS = {**QUIET_OPTIONS, "no-warnings": "true"}
 # the product's own, never a scenario's: the inputs and time window it builds, the seed of its -s,
 # and the mesoscopic model (the seeding places vehicles on lanes, which only the microscopic has)
 OWN_OPTIONS = frozenset({"step-length", "seed", "begin", "end", "net-file", "route-files", "additional-files",
                          "load-state", "no-warnings", "start", "quit-on-end", "mesosim"})
+
+
+def as_args(options: dict[str, str]) -> list[str]:
+    """SUMO options name -> value as command-line arguments."""
+    return [a for name, value in options.items() for a in (f"--{name}", value)]
 
 
 def step_length_for(scen, given: float | None = None) -> float:
@@ -100,8 +107,7 @@ class SimConfig:
     def args(self) -> list[str]:
         """Command line (without the binary); also what ``scenario.sumocfg`` repeats."""
         a = ["-n", os.path.abspath(self.net), "--step-length", f"{self.step_length:g}", "--seed", str(self.seed)]
-        for name, value in self.run_options().items():
-            a += [f"--{name}", value]
+        a += as_args(self.run_options())
         if self.routes:
             a += ["-r", ",".join(os.path.abspath(r) for r in self.routes)]
         if self.additional:
@@ -275,7 +281,7 @@ def start_config(path: str):
     from .additional import quiet_outputs
     from .scenario import scenario_from_files
     extra = scenario_from_files(config=path).additional
-    return _start_libsumo(["-c", path, "--no-step-log", "true", "--no-warnings", "true"]
+    return _start_libsumo(["-c", path, *as_args(SILENT_OPTIONS)]
                           + (["-a", ",".join(quiet_outputs(extra))] if extra else []))
 
 

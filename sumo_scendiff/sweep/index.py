@@ -10,6 +10,7 @@ import os
 
 import numpy as np
 
+from ..core.scene import per_km
 from .spec import Scenario
 from .worker import failure_path
 
@@ -36,9 +37,9 @@ def row_for(out: str, s: Scenario) -> dict:
         if isinstance(stats.get("user_tokens_lost"), dict):   # the reasons are in the scene's own files
             row["user_tokens_lost"] = len(stats["user_tokens_lost"])
         if "existing_vehicles" in stats and "placed" in stats:   # as run's summary counts them
-            km = sweep.get("car_lane_km")
             row["vehicles_in_window"] = stats["existing_vehicles"] + stats["placed"]
-            row["density_veh_per_km"] = round(row["vehicles_in_window"] / km, 2) if km else None
+            density = per_km(row["vehicles_in_window"], sweep.get("car_lane_km"))
+            row["density_veh_per_km"] = None if density is None else round(density, 2)
     elif os.path.exists(failure_path(out, s.id)):
         with open(failure_path(out, s.id)) as f:
             row = json.load(f)
