@@ -4,6 +4,7 @@ from __future__ import annotations
 import errno
 import gzip
 import hashlib
+import json
 import os
 import zlib
 from xml.etree.ElementTree import ParseError, iterparse
@@ -18,6 +19,16 @@ def file_sha256(path: str) -> str:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
+
+
+def read_json(path: str, what: str = "JSON", error: type[Exception] = ValueError):
+    """The JSON document in ``path``; a file that cannot be opened or decoded raises ``error`` with
+    one line naming it: ``PATH: unreadable WHAT (why)``."""
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except (OSError, json.JSONDecodeError) as e:
+        raise error(f"{path}: unreadable {what} ({e})") from None
 
 
 def write_png(path: str, img) -> None:

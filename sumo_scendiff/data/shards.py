@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.files import file_sha256
+from ..core.files import file_sha256, read_json
 from ..core.geometry import Window
 from ..core.scene import Scene, crop_to_window
 from ..map.signals import decode_states, encode_states
@@ -106,11 +106,7 @@ def read_manifest(root: str) -> dict:
     path = os.path.join(root, MANIFEST)
     if not os.path.exists(path):
         raise DataError(f"{root}: not a data directory (no {MANIFEST})")
-    try:
-        with open(path) as f:
-            manifest = json.load(f)
-    except (OSError, json.JSONDecodeError) as e:
-        raise DataError(f"{path}: unreadable manifest ({e})") from None
+    manifest = read_json(path, "manifest", DataError)
     if manifest.get("format_version") != FORMAT_VERSION:
         raise DataError(f"{path}: unsupported format_version {manifest.get('format_version')!r}")
     return manifest

@@ -19,6 +19,7 @@ import os
 
 import numpy as np
 
+from ..core.files import read_json
 from ..core.geometry import wrap_angle
 from ..core.outputs import partial_path
 from ..sim.scenario import ScenarioError, read_sumocfg
@@ -47,11 +48,7 @@ def read_folder(folder: str) -> tuple[dict, str]:
             break
     else:
         raise ExportError(f"{folder}: no scene.json (not a scene folder of run, a sweep or the fill)")
-    try:
-        with open(path) as f:
-            doc = json.load(f)
-    except (OSError, json.JSONDecodeError) as e:
-        raise ExportError(f"{path}: not readable JSON ({e})") from None
+    doc = read_json(path, "JSON", ExportError)
     if not isinstance(doc.get("agents"), list):
         raise ExportError(f"{path}: no 'agents' list")
     config = os.path.join(folder, "scenario.sumocfg")
