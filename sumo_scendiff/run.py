@@ -29,20 +29,8 @@ PROG = "python -m sumo_scendiff.run"
 EGO_AHEAD_M = 25.0   # the ego window's centre ahead of the ego: it sees its own lane 75 m ahead
 
 
-def get_options(args=None):
-    from .core.cli import HelpFormatter, description, epilog, joined, sumo_time
-    from .generation.config import GenerationConfig, SettingError
-    p = argparse.ArgumentParser(prog=PROG, description=description(__doc__), epilog=epilog(__doc__),
-                                formatter_class=HelpFormatter)
-    p.add_argument("-c", "--configuration-file", dest="config", metavar="FILE",
-                   help="a SUMO scenario as its authors ship it (.sumocfg: network, route files, "
-                        "additional files, begin); -n/-r/-a replace what it names")
-    p.add_argument("-n", "--net-file", "--net", dest="net", help="SUMO network (.net.xml[.gz])")
-    p.add_argument("-r", "--route-files", "--routes", dest="routes", default=None,
-                   help="demand to run first (comma-separated route files, vTypes-only files allowed); "
-                        "its vehicles in a window are kept and the model fills in around them")
-    p.add_argument("-a", "--additional-files", dest="additional", default=None,
-                   help="comma-separated additional files (vTypes, TLS programs, detectors, stops)")
+def _add_place_and_time(p, sumo_time) -> None:
+    """Where the scene is (--center/--yaw, --ego) and when (--begin)."""
     where = p.add_mutually_exclusive_group()
     where.add_argument("--center", metavar="X,Y", help="window centre in network coordinates")
     p.add_argument("--yaw", type=float, default=0.0, metavar="RAD",
@@ -57,6 +45,10 @@ def get_options(args=None):
                         "it); with demand (-r/-c) and no --ego SUMO runs the demand up to it (default: its "
                         "first departure, or the configuration's begin, + 600 s; it must lie within the "
                         "demand's departures); without demand the time --edge-data is read at")
+
+
+def _add_what_to_generate(p) -> None:
+    """The tokens, the global token and the traffic level."""
     p.add_argument("--tokens", metavar="FILE", help="agent tokens and global token (TOML/JSON, docs/tokens.md)")
     p.add_argument("--p-mask", type=float, default=None, help="global scene token (overrides the token file)")
     amount = p.add_mutually_exclusive_group()
@@ -72,10 +64,14 @@ def get_options(args=None):
                    help="SUMO edgeData (meandata) file giving --density auto its level per edge and time")
     p.add_argument("--scenes", type=int, default=4, help="number of scenes (default 4)")
     p.add_argument("-s", "--seed", type=int, default=0)
+
+
+def _add_simulation_and_output(p) -> None:
+    """How SUMO runs and where the scenes go."""
+    from .sim.sumo import add_arguments
     p.add_argument("--rollout", type=float, default=60.0, help="seconds SUMO drives after seeding (0: none)")
     p.add_argument("--replay-future", type=float, default=0.0, metavar="SECONDS",
                    help="hold the agents on their generated 0..+2 s future before SUMO takes over (max 2)")
-    from .sim.sumo import add_arguments, settings_problem
     add_arguments(p)       # --step-length, --lateral-resolution, --no-seeding-options
     p.add_argument("--gui", action="store_true", help="watch in sumo-gui (traci)")
     p.add_argument("--traci", action="store_true",
@@ -91,43 +87,66 @@ def get_options(args=None):
     p.add_argument("--export", choices=("openscenario",), default=None,
                    help="also write each scene as OpenSCENARIO + OpenDRIVE (docs/openscenario.md)")
     p.add_argument("-v", "--verbose", action="store_true")
-    GenerationConfig.add_arguments(p)
-    o = p.parse_args(joined(p, args))   # --center -5,3: a negative coordinate is not a flag
-    from .sim.scenario import input_flags_problem
-    if input_flags_problem(o.net, o.config):
-        p.error(input_flags_problem(o.net, o.config))
-    if o.ego and not (o.routes or o.config):
-        p.error("--ego needs demand (-r/--route-files or -c) for the ego to drive in")
+
+
+def _problems(o):
+    """The flags out of range or in conflict, each as one line, in the order the checks run
+    (get_options reports the first); parses --density and --vehicles on the way."""
+    from .generation.config import GenerationConfig, SettingError
     from .sim.density import DensityError, parse_density, parse_vehicles
+    from .sim.scenario import input_flags_problem
+    from .sim.sumo import settings_problem
+    yield input_flags_problem(o.net, o.config)
+    if o.ego and not (o.routes or o.config):
+        yield "--ego needs demand (-r/--route-files or -c) for the ego to drive in"
     try:
         o.density, o.vehicles = parse_density(o.density), parse_vehicles(o.vehicles)
     except DensityError as e:
-        p.error(str(e))
+        yield str(e)
     if o.edge_data and o.density != "auto":
-        p.error("--edge-data: needs --density auto (it sets the level --density auto reads)")
+        yield "--edge-data: needs --density auto (it sets the level --density auto reads)"
     if o.yaw and not o.center:
-        p.error("--yaw: turns a --center window; give --center X,Y with it")
+        yield "--yaw: turns a --center window; give --center X,Y with it"
     if not math.isfinite(o.yaw):
-        p.error(f"--yaw must be a finite angle in radians, got {o.yaw}")
+        yield f"--yaw must be a finite angle in radians, got {o.yaw}"
     if not o.ego_after >= 0:
-        p.error(f"--ego-after must be >= 0 seconds, got {o.ego_after}")
+        yield f"--ego-after must be >= 0 seconds, got {o.ego_after}"
     if o.begin is not None and o.ego:
-        p.error("--begin: with --ego the scene is seeded when the ego has driven --ego-after seconds; "
-                "give one of them")
+        yield "--begin: with --ego the scene is seeded when the ego has driven --ego-after seconds; give one of them"
     if o.scenes < 1:
-        p.error("--scenes must be >= 1")
+        yield "--scenes must be >= 1"
     if o.rollout < 0:
-        p.error("--rollout must be >= 0")
-    if settings_problem(o):
-        p.error(settings_problem(o))
+        yield "--rollout must be >= 0"
+    yield settings_problem(o)
     try:
         GenerationConfig.from_options(o)
     except SettingError as e:
-        p.error(str(e))
+        yield str(e)
     if not 0.0 <= o.replay_future <= 2.0:
-        p.error(f"--replay-future must be in [0, 2] seconds, got {o.replay_future}")
+        yield f"--replay-future must be in [0, 2] seconds, got {o.replay_future}"
     if o.p_mask is not None and not 0.0 <= o.p_mask <= 1.0:
-        p.error(f"--p-mask must be in [0, 1], got {o.p_mask}")
+        yield f"--p-mask must be in [0, 1], got {o.p_mask}"
+
+
+def get_options(args=None):
+    from .core.cli import HelpFormatter, description, epilog, joined, sumo_time
+    from .generation.config import GenerationConfig
+    from .sim.scenario import add_input_arguments
+    p = argparse.ArgumentParser(prog=PROG, description=description(__doc__), epilog=epilog(__doc__),
+                                formatter_class=HelpFormatter)
+    add_input_arguments(p, config="a SUMO scenario as its authors ship it (.sumocfg: network, route files, "
+                                  "additional files, begin); -n/-r/-a replace what it names",
+                        routes="demand to run first (comma-separated route files, vTypes-only files allowed); "
+                               "its vehicles in a window are kept and the model fills in around them",
+                        additional="comma-separated additional files (vTypes, TLS programs, detectors, stops)")
+    _add_place_and_time(p, sumo_time)
+    _add_what_to_generate(p)
+    _add_simulation_and_output(p)
+    GenerationConfig.add_arguments(p)
+    o = p.parse_args(joined(p, args))   # --center -5,3: a negative coordinate is not a flag
+    problem = next((line for line in _problems(o) if line), None)
+    if problem:
+        p.error(problem)
     o.parser = p
     return o
 

@@ -65,6 +65,15 @@ def _time(path: str, name: str, value: str) -> float:
     return t
 
 
+def add_input_arguments(p, config: str, routes: str, additional: str) -> None:
+    """SUMO's own input flags on a CLI's parser (-c, -n, -r, -a, as sumo names them), each with its
+    help in this CLI's terms; :func:`input_flags_problem` checks the -n/-c pair once parsed."""
+    p.add_argument("-c", "--configuration-file", dest="config", metavar="FILE", help=config)
+    p.add_argument("-n", "--net-file", "--net", dest="net", help="SUMO network (.net.xml[.gz])")
+    p.add_argument("-r", "--route-files", "--routes", dest="routes", default=None, help=routes)
+    p.add_argument("-a", "--additional-files", dest="additional", default=None, help=additional)
+
+
 def input_flags_problem(net: str | None, config: str | None) -> str | None:
     """What is wrong with a CLI's -n/-c pair before any file is read (one line), or None."""
     if not (net or config):
