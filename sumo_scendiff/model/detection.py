@@ -319,6 +319,31 @@ def junction_weights(boxes: torch.Tensor, scene: torch.Tensor, junction: torch.T
                        boxes.new_tensor(1.0))
 
 
+def _trajectory_errors(pred: torch.Tensor, rel_gt: torch.Tensor, mask: torch.Tensor):
+    """(the decoded trajectory relative to its box (M, 5, 3), the position error in metres (M,), the
+    heading error 1 - cos (M,)) of matched predictions ``pred`` (M, 19 [+ 2K]) against ``rel_gt``,
+    each the mean over the steps t != 0 that ``mask`` (M, 5) has observed."""
+    m = mask.clone()
+    m[:, T0] = False
+    rel = accumulate_deltas(pred[:, 7:C_Y])
+    mf = m.to(pred.dtype)
+    steps = mf.sum(-1).clamp_min(1.0)
+    pos = ((rel[..., 0:2] - rel_gt[..., 0:2]).norm(dim=-1) * mf).sum(-1) / steps
+    yaw = ((1.0 - torch.cos(rel[..., 2] - rel_gt[..., 2])) * mf).sum(-1) / steps
+    return rel, pos, yaw
+
+
+def _speed_errors(rel: torch.Tensor, rel_gt: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """(M,) the L1 between decoded and GT step lengths |p(t) - p(t-1)| over the 1 s steps whose
+    both ends ``mask`` (M, 5) has observed (the box pose itself always), mean per box."""
+    seen = mask.clone()
+    seen[:, T0] = True                                  # the box pose itself
+    both = (seen[:, 1:] & seen[:, :-1]).to(rel.dtype)  # (M, 4) steps with both ends observed
+    v = (rel[:, 1:, 0:2] - rel[:, :-1, 0:2]).norm(dim=-1)
+    v_gt = (rel_gt[:, 1:, 0:2] - rel_gt[:, :-1, 0:2]).norm(dim=-1)
+    return ((v - v_gt).abs() * both).sum(-1) / both.sum(-1).clamp_min(1.0)
+
+
 def detection_loss(y: torch.Tensor, boxes: torch.Tensor, traj: torch.Tensor, traj_mask: torch.Tensor,
                    valid: torch.Tensor, cfg: DetectionLossConfig,
                    junction: torch.Tensor | None = None, told: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
@@ -347,13 +372,7 @@ def detection_loss(y: torch.Tensor, boxes: torch.Tensor, traj: torch.Tensor, tra
     t = pair_costs(pred, cells[c], gt, cfg.min_edge_distance)
 
     rel_gt = trajectory_targets(gt, traj[b, n])  # (M, 5, 3)
-    m = traj_mask[b, n].clone()
-    m[:, T0] = False
-    rel = accumulate_deltas(pred[:, 7:C_Y])
-    mf = m.to(y.dtype)
-    steps = mf.sum(-1).clamp_min(1.0)
-    pos = ((rel[..., 0:2] - rel_gt[..., 0:2]).norm(dim=-1) * mf).sum(-1) / steps
-    yaw = ((1.0 - torch.cos(rel[..., 2] - rel_gt[..., 2])) * mf).sum(-1) / steps
+    rel, pos, yaw = _trajectory_errors(pred, rel_gt, traj_mask[b, n])
     cat_w = y.new_tensor(cfg.category_weights)[trajectory_category(rel_gt, traj_mask[b, n], cfg)]
     jw = (junction_weights(gt, b, junction, cfg) if junction is not None and cfg.junction_weight != 1.0
           else y.new_ones(len(b)))
@@ -369,13 +388,8 @@ def detection_loss(y: torch.Tensor, boxes: torch.Tensor, traj: torch.Tensor, tra
         traj_yaw=cfg.traj_yaw_weight * (jw * cat_w * yaw).sum() / bsz,
     )
     if cfg.speed_weight > 0:
-        seen = traj_mask[b, n].clone()
-        seen[:, T0] = True                                  # the box pose itself
-        both = (seen[:, 1:] & seen[:, :-1]).to(y.dtype)    # (M, 4) steps with both ends observed
-        v = (rel[:, 1:, 0:2] - rel[:, :-1, 0:2]).norm(dim=-1)
-        v_gt = (rel_gt[:, 1:, 0:2] - rel_gt[:, :-1, 0:2]).norm(dim=-1)
-        err = ((v - v_gt).abs() * both).sum(-1) / both.sum(-1).clamp_min(1.0)
-        if told is not None and cfg.told_speed_weight:
+        err = _speed_errors(rel, rel_gt, traj_mask[b, n])
+        if told is not None and cfg.told_speed_weight:   # the boxes whose token gives a speed
             err = err * (1.0 + cfg.told_speed_weight * told[b, n].to(y.dtype))
         out["speed"] = cfg.speed_weight * (jw * err).sum() / bsz
     if y.shape[1] > C_Y:  # MultiBin heading head
