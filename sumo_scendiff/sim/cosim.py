@@ -164,9 +164,9 @@ def on_existing(scene: Scene, token_of: list[int | None], token_source: list[str
     why = {i: f"the model's copy of vehicle {token_source[t]!r}, already there"
            for i, t in enumerate(token_of) if t is not None and token_source[t] != "user"}
     if len(existing.ids) and len(scene):
-        theirs = shapely.buffer(box_polygons(existing.boxes), OVERLAP_BUFFER)
-        mine, other = shapely.STRtree(theirs).query(box_polygons(scene.boxes), predicate="intersects")
-        for i, j in sorted(zip(mine.tolist(), other.tolist())):
+        hosts = shapely.buffer(box_polygons(existing.boxes), OVERLAP_BUFFER)
+        agent, host = shapely.STRtree(hosts).query(box_polygons(scene.boxes), predicate="intersects")
+        for i, j in sorted(zip(agent.tolist(), host.tolist())):
             why.setdefault(i, f"its box overlaps vehicle {existing.ids[j]!r}, already there")
     return why
 

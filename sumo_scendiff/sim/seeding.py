@@ -245,26 +245,26 @@ class Seeder(Settling, StopLines):
                 b[:, :2] = w.scene_to_world(b[:, :2])
                 b[:, 2] = np.asarray(w.yaw_to_world(b[:, 2]))
             return b
-        mine, theirs = world(scene.boxes[:, :5]), world(others)
+        agents, hosts = world(scene.boxes[:, :5]), world(others)
         score = scene.meta.get("score")
         score = np.asarray(score, np.float64) if score is not None and len(score) == n else None
         keep, hold, why = np.ones(n, bool), np.zeros(n, bool), {}
-        lanes = self.junction_lanes(scene, mine)
+        lanes = self.junction_lanes(scene, agents)
         if any(lanes):
-            other_speed = np.zeros(len(theirs)) if other_speed is None else np.asarray(other_speed, np.float64)
-            fixed = [(ln, b, v) for ln, b, v in zip(self.junction_lanes(scene, theirs), theirs, other_speed) if ln]
-            keep, hold = self.junctions.resolve(lanes, mine, scene.speed[:, T0].astype(np.float64), score, fixed)
+            other_speed = np.zeros(len(hosts)) if other_speed is None else np.asarray(other_speed, np.float64)
+            fixed = [(ln, b, v) for ln, b, v in zip(self.junction_lanes(scene, hosts), hosts, other_speed) if ln]
+            keep, hold = self.junctions.resolve(lanes, agents, scene.speed[:, T0].astype(np.float64), score, fixed)
             why = {int(i): f"on junction {self.junctions.link[lanes[i]][0]}: in the area its link "
                            f"shares with another vehicle's" for i in np.flatnonzero(~keep)}
-        for i, lane in self.facing_on_shared_lanes(mine, theirs, keep, score).items():
+        for i, lane in self.facing_on_shared_lanes(agents, hosts, keep, score).items():
             keep[i] = False
             why[i] = f"on lane {lane}, which both directions share, facing a vehicle on it"
         return keep, hold & keep, why
 
-    def facing_on_shared_lanes(self, mine: np.ndarray, theirs: np.ndarray, keep: np.ndarray,
+    def facing_on_shared_lanes(self, agents: np.ndarray, hosts: np.ndarray, keep: np.ndarray,
                                score: np.ndarray | None) -> dict[int, str]:
-        """The kept agents (world boxes ``mine``) to drop because a lane both directions share
-        (:attr:`Network.shared_lanes`) holds a vehicle the other way: a host (``theirs``, never
+        """The kept agents (world boxes ``agents``) to drop because a lane both directions share
+        (:attr:`Network.shared_lanes`) holds a vehicle the other way: a host (``hosts``, never
         dropped) or a more probable agent. SUMO lets no vehicle onto such a lane while an oncoming
         one is on it; two seeded face to face on it collide in the first step."""
         shared = self.net.shared_lanes
@@ -274,8 +274,8 @@ class Seeder(Settling, StopLines):
             if not len(b):
                 return np.zeros(0, np.int64)
             return self.net.match_poses(b[:, :2], b[:, 2], allow_internal=False).lane
-        on, host = lanes_of(mine), {int(ln) for ln in lanes_of(theirs) if int(ln) in shared}
-        score = np.zeros(len(mine)) if score is None else score
+        on, host = lanes_of(agents), {int(ln) for ln in lanes_of(hosts) if int(ln) in shared}
+        score = np.zeros(len(agents)) if score is None else score
         taken = {shared[ln] for ln in host}      # the lanes' other direction, held by a host
         out: dict[int, str] = {}
         for i in sorted(np.flatnonzero(keep), key=lambda i: (-score[i], i)):
@@ -350,9 +350,9 @@ class Seeder(Settling, StopLines):
         stand where this window drew an agent."""
         if not len(scene) or not len(others):
             return {}
-        mine, theirs = box_polygons(scene.boxes[:, :5]), box_polygons(np.asarray(others)[:, :5])
-        i, j = shapely.STRtree(theirs).query(mine, predicate="intersects")
-        hit = {int(a) for a, b in zip(i, j) if shapely.area(shapely.intersection(mine[a], theirs[b])) > OVERLAP_AREA}
+        agents, hosts = box_polygons(scene.boxes[:, :5]), box_polygons(np.asarray(others)[:, :5])
+        i, j = shapely.STRtree(hosts).query(agents, predicate="intersects")
+        hit = {int(a) for a, b in zip(i, j) if shapely.area(shapely.intersection(agents[a], hosts[b])) > OVERLAP_AREA}
         return {a: "its box overlaps a vehicle seeded before" for a in sorted(hit)}
 
     def fit_lane_ends(self, scene: Scene, report: SeedReport, others: np.ndarray) -> None:
@@ -405,8 +405,18 @@ class Seeder(Settling, StopLines):
         queue can have a moving car a metre behind a standing one; SUMO would brake it at once beyond
         its ``decel``): those are in ``report.slowed``.
         """
-        sim, report = self.sim, SeedReport()
-        w = scene.window
+        report = SeedReport()
+        keep, types, gaps, depart = self._prepare(scene, others, types, report)
+        self.routes.refresh()
+        for i in range(len(scene)):
+            if keep[i]:
+                self._add(scene, i, types[i], gaps[i], depart[i], routes[i] if routes is not None else None, report)
+        return report
+
+    def _prepare(self, scene: Scene, others, types: list | None, report: SeedReport):
+        """Before any vehicle is added: each agent's vType (the scenario's, boxes resized), its
+        pose fitted at red junctions and lane ends, whether it is seeded (``report.dropped`` says why
+        not), its minGap and its departure speed. Returns (keep, types, min gaps, departure speeds)."""
         other_boxes, other_speed = others if others is not None else (np.zeros((0, 5)), np.zeros(0))
         types, crowded = self._known_types().assign(   # the scenario's vTypes, boxes resized (sim/fleet.py)
             scene, other_boxes, *self.leaders(np.concatenate([scene.boxes[:, :5], other_boxes[:, :5]])),
@@ -421,56 +431,56 @@ class Seeder(Settling, StopLines):
             keep[i], hold[i] = False, False
             report.dropped[i] = why
         lead_speed[:len(scene)][hold] = 0.0      # a follower of a held agent departs safe behind it
-        depart = self.departure_speeds(lead, bumper_gap - gaps, lead_speed, types)
-        self.routes.refresh()
-        for i in range(len(scene)):
-            if not keep[i]:
-                continue
-            world = w.scene_to_world(scene.traj[i, :, :2])
-            yaws = np.asarray(w.yaw_to_world(scene.traj[i, :, 2]))
-            fx, fy, angle = pose_to_sumo(world[T0, 0], world[T0, 1], yaws[T0], scene.boxes[i, 3])
-            route = self.route_for(scene, i, world, yaws)
-            if route is None:
-                report.refused[i] = "no car lane at its pose"
-                continue
-            edges, lane_index, lane, last_lane = route
-            vid = f"{self.prefix}{self.count}"
-            self.count += 1
-            try:
-                width = float(scene.boxes[i, 4])
-                if self.width_cap is not None and width > self.width_cap and types[i] is None:
-                    report.narrowed[i] = (width, self.width_cap)
-                    width = self.width_cap
-                tid = self.vtype(vid, scene.boxes[i, 3], width, scene.vclass[i], gaps[i], types[i])
-                given = routes[i] if routes is not None else None
-                full, how = self.routes.along(edges, last_lane, given, tid) if given else ([], "")
-                if given:
-                    report.own_route[i] = how or "lost"
-                sim.route.add(f"{vid}_route", full or self.routes.complete(edges, last_lane, tid, self.rng))
-                speed, slowed = max(float(scene.speed[i, T0]), 0.0), None
-                # held for a foe on its junction, safe behind the one ahead, or at most what its vType
-                # drives (a scenario's slow type: SUMO refuses a departure above its maxSpeed)
-                cap = min(float(depart[i]), sim.vehicletype.getMaxSpeed(tid))
-                if cap < speed:
-                    slowed, speed = (speed, cap), cap
-                sim.vehicle.add(vid, f"{vid}_route", typeID=tid, depart="now",
-                                departLane=str(lane_index) if not lane.internal else "best",
-                                departPos="base", departSpeed=f"{speed:.3f}")
-                sim.vehicle.moveToXY(vid, "" if lane.internal else lane.edge, lane.index,
-                                     float(fx), float(fy), float(angle), keepRoute=self.keep_route)
-            except Exception as e:  # libsumo.TraCIException / traci.TraCIException
-                if type(e).__name__ == "FatalTraCIError":    # SUMO itself gone, not a refusal
-                    raise
-                report.refused[i] = str(e).splitlines()[0] if str(e) else type(e).__name__
-                self._withdraw(vid)
-                continue
-            report.ids[i] = vid
-            report.targets[i] = (float(fx), float(fy), float(angle))
-            if not lane.internal:
-                report.lanes[i] = (lane.id, self._front_pos(lane, fx, fy))
-            if slowed is not None:
-                report.slowed[i] = slowed
-        return report
+        return keep, types, gaps, self.departure_speeds(lead, bumper_gap - gaps, lead_speed, types)
+
+    def _add(self, scene: Scene, i: int, vtype: str | None, gap: float, depart: float, given: list | None,
+             report: SeedReport) -> None:
+        """Add agent ``i`` as a SUMO vehicle at its pose (recorded in ``report``: its id and target,
+        or why SUMO refused it)."""
+        sim, w = self.sim, scene.window
+        world = w.scene_to_world(scene.traj[i, :, :2])
+        yaws = np.asarray(w.yaw_to_world(scene.traj[i, :, 2]))
+        fx, fy, angle = pose_to_sumo(world[T0, 0], world[T0, 1], yaws[T0], scene.boxes[i, 3])
+        route = self.route_for(scene, i, world, yaws)
+        if route is None:
+            report.refused[i] = "no car lane at its pose"
+            return
+        edges, lane_index, lane, last_lane = route
+        vid = f"{self.prefix}{self.count}"
+        self.count += 1
+        try:
+            width = float(scene.boxes[i, 4])
+            if self.width_cap is not None and width > self.width_cap and vtype is None:
+                report.narrowed[i] = (width, self.width_cap)
+                width = self.width_cap
+            tid = self.vtype(vid, scene.boxes[i, 3], width, scene.vclass[i], gap, vtype)
+            full, how = self.routes.along(edges, last_lane, given, tid) if given else ([], "")
+            if given:
+                report.own_route[i] = how or "lost"
+            sim.route.add(f"{vid}_route", full or self.routes.complete(edges, last_lane, tid, self.rng))
+            speed, slowed = max(float(scene.speed[i, T0]), 0.0), None
+            # held for a foe on its junction, safe behind the one ahead, or at most what its vType
+            # drives (a scenario's slow type: SUMO refuses a departure above its maxSpeed)
+            cap = min(float(depart), sim.vehicletype.getMaxSpeed(tid))
+            if cap < speed:
+                slowed, speed = (speed, cap), cap
+            sim.vehicle.add(vid, f"{vid}_route", typeID=tid, depart="now",
+                            departLane=str(lane_index) if not lane.internal else "best",
+                            departPos="base", departSpeed=f"{speed:.3f}")
+            sim.vehicle.moveToXY(vid, "" if lane.internal else lane.edge, lane.index,
+                                 float(fx), float(fy), float(angle), keepRoute=self.keep_route)
+        except Exception as e:  # libsumo.TraCIException / traci.TraCIException
+            if type(e).__name__ == "FatalTraCIError":    # SUMO itself gone, not a refusal
+                raise
+            report.refused[i] = str(e).splitlines()[0] if str(e) else type(e).__name__
+            self._withdraw(vid)
+            return
+        report.ids[i] = vid
+        report.targets[i] = (float(fx), float(fy), float(angle))
+        if not lane.internal:
+            report.lanes[i] = (lane.id, self._front_pos(lane, fx, fy))
+        if slowed is not None:
+            report.slowed[i] = slowed
 
     def departure_speeds(self, lead: np.ndarray, gap: np.ndarray, speed: np.ndarray,
                          types: list | None = None) -> np.ndarray:
