@@ -3,6 +3,7 @@
     sim = start(cfg)                         # the scenario's step length and options (sim.sumo)
     warm_up(sim, 900.0, cfg)                 # one simulationStep(900): no Python between steps
     sim = start_warm(cfg, 900.0)             # the same, from ~/.cache/sumo-scendiff/states when there
+    path = warm_state(cfg, 900.0)            # that state alone: start(replace(cfg, state=path))
 
 Running a demand to a time is what stock ``sumo -c scenario.sumocfg --end T`` does; here it is
 ``simulationStep(T)``, one call into SUMO, so it costs what SUMO costs. The state at T is saved under
@@ -123,17 +124,11 @@ def save(sim, cfg, until: float, folder: str | None = None) -> str:
     return path
 
 
-def start_warm(cfg, until: float, folder: str | None = None, quiet: bool = True, cache: bool = True):
-    """SUMO on ``cfg`` at ``until``, started from the saved state (``--load-state``): the one kept from
-    an earlier call, else one made now by :func:`warm_up` (on :func:`warm_config` of ``cfg``). Both ways the simulation goes on from the
-    same state file, so asking again gives the same run (a run that saved a state and a run started
-    from it differ: vehicles still to depart draw their numbers in another order). Without ``cache``
-    the demand is run to ``until`` and that simulation returned, nothing saved. Returns the simulation."""
+def warm_state(cfg, until: float, folder: str | None = None, quiet: bool = True) -> str:
+    """The saved state of ``cfg`` run to ``until`` (:func:`warm_config`: as stock SUMO runs it): the
+    one kept from an earlier call, else made now by :func:`warm_up` (SUMO started, run, closed).
+    Start SUMO from it with ``replace(cfg, state=path)``."""
     from .sumo import close, start
-    if not cache:
-        sim = start(cfg, quiet=quiet)
-        warm_up(sim, until)
-        return sim
     warming = warm_config(cfg)
     path = cached_state(warming, until, folder)
     if path is None:
@@ -142,7 +137,22 @@ def start_warm(cfg, until: float, folder: str | None = None, quiet: bool = True,
             path = warm_up(sim, until, warming, folder)
         finally:
             close(sim)
-    return start(replace(cfg, state=path), quiet=quiet)    # with the seeding's options from here on
+    return path
 
 
-__all__ = ["WarmUpError", "cached_state", "save", "start_warm", "state_dir", "state_key", "warm_config", "warm_up"]
+def start_warm(cfg, until: float, folder: str | None = None, quiet: bool = True, cache: bool = True):
+    """SUMO on ``cfg`` at ``until``, started from :func:`warm_state` (``--load-state``). Both ways, the
+    state kept or made now, the simulation goes on from the same state file, so asking again gives
+    the same run (a run that saved a state and a run started from it differ: vehicles still to
+    depart draw their numbers in another order). Without ``cache`` the demand is run to ``until``
+    and that simulation returned, nothing saved. Returns the simulation."""
+    from .sumo import start
+    if not cache:
+        sim = start(cfg, quiet=quiet)
+        warm_up(sim, until)
+        return sim
+    return start(replace(cfg, state=warm_state(cfg, until, folder, quiet)), quiet=quiet)
+
+
+__all__ = ["WarmUpError", "cached_state", "save", "start_warm", "state_dir", "state_key", "warm_config", "warm_state",
+           "warm_up"]
