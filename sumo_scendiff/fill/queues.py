@@ -77,149 +77,177 @@ class OnEdge:
 def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnEdge]:
     """Every trip on the network at ``begin`` (those arrived, or still waiting to be inserted, are
     not); deterministic: ties in time go in the order of ``trips``."""
-    snet = net.sumo_net
-    occupied: dict[tuple[str, int], int] = {}   # (edge, lane index) -> vehicles on it
-    cap: dict[str, float] = {}
-    best: dict[tuple[str, tuple[str, ...]], tuple[int, ...]] = {}
-    lane_of: dict[int, int] = {}           # id(trip) -> the lane of its edge it stands on
-    waiting_for: dict[str, deque] = {}     # edge -> vehicles at an upstream stop line wanting onto it
-    inserting: dict[str, deque] = {}       # edge -> departures waiting to be inserted onto it
-    free_at: dict[tuple[str, str], float] = {}   # a fixed light's link: when it lets the next through
-    sneaked: dict[tuple[str, str, float], int] = {}   # (link, its green's end): vehicles let through at it
-    sneaking: dict[int, bool] = {}         # id(trip) -> it goes at its green's end, the light red by then
-    ready: dict[int, float] = {}           # id(trip) -> when it has its gap, at a yielding green
-    where: dict[int, OnEdge] = {}          # id(trip) -> where it is (ids may repeat across files)
-    events: list = []
-    order = itertools.count()
-    DEPART, LINE, GO = 0, 1, 2
+    q = _Queues(times, net)
+    for trip in trips:
+        q.push(trip.depart, DEPART, trip)
+    while q.events and q.events[0][0] <= begin:
+        t, _, kind, trip, k = heapq.heappop(q.events)
+        if kind == DEPART:
+            q.depart(trip, t)
+        elif k + 1 == len(trip.edges):       # at its route's end: it leaves the network
+            del q.where[id(trip)]
+            q.leave(trip, trip.edges[k], t)
+        elif kind == LINE:
+            q.at_line(trip, k, t)
+        else:
+            q.go(trip, k, t)
+    return list(q.where.values())
 
-    def storage(e: str) -> float:
+
+DEPART, LINE, GO = 0, 1, 2     # the events: a departure, a vehicle at its stop line, one going through
+
+
+class _Queues:
+    """The network's lanes as queues while :func:`run_to` takes the events in the order of time."""
+
+    def __init__(self, times: TravelTimes, net):
+        self.times, self.snet = times, net.sumo_net
+        self.occupied: dict[tuple[str, int], int] = {}   # (edge, lane index) -> vehicles on it
+        self.cap: dict[str, float] = {}
+        self.best: dict[tuple[str, tuple[str, ...]], tuple[int, ...]] = {}
+        self.lane_of: dict[int, int] = {}           # id(trip) -> the lane of its edge it stands on
+        self.waiting_for: dict[str, deque] = {}     # edge -> vehicles at an upstream stop line wanting onto it
+        self.inserting: dict[str, deque] = {}       # edge -> departures waiting to be inserted onto it
+        self.free_at: dict[tuple[str, str], float] = {}   # a fixed light's link: when it lets the next through
+        self.sneaked: dict[tuple[str, str, float], int] = {}   # (link, its green's end): vehicles let through at it
+        self.sneaking: dict[int, bool] = {}         # id(trip) -> it goes at its green's end, the light red by then
+        self.ready: dict[int, float] = {}           # id(trip) -> when it has its gap, at a yielding green
+        self.where: dict[int, OnEdge] = {}          # id(trip) -> where it is (ids may repeat across files)
+        self.events: list = []
+        self.order = itertools.count()
+
+    def storage(self, e: str) -> float:
         """Vehicles a lane of the edge holds; a short edge (netconvert's stubs before a light, a block
         of a few metres) holds no queue of its own: SUMO's vehicles stand across it and the junction."""
-        if e not in cap:
-            edge = snet.getEdge(e)
+        if e not in self.cap:
+            edge = self.snet.getEdge(e)
             short = edge.getLength() < MIN_STORAGE_M
-            cap[e] = np.inf if short else max(1.0, edge.getLength() / JAM_SPACING)
-        return cap[e]
+            self.cap[e] = np.inf if short else max(1.0, edge.getLength() / JAM_SPACING)
+        return self.cap[e]
 
-    def lanes_for(e: str, rest: tuple[str, ...]) -> tuple[int, ...]:
+    def lanes_for(self, e: str, rest: tuple[str, ...]) -> tuple[int, ...]:
         """The lanes of ``e`` a vehicle going on by ``rest`` (its next edge and the one after) queues
         on: those that lead to its next edge, and of them those whose lane there leads on to the one
         after where some do (SUMO's best lanes, which a vehicle changes to before it stands)."""
         key = (e, rest[:2])
-        if key not in best:
-            lanes = [ln for ln in snet.getEdge(e).getLanes() if ln.allows("passenger")] \
-                or list(snet.getEdge(e).getLanes())
+        if key not in self.best:
+            lanes = [ln for ln in self.snet.getEdge(e).getLanes() if ln.allows("passenger")] \
+                or list(self.snet.getEdge(e).getLanes())
             pick = lanes
             if rest:
                 to = {ln: [c.getToLane() for c in ln.getOutgoing() if c.getTo().getID() == rest[0]] for ln in lanes}
                 pick = [ln for ln in lanes if to[ln]] or lanes
                 if len(rest) > 1:
-                    onward = set(lanes_for(rest[0], rest[1:2]))
+                    onward = set(self.lanes_for(rest[0], rest[1:2]))
                     pick = [ln for ln in pick if any(m.getIndex() in onward for m in to[ln])] or pick
-            best[key] = tuple(ln.getIndex() for ln in pick)
-        return best[key]
+            self.best[key] = tuple(ln.getIndex() for ln in pick)
+        return self.best[key]
 
-    def full(e: str, rest: tuple[str, ...]) -> bool:
-        return all(occupied.get((e, i), 0) >= storage(e) for i in lanes_for(e, rest))
+    def full(self, e: str, rest: tuple[str, ...]) -> bool:
+        return all(self.occupied.get((e, i), 0) >= self.storage(e) for i in self.lanes_for(e, rest))
 
-    def push(t: float, kind: int, trip: Trip, k: int = 0) -> None:
-        heapq.heappush(events, (t, next(order), kind, trip, k))
+    def push(self, t: float, kind: int, trip: Trip, k: int = 0) -> None:
+        heapq.heappush(self.events, (t, next(self.order), kind, trip, k))
 
-    def enter(trip: Trip, k: int, t: float, before: float, offset: float) -> None:
+    def enter(self, trip: Trip, k: int, t: float, before: float, offset: float) -> None:
         e = trip.edges[k]
-        lane = min(lanes_for(e, trip.edges[k + 1:k + 3]), key=lambda i: occupied.get((e, i), 0))
-        occupied[(e, lane)] = occupied.get((e, lane), 0) + 1
-        lane_of[id(trip)] = lane
-        length = snet.getEdge(e).getLength()
-        cruise, _ = times.edge(e, trip.driver)
+        lane = min(self.lanes_for(e, trip.edges[k + 1:k + 3]), key=lambda i: self.occupied.get((e, i), 0))
+        self.occupied[(e, lane)] = self.occupied.get((e, lane), 0) + 1
+        self.lane_of[id(trip)] = lane
+        length = self.snet.getEdge(e).getLength()
+        cruise, _ = self.times.edge(e, trip.driver)
         travel = max(before + cruise * (length - offset) / length + (trip.dwell[k] if trip.dwell else 0.0), 1e-3)
-        where[id(trip)] = OnEdge(trip, k, t, travel, offset)
-        push(t + travel, LINE, trip, k)
+        self.where[id(trip)] = OnEdge(trip, k, t, travel, offset)
+        self.push(t + travel, LINE, trip, k)
 
-    def leave(trip: Trip, e: str, t: float) -> None:
+    def leave(self, trip: Trip, e: str, t: float) -> None:
         """``trip`` leaves ``e``: everyone waiting for a place on it tries again now, in the order they
         came, the network's vehicles before the insertions (one held by its light lets the next
         have it; whoever finds none on its lanes waits on)."""
-        occupied[(e, lane_of.pop(id(trip)))] -= 1
-        for trip, k in waiting_for.pop(e, ()):
-            push(t, GO, trip, k)
-        for trip in inserting.pop(e, ()):
-            push(t, DEPART, trip)
+        self.occupied[(e, self.lane_of.pop(id(trip)))] -= 1
+        for waiting, k in self.waiting_for.pop(e, ()):
+            self.push(t, GO, waiting, k)
+        for waiting in self.inserting.pop(e, ()):
+            self.push(t, DEPART, waiting)
 
-    for trip in trips:
-        push(trip.depart, DEPART, trip)
-    while events and events[0][0] <= begin:
-        t, _, kind, trip, k = heapq.heappop(events)
-        if kind == DEPART:
-            e = trip.edges[0]
-            if not full(e, trip.edges[1:3]):
-                enter(trip, 0, t, trip.start_s, trip.offset)
-            else:
-                inserting.setdefault(e, deque()).append(trip)
-            continue
-        e = trip.edges[k]
-        if k + 1 == len(trip.edges):         # at its route's end: it leaves the network
-            del where[id(trip)]
-            leave(trip, e, t)
-            continue
-        nxt = trip.edges[k + 1]
-        link = times.link_of(e, nxt)
-        program = times.light(link) if link is not None else None
-        minor = program is None and link is not None and bool(link.foes)
-        if kind == LINE:                     # reached the stop line: ready after giving way
-            if minor:                        # the head's gap; the queue is the server's (GO)
-                wait = times.yielding(link, e, nxt, queued=True)[0]
-            elif program is None:
-                wait, _ = times.link(e, nxt, trip.driver)
-            else:                            # a yielding green's gap is waited for in the GO step, in green
-                wait = 0.0
-                if link.foes:
-                    ready[id(trip)] = t + times.yielding(link, e, nxt, queued=True)[0]
-            push(t + wait, GO, trip, k)
-            continue
-        # GO: through the junction if the light and the next edge let it
+    def depart(self, trip: Trip, t: float) -> None:
+        e = trip.edges[0]
+        if not self.full(e, trip.edges[1:3]):
+            self.enter(trip, 0, t, trip.start_s, trip.offset)
+        else:
+            self.inserting.setdefault(e, deque()).append(trip)
+
+    def _link(self, trip: Trip, k: int):
+        """The link from the trip's ``k``-th edge to its next, its light's program, whether it gives way
+        without a light (a minor road's)."""
+        e, nxt = trip.edges[k], trip.edges[k + 1]
+        link = self.times.link_of(e, nxt)
+        program = self.times.light(link) if link is not None else None
+        return e, nxt, link, program, program is None and link is not None and bool(link.foes)
+
+    def at_line(self, trip: Trip, k: int, t: float) -> None:
+        """Reached the stop line: ready after giving way."""
+        e, nxt, link, program, minor = self._link(trip, k)
+        if minor:                        # the head's gap; the queue is the server's (GO)
+            wait = self.times.yielding(link, e, nxt, queued=True)[0]
+        elif program is None:
+            wait, _ = self.times.link(e, nxt, trip.driver)
+        else:                            # a yielding green's gap is waited for in the GO step, in green
+            wait = 0.0
+            if link.foes:
+                self.ready[id(trip)] = t + self.times.yielding(link, e, nxt, queued=True)[0]
+        self.push(t + wait, GO, trip, k)
+
+    def _held(self, trip: Trip, k: int, t: float, e, nxt, link, program, minor) -> float | None:
+        """When the light (or a minor road's server) lets the trip through, if later than ``t``."""
         if minor:
-            go = free_at.get((e, nxt), -np.inf)
-            if go > t:
-                push(go, GO, trip, k)
-                continue
-        if program is not None and not sneaking.pop(id(trip), False):
-            go = program.next_green(link.indices, max(t, ready.get(id(trip), t), free_at.get((e, nxt), -np.inf)))
-            if go > t:
-                if link.foes:                # its gap or its turn comes after this green ends?
-                    start = program.next_green(link.indices, t)
-                    end = program.green_end(link.indices, start) if start < np.inf else None
-                    if end is not None and end < go:
-                        if sneaked.get((e, nxt, end), 0) < SNEAKERS * link.lanes:
-                            # waiting inside the junction, it leaves as the foes stop at the green's end
-                            sneaked[(e, nxt, end)] = sneaked.get((e, nxt, end), 0) + 1
-                            sneaking[id(trip)] = True
-                            go = end
-                        else:                # this green's places inside are taken: try the next green's
-                            go = min(go, program.next_green(link.indices, end))
-                push(go, GO, trip, k)
-                continue
-        ready.pop(id(trip), None)
-        if full(nxt, trip.edges[k + 2:k + 4]):
-            waiting_for.setdefault(nxt, deque()).append((trip, k))
-            continue
-        at_line = where[id(trip)].t_enter + where[id(trip)].travel
+            go = self.free_at.get((e, nxt), -np.inf)
+            return go if go > t else None
+        if program is None or self.sneaking.pop(id(trip), False):
+            return None
+        go = program.next_green(link.indices, max(t, self.ready.get(id(trip), t), self.free_at.get((e, nxt), -np.inf)))
+        if go <= t:
+            return None
+        if link.foes:                # its gap or its turn comes after this green ends?
+            start = program.next_green(link.indices, t)
+            end = program.green_end(link.indices, start) if start < np.inf else None
+            if end is not None and end < go:
+                if self.sneaked.get((e, nxt, end), 0) < SNEAKERS * link.lanes:
+                    # waiting inside the junction, it leaves as the foes stop at the green's end
+                    self.sneaked[(e, nxt, end)] = self.sneaked.get((e, nxt, end), 0) + 1
+                    self.sneaking[id(trip)] = True
+                    go = end
+                else:                # this green's places inside are taken: try the next green's
+                    go = min(go, program.next_green(link.indices, end))
+        return go
+
+    def go(self, trip: Trip, k: int, t: float) -> None:
+        """Through the junction if the light and the next edge let it."""
+        e, nxt, link, program, minor = self._link(trip, k)
+        held = self._held(trip, k, t, e, nxt, link, program, minor)
+        if held is not None:
+            self.push(held, GO, trip, k)
+            return
+        self.ready.pop(id(trip), None)
+        if self.full(nxt, trip.edges[k + 2:k + 4]):
+            self.waiting_for.setdefault(nxt, deque()).append((trip, k))
+            return
+        at_line = self.where[id(trip)].t_enter + self.where[id(trip)].travel
         if minor:
-            free_at[(e, nxt)] = t + 1.0 / min(SATURATION_FLOW * link.lanes, times.gap_capacity(link, MINOR_GAP))
+            self.free_at[(e, nxt)] = t + 1.0 / min(SATURATION_FLOW * link.lanes,
+                                                    self.times.gap_capacity(link, MINOR_GAP))
         if program is None:
-            _, before = times.link(e, nxt, trip.driver)
+            _, before = self.times.link(e, nxt, trip.driver)
         else:
             rate = SATURATION_FLOW * link.lanes
             if link.foes:            # a yielding green: one per gap in its foes' flow
-                rate = min(rate, times.gap_capacity(link))
-            free_at[(e, nxt)] = t + 1.0 / rate
-            wait, stops = times.yielding(link, e, nxt)
-            cross, stopping = times.crossing(link, e, trip.driver)
+                rate = min(rate, self.times.gap_capacity(link))
+            self.free_at[(e, nxt)] = t + 1.0 / rate
+            wait, stops = self.times.yielding(link, e, nxt)
+            cross, stopping = self.times.crossing(link, e, trip.driver)
             before = cross + (1.0 if t > at_line + wait + 1e-6 else stops) * stopping
-        leave(trip, e, t)
-        enter(trip, k + 1, t, before, 0.0)
-    return list(where.values())
+        self.leave(trip, e, t)
+        self.enter(trip, k + 1, t, before, 0.0)
 
 
 __all__ = ["JAM_SPACING", "MIN_STORAGE_M", "OnEdge", "Trip", "run_to"]
