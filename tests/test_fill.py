@@ -29,9 +29,10 @@ def _fill(out, *extra, net=NET) -> dict:
 
 
 def _fail(capsys, *args) -> str:
+    """The CLI's error on bad input: one line (-q: without the progress lines a fill logs as it works)."""
     from sumo_scendiff.fill.__main__ import get_options, main
     with pytest.raises(SystemExit) as e:
-        main(get_options(list(args)))
+        main(get_options([*args, "-q"]))
     assert e.value.code == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "Traceback" not in err, err
@@ -41,7 +42,7 @@ def _fail(capsys, *args) -> str:
 @pytest.fixture(scope="module")
 def filled(tmp_path_factory):
     out = tmp_path_factory.mktemp("fill") / "filled"
-    return out, _fill(out, "-s", "3")
+    return out, _fill(out, "-s", "3", "--workers", "1")
 
 
 def _boxes(doc):
@@ -195,7 +196,7 @@ def test_pins_across_tile_borders(tmp_path):
 
 def test_same_seed_same_fill(filled, tmp_path):
     _, doc = filled
-    again = _fill(tmp_path / "again", "-s", "3")
+    again = _fill(tmp_path / "again", "-s", "3", "--workers", "1")
     for d in (doc, again):
         d.pop("timing_s")
     assert again == doc
@@ -218,13 +219,31 @@ def test_two_workers_give_the_same_fill(filled, tmp_path):
     assert _without_run_facts(two) == _without_run_facts(doc)
 
 
+def test_the_library_call_writes_the_clis_fill(filled, tmp_path):
+    """fill.api.fill is the CLI without flags: the same request gives the same folder; bad input
+    raises FillError and leaves nothing."""
+    from sumo_scendiff.fill.api import FillError, fill
+    _, doc = filled
+    done = fill(NET, None, out=str(tmp_path / "lib"), seed=3, workers=1)
+    assert done.folder == str(tmp_path / "lib") and done.summary == doc["summary"]
+    assert _without_run_facts(done.doc) == _without_run_facts(doc)
+    with pytest.raises(FillError, match="exists"):
+        fill(NET, 10.0, out=done.folder)
+    with pytest.raises(FillError, match="no car lane inside"):
+        fill(NET, None, area=(5000, 5000, 5200, 5200), out=str(tmp_path / "none"), workers=1)
+    assert sorted(os.listdir(tmp_path)) == ["lib"]
+
+
 def test_tasks_depend_on_the_colour_alone():
-    """A colour's model calls: about eight, at most TILES_PER_TASK tiles, every tile once, in order."""
-    from sumo_scendiff.fill.plan import TILES_PER_TASK, tasks_of
+    """A colour's model calls: TASKS_PER_COLOUR where it has the tiles, more only where a call would
+    exceed TILES_PER_TASK tiles (their size depends on the colour alone); every tile once, in order."""
+    from sumo_scendiff.fill.plan import TASKS_PER_COLOUR, TILES_PER_TASK, tasks_of
     for n in (1, 3, 8, 9, 20, 100, 1000):
         groups = tasks_of(list(range(n)))
         assert [t for g in groups for t in g] == list(range(n))
-        assert max(map(len, groups)) <= TILES_PER_TASK and len(groups) <= max(8, math.ceil(n / TILES_PER_TASK))
+        assert max(map(len, groups)) <= TILES_PER_TASK
+        # two workers both have work where there are two tiles; few calls, never one per tile
+        assert min(n, 2) <= len(groups) <= max(TASKS_PER_COLOUR, math.ceil(n / TILES_PER_TASK) + 1)
 
 
 def test_ray_workers_give_the_same_fill(filled, tmp_path):

@@ -61,7 +61,7 @@ def test_no_demand_vehicle_twice(tmp_path):
     demand.write_text("<routes>" + "".join(f'<vehicle id="{v}" depart="{t}"><route edges="{edges[k]}"/></vehicle>'
                                            for k, (v, t) in enumerate(times)) + "</routes>")
     # a 0.5 s step (a demand's own default is SUMO's 1 s): "due" departs after the state's time
-    doc = _fill(tmp_path / "o", "-r", str(demand), "--begin", "120", "--step-length", "0.5")
+    doc = _fill(tmp_path / "o", "--demand-estimate", "-r", str(demand), "--begin", "120", "--step-length", "0.5")
     carried = {a["demand"]["id"] for a in doc["agents"] if a.get("demand") and a["vehicle"]}
     assert {"at", "within"} <= carried and not carried & {"due", "later"}
     for cfg in ("scenario.sumocfg", "start.sumocfg"):
@@ -237,7 +237,7 @@ def test_fill_with_demand(tmp_path):
     demand.write_text(f'<routes><vType id="calm" accel="1.2" sigma="0.1" color="0,0,255"/>'
                       f'<flow id="f" type="calm" begin="0" end="600" period="4" from="{edges[0]}" '
                       f'to="{edges[-1]}"/></routes>')
-    doc = _fill(tmp_path / "o", "-r", str(demand), "--begin", "120")
+    doc = _fill(tmp_path / "o", "--demand-estimate", "-r", str(demand), "--begin", "120")
     src = doc["density"]
     assert src["kind"] == "demand" and src["time"] == 120 and src["en_route"] > 0
     assert doc["inflow"]["file"] is None and not os.path.exists(tmp_path / "o" / "inflow.rou.xml")
@@ -286,7 +286,7 @@ def test_a_bus_keeps_the_stops_ahead_of_it(tmp_path):
     (tmp_path / "bus.rou.xml").write_text(
         f'<routes><vType id="coach" vClass="bus"/><flow id="L1" type="coach" line="1" begin="0" end="600" '
         f'period="15" from="{edges[0]}" to="{edges[-1]}"><stop busStop="bs" duration="20"/></flow></routes>')
-    doc = _fill(tmp_path / "o", "-r", str(tmp_path / "bus.rou.xml"), "-a", str(tmp_path / "stops.add.xml"),
+    doc = _fill(tmp_path / "o", "--demand-estimate", "-r", str(tmp_path / "bus.rou.xml"), "-a", str(tmp_path / "stops.add.xml"),
                 "--begin", "120")
     buses = [a["vehicle"] for a in doc["agents"] if a.get("demand") and a["vehicle"]]
     assert buses
@@ -330,7 +330,7 @@ def test_demand_level_only(tmp_path):
     demand = tmp_path / "demand.rou.xml"
     demand.write_text(f'<routes><flow id="f" begin="0" end="600" period="4" from="{edges[0]}" '
                       f'to="{edges[-1]}"/></routes>')
-    doc = _fill(tmp_path / "o", "-r", str(demand), "--begin", "120", "--demand-level-only")
+    doc = _fill(tmp_path / "o", "--demand-estimate", "-r", str(demand), "--begin", "120", "--demand-level-only")
     assert doc["density"]["kind"] == "demand" and "vehicles" not in doc["density"]
     assert doc["agents"] and not any("demand" in a for a in doc["agents"])
 

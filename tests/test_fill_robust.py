@@ -42,7 +42,8 @@ def bus_fill(tmp_path_factory):
         '</configuration>')
     from sumo_scendiff.fill.__main__ import get_options, main
     out = d / "o"
-    assert main(get_options(["-c", str(d / "bus.sumocfg"), "--begin", str(BEGIN), "-o", str(out)])) == 0
+    assert main(get_options(["-c", str(d / "bus.sumocfg"), "--begin", str(BEGIN), "--demand-estimate",
+                                    "-o", str(out)])) == 0
     with open(out / "fill.json") as f:
         return d, json.load(f)
 

@@ -67,8 +67,48 @@ def _agents(result, reports) -> list[dict]:
     return out
 
 
-def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing, progress,
+def write_outputs(folder, req, net, gen, scen, routes, cfg, result, source, timing, progress,
                   workers: dict | None = None) -> dict:
+    """The filled network seeded into one SUMO, its state and portable start written with the
+    configurations that start them, fill.json and fill.png; ``req``: the fill.api.FillRequest."""
+    t = time.perf_counter()
+    agents, ids, exact, state_time, inflow = _seed_and_save(folder, req, net, routes, cfg, result, timing, progress)
+    t += timing.get("seed", 0.0) + timing.get("inflow", 0.0)
+    options = write_configurations(folder, cfg, routes, inflow, state_time)
+    # the portable start's box centres where the state has them (a vehicle on a curve departs with
+    # its lane's heading, which swings its box about its front)
+    # and both starts load in SUMO: a vehicle it refuses is taken out alone (seed.admit_start)
+    refitted, refused = admit_start(folder, {a["vehicle"]: (a["x"], a["y"]) for a in agents if a["vehicle"] in set(ids)},
+                                    place_ends(cfg.additional, net))
+    refuse_at_load(agents, refused)
+    seeded = [a for a in agents if a["vehicle"] is not None]
+    rows = np.array([[a[k] for k in ("x", "y", "heading", "length", "width", "speed")] for a in seeded]
+                    ).reshape(-1, 6)
+    area_km = float(sum(t.core_km for t in result.tiles))
+    title = (f"{net.name}: {len(seeded)} vehicles, {len(seeded) / max(area_km, 1e-9):.1f} veh/km of car lane, "
+             f"seed {req.seed}, density: {source['kind']}{'' if source['applied'] else ' (not applied)'}")
+    draw_fill(os.path.join(folder, "fill.png"), net, rows, result.tiles, title)
+    timing["export"] = time.perf_counter() - t
+    counts = summary(net, agents, seeded, rows, area_km, len(result.tiles), exact, refused, refitted)
+    doc = {"format": FORMAT, "version": VERSION, "network": os.path.abspath(scen.net),
+           "configuration": scen.config, "routes": [os.path.abspath(r) for r in routes],
+           "begin": cfg.begin or 0.0, "state_time": state_time, "seed": req.seed,
+           "area": list(req.area) if req.area else None, "stride": req.stride,
+           "tile_size": result.tiles[0].window.size, "density": source, "p_mask": req.p_mask,
+           "model_sha256": gen.sha256, "model": gen.config.record(gen), "sumo_options": options,
+           "inflow": inflow, "fleet": "model" if req.model_fleet else "scenario", "summary": counts,
+           "tiles": _tile_rows(result, seeded), "agents": agents,
+           "files": sorted(f for f in os.listdir(folder) if not f.startswith(".")) + ["fill.json"],
+           "workers": workers, "timing_s": {k: round(v, 2) for k, v in timing.items()}}
+    with open(os.path.join(folder, "fill.json"), "w") as f:
+        json.dump(doc, f, indent=1)
+    return doc
+
+
+def _seed_and_save(folder, req, net, routes, cfg, result, timing, progress):
+    """Every tile seeded into one SUMO (fill/seed.py), its state saved and the portable start's
+    routes written; without a demand the network then driven on to measure the inflow. Returns
+    (agents, the seeded vehicles' ids, start_exact per vehicle, the state's time, the inflow record)."""
     t = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="scendiff-vtypes-") as work:
         # the demand's own vTypes, for the vehicles that stand for its vehicles and those the model
@@ -77,11 +117,10 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
         extra = os.path.join(work, "vtypes.add.xml")
         seed_cfg = replace(cfg, additional=tuple(cfg.additional) + (extra,)) \
             if routes and write_vtypes(routes, extra) else cfg
-        sim, reports = seed_fill(result, net, seed_cfg, seed=o.seed, quiet=not o.verbose, progress=progress,
-                                 demand=result.demand, routes=routes, model_fleet=o.model_fleet)
+        sim, reports = seed_fill(result, net, seed_cfg, seed=req.seed, quiet=not req.verbose, progress=progress,
+                                 demand=result.demand, routes=routes, model_fleet=req.model_fleet)
     try:
         timing["seed"] = time.perf_counter() - t
-        t = time.perf_counter()
         agents = _agents(result, reports)
         present = set(sim.vehicle.getIDList())
         ids = [a["vehicle"] for a in agents if a["vehicle"] in present]
@@ -97,15 +136,21 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
             # the state and start routes are written: now drive the filled network on, with the
             # inflow's own trips replacing those that leave, to see how fast it flows when held
             # (seed.probe_speed); those replacements are the inflow's first departures
-            t_probe = time.perf_counter()
-            sample, fringe = inflow_sample(net, cfg.begin or 0.0, o.seed, len(ids))
+            t = time.perf_counter()
+            sample, fringe = inflow_sample(net, cfg.begin or 0.0, req.seed, len(ids))
             probe = probe_speed(sim, sample) if ids and sample else None
             inflow = write_inflow(os.path.join(folder, "inflow.rou.xml"), net, len(ids), cfg.begin or 0.0,
-                                  o.seed, sample=sample, probe=probe, fringe=fringe)
-            timing["inflow"] = time.perf_counter() - t_probe
-            t += timing["inflow"]       # export: the rest
+                                  req.seed, sample=sample, probe=probe, fringe=fringe)
+            timing["inflow"] = time.perf_counter() - t
     finally:
         close(sim)
+    return agents, ids, exact, state_time, inflow
+
+
+def write_configurations(folder, cfg, routes, inflow: dict, state_time: float, start_last: bool = False) -> dict:
+    """scenario.sumocfg (from the saved state) and start.sumocfg (the portable start), the demand
+    or the inflow continuing; returns their SUMO options. ``start_last``: start.rou.xml after the
+    demand's files (its vehicles are of the vTypes those define, which SUMO must read first)."""
     onward = list(routes) + ([os.path.join(folder, inflow["file"])] if inflow.get("file") else [])
     options = cfg.options()
     if inflow.get("max_num_vehicles"):   # the inflow's surplus waits to enter (seed.SUPPLY), a while
@@ -114,23 +159,32 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
     # SUMO starts a loaded state at the state's own time (one seeding step after --begin)
     write_sumocfg(os.path.join(folder, "scenario.sumocfg"), {**options, "b": f"{state_time:g}"},
                   "state.xml.gz", routes=onward)
+    start = [os.path.join(folder, "start.rou.xml")]
     write_sumocfg(os.path.join(folder, "start.sumocfg"), {**options, "b": f"{state_time:g}"}, None,
-                  routes=[os.path.join(folder, "start.rou.xml")] + onward)
-    # the portable start's box centres where the state has them (a vehicle on a curve departs with
-    # its lane's heading, which swings its box about its front)
-    # and both starts load in SUMO: a vehicle it refuses is taken out alone (seed.admit_start)
-    refitted, refused = admit_start(folder, {a["vehicle"]: (a["x"], a["y"]) for a in agents if a["vehicle"] in set(ids)},
-                                    place_ends(cfg.additional, net))
-    refuse_at_load(agents, refused)
+                  routes=onward + start if start_last else start + onward)
+    return options
 
-    seeded = [a for a in agents if a["vehicle"] is not None]
-    rows = np.array([[a[k] for k in ("x", "y", "heading", "length", "width", "speed")] for a in seeded]
-                    ).reshape(-1, 6)
-    area_km = float(sum(t.core_km for t in result.tiles))
+
+def summary(net, agents, seeded, rows, area_km, tiles, exact, refused, refitted) -> dict:
+    """fill.json's summary: the agents by status, the portable start, the density as edgeData counts it."""
     # SUMO's edgeData counts a vehicle on the lane of its front bumper: one nosing into a junction is
     # in no normal edge's density (docs/sumo-options.md)
     front = rows[:, :2] + 0.5 * rows[:, 3:4] * np.c_[np.cos(rows[:, 2]), np.sin(rows[:, 2])]
     in_junctions = int(net.in_junction(front).sum())
+    dens = edge_density(net, rows)
+    return {"tiles": tiles, "kept": len(agents), "vehicles": len(seeded),
+            # kept = placed + misplaced + refused + dropped (SeedReport.status)
+            **{s: sum(a["status"] == s for a in agents) for s in STATUSES},
+            "start_exact": sum(v for vid, v in exact.items() if vid not in refused), "start_refitted": refitted,
+            "pulled_back": sum("pulled_back_m" in a for a in agents),
+            "to_stop_line": sum("to_stop_line_m" in a for a in agents), "car_lane_km": round(area_km, 3),
+            "demand_vehicles": sum("demand" in a for a in seeded),
+            "demand_routes_followed": sum(a.get("demand", {}).get("route") == "followed" for a in seeded),
+            "density_veh_per_km": round((len(seeded) - in_junctions) / max(area_km, 1e-9), 2),
+            "in_junctions": in_junctions, "edges_with_vehicles": sum(v > 0 for v in dens.values())}
+
+
+def _tile_rows(result, seeded) -> list[dict]:
     per_tile = {}
     for a in seeded:
         per_tile[a["tile"]] = per_tile.get(a["tile"], 0) + 1
@@ -144,34 +198,7 @@ def write_outputs(folder, o, net, gen, scen, routes, cfg, result, source, timing
                       "target_veh_per_km": None if rec.target is None else round(float(rec.target), 2),
                       "generated": rec.generated, "kept": rec.kept, "seeded": per_tile.get(tl.index, 0),
                       "density_veh_per_km": round(per_tile.get(tl.index, 0) / tl.core_km, 2)})
-    dens = edge_density(net, rows)
-    title = (f"{net.name}: {len(seeded)} vehicles, {len(seeded) / max(area_km, 1e-9):.1f} veh/km of car lane, "
-             f"seed {o.seed}, density: {source['kind']}{'' if source['applied'] else ' (not applied)'}")
-    draw_fill(os.path.join(folder, "fill.png"), net, rows, result.tiles, title)
-    timing["export"] = time.perf_counter() - t
-    doc = {"format": FORMAT, "version": VERSION, "network": os.path.abspath(scen.net),
-           "configuration": scen.config, "routes": [os.path.abspath(r) for r in routes],
-           "begin": cfg.begin or 0.0, "state_time": state_time, "seed": o.seed,
-           "area": list(o.area) if o.area else None, "stride": o.stride, "tile_size": result.tiles[0].window.size,
-           "density": source, "p_mask": o.p_mask, "model_sha256": gen.sha256, "model": gen.config.record(gen),
-           "sumo_options": options, "inflow": inflow, "fleet": "model" if o.model_fleet else "scenario",
-           "summary": {"tiles": len(result.tiles), "kept": len(agents), "vehicles": len(seeded),
-                       # kept = placed + misplaced + refused + dropped (SeedReport.status)
-                       **{s: sum(a["status"] == s for a in agents) for s in STATUSES},
-                       "start_exact": sum(v for vid, v in exact.items() if vid not in refused), "start_refitted": refitted,
-                       "pulled_back": sum("pulled_back_m" in a for a in agents),
-                       "to_stop_line": sum("to_stop_line_m" in a for a in agents), "car_lane_km": round(area_km, 3),
-                       "demand_vehicles": sum("demand" in a for a in seeded),
-                       "demand_routes_followed": sum(a.get("demand", {}).get("route") == "followed" for a in seeded),
-                       "density_veh_per_km": round((len(seeded) - in_junctions) / max(area_km, 1e-9), 2),
-                       "in_junctions": in_junctions,
-                       "edges_with_vehicles": sum(v > 0 for v in dens.values())},
-           "tiles": tiles, "agents": agents,
-           "files": sorted(f for f in os.listdir(folder) if not f.startswith(".")) + ["fill.json"],
-           "workers": workers, "timing_s": {k: round(v, 2) for k, v in timing.items()}}
-    with open(os.path.join(folder, "fill.json"), "w") as f:
-        json.dump(doc, f, indent=1)
-    return doc
+    return tiles
 
 
-__all__ = ["FORMAT", "VERSION", "write_outputs"]
+__all__ = ["FORMAT", "VERSION", "summary", "write_configurations", "write_outputs"]

@@ -24,7 +24,8 @@ import numpy as np
 
 from .tiles import Accepted, Tile, colours, keep_core, known_share, pins_for, scene_rows
 
-TILES_PER_TASK = 8  # tiles per model call at most: a worker's share of a colour, and the bar's step
+TILES_PER_TASK = 16  # tiles per model call at most: a worker's share of a colour, and the bar's step
+TASKS_PER_COLOUR = 4  # a colour's model calls at least (where it has the tiles): two workers share them
 MIN_P_MASK = 0.05    # a global token of 0 asks for the pins alone: keep the model adding the core's traffic
 
 
@@ -56,12 +57,12 @@ def tile_seed(seed: int, index: int) -> int:
 
 
 def tasks_of(batch: list[Tile]) -> list[list[Tile]]:
-    """A colour's tiles cut into model calls: about eight groups (so that workers share the load), at
-    most ``TILES_PER_TASK`` tiles each. The cut depends on the colour alone, never on the worker
-    count: a model call's float sums may depend on what else is in its batch (tokens are padded to
-    the longest set, guidance runs for the batch), and the same seed must
-    give the same fill on one worker or many."""
-    size = max(1, min(TILES_PER_TASK, math.ceil(len(batch) / 8)))
+    """A colour's tiles cut into model calls: :data:`TASKS_PER_COLOUR` groups (so that workers share
+    the load) or more, at most ``TILES_PER_TASK`` tiles each (a larger batch costs the model less per
+    tile). The cut depends on the colour alone, never on the worker count: a model call's float sums
+    may depend on what else is in its batch (tokens are padded to the longest set, guidance runs for
+    the batch), and the same seed must give the same fill on one worker or many."""
+    size = max(1, min(TILES_PER_TASK, math.ceil(len(batch) / TASKS_PER_COLOUR)))
     return [batch[s:s + size] for s in range(0, len(batch), size)]
 
 

@@ -38,6 +38,13 @@ class TileWorker:
                                  density=density, signals=signals, count_areas=cores)
 
 
+def default_workers() -> int:
+    """Worker processes when none are asked for: one per core this process may use, each generating
+    on one thread (core/threads.py: why one)."""
+    from ..core.threads import available_cores
+    return max(1, available_cores())
+
+
 def tile_engine(net, gen, workers: int = 1, ray_address: str | None = None, checkpoint: str | None = None):
     """The engine (a context manager, ``map_unordered(tasks)``) for ``workers`` workers; with
     ``ray_address`` Ray actors there (paths made absolute: an actor's directory is not ours). The
@@ -50,4 +57,4 @@ def tile_engine(net, gen, workers: int = 1, ray_address: str | None = None, chec
     return LocalPool(TileWorker, args, workers=workers)
 
 
-__all__ = ["TileWorker", "tile_engine"]
+__all__ = ["TileWorker", "default_workers", "tile_engine"]

@@ -1,0 +1,129 @@
+"""A demand's filled start made by SUMO itself: the user's scenario run to --begin, written as a fill.
+
+    doc = sumo_start(req, net, scen, begin, start, folder, timing)
+
+Running the scenario to T costs what stock SUMO costs (sim/warmup.py: one ``simulationStep(T)``, the
+state kept for the next time) and holds exactly SUMO's vehicles, where the demand estimate
+(fill/demand.py) approximates them without simulating; benchmarks/fill.py has both side by side. The
+folder is a fill's: the saved state (scenario.sumocfg) and the portable start (start.rou.xml,
+start.sumocfg: every vehicle on the network departing where it stands, its route on), the demand
+continuing after T, fill.json describing every vehicle. Vehicles still waiting to enter at T are in the
+state, not in the portable start (fill.json counts them).
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import replace
+
+import numpy as np
+
+METHOD = ("the scenario run by SUMO from its start to --begin (sim/warmup.py: its own step length and options, "
+          "one simulationStep; the state kept under ~/.cache/sumo-scendiff/states for the next time), every "
+          "vehicle on the network at --begin")
+
+
+def _agents(sim, ids: list[str]) -> list[dict]:
+    """Per vehicle its box centre, heading (yaw), size and speed, as fill.json's agents."""
+    from ..core.geometry import sumo_to_pose
+    out = []
+    for vid in ids:
+        x, y = sim.vehicle.getPosition(vid)
+        length = sim.vehicle.getLength(vid)
+        x, y, yaw = sumo_to_pose(x, y, sim.vehicle.getAngle(vid), length)
+        out.append({"tile": None, "x": round(float(x), 3), "y": round(float(y), 3), "heading": round(float(yaw), 4),
+                    "length": round(length, 3), "width": round(sim.vehicle.getWidth(vid), 3),
+                    "speed": round(sim.vehicle.getSpeed(vid), 3), "vtype": sim.vehicle.getTypeID(vid),
+                    "vehicle": vid, "status": "placed"})
+    return out
+
+
+def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
+    """SUMO at ``begin``; its state, the portable start's routes. Returns (cfg, agents, exact, state time,
+    vehicles waiting to enter)."""
+    from ..core.files import check_whole
+    from ..sim.sumo import SimConfig, close, settings
+    from ..sim.warmup import start_warm
+    from .seed import write_start_routes
+    cfg = SimConfig(net=scen.net, routes=tuple(scen.routes), additional=tuple(scen.additional), seed=req.seed,
+                    begin=start, **settings(req, scen))
+    t = time.perf_counter()
+    sim = start_warm(cfg, begin, quiet=not req.verbose)
+    try:
+        timing["warm_up"] = time.perf_counter() - t
+        ids = list(sim.vehicle.getIDList())
+        agents = _agents(sim, ids)
+        state = os.path.join(folder, "state.xml.gz")
+        sim.simulation.saveState(state)
+        check_whole(state)
+        state_time = float(sim.simulation.getTime())
+        routes = os.path.join(folder, "start.rou.xml")
+        exact = write_start_routes(routes, sim, ids, net, state_time,
+                                   vtype_files=list(scen.routes) + list(scen.additional))
+        _drop_their_vtypes(routes, [*scen.routes, *scen.additional])
+        waiting = len(sim.simulation.getPendingVehicles())
+    finally:
+        close(sim)
+    return cfg, agents, exact, state_time, waiting
+
+
+def _drop_their_vtypes(path: str, files: list[str]) -> None:
+    """start.rou.xml without the vTypes the scenario's own files define: the start loads those files
+    too (the demand continues), and SUMO refuses a vType defined twice. Its vehicles drive the
+    scenario's own vTypes."""
+    import xml.etree.ElementTree as ET
+
+    from ..sim.export import declared_vtypes
+    theirs = set(declared_vtypes(files))
+    tree = ET.parse(path)
+    root = tree.getroot()
+    for el in [el for el in root if el.tag == "vType" and el.get("id") in theirs]:
+        root.remove(el)
+    tree.write(path, encoding="UTF-8", xml_declaration=True)
+
+
+def sumo_start(req, net, scen, begin: float, start: float, folder: str, timing: dict) -> dict:
+    """The fill's folder from SUMO's own run of ``scen`` from ``start`` to ``begin``; returns fill.json."""
+    from ..sim.stops import place_ends
+    from .output import FORMAT, VERSION, summary, write_configurations
+    from .picture import draw_fill
+    from .seed import admit_start, refuse_at_load
+    cfg, agents, exact, state_time, waiting = _run(req, net, scen, begin, start, folder, timing)
+    t = time.perf_counter()
+    inflow = {"file": None, "reason": "the demand continues (its route files are in the configurations)"}
+    options = write_configurations(folder, replace(cfg, routes=()), list(scen.routes), inflow, state_time,
+                                   start_last=True)
+    refitted, refused = admit_start(folder, {a["vehicle"]: (a["x"], a["y"]) for a in agents},
+                                    place_ends(cfg.additional, net))
+    refuse_at_load(agents, refused)
+    seeded = [a for a in agents if a["vehicle"] is not None]
+    rows = np.array([[a[k] for k in ("x", "y", "heading", "length", "width", "speed")] for a in seeded]
+                    ).reshape(-1, 6)
+    km = net.car_lane_km_in(_bounds_box(net))
+    draw_fill(os.path.join(folder, "fill.png"), net, rows, [],
+              f"{net.name}: {len(seeded)} vehicles, SUMO's own run to {state_time:g} s")
+    timing["export"] = time.perf_counter() - t
+    source = {"kind": "demand", "start": "sumo", "time": begin, "en_route": len(agents),
+              "waiting_to_enter": waiting, "applied": True, "method": METHOD}
+    doc = {"format": FORMAT, "version": VERSION, "network": os.path.abspath(scen.net),
+           "configuration": scen.config, "routes": [os.path.abspath(r) for r in scen.routes],
+           "begin": begin, "state_time": state_time, "seed": req.seed, "area": None, "stride": None,
+           "density": source, "sumo_options": options, "inflow": inflow, "fleet": "scenario",
+           "summary": summary(net, agents, seeded, rows, km, 0, exact, refused, refitted),
+           "tiles": [], "agents": agents,
+           "files": sorted(f for f in os.listdir(folder) if not f.startswith(".")) + ["fill.json"],
+           "workers": None, "timing_s": {k: round(v, 2) for k, v in timing.items()}}
+    with open(os.path.join(folder, "fill.json"), "w") as f:
+        json.dump(doc, f, indent=1)
+    return doc
+
+
+def _bounds_box(net):
+    import shapely
+    from .tiles import car_bounds
+    x0, y0, x1, y1 = car_bounds(net)
+    return shapely.box(x0 - 1.0, y0 - 1.0, x1 + 1.0, y1 + 1.0)
+
+
+__all__ = ["METHOD", "sumo_start"]
