@@ -20,7 +20,7 @@ from the trajectory.
 from __future__ import annotations
 
 import os
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -59,28 +59,51 @@ ASKED_RADIUS = 2.0  # m: a decoded agent this close to a token's position is wha
 DEFAULT_CHECKPOINT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "weights", "scendiff.pt")
 
 
+# glibc's malloc hands a block above its mmap threshold (at most 32 MB, its dynamic ceiling) back to the
+# kernel when freed, and the next tensor of that size faults every page in again: a batch's map encoders
+# and decoder work on 30-60 MB activations, and spent about half their time in those faults (E_m 0.70 ->
+# 0.34 s CPU for 32 windows, the decoder 0.99 -> 0.66 s, the same floats). Kept in the heap instead.
+MMAP_THRESHOLD = 1 << 30
+TRIM_THRESHOLD = 1 << 31
+
+
+def keep_freed_memory() -> None:
+    """Let this process's malloc reuse freed tensor memory instead of returning it to the kernel
+    (glibc only; elsewhere nothing happens). Process-wide and idempotent."""
+    import ctypes
+    try:
+        if "glibc" not in (os.confstr("CS_GNU_LIBC_VERSION") or "").lower():
+            return
+        libc = ctypes.CDLL(None)       # the symbols of this process: glibc's among them
+        libc.mallopt(-3, MMAP_THRESHOLD)    # M_MMAP_THRESHOLD
+        libc.mallopt(-1, TRIM_THRESHOLD)    # M_TRIM_THRESHOLD
+    except (ValueError, OSError, AttributeError):   # no such name, no such library or function
+        return
+
+
 def remove_overlaps(boxes: np.ndarray, prob: np.ndarray) -> np.ndarray:
     """Indices of boxes kept when overlapping oriented boxes are removed, most probable first."""
     if len(boxes) == 0:
         return np.zeros(0, np.int64)
     order = np.argsort(-prob, kind="stable")
-    corners = box_corners(boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3], boxes[:, 4])
-    polys = shapely.polygons(corners)
-    a, b = shapely.STRtree(polys).query(polys, predicate="intersects")
     rank = np.empty(len(order), np.int64)
     rank[order] = np.arange(len(order))
-    overlaps: dict[int, list[int]] = {}
-    for i, j in zip(a, b):
-        if i != j and shapely.area(shapely.intersection(polys[i], polys[j])) > 1e-3:
-            overlaps.setdefault(int(i), []).append(int(j))
+    a, b = overlapping_pairs(boxes)
     removed = np.zeros(len(boxes), bool)
-    for i in order:
-        if removed[i]:
-            continue
-        for j in overlaps.get(int(i), ()):
-            if rank[j] > rank[i]:
-                removed[j] = True
-    return np.sort(np.flatnonzero(~removed))
+    # by the rank of the first box: a box's own removal is settled before it removes others
+    for i, j in zip(*(x[np.argsort(rank[a], kind="stable")] for x in (a, b))):
+        if not removed[i] and rank[j] > rank[i]:
+            removed[j] = True
+    return np.flatnonzero(~removed)
+
+
+def overlapping_pairs(boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every ordered pair (i, j), i != j, of oriented boxes (N, 5) sharing more than 1e-3 m^2 of area."""
+    polys = shapely.polygons(box_corners(boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3], boxes[:, 4]))
+    a, b = shapely.STRtree(polys).query(polys, predicate="intersects")
+    a, b = a[a != b], b[a != b]
+    big = shapely.area(shapely.intersection(polys[a], polys[b])) > 1e-3
+    return a[big], b[big]
 
 
 def select_boxes(window: Window, prob: np.ndarray, boxes: np.ndarray, threshold: float) -> np.ndarray:
@@ -109,11 +132,154 @@ def trim_to_count(prob: np.ndarray, mine: np.ndarray, count: int, counted: np.nd
     return np.sort(np.concatenate([np.flatnonzero(~mine | ~inside), take]))
 
 
+@dataclass
+class Draft:
+    """One window's scene while the passes of :meth:`ScenarioGenerator._scene` work on it: per agent,
+    its decoded cell (``keep``, -1: placed for a token), probability, pose, trajectory, the delivered
+    token it stands for (``owner``, -1: the model's own), the speeds and turn that token paced it to
+    (``paced``, NaN: not paced) and whether a token gave its heading (``turned``)."""
+    keep: np.ndarray
+    prob: np.ndarray
+    boxes: np.ndarray
+    traj: np.ndarray
+    owner: np.ndarray
+    paced: np.ndarray
+    turned: np.ndarray
+    warnings: list = field(default_factory=list)
+    off_lane: int = 0
+    all_prob: np.ndarray | None = None     # every decoded cell's probability
+
+    @classmethod
+    def selected(cls, window: Window, prob, boxes, traj, threshold: float) -> "Draft":
+        keep = select_boxes(window, prob, boxes, threshold)
+        n = len(keep)
+        return cls(keep, prob[keep], boxes[keep], traj[keep], np.full(n, -1, np.int64),
+                   np.full((n, 4), np.nan), np.zeros(n, bool), all_prob=prob)
+
+    def take(self, idx: np.ndarray) -> None:
+        """Keep the agents ``idx`` (indices, in their new order)."""
+        for name in ("keep", "prob", "boxes", "traj", "owner", "paced", "turned"):
+            setattr(self, name, getattr(self, name)[idx])
+
+    def pinned(self, pins: np.ndarray | None) -> np.ndarray:
+        """Per agent, whether it stands for one of the pinned tokens ``pins``."""
+        out = np.zeros(len(self.keep), bool)
+        if pins is not None:
+            out[[a for a, _ in match_pins(self.boxes, pins, ASKED_RADIUS)]] = True
+        return out
+
+    def scene(self, window: Window, net, delivering: bool) -> Scene:
+        """The scene: poses to millimetres / milliradians (the float noise of batch composition and
+        thread count, ~1e-6, must not make the same seed seed SUMO differently); a vehicle placed for
+        a token is the user's, not the model's: score 1, no latent cell."""
+        b, t = np.round(self.boxes, DECIMALS).astype(np.float32), np.round(self.traj, DECIMALS).astype(np.float32)
+        mask = np.ones((len(b), len(TIMES)), bool)
+        placed = self.keep < 0
+        score = np.where(placed, 1.0, np.round(self.prob, 4)).tolist()
+        meta = {"score": score, "cell": self.keep.tolist(), "off_lane_removed": self.off_lane}
+        if delivering:
+            # per agent, the user token it delivers (None: the model's own); a tuple, not selected per agent
+            meta["delivers"] = [int(o) if o >= 0 else None for o in self.owner]
+            if self.warnings:
+                meta["token_warnings"] = tuple(self.warnings)
+        return Scene(window, b, t, mask, speeds_from_traj(t, mask), vclass_from_size(b[:, 3], b[:, 4]),
+                     net.name, meta=meta)
+
+
+def _turn_pins(d: Draft, pins: np.ndarray, cfg: GenerationConfig) -> None:
+    """Pinned tokens' agents turned to the tokens' headings and paced to their speeds (pinning.py)."""
+    d.boxes, d.traj, d.turned = turn_to_pins(d.boxes, d.traj, pins, ASKED_RADIUS)
+    if cfg.pin_speeds:
+        d.traj, _ = pace_to_pins(d.boxes, d.traj, pins, ASKED_RADIUS)
+
+
+def _deliver(d: Draft, rows: np.ndarray, pins: np.ndarray | None) -> None:
+    """The agents matched to positioned partial tokens take what those give (deliver.py)."""
+    pairs = match_rows(d.boxes, rows, ASKED_RADIUS, taken=d.pinned(pins))
+    d.boxes, d.traj, told, d.paced = apply_rows(d.boxes, d.traj, rows, pairs)
+    d.turned = d.turned | told
+    for a, r in pairs:
+        d.owner[a] = int(rows[r, 0])
+
+
+def _snap(d: Draft, window: Window, net, tokens: np.ndarray | None, pins: np.ndarray | None,
+          rows: np.ndarray) -> None:
+    """Poses onto the lanes' centre lines (lane_snap.py). An agent on no car lane agreeing with it
+    (off the road, or against a one-way street) is one SUMO cannot take: removed, unless a token asked
+    for a vehicle there. Two boxes snapped onto one lane may now overlap, or a centre leave the
+    window. Snapping moved the steps: pinned (``pins``) and delivered agents paced again."""
+    d.boxes, d.traj, snapped = snap_to_lanes(d.boxes, d.traj, window, net, given=d.turned,
+                                             exact=d.turned & (d.owner >= 0))
+    asked = token_positions(tokens) if tokens is not None and len(tokens) else np.zeros((0, 2))
+    near = (np.linalg.norm(d.boxes[:, None, :2] - asked[None], axis=-1) <= ASKED_RADIUS).any(1)
+    ok = snapped[:, T0] | near
+    d.off_lane = int((~ok).sum())
+    ok = np.flatnonzero(ok)
+    ok = ok[remove_overlaps(d.boxes[ok], d.prob[ok])]
+    ok = ok[window.contains(d.boxes[ok, :2])]
+    d.take(ok[np.argsort(-d.prob[ok], kind="stable")])
+    if pins is not None:
+        d.traj, _ = pace_to_pins(d.boxes, d.traj, pins, ASKED_RADIUS, turn=False)
+    if len(rows):
+        d.traj, d.warnings = pace_rows(d.traj, d.paced, window, net, d.owner)
+
+
+def _trim(d: Draft, window: Window, net, tokens: np.ndarray | None, pins: np.ndarray | None,
+          rows: np.ndarray, count: int, area: tuple | None, on_edges: bool) -> None:
+    """The model's own agents trimmed to ``count`` (:func:`trim_to_count`); what a token asked for stays."""
+    mine = (d.owner < 0) & ~d.pinned(pins)
+    if not len(rows) and tokens is not None and len(tokens):
+        # not delivered: the vehicle drawn for a positioned token is still the user's, never trimmed
+        asked = token_positions(tokens)
+        drawn, _ = match_agents(d.boxes[:, :3], np.c_[asked, np.full(len(asked), np.nan)], ASKED_RADIUS)
+        mine[drawn] = False
+    unplaced = len(rows) - int((d.owner >= 0).sum())     # tokens place_rows will still place
+    d.take(trim_to_count(d.prob, mine, count - unplaced,
+                         area_mask(window, d.boxes, area, net if on_edges else None),
+                         area_mask(window, d.boxes, area)))
+
+
+def _place(d: Draft, rows: np.ndarray, window: Window, net) -> None:
+    """Tokens no agent stands for placed on their lanes (deliver.place_rows), the agents they
+    overlap removed."""
+    boxes, traj, owner, gone, placing = place_rows(d.boxes, d.traj, d.owner, rows, window, net)
+    d.warnings = d.warnings + placing
+    d.take(np.setdiff1d(np.arange(len(d.keep)), np.asarray(gone, np.int64)))
+    added = len(owner) - len(d.keep)
+    d.boxes, d.traj, d.owner = boxes, traj, owner
+    d.keep = np.concatenate([d.keep, np.full(added, -1, np.int64)])
+    d.prob = np.concatenate([d.prob, np.ones(added, d.prob.dtype)])
+    d.paced = np.concatenate([d.paced, np.full((added, 4), np.nan)])
+    d.turned = np.concatenate([d.turned, np.zeros(added, bool)])
+
+
+@dataclass
+class Request:
+    """:meth:`ScenarioGenerator.generate`'s inputs, one per window: the token dicts as given (road
+    references resolved; None: no tokens), encoded, p_mask, the density as the model's condition
+    (None: none), the noise seed, the lights' states (None: not used), the count's area and the count."""
+    tokens: list | None
+    toks: list
+    p_mask: np.ndarray
+    density: np.ndarray | None
+    seeds: list
+    lights: list | None
+    areas: list
+    counts: list
+
+    def given(self, k: int):
+        return self.tokens[k] if self.tokens is not None else None
+
+    def light(self, k: int):
+        return self.lights[k] if self.lights is not None else None
+
+
 class ScenarioGenerator:
     def __init__(self, autoencoder: ScenarioAutoencoder, diffusion: ScenarioDiffusion,
                  latent_scale: float, raster: RasterConfig = RasterConfig(), sha256: str = "",
                  config: GenerationConfig = GenerationConfig(), scene_guidance: float = 1.0,
                  scene_guidance_sigma: float = 0.0):
+        keep_freed_memory()
         # channels-last: oneDNN's faster convolution layout on CPU
         self.ae = autoencoder.eval().to(memory_format=torch.channels_last)
         self.diffusion = diffusion.eval().to(memory_format=torch.channels_last)
@@ -210,86 +376,26 @@ class ScenarioGenerator:
                tokens: np.ndarray | None = None, pins: np.ndarray | None = None,
                given: Sequence | None = None, count: int | None = None, floor: bool = False,
                area: tuple | None = None) -> Scene:
+        """One window's scene from its decoded boxes, the passes in the module docstring's order."""
+        pins = pins if cfg.pin_tokens and pins is not None and len(pins) else None
         # a requested count reaches below the threshold for boxes, and trims the most probable to it
-        keep = select_boxes(window, prob, boxes, min(cfg.threshold, cfg.density_floor)
-                            if count is not None or floor else cfg.threshold)
-        boxes, traj = boxes[keep], traj[keep]
-        turned = np.zeros(len(keep), bool)
-        if cfg.pin_tokens and pins is not None and len(pins):
-            boxes, traj, turned = turn_to_pins(boxes, traj, pins, ASKED_RADIUS)
-            if cfg.pin_speeds:
-                traj, _ = pace_to_pins(boxes, traj, pins, ASKED_RADIUS)
+        d = Draft.selected(window, prob, boxes, traj, min(cfg.threshold, cfg.density_floor)
+                           if count is not None or floor else cfg.threshold)
+        if pins is not None:
+            _turn_pins(d, pins, cfg)
         # the positioned tokens not pinned: their agents take what they give (deliver.py)
         rows = delivered_rows(given) if cfg.deliver_tokens else np.zeros((0, 9))
-        owner = np.full(len(keep), -1, np.int64)       # per agent: the delivered token's index
-        paced = np.full((len(keep), 4), np.nan)          # per agent: its token's speeds and turn
-        warnings: list[str] = []
         if len(rows):
-            pinned = np.zeros(len(keep), bool)
-            if cfg.pin_tokens and pins is not None and len(pins):
-                pinned[[a for a, _ in match_pins(boxes, pins, ASKED_RADIUS)]] = True
-            pairs = match_rows(boxes, rows, ASKED_RADIUS, taken=pinned)
-            boxes, traj, told, paced = apply_rows(boxes, traj, rows, pairs)
-            turned = turned | told
-            for a, r in pairs:
-                owner[a] = int(rows[r, 0])
-        off_lane = 0
+            _deliver(d, rows, pins)
         if cfg.lane_snap and net is not None:
-            boxes, traj, snapped = snap_to_lanes(boxes, traj, window, net, given=turned, exact=turned & (owner >= 0))
-            # an agent on no car lane agreeing with it (off the road, or against a one-way street)
-            # is one SUMO cannot take: removed, unless a token asked for a vehicle there
-            asked = token_positions(tokens) if tokens is not None and len(tokens) else np.zeros((0, 2))
-            near = (np.linalg.norm(boxes[:, None, :2] - asked[None], axis=-1) <= ASKED_RADIUS).any(1)
-            ok = snapped[:, T0] | near
-            off_lane = int((~ok).sum())
-            # two boxes snapped onto one lane may now overlap, or a centre leave the window
-            p, ok = prob[keep], np.flatnonzero(ok)
-            ok = ok[remove_overlaps(boxes[ok], p[ok])]
-            ok = ok[window.contains(boxes[ok, :2])]
-            ok = ok[np.argsort(-p[ok], kind="stable")]
-            keep, boxes, traj, owner, paced = keep[ok], boxes[ok], traj[ok], owner[ok], paced[ok]
-            if cfg.pin_tokens and cfg.pin_speeds and pins is not None and len(pins):
-                # snapping moved the poses onto the lanes, and so the steps: the token's speeds again
-                traj, _ = pace_to_pins(boxes, traj, pins, ASKED_RADIUS, turn=False)
-            if len(rows):
-                traj, warnings = pace_rows(traj, paced, window, net, owner)
+            _snap(d, window, net, tokens, pins if cfg.pin_speeds else None, rows)
         if count is not None:
-            mine = owner < 0
-            if cfg.pin_tokens and pins is not None and len(pins):
-                mine[[a for a, _ in match_pins(boxes, pins, ASKED_RADIUS)]] = False
-            if not len(rows) and tokens is not None and len(tokens):
-                # not delivered: the vehicle drawn for a positioned token is still the user's, never trimmed
-                asked = token_positions(tokens)
-                drawn, _ = match_agents(boxes[:, :3], np.c_[asked, np.full(len(asked), np.nan)], ASKED_RADIUS)
-                mine[drawn] = False
-            unplaced = len(rows) - int((owner >= 0).sum())     # tokens place_rows will still place
-            ok = trim_to_count(prob[keep], mine, count - unplaced,
-                               area_mask(window, boxes, area, net if cfg.count_on_edges else None),
-                               area_mask(window, boxes, area))
-            keep, boxes, traj, owner, paced = keep[ok], boxes[ok], traj[ok], owner[ok], paced[ok]
-        score = np.round(prob[keep], 4).tolist()
-        cell = keep.tolist()
+            _trim(d, window, net, tokens, pins, rows, count, area, cfg.count_on_edges)
         if cfg.deliver_tokens and cfg.pin_tokens:   # a pinned token no agent stands for is placed too
-            rows = np.concatenate([rows, missing_pins(given, boxes, ASKED_RADIUS)])
+            rows = np.concatenate([rows, missing_pins(given, d.boxes, ASKED_RADIUS)])
         if len(rows) and net is not None:
-            boxes, traj, owner, gone, placing = place_rows(boxes, traj, owner, rows, window, net)
-            warnings = warnings + placing
-            kept = [k for k in range(len(keep)) if k not in set(gone)]
-            placed = len(owner) - len(kept)
-            # a placed vehicle is the user's, not the model's: score 1, no latent cell
-            score, cell = [score[k] for k in kept] + [1.0] * placed, [cell[k] for k in kept] + [-1] * placed
-        # millimetres / milliradians: the float noise of batch composition and thread count
-        # (~1e-6) must not make the same seed seed SUMO differently
-        b, t = np.round(boxes, DECIMALS).astype(np.float32), np.round(traj, DECIMALS).astype(np.float32)
-        mask = np.ones((len(b), len(TIMES)), bool)
-        meta = {"score": score, "cell": cell, "off_lane_removed": off_lane}
-        if len(rows):
-            # per agent, the user token it delivers (None: the model's own); a tuple, not selected per agent
-            meta["delivers"] = [int(o) if o >= 0 else None for o in owner]
-            if warnings:
-                meta["token_warnings"] = tuple(warnings)
-        return Scene(window, b, t, mask, speeds_from_traj(t, mask), vclass_from_size(b[:, 3], b[:, 4]),
-                     net.name, meta=meta)
+            _place(d, rows, window, net)
+        return d.scene(window, net, delivering=len(rows) > 0)
 
     # ---- public API -----------------------------------------------------------------------
     def generate(self, net, windows: Sequence[Window], tokens=None, p_mask=1.0, seed: int = 0,
@@ -322,6 +428,21 @@ class ScenarioGenerator:
         same states. Used with ``config.signals`` only; a model that predates the channels ignores them.
         """
         cfg = config or self.config
+        req = self._request(net, windows, tokens, p_mask, seed, cfg, noise_seeds, density, signals, count_areas)
+        out = self._draw(net, windows, req, cfg, maps, progress)
+        on_edges = net if cfg.count_on_edges else None
+        for p in range(1, cfg.infill_passes + 1):
+            short = [k for k, c in enumerate(req.counts)
+                     if c is not None and in_area(out[k], req.areas[k], on_edges).sum() < c]
+            for s in range(0, len(short), cfg.batch_size):
+                self._infill(net, windows, short[s:s + cfg.batch_size], out, req, cfg, p)
+        if req.lights is not None and cfg.red_queues and net is not None:
+            out = [stand_at_red(scene, net, req.lights[k]) for k, scene in enumerate(out)]
+        return out
+
+    def _request(self, net, windows, tokens, p_mask, seed, cfg, noise_seeds, density, signals,
+                 count_areas) -> Request:
+        """:meth:`generate`'s arguments checked and made one per window."""
         n = len(windows)
         if tokens is not None and len(tokens) == n:
             # token-file references to the network (edge/lane/pos, ahead/lane_offset) made poses
@@ -344,62 +465,56 @@ class ScenarioGenerator:
             raise ValueError(f"{len(areas)} count areas for {n} windows")
         counts = [self._count(net, w, dens[k] if dens is not None else None, cfg, areas[k])
                   for k, w in enumerate(windows)]
-        dens = self._condition(net, windows, dens)
+        return Request(tokens, toks, pm, self._condition(net, windows, dens), seeds,
+                       None if sig is None else sig if isinstance(sig, list) else [sig] * n, areas, counts)
+
+    def _draw(self, net, windows, req: Request, cfg: GenerationConfig, maps: np.ndarray | None,
+              progress: bool) -> list[Scene]:
+        """Every window's first scene, a batch of ``cfg.batch_size`` windows at a time."""
         out: list[Scene] = []
         from tqdm import tqdm
-        for s in tqdm(range(0, n, cfg.batch_size), disable=not progress, desc="generating"):
-            sl = slice(s, min(n, s + cfg.batch_size))
-            m = maps[sl] if maps is not None else np.stack([
-                render_map(net, w, self.raster, signals=sig[k] if isinstance(sig, list) else sig)
-                for k, w in enumerate(windows[sl], start=s)])
-            prob, boxes, traj = self._batch(m, toks[sl], pm[sl], seeds[sl], cfg,
-                                            tokens[sl] if tokens is not None else None,
-                                            net=net, windows=windows[sl],
-                                            density=None if dens is None else dens[sl])
-            for k, w in enumerate(windows[sl], start=s):
-                out.append(self._scene(w, prob[k - s], boxes[k - s], traj[k - s], cfg, net, toks[k],
-                                       pinned_poses(tokens[k]) if tokens is not None else None,
-                                       tokens[k] if tokens is not None else None,
-                                       count=counts[k], area=areas[k]))
-                if sig is not None:   # the lights this scene was drawn for, in scene.json and its picture
-                    lights = sig[k] if isinstance(sig, list) else sig
-                    ids = set(net.lights_in(w))
-                    out[-1].meta["signals"] = {i: v for i, v in (lights or {}).items() if i in ids}
-        for p in range(1, cfg.infill_passes + 1):
-            short = [k for k, c in enumerate(counts) if c is not None and in_area(out[k], areas[k], net if cfg.count_on_edges else None).sum() < c]
-            for s in range(0, len(short), cfg.batch_size):
-                self._infill(net, windows, short[s:s + cfg.batch_size], out, counts, areas, tokens, toks,
-                             seeds, dens, sig, cfg, p)
-        if sig is not None and cfg.red_queues and net is not None:
-            out = [stand_at_red(scene, net, sig[k] if isinstance(sig, list) else sig)
-                   for k, scene in enumerate(out)]
+        for s in tqdm(range(0, len(windows), cfg.batch_size), disable=not progress, desc="generating"):
+            ks = range(s, min(len(windows), s + cfg.batch_size))
+            m = maps[s:ks.stop] if maps is not None else np.stack([
+                render_map(net, windows[k], self.raster, signals=req.light(k)) for k in ks])
+            prob, boxes, traj = self._batch(m, req.toks[s:ks.stop], req.p_mask[s:ks.stop], req.seeds[s:ks.stop],
+                                            cfg, req.tokens[s:ks.stop] if req.tokens is not None else None,
+                                            net=net, windows=windows[s:ks.stop],
+                                            density=None if req.density is None else req.density[s:ks.stop])
+            for i, k in enumerate(ks):
+                given = req.given(k)
+                out.append(self._scene(windows[k], prob[i], boxes[i], traj[i], cfg, net, req.toks[k],
+                                       pinned_poses(given) if req.tokens is not None else None, given,
+                                       count=req.counts[k], area=req.areas[k]))
+                if req.lights is not None:   # the lights this scene was drawn for, in scene.json and its picture
+                    ids = set(net.lights_in(windows[k]))
+                    out[-1].meta["signals"] = {i: v for i, v in (req.light(k) or {}).items() if i in ids}
         return out
 
-    def _infill(self, net, windows, ks, out, counts, areas, tokens, toks, seeds, dens, sig, cfg, p):
+    def _infill(self, net, windows, ks, out: list[Scene], req: Request, cfg: GenerationConfig, p: int):
         """One infill pass (generation/infill.py) over the windows ``ks`` short of their counts:
         drawn again with the scene so far pinned, from noise of their own (seed, pass)."""
         extra = [scene_tokens(out[k]) for k in ks]
-        dicts = [[t for t in (tokens[k] if tokens is not None and tokens[k] is not None else ())
-                  if isinstance(t, Mapping)] + e for k, e in zip(ks, extra)]
-        toks2 = [np.concatenate([toks[k], agent_tokens_from_dicts(e)]) if e else toks[k] for k, e in zip(ks, extra)]
-        maps = np.stack([render_map(net, windows[k], self.raster, signals=sig[k] if isinstance(sig, list) else sig)
-                         for k in ks])
+        dicts = [[t for t in (req.given(k) or ()) if isinstance(t, Mapping)] + e for k, e in zip(ks, extra)]
+        toks2 = [np.concatenate([req.toks[k], agent_tokens_from_dicts(e)]) if e else req.toks[k]
+                 for k, e in zip(ks, extra)]
+        maps = np.stack([render_map(net, windows[k], self.raster, signals=req.light(k)) for k in ks])
         # p_mask 1, "add what belongs here": the count is kept by trimming, and a lower p_mask
         # (the share the pins describe) under the tokens' guidance pushes towards adding nothing
         pm2 = np.ones(len(ks))
-        seeds2 = [int(np.random.SeedSequence([seeds[k], p]).generate_state(1)[0]) for k in ks]
+        seeds2 = [int(np.random.SeedSequence([req.seeds[k], p]).generate_state(1)[0]) for k in ks]
         # the pinned agents are context only (the first scene keeps its own): no pin calibration;
         # the guidance here is for adding vehicles around them, over the whole window and along the
         # estimate (local guidance fell short of the counts), the pins being fixed in the latent
         prob, boxes, traj = self._batch(maps, toks2, pm2, seeds2,
                                         replace(cfg, pin_calibration=False, local_guidance=False), dicts, net=net,
-                                        windows=[windows[k] for k in ks], density=dens[ks])
+                                        windows=[windows[k] for k in ks], density=req.density[ks])
         for i, k in enumerate(ks):
             # every candidate down to the floor: the first scene's redrawn agents are not new
             second = self._scene(windows[k], prob[i], boxes[i], traj[i], cfg, net, toks2[i],
                                  pinned_poses(dicts[i]), floor=True)
-            taken = np.concatenate([out[k].boxes[:, :2], token_positions(toks[k]).reshape(-1, 2)])
-            out[k] = add_new_agents(out[k], second, counts[k], taken, ASKED_RADIUS, areas[k],
+            taken = np.concatenate([out[k].boxes[:, :2], token_positions(req.toks[k]).reshape(-1, 2)])
+            out[k] = add_new_agents(out[k], second, req.counts[k], taken, ASKED_RADIUS, req.areas[k],
                                     net if cfg.count_on_edges else None)
 
     @staticmethod

@@ -38,24 +38,22 @@ def junction_yaw(y: torch.Tensor, windows: Sequence[Window], net: "Network", jun
     yf = y.flatten(2).transpose(1, 2)                       # (B, cells, C)
     yaw = decode_heading(yf[..., C_Y:])
     dec = decode_boxes(y[:, :C_Y], size, yaw=yaw)
-    for i, win in enumerate(windows):
-        cells = torch.nonzero(dec.prob[i] >= min_prob).squeeze(1)
-        if len(cells) == 0:
-            continue
-        on = on_junction(dec.boxes[i, cells], torch.zeros_like(cells), junction[i:i + 1], size)
-        if not on.any():
-            continue
-        cells = cells[on]
-        xy = dec.boxes[i, cells, :2].numpy()
-        point, _, heading = net.lane_headings_at(win.scene_to_world(xy), radius)
-        if len(point) == 0:
-            continue
-        cand = torch.from_numpy(np.asarray(wrap_angle(heading - win.yaw), np.float32))
-        score = heading_probability(yf[i, cells[torch.from_numpy(point)], C_Y:], cand).numpy()
-        best = {}                                           # cell -> (score, heading)
-        for p, s, c in zip(point.tolist(), score.tolist(), cand.tolist()):
-            if p not in best or s > best[p][0]:
-                best[p] = (s, c)
-        for p, (_, c) in best.items():
-            yaw[i, cells[p]] = c
+    scene, cells = torch.nonzero(dec.prob >= min_prob, as_tuple=True)   # every window's, in order
+    on = on_junction(dec.boxes[scene, cells], scene, junction, size) if len(cells) else cells.bool()
+    scene, cells = scene[on].numpy(), cells[on].numpy()
+    if len(cells) == 0:
+        return yaw
+    xy = dec.boxes.numpy()[scene, cells, :2].astype(np.float64)
+    for i in np.unique(scene):
+        xy[scene == i] = windows[i].scene_to_world(xy[scene == i])
+    point, _, heading = net.lane_headings_at(xy, radius)
+    if len(point) == 0:
+        return yaw
+    turn = np.array([w.yaw for w in windows], np.float64)[scene[point]]
+    cand = np.asarray(wrap_angle(heading - turn), np.float32)
+    score = heading_probability(yf[scene[point], cells[point], C_Y:], torch.from_numpy(cand)).numpy()
+    # per decoded centre its best lane: the highest score, the first lane found on a tie
+    order = np.lexsort((np.arange(len(point)), -score, point))
+    best = order[np.r_[True, point[order][1:] != point[order][:-1]]]
+    yaw[scene[point[best]], cells[point[best]]] = torch.from_numpy(cand[best])
     return yaw
