@@ -12,6 +12,22 @@ import shapely
 from sumo_scendiff.map.network import Network, cache_entry
 
 
+def written(path: str, key: tuple) -> bool:
+    """Whether the cache entry at ``path`` holds ``key``: a forked process writes it while the load
+    returns, so wait for it (it is renamed into place whole)."""
+    import pickle
+    import time
+    for _ in range(600):
+        try:
+            with open(path, "rb") as f:
+                if pickle.load(f) == key:
+                    return True
+        except (OSError, pickle.UnpicklingError, EOFError):
+            pass
+        time.sleep(0.1)
+    return False
+
+
 @pytest.fixture
 def cache_home(tmp_path, monkeypatch):
     home = tmp_path / "cache-home"
@@ -33,7 +49,7 @@ def test_a_cached_network_is_the_file_read_again(cache_home, cross2_net):
     read = Network.load(cross2_net, cache=False)
     first = Network.load(cross2_net)                   # reads the file, writes the entry
     entry = cache_entry(cross2_net)
-    assert os.path.isfile(entry.path) and entry.path.startswith(str(cache_home))
+    assert written(entry.path, entry.key) and entry.path.startswith(str(cache_home))
     cached = Network.load(cross2_net)                  # from the entry
     _same(read, first)
     _same(read, cached)
@@ -49,6 +65,7 @@ def test_a_changed_file_is_read_again(cache_home, tmp_path, cross_net, cross2_ne
     path.parent.mkdir()
     shutil.copyfile(cross_net, path)
     one = Network.load(str(path))
+    assert written(cache_entry(str(path)).path, cache_entry(str(path)).key)
     shutil.copyfile(cross2_net, path)                  # the user rebuilt the network: new size and time
     two = Network.load(str(path))
     assert len(two.lanes) == len(Network.load(cross2_net, cache=False).lanes) != len(one.lanes)
@@ -58,12 +75,12 @@ def test_a_changed_file_is_read_again(cache_home, tmp_path, cross_net, cross2_ne
 def test_a_broken_entry_is_replaced(cache_home, cross_net):
     Network.load(cross_net)
     entry = cache_entry(cross_net)
+    assert written(entry.path, entry.key)
     with open(entry.path, "wb") as f:
         f.write(b"\x80\x05 not a pickle")
     net = Network.load(cross_net)
     _same(net, Network.load(cross_net, cache=False))
-    with open(entry.path, "rb") as f:
-        assert f.read(2) == b"\x80\x05" and os.path.getsize(entry.path) > 100
+    assert written(entry.path, entry.key)
 
 
 def test_a_cache_that_cannot_be_written_is_no_error(tmp_path, monkeypatch, cross_net):
@@ -72,4 +89,5 @@ def test_a_cache_that_cannot_be_written_is_no_error(tmp_path, monkeypatch, cross
     monkeypatch.setenv("XDG_CACHE_HOME", str(blocker / "below"))    # a folder below a file: no such folder
     net = Network.load(cross_net)
     assert len(net.lanes) == len(Network.load(cross_net, cache=False).lanes)
+    assert not os.path.exists(cache_entry(cross_net).path)
     assert not any(p.name.endswith(".partial") for p in tmp_path.rglob("*"))

@@ -169,8 +169,24 @@ def _from_cache(path: str, entry: CacheEntry) -> "Network | None":
 
 
 def _to_cache(network: "Network", entry: CacheEntry) -> None:
-    """Keep ``network`` in ``entry`` (written whole under another name, then renamed); a cache that
-    cannot be written (a read-only home, a full disk) is no error: the next run reads the file again."""
+    """Keep ``network`` in ``entry``, written by a forked copy of this process where the system
+    forks safely (Linux), so that the first run on a network does not wait for it; else here."""
+    if not sys.platform.startswith("linux"):
+        _write_entry(network, entry)
+        return
+    pid = os.fork()
+    if pid == 0:
+        try:      # the child forks the writer and ends at once: nobody waits for the writer
+            if os.fork() == 0:
+                _write_entry(network, entry)
+        finally:
+            os._exit(0)
+    os.waitpid(pid, 0)
+
+
+def _write_entry(network: "Network", entry: CacheEntry) -> None:
+    """Write ``entry`` (whole under another name, then renamed); a cache that cannot be written
+    (a read-only home, a full disk) is no error: the next run reads the network file again."""
     import pickle
     import tempfile
     import threading
