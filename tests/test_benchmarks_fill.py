@@ -60,3 +60,15 @@ def test_inputs_config_else_net_and_routes(bench, diagonal_net, tmp_path):
     for f in ("demand.rou.xml", "a.sumocfg"):
         os.remove(os.path.join(d, f))
     assert bench.inputs(net) == (["-n", os.path.abspath(diagonal_net)], None)
+
+
+def test_random_trips_reach_the_fills_number(bench, grid, tmp_path):
+    """The head-to-head's other side: randomTrips.py + SUMO until that many vehicles stand on the
+    normal lanes (real tools, a tiny grid)."""
+    o = bench.get_options(["--speed", "--step-length", "1"])
+    km = sum(ln.length for ln in grid.lanes if ln.car and not ln.edge.startswith(":")) / 1000.0
+    r = bench.random_trips_side(grid.path, km, 10, str(tmp_path), o)
+    assert r["reached"] and r["vehicles"] >= 10 and r["veh_per_km"] == pytest.approx(r["vehicles"] / km)
+    assert 0 < r["simulated_s"] <= bench.RT_LIMIT_S and r["random_trips_s"] > 0
+    table = bench.speed_table([{"net": "grid", "after": {"error": ["boom"]}, "random_trips": r}], o)
+    assert "randomTrips + SUMO" in table and "failed: ['boom']" in table
