@@ -14,7 +14,7 @@ const LANE_STYLE = {
 const S = {                 // the page's state, also read by the browser test
   net: null, cells: [], view: { s: 1, ox: 0, oy: 0 }, mode: "pan", win: null,
   tokens: [], sel: -1, pMask: null, result: null, scene: 0, fill: null,
-  drawMs: 0, draws: 0, drawn: { cells: 0, boxes: 0, tokens: 0 }, busy: false, kept: null,
+  drawMs: 0, draws: 0, drawn: { cells: 0, full: 0, boxes: 0, tokens: 0 }, busy: false, kept: null,
 };
 window.studio = S;
 
@@ -86,64 +86,94 @@ function fit(box, w, h, margin = 0.05) {
   return { s, ox: w / 2 - s * (x0 + x1) / 2, oy: h / 2 + s * (y0 + y1) / 2 };
 }
 
-function drawNetwork(c, view, w, h, dpr) {
-  const [wx0, wy1] = [(0 - view.ox) / view.s, (view.oy - 0) / view.s];
-  const [wx1, wy0] = [(w - view.ox) / view.s, (view.oy - h) / view.s];
+// Lanes narrower than this many device pixels are drawn one device pixel wide: Chromium's software rasteriser
+// strokes a hairline about thirty times faster than an antialiased line of a pixel or two (docs/studio.md, Speed)
+const HAIRLINE_PX = 2;
+const STYLES_NEAR = ["walk", "other", "internal", "car", "d0", "d1", "d2", "d3", "d4", "d5"];
+const STYLES_FAR = ["internal", "car", "d0", "d1", "d2", "d3", "d4", "d5"];
+
+// The network into context c seen through view, for a w x h (CSS px) canvas, only what lies in part
+// [x0, y0, x1, y1] of it (default: all of it); returns the number of cells drawn.
+function drawNetwork(c, view, w, h, dpr, part = null) {
+  const [sx0, sy0, sx1, sy1] = part || [0, 0, w, h];
+  const pad = 2 + 2 / view.s;   // a cell's box holds its lanes' centre lines: half a lane and a pixel more
+  const wx0 = (sx0 - view.ox) / view.s - pad, wy1 = (view.oy - sy0) / view.s + pad;
+  const wx1 = (sx1 - view.ox) / view.s + pad, wy0 = (view.oy - sy1) / view.s - pad;
+  const inView = (cl) => cl.box[2] >= wx0 && cl.box[0] <= wx1 && cl.box[3] >= wy0 && cl.box[1] <= wy1;
   c.setTransform(dpr * view.s, 0, 0, -dpr * view.s, dpr * view.ox, dpr * view.oy);
   c.lineCap = "butt"; c.lineJoin = "bevel";   // round joins cost a third more on a whole city
-  const px = 1 / view.s;
-  const visible = S.cells.filter((cl) => cl.box[2] >= wx0 && cl.box[0] <= wx1 && cl.box[3] >= wy0 && cl.box[1] <= wy1);
+  const px = 1 / view.s, hair = 1 / (view.s * dpr), far = view.s < LOD_PX_PER_M;
+  let n = 0;
   c.fillStyle = "#8f8f8f";
-  for (const cl of visible) c.fill(cl.junctions);
-  // zoomed out, where a lane is a few pixels wide, sidewalks and other non-car lanes are left out
-  const styles = view.s < LOD_PX_PER_M ? ["internal", "car"] : ["walk", "other", "internal", "car"];
-  for (const st of styles.concat(["d0", "d1", "d2", "d3", "d4", "d5"])) {
+  for (const cl of S.cells) if (inView(cl)) { c.fill(cl.junctions); n++; }
+  // zoomed out, where a lane is a few pixels wide, sidewalks and other non-car lanes are left out and the
+  // lanes inside junctions (drawn over by the junction's own outline) are hairlines
+  for (const st of far ? STYLES_FAR : STYLES_NEAR) {
     const [colour, width] = styleOf(st);
-    c.strokeStyle = colour; c.lineWidth = Math.max(width, px);
-    for (const cl of visible) if (cl.paths[st]) c.stroke(cl.paths[st]);
+    c.strokeStyle = colour;
+    c.lineWidth = (far && st === "internal") || width * view.s * dpr < HAIRLINE_PX ? hair : width;
+    for (const cl of S.cells) if (cl.paths[st] && inView(cl)) c.stroke(cl.paths[st]);
   }
   if (view.s > 0.8) {          // lights only where they can be seen
     c.fillStyle = "#d33";
+    const r = Math.max(0.9, 2 * px);
+    c.beginPath();
     for (const l of S.net.lights) {
       if (l.x < wx0 || l.x > wx1 || l.y < wy0 || l.y > wy1) continue;
-      c.beginPath(); c.arc(l.x, l.y, Math.max(0.9, 2 * px), 0, 2 * Math.PI); c.fill();
+      c.moveTo(l.x + r, l.y); c.arc(l.x, l.y, r, 0, 2 * Math.PI);
     }
+    c.fill();
   }
-  return visible.length;
+  return n;
 }
 
-function boxPath(a) {
-  const p = new Path2D(), c = Math.cos(a.heading), s = Math.sin(a.heading);
-  const hl = a.length / 2, hw = a.width / 2;
-  const pts = [[hl, hw], [hl, -hw], [-hl, -hw], [-hl, hw]].map(([u, v]) => [a.x + u * c - v * s, a.y + u * s + v * c]);
-  p.moveTo(...pts[0]); for (const q of pts.slice(1)) p.lineTo(...q); p.closePath();
-  return p;
+// A scene's shapes in network coordinates, built once per scene: a frame only fills and strokes them.
+const sceneShapes = new WeakMap();
+function addBox(p, a) {
+  const c = Math.cos(a.heading), s = Math.sin(a.heading), hl = a.length / 2, hw = a.width / 2;
+  p.moveTo(a.x + hl * c - hw * s, a.y + hl * s + hw * c);
+  p.lineTo(a.x + hl * c + hw * s, a.y + hl * s - hw * c);
+  p.lineTo(a.x - hl * c + hw * s, a.y - hl * s - hw * c);
+  p.lineTo(a.x - hl * c - hw * s, a.y - hl * s + hw * c);
+  p.closePath();
 }
 
-function drawScene(c, scene, px) {
-  let boxes = 0;
+function shapesOf(scene) {
+  let sh = sceneShapes.get(scene);
+  if (sh) return sh;
+  sh = { paths: new Path2D(), fills: new Map(), good: new Path2D(), bad: new Path2D(), tokens: new Path2D() };
   for (const a of scene.agents) {
     const bad = a.status === "refused" || a.status === "dropped";
     if (a.path.length > 1) {
-      c.strokeStyle = "#1a4f8acc"; c.lineWidth = Math.max(0.35, 1.5 * px);
-      c.beginPath(); c.moveTo(...a.path[0]); for (const q of a.path.slice(1)) c.lineTo(...q); c.stroke();
+      sh.paths.moveTo(a.path[0][0], a.path[0][1]);
+      for (let i = 1; i < a.path.length; i++) sh.paths.lineTo(a.path[i][0], a.path[i][1]);
     }
-    const p = boxPath(a);
-    c.fillStyle = bad ? "#c0000040" : STATUS_COLOURS[a.status] || "#2b6cb0";
-    c.fill(p);
-    c.strokeStyle = bad ? "#c00" : "#fff"; c.lineWidth = bad ? 0.6 : 0.25; c.stroke(p);
+    const colour = bad ? "#c0000040" : STATUS_COLOURS[a.status] || "#2b6cb0";
+    if (!sh.fills.has(colour)) sh.fills.set(colour, new Path2D());
+    addBox(sh.fills.get(colour), a);
+    addBox(bad ? sh.bad : sh.good, a);
     if (bad) {                 // refused or dropped: a cross over the box
       const r = a.length / 2;
-      c.beginPath(); c.moveTo(a.x - r, a.y - r); c.lineTo(a.x + r, a.y + r);
-      c.moveTo(a.x - r, a.y + r); c.lineTo(a.x + r, a.y - r); c.stroke();
+      sh.bad.moveTo(a.x - r, a.y - r); sh.bad.lineTo(a.x + r, a.y + r);
+      sh.bad.moveTo(a.x - r, a.y + r); sh.bad.lineTo(a.x + r, a.y - r);
     }
     if (a.source === "user" && a.token !== null && a.token !== undefined) {   // the vehicle of a token
-      c.strokeStyle = "#0a0"; c.lineWidth = Math.max(0.5, 2 * px);
-      c.beginPath(); c.arc(a.x, a.y, a.length / 2 + 1.5, 0, 2 * Math.PI); c.stroke();
+      const r = a.length / 2 + 1.5;
+      sh.tokens.moveTo(a.x + r, a.y); sh.tokens.arc(a.x, a.y, r, 0, 2 * Math.PI);
     }
-    boxes++;
   }
-  return boxes;
+  sceneShapes.set(scene, sh);
+  return sh;
+}
+
+function drawScene(c, scene, px) {
+  const sh = shapesOf(scene);
+  c.strokeStyle = "#1a4f8acc"; c.lineWidth = Math.max(0.35, 1.5 * px); c.stroke(sh.paths);
+  for (const [colour, p] of sh.fills) { c.fillStyle = colour; c.fill(p); }
+  c.strokeStyle = "#fff"; c.lineWidth = 0.25; c.stroke(sh.good);
+  c.strokeStyle = "#c00"; c.lineWidth = 0.6; c.stroke(sh.bad);
+  c.strokeStyle = "#0a0"; c.lineWidth = Math.max(0.5, 2 * px); c.stroke(sh.tokens);
+  return scene.agents.length;
 }
 
 function windowCorners(win) {
@@ -186,7 +216,8 @@ function draw() {
   ctx.setTransform(1, 0, 0, 1, 0, 0); ctx.clearRect(0, 0, canvas.width, canvas.height);
   if (!S.net) return;
   const px = 1 / S.view.s;
-  drawLayer(w, h, dpr);
+  drawLayer(dpr);
+  ctx.setTransform(dpr * S.view.s, 0, 0, -dpr * S.view.s, dpr * S.view.ox, dpr * S.view.oy);
   const scene = S.result && S.result.scenes[S.scene];
   S.drawn.boxes = scene ? drawScene(ctx, scene, px) : 0;
   drawWindow(ctx, px);
@@ -194,45 +225,90 @@ function draw() {
   S.drawMs = performance.now() - t0; S.draws++;
 }
 
-// The network is drawn once into a layer larger than the view (LAYER_MARGIN of a view on each side) and
-// copied while panning. While zooming the layer is scaled, and drawn anew at the new scale when the zoom
-// has rested for LAYER_DELAY_MS (without a layer the network is drawn straight into the view).
-const LAYER_MARGIN = 0.5, LAYER_DELAY_MS = 200;
-let layer = null, layerTimer = null;
-function buildLayer(w, h, dpr) {
-  const v = S.view, mx = Math.round(w * LAYER_MARGIN), my = Math.round(h * LAYER_MARGIN);
-  const cv = layer ? layer.canvas : document.createElement("canvas");
-  cv.width = Math.round((w + 2 * mx) * dpr); cv.height = Math.round((h + 2 * my) * dpr);
-  const c = cv.getContext("2d");
-  c.setTransform(1, 0, 0, 1, 0, 0); c.clearRect(0, 0, cv.width, cv.height);
-  const cells = drawNetwork(c, { s: v.s, ox: v.ox + mx, oy: v.oy + my }, w + 2 * mx, h + 2 * my, dpr);
-  layer = { canvas: cv, s: v.s, ox: v.ox, oy: v.oy, w, h, dpr, mx, my, cells, valid: true };
-  S.drawn.layers = (S.drawn.layers || 0) + 1;
+// The network is drawn into a layer the size of the view and kept. A pan shifts the layer by whole device
+// pixels and draws only the strips that come into view; a zoom scales the layer, and once the zoom has
+// rested for ZOOM_REST_MS the scaled picture is drawn sharp again one band of BAND_PX rows a frame (the
+// middle first). Only a new network look, a resize or a jump draws the whole view in one frame.
+const ZOOM_REST_MS = 200, BAND_PX = 256;
+const layer = { front: document.createElement("canvas"), back: document.createElement("canvas"),
+                s: 0, ox: 0, oy: 0, dpr: 0, valid: false, rest: null, bands: [] };
+
+function dropLayer() { layer.valid = false; }   // the network looks different (a fill.json)
+
+function drawLayer(dpr) {
+  const v = S.view, W = canvas.width, H = canvas.height, L = layer;
+  if (!L.valid || L.dpr !== dpr || L.front.width !== W || L.front.height !== H) fullLayer(dpr);
+  else if (L.s !== v.s) {      // zooming: the layer scaled until the zoom rests
+    const k = v.s / L.s;
+    ctx.setTransform(1, 0, 0, 1, 0, 0);
+    ctx.drawImage(L.front, (v.ox - k * L.ox) * dpr, (v.oy - k * L.oy) * dpr, W * k, H * k);
+    clearTimeout(L.rest);
+    L.rest = setTimeout(() => { if (L.s !== S.view.s) { restLayer(dpr); redraw(); } }, ZOOM_REST_MS);
+    return;
+  } else {
+    const dx = Math.round((v.ox - L.ox) * dpr), dy = Math.round((v.oy - L.oy) * dpr);
+    if (Math.abs(dx) >= W || Math.abs(dy) >= H) fullLayer(dpr);
+    else if (dx || dy) shiftLayer(dx, dy, dpr);
+  }
+  if (L.bands.length) { sharpenBand(dpr); if (L.bands.length) redraw(); }
+  ctx.setTransform(1, 0, 0, 1, 0, 0);
+  ctx.drawImage(L.front, 0, 0);
 }
 
-function drawLayer(w, h, dpr) {
-  const v = S.view;
-  const same = layer && layer.valid && layer.s === v.s && layer.w === w && layer.h === h && layer.dpr === dpr;
-  if (same && (Math.abs(v.ox - layer.ox) > layer.mx || Math.abs(v.oy - layer.oy) > layer.my)) buildLayer(w, h, dpr);
-  if (!same) {
-    if (layer && layer.valid && layer.w === w && layer.h === h && layer.dpr === dpr) {
-      // zooming: the last layer scaled (blurred for a moment), drawn sharp once the zoom rests
-      const k = v.s / layer.s;
-      ctx.setTransform(1, 0, 0, 1, 0, 0);
-      ctx.drawImage(layer.canvas, (v.ox - k * (layer.ox + layer.mx)) * dpr, (v.oy - k * (layer.oy + layer.my)) * dpr,
-                    layer.canvas.width * k, layer.canvas.height * k);
-      ctx.setTransform(dpr * v.s, 0, 0, -dpr * v.s, dpr * v.ox, dpr * v.oy);
-    } else S.drawn.cells = drawNetwork(ctx, v, w, h, dpr);
-    clearTimeout(layerTimer);
-    layerTimer = setTimeout(() => { buildLayer(w, h, dpr); redraw(); }, LAYER_DELAY_MS);
-    return;
-  }
-  ctx.setTransform(1, 0, 0, 1, 0, 0);
-  ctx.drawImage(layer.canvas, Math.round((v.ox - layer.ox - layer.mx) * dpr), Math.round((v.oy - layer.oy - layer.my) * dpr));
-  S.drawn.cells = layer.cells;
-  ctx.setTransform(dpr * v.s, 0, 0, -dpr * v.s, dpr * v.ox, dpr * v.oy);
+// A zoom has rested: the scaled picture becomes the layer at the new scale, every band of it to be drawn sharp.
+function restLayer(dpr) {
+  const v = S.view, L = layer, W = L.front.width, H = L.front.height, k = v.s / L.s, c = L.back.getContext("2d");
+  c.setTransform(1, 0, 0, 1, 0, 0); c.clearRect(0, 0, W, H);
+  c.drawImage(L.front, (v.ox - k * L.ox) * dpr, (v.oy - k * L.oy) * dpr, W * k, H * k);
+  const shown = L.back; L.back = L.front; L.front = shown;
+  Object.assign(L, { s: v.s, ox: v.ox, oy: v.oy });
+  L.bands.length = 0;
+  for (let y = 0; y < H; y += BAND_PX) L.bands.push([y, Math.min(H, y + BAND_PX)]);
+  L.bands.sort((a, b) => Math.abs(a[0] + a[1] - H) - Math.abs(b[0] + b[1] - H));
 }
-function dropLayer() { if (layer) layer.valid = false; }
+
+function sharpenBand(dpr) {
+  const L = layer, [y0, y1] = L.bands.shift(), W = L.front.width, c = L.front.getContext("2d");
+  c.setTransform(1, 0, 0, 1, 0, 0); c.clearRect(0, y0, W, y1 - y0);
+  drawStrip(c, 0, y0, W, y1 - y0, dpr);
+}
+
+function fullLayer(dpr) {
+  const v = S.view, L = layer, W = canvas.width, H = canvas.height;
+  if (L.front.width !== W || L.front.height !== H) { L.front.width = L.back.width = W; L.front.height = L.back.height = H; }
+  const c = L.front.getContext("2d");
+  c.setTransform(1, 0, 0, 1, 0, 0); c.clearRect(0, 0, W, H);
+  Object.assign(L, { s: v.s, ox: v.ox, oy: v.oy, dpr, valid: true });
+  L.bands.length = 0;
+  S.drawn.cells = drawNetwork(c, v, W / dpr, H / dpr, dpr);
+  S.drawn.full++;
+}
+
+// The layer moved by (dx, dy) device pixels: copied over, and the strips uncovered drawn, each clipped to
+// itself (the strips do not overlap: an edge drawn twice would be darker).
+function shiftLayer(dx, dy, dpr) {
+  const L = layer, W = L.front.width, H = L.front.height, c = L.back.getContext("2d");
+  L.ox += dx / dpr; L.oy += dy / dpr;      // the layer's own origin: whole pixels from where it was drawn
+  c.setTransform(1, 0, 0, 1, 0, 0); c.clearRect(0, 0, W, H);
+  c.drawImage(L.front, dx, dy);
+  if (dy && L.bands.length) {   // rows still to be drawn sharp move with the picture
+    for (const b of L.bands) { b[0] = Math.min(H, Math.max(0, b[0] + dy)); b[1] = Math.min(H, Math.max(0, b[1] + dy)); }
+    L.bands = L.bands.filter((b) => b[1] > b[0]);
+  }
+  const x0 = dx > 0 ? 0 : W + dx, y0 = dy > 0 ? 0 : H + dy, ax = Math.abs(dx), ay = Math.abs(dy);
+  S.drawn.cells = 0;
+  if (dx) drawStrip(c, x0, 0, ax, H, dpr);
+  if (dy) drawStrip(c, dx > 0 ? ax : 0, y0, W - ax, ay, dpr);
+  const shown = L.back; L.back = L.front; L.front = shown;
+}
+
+function drawStrip(c, x, y, w, h, dpr) {
+  const L = layer;
+  c.save(); c.beginPath(); c.rect(x, y, w, h); c.clip();
+  S.drawn.cells += drawNetwork(c, L, L.front.width / dpr, L.front.height / dpr, dpr,
+                               [x / dpr, y / dpr, (x + w) / dpr, (y + h) / dpr]);
+  c.restore();
+}
 
 let pending = false;
 function redraw() { if (!pending) { pending = true; requestAnimationFrame(() => { pending = false; draw(); }); } }
