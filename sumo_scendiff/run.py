@@ -359,7 +359,6 @@ def _realise(o, net, gen, session, places, requests, scenes, kept: set[str], pro
 
 
 def run(o) -> dict:
-    from dataclasses import replace
     t = time.perf_counter()
     scen = _scenario(o)
     from .core.threads import GENERATION_THREADS, share_cpu
@@ -367,6 +366,7 @@ def run(o) -> dict:
     from .generation.generator import GenerationConfig, ScenarioGenerator
     from .map.network import Network, NoCarLane
     from .sim.density import default_density, host_has_traffic
+    from .sim.request import counted_as_asked
     from .sim.sumo import settings
     from .tokens.file import load_tokens
     progress = sys.stderr.isatty() or o.verbose
@@ -381,10 +381,7 @@ def run(o) -> dict:
     edge_data = _edge_data(o, net)
     spec = load_tokens(o.tokens, net=net) if o.tokens else None
     kept = _check_output(o)
-    # a density in veh/km (asked, or the host's) is kept as SUMO's edgeData counts it; --vehicles N
-    # is N vehicles, one by one
-    gen = ScenarioGenerator.load(o.checkpoint, replace(GenerationConfig.from_options(o),
-                                                       count_on_edges=o.vehicles is None))
+    gen = ScenarioGenerator.load(o.checkpoint, counted_as_asked(GenerationConfig.from_options(o), o.vehicles))
     session, warm_up = _session(o, scen, net, gen, sumo_settings, times, progress)
     timing = {}
     try:

@@ -391,3 +391,19 @@ def test_the_worker_passes_and_records_the_targets(cross_net, tmp_path):
     with open(os.path.join(out, "index.csv")) as f:
         assert "density_target_veh_per_km" in f.readline()
     assert density_axis(rows) and os.path.getsize(stats_plot(out, rows)) > 1000
+
+
+def test_a_level_is_counted_as_run_counts_it(cross_net, tmp_path):
+    """A density (a number, "auto", the host's default) is kept as SUMO's edgeData counts it, a
+    vehicle count one vehicle at a time (sim.request.counted_as_asked, as run and the co-simulation
+    API); the two never share a model call."""
+    from sumo_scendiff.sweep.engines import tasks
+    dens = _levels_spec(tmp_path, cross_net, 'density = [25, "auto"]').scenarios()
+    (veh,) = _levels_spec(tmp_path, cross_net, "vehicles = [6]").scenarios()
+    (none,) = _levels_spec(tmp_path, cross_net, "").scenarios()
+    assert [s.generation.count_on_edges for s in [*dens, veh, none]] == [True, True, False, True]
+    import dataclasses
+    mixed = [dataclasses.replace(s, id=f"s{k:04d}") for k, s in enumerate([dens[0], veh] * 5)]
+    batches = [b for b, _ in tasks(mixed)]
+    assert max(map(len, batches)) == 2 and sum(map(len, batches)) == 10
+    assert all(len({s.generation.count_on_edges for s in b}) == 1 for b in batches)

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import functools
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 import shapely
@@ -41,7 +41,7 @@ from ..core.geometry import (
 from ..core.matching import match_agents
 from ..core.scene import Scene
 from ..map.network import Network
-from .request import generation_inputs, window_request
+from .request import counted_as_asked, generation_inputs, window_request
 from .seeding import Seeder, SeedReport
 from .settle import krauss_safe_speed
 from .sumo import died
@@ -312,9 +312,8 @@ class CoSimulation:
         for line in req.warnings:
             warnings.warn(line, stacklevel=2)
         s = self.seed + self.count if seed is None else seed
-        # a density in veh/km (asked, or the host's) is kept as SUMO's edgeData counts it
-        cfg = replace(self.generator.config, count_on_edges=vehicles is None)
-        scene = self.generator.generate(self.net, [window], seed=s, config=cfg, **generation_inputs([req]))[0]
+        scene = self.generator.generate(self.net, [window], seed=s, config=counted_as_asked(self.generator.config, vehicles),
+                                        **generation_inputs([req]))[0]
         return self.place(scene, req.tokens, req.sources, req.existing, seed=s, p_mask=req.p_mask)
 
     @_sumo_gone

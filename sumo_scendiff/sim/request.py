@@ -13,7 +13,7 @@ there); a level given as a density or a vehicle count, else the host's own where
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 from ..core.geometry import Window
@@ -44,6 +44,13 @@ class WindowRequest:
     target: float | None          # vehicles per km of car lane; None: the model's own level
     lights: dict[str, str] | None  # tls id -> state, when the generation conditions on lights
     warnings: list[str] = field(default_factory=list)   # the user's tokens heading against their road
+
+
+def counted_as_asked(config, vehicles: int | None):
+    """``config`` (GenerationConfig) counting a window's vehicles as the level was asked: a density in
+    veh/km (a number, "auto", the host's) as SUMO's edgeData counts it (fronts on normal edges), a
+    vehicle count (``vehicles``) one vehicle at a time."""
+    return replace(config, count_on_edges=vehicles is None)
 
 
 def density_target(net, window: Window, density=None, vehicles: int | None = None, sim=None,

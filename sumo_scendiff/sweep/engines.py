@@ -29,7 +29,7 @@ def tasks(scenarios: list[Scenario], todo: set[str] | None = None, size: int = T
     the same batch: a resumed or re-partitioned sweep writes what an uninterrupted one does."""
     key = lambda s: (s.network, s.step_length, s.steps, s.threshold, s.guidance,  # noqa: E731
                      -1.0 if s.scene_guidance is None else s.scene_guidance, s.pin_tokens,
-                     s.pin_speeds, s.lane_headings, s.lane_snap)
+                     s.pin_speeds, s.lane_headings, s.lane_snap, s.generation.count_on_edges)
     size = max(1, min(size, math.ceil(len(scenarios) / 8)))
     todo = {s.id for s in scenarios} if todo is None else set(todo)
     out = []

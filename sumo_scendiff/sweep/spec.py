@@ -117,11 +117,12 @@ class Spec:
                                             self.p_masks, self.levels, self.seeds))
         if not combos:
             raise SpecError(f"{self.source}: the sweep is empty (a list in the cross product is empty)")
+        from ..sim.request import counted_as_asked
         from ..sim.sumo import default_step_length
         return [Scenario(f"s{k:04d}", net, loc, ts, pm, seed,
                          **{**SWEEP_DEFAULTS, "step_length": default_step_length(bool(self.networks[net].routes)),
                             **self.settings},
-                         generation=self.generation, density=level[0], vehicles=level[1])
+                         generation=counted_as_asked(self.generation, level[1]), density=level[0], vehicles=level[1])
                 for k, (net, loc, ts, pm, level, seed) in enumerate(combos)]
 
 
