@@ -3,6 +3,7 @@ overhead relative to SUMO driving (target: raster + generate + seed + export <= 
 
     python benchmarks/run_timing.py [-n NET] [-r ROUTES] [--scenes 8] [--rollout 60] [--begin SECONDS ...]
     python benchmarks/run_timing.py -o runs/bench_run_timing.md
+    python benchmarks/run_timing.py -n NET --no-demand --scenes 1    # a window on a network alone
 
 Runs ``python -m sumo_scendiff.run -n NET -r ROUTES --scenes 8 --rollout 60 -o TMP`` in-process
 (``sumo_scendiff.run.get_options`` / ``run``; windows auto-chosen) once per ``--begin`` value
@@ -31,6 +32,8 @@ def get_options(args=None):
     p.add_argument("-n", "--net-file", "--net", dest="net", default=COLOGNE8)
     p.add_argument("-r", "--route-files", "--routes", dest="routes", default=None,
                    help="default: the route file beside the net (evaluate.find_demand)")
+    p.add_argument("--no-demand", action="store_true", help="run on the network alone (no -r): the "
+                   "warm-up rows stay empty; benchmarks/profile.py splits such a run finer")
     p.add_argument("--scenes", type=int, default=8)
     p.add_argument("--rollout", type=float, default=60.0)
     p.add_argument("--begin", action="append", default=None, metavar="default|SECONDS",
@@ -43,8 +46,8 @@ def get_options(args=None):
 def one_run(o, routes: str, begin: float | None, tmp: str) -> dict:
     """Run the CLI in-process; its summary plus the timed warm-up and the state after it."""
     from sumo_scendiff import run as run_mod
-    args = ["-n", o.net, "-r", routes, "--scenes", str(o.scenes), "--rollout", f"{o.rollout:g}",
-            "-s", str(o.seed), "-o", tmp]
+    args = ["-n", o.net, *(["-r", routes] if routes else []), "--scenes", str(o.scenes),
+            "--rollout", f"{o.rollout:g}", "-s", str(o.seed), "-o", tmp]
     if begin is not None:
         args += ["--begin", f"{begin:g}"]
     warm = {}
@@ -69,7 +72,8 @@ def one_run(o, routes: str, begin: float | None, tmp: str) -> dict:
 def table(results: list[tuple[str, dict]], o, routes: str, command: str) -> str:
     labels = [label for label, _ in results]
     lines = [f"Command: `{command}`", "",
-             f"`python -m sumo_scendiff.run -n {os.path.relpath(o.net, ROOT)} -r {os.path.relpath(routes, ROOT)} "
+             f"`python -m sumo_scendiff.run -n {os.path.relpath(o.net, ROOT)}"
+             f"{f' -r {os.path.relpath(routes, ROOT)}' if routes else ''} "
              f"--scenes {o.scenes} --rollout {o.rollout:g} -s {o.seed} -o TMP [--begin B]` in-process, "
              f"windows auto-chosen, 1 process; load average before the run {o.load_before:.2f} "
              f"on {os.cpu_count()} cores (other jobs on the machine slow every phase)", "",
@@ -82,7 +86,7 @@ def table(results: list[tuple[str, dict]], o, routes: str, command: str) -> str:
     T = [s["timing_s"] for s in S]
     n = [max(len(s["scenes"]), 1) for s in S]
     row("`--begin` passed", [" ".join(r["args"][r["args"].index("--begin"):][:2]) if "--begin" in r["args"]
-                             else "none (600 s of demand)" for _, r in results])
+                             else "none (no demand)" if o.no_demand else "none (600 s of demand)" for _, r in results])
     row("simulation time when seeding (s)", [f"{r['warm'].get('sim_time', float('nan')):.0f}" for _, r in results])
     row("vehicles on the net when seeding", [str(r["warm"].get("vehicles", "–")) for _, r in results])
     for ph in PHASES:
@@ -129,16 +133,17 @@ def main(o) -> int:
 
     from sumo_scendiff.data.demand import find_demand
     from sumo_scendiff.map.network import Network
-    routes = o.routes or find_demand(Network.load(o.net))
-    if routes is None:
+    routes = None if o.no_demand else o.routes or find_demand(Network.load(o.net))
+    if routes is None and not o.no_demand:
         sys.exit(f"{o.net}: no route file beside the net; give -r")
     command = ("python benchmarks/run_timing.py " + " ".join(sys.argv[1:])).strip() \
         if sys.argv[0].endswith("run_timing.py") else "benchmarks/run_timing.py (in-process)"
     results = []
     t0 = time.perf_counter()
-    for b in (o.begin or ["default"]):
+    for b in (o.begin or ["default"]) if not o.no_demand else ["default"]:
         begin = None if b == "default" else float(b)
-        label = "run's default warm-up (600 s of demand)" if begin is None else f"--begin {begin:g}"
+        label = ("no demand" if o.no_demand else "run's default warm-up (600 s of demand)") if begin is None \
+            else f"--begin {begin:g}"
         with tempfile.TemporaryDirectory(prefix="bench-run-") as tmp:
             r = one_run(o, routes, begin, tmp)
         print(f"{label}: {r['wall']:.0f} s", file=sys.stderr)
