@@ -16,6 +16,7 @@ from starlette.staticfiles import StaticFiles
 
 from . import generate as gen
 from .geometry import StudioError, fill_density, geometry, snap
+from .gui import open_in_gui
 from .tokenfile import token_toml
 
 STATIC = os.path.join(os.path.dirname(__file__), "static")
@@ -55,6 +56,15 @@ class Studio:
                 if not os.path.exists(path):
                     os.makedirs(path)
                     return path
+
+    def kept_folder(self, name) -> str:
+        """The folder ``-o/NAME`` of a kept scene (only there: the server opens nothing else)."""
+        if not (isinstance(name, str) and gen.NAME.fullmatch(name)):
+            raise StudioError("open: expected the name of a kept folder (letters, digits, _ . -)")
+        folder = os.path.abspath(os.path.join(self.out, name))
+        if not os.path.isfile(os.path.join(folder, "scenario.sumocfg")):
+            raise StudioError(f"open: {name}: no kept scene of that name in {self.out}")
+        return folder
 
     def fill_path(self, path) -> str:
         """A fill.json the page names: only under -o (the server reads nothing else it is not given)."""
@@ -128,6 +138,7 @@ def make_app(net: str | None, config: str | None, out: str, checkpoint: str | No
               Route("/api/generate", _endpoint(gen.generate), methods=["POST"]),
               Route("/api/keep", _endpoint(gen.keep, 201), methods=["POST"]),
               Route("/api/fill", _endpoint(_fill), methods=["POST"]),
+              Route("/api/open", _endpoint(open_in_gui), methods=["POST"]),
               Mount("/static", StaticFiles(directory=STATIC))]
     app = Starlette(routes=routes, exception_handlers={404: _not_found, 405: _not_found, 500: _server_error})
     app.state.studio = Studio(net, config, out, checkpoint)

@@ -18,6 +18,7 @@ import shutil
 import threading
 
 from .geometry import StudioError
+from .gui import gui_command
 from .tokenfile import token_toml
 
 MAX_SCENES = 8           # small multiples on one screen
@@ -153,5 +154,5 @@ def keep(studio, body: dict) -> dict:
         except ExportError as e:
             raise StudioError(f"{target}: kept, but the OpenSCENARIO export failed: {e}") from None
         exported = True
-    return {"folder": os.path.abspath(target), "files": sorted(os.listdir(target)), "openscenario": exported,
-            "sumo": f"sumo-gui -c {os.path.join(os.path.abspath(target), 'scenario.sumocfg')}"}
+    return {"name": name, "folder": os.path.abspath(target), "files": sorted(os.listdir(target)), "openscenario": exported,
+            "sumo": gui_command(os.path.join(os.path.abspath(target), "scenario.sumocfg"))}

@@ -531,13 +531,42 @@ function showScene(k) {
 
 async function keep() {
   const sc = S.result.scenes[S.scene];
-  $("keep").disabled = true; $("keep-status").textContent = "writing…";
+  S.busy = true; $("keep").disabled = true; $("keep-status").textContent = "writing…";
   try {
     S.kept = await api("/api/keep", { draft: S.result.draft, scene: sc.scene, name: $("keep-name").value.trim(),
                                       openscenario: $("keep-xosc").checked });
-    $("keep-status").textContent = `wrote ${S.kept.folder} (${S.kept.files.join(", ")}); open it with: ${S.kept.sumo}`;
+    $("keep-status").textContent = `wrote ${S.kept.folder} (${S.kept.files.join(", ")})`;
+    $("gui-box").hidden = false; $("gui-status").textContent = ""; showGuiCommand(S.kept.sumo);
   } catch (e) { $("keep-status").textContent = e.message; }
-  finally { $("keep").disabled = false; }
+  finally { S.busy = false; $("keep").disabled = false; }
+}
+
+// sumo-gui is started by the server where it has a display; otherwise (or if it failed) the page shows the
+// command, its path quoted for a shell, to copy
+function showGuiCommand(command) {
+  $("gui-command").textContent = command; $("gui-command-row").hidden = false; $("gui-copy").textContent = "Copy";
+}
+
+async function openGui() {
+  S.busy = true; $("open-gui").disabled = true; $("gui-status").textContent = "starting sumo-gui…";
+  try {
+    S.gui = await api("/api/open", { name: S.kept.name });
+    $("gui-status").textContent = S.gui.launched ? `sumo-gui started (process ${S.gui.pid})` : `${S.gui.why}:`;
+    showGuiCommand(S.gui.command);
+  } catch (e) { $("gui-status").textContent = e.message; }
+  finally { S.busy = false; $("open-gui").disabled = false; }
+}
+
+async function copyGuiCommand() {
+  const text = $("gui-command").textContent;
+  try {
+    await navigator.clipboard.writeText(text);
+    $("gui-copy").textContent = "Copied"; S.copied = text;
+  } catch (e) {     // no clipboard here (refused, or not a secure context): the text selected for Ctrl-C
+    const r = document.createRange(); r.selectNodeContents($("gui-command"));
+    getSelection().removeAllRanges(); getSelection().addRange(r);
+    $("gui-copy").textContent = "Selected: Ctrl-C";
+  }
 }
 
 // ---- fill.json ------------------------------------------------------------------------------------
@@ -569,6 +598,8 @@ async function start() {
   $("p_mask").addEventListener("change", () => { S.pMask = knob("p_mask"); preview(); });
   $("generate").onclick = generate;
   $("keep").onclick = keep;
+  $("open-gui").onclick = openGui;
+  $("gui-copy").onclick = copyGuiCommand;
   $("fill-file").addEventListener("change", async (ev) => {
     const f = ev.target.files[0];
     if (!f) return;
