@@ -42,7 +42,7 @@ def serve(net: str, out: str) -> str:
     from sumo_scendiff.studio.app import make_app
     sock = socket.socket()
     sock.bind(("127.0.0.1", 0))
-    server = uvicorn.Server(uvicorn.Config(make_app(net, None, out), log_level="warning"))
+    server = uvicorn.Server(uvicorn.Config(make_app(net, None, out, warm=False), log_level="warning"))
     threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True).start()
     while not server.started:
         time.sleep(0.05)

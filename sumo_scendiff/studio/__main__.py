@@ -26,10 +26,14 @@ def get_options(args=None):
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
     p.add_argument("--port", type=int, default=8765, help="port (default 8765; 0: a free one)")
     p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
+    p.add_argument("--steps", type=int, default=None,
+                   help="denoising steps of each generation, run's --steps (default: run's): fewer for quicker drafts")
     o = p.parse_args(args)
     from ..sim.scenario import input_flags_problem
     if input_flags_problem(o.net, o.config):
         p.error(input_flags_problem(o.net, o.config))
+    if o.steps is not None and o.steps < 1:
+        p.error(f"--steps must be at least 1, got {o.steps}")
     if not 0 <= o.port < 65536:
         p.error(f"--port must be in 0..65535, got {o.port}")
     o.parser = p
@@ -45,7 +49,7 @@ def main(o) -> int:
     from ..sim.scenario import ScenarioError
     from .app import StudioError, make_app
     try:
-        app = make_app(o.net, o.config, o.out, checkpoint=o.checkpoint)
+        app = make_app(o.net, o.config, o.out, checkpoint=o.checkpoint, steps=o.steps)
     except (NetworkError, ScenarioError, StudioError, OSError) as e:
         o.parser.exit(2, f"{PROG}: error: {e}\n")
     sock = socket.socket()

@@ -26,13 +26,14 @@ MAX_BODY = 64 * 2 ** 20   # a fill.json of a whole city is tens of MB
 class Studio:
     """What the server knows: the inputs of its command line and its output directory."""
 
-    def __init__(self, net: str | None, config: str | None, out: str, checkpoint: str | None = None):
+    def __init__(self, net: str | None, config: str | None, out: str, checkpoint: str | None = None,
+                 steps: int | None = None):
         from ..map.network import Network
         from ..sim.scenario import scenario_from_files
         self.scenario = scenario_from_files(config, net)
         self.net = Network.load(self.scenario.net)
         self.inputs = (["-c", config] if config else []) + (["-n", net] if net else []) + \
-            (["--checkpoint", checkpoint] if checkpoint else [])
+            (["--checkpoint", checkpoint] if checkpoint else []) + (["--steps", str(steps)] if steps else [])
         self.out = out
         self.drafts = os.path.join(out, ".drafts")
         os.makedirs(self.drafts, exist_ok=True)
@@ -130,7 +131,22 @@ async def _server_error(request, exc):
     return JSONResponse({"error": f"{type(exc).__name__}: {exc}"}, 500)
 
 
-def make_app(net: str | None, config: str | None, out: str, checkpoint: str | None = None) -> Starlette:
+def _warm_up() -> None:
+    """Import what a generation needs (torch, the model's code, SUMO's session) while the user places
+    a window and tokens: the first generation then does only run's own work (docs/studio.md, "Speed")."""
+    from ..core.threads import GENERATION_THREADS, share_cpu
+    try:
+        share_cpu(default=GENERATION_THREADS)   # as run does, before torch is imported
+        from .. import run  # noqa: F401
+        from ..generation.generator import ScenarioGenerator  # noqa: F401
+        from ..sim.session import Session  # noqa: F401
+    except Exception:   # a broken install: the generation reports it, in its one line, when it is asked for
+        pass
+
+
+def make_app(net: str | None, config: str | None, out: str, checkpoint: str | None = None,
+             steps: int | None = None, warm: bool = True) -> Starlette:
+    """The studio's app; ``warm`` imports the generation's modules in the background from the start."""
     routes = [Route("/", _index), Route("/api/network", _geometry),
               Route("/api/snap", _endpoint(lambda s, b: snap(s.net, b if isinstance(b, dict) else {})),
                     methods=["POST"]),
@@ -141,5 +157,7 @@ def make_app(net: str | None, config: str | None, out: str, checkpoint: str | No
               Route("/api/open", _endpoint(open_in_gui), methods=["POST"]),
               Mount("/static", StaticFiles(directory=STATIC))]
     app = Starlette(routes=routes, exception_handlers={404: _not_found, 405: _not_found, 500: _server_error})
-    app.state.studio = Studio(net, config, out, checkpoint)
+    app.state.studio = Studio(net, config, out, checkpoint, steps)
+    if warm:
+        threading.Thread(target=_warm_up, name="studio-warm-up", daemon=True).start()
     return app
