@@ -390,3 +390,21 @@ def test_the_inflow_enters_at_a_fringe_that_can_take_it(tmp_path):
     assert not at_fringe and many
     doc = fs.write_inflow(str(tmp_path / "in.rou.xml"), net, 10_000, 0.0, 0)
     assert doc["from"].startswith("anywhere (the fringe's 4 edges cannot insert")
+
+
+def test_a_stopped_fill_leaves_nothing(tmp_path):
+    """SIGTERM in the middle of a fill: exit 130, one line, no folder and no partial one left."""
+    import signal
+    import time
+    out = tmp_path / "stopped"
+    proc = subprocess.Popen([sys.executable, "-m", "sumo_scendiff.fill", "-n", NET, "-o", str(out), "--workers", "1"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 600
+    while not any(".partial-" in p for p in os.listdir(tmp_path)) and proc.poll() is None \
+            and time.monotonic() < deadline:
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=600)
+    assert proc.returncode == 130, err[-400:]
+    assert err.strip().splitlines()[-1] == f"python -m sumo_scendiff.fill: interrupted: nothing written to {out}"
+    assert os.listdir(tmp_path) == []
