@@ -159,6 +159,50 @@ def test_density_range_bounds_every_episode(cross_net, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_peak_share_draws_that_share_of_episodes_from_the_peak_range(cross_net, tmp_path):
+    """Without the option the plan is the one before it; with it, about that share of the episodes
+    take a density from the peak range, and every other field of every episode stays."""
+    from dataclasses import replace
+
+    from sumo_scendiff.data.record import plan_episodes
+    from sumo_scendiff.map.network import Network
+    net = Network.load(cross_net)
+    default = plan_episodes([net], [None], [0.0], 30000, 0, 100)
+    assert plan_episodes([net], [None], [0.0], 30000, 0, 100, peak_share=0.0) == default
+    peak = plan_episodes([net], [None], [0.0], 30000, 0, 100, peak_share=0.3, peak_density=(2000.0, 5000.0))
+    moved = [p for (_, _, p), (_, _, d) in zip(peak, default) if p.density != d.density]
+    assert 0.2 < len(moved) / len(default) < 0.4                 # 300 episodes: 0.3 +- 6 s.d.
+    assert all(2000.0 <= p.density <= 5000.0 for p in moved)
+    assert all(replace(p, density=d.density) == d for (_, _, p), (_, _, d) in zip(peak, default))
+    for flag, values in (("--peak-share", (1.5,)), ("--peak-density", (900, 100)), ("--default-sizes", (-1,))):
+        res = run("-n", cross_net, "-o", tmp_path / "out", "--scenes", 5, flag, *values)
+        assert res.returncode == 2 and flag in res.stderr and "Traceback" not in res.stderr
+        assert len(res.stderr.strip().splitlines()[-1:]) == 1 and not (tmp_path / "out").exists()
+
+
+def test_default_sizes_put_sumo_default_vehicle_types_in_the_fleet(recorded, cross_net, tmp_path):
+    """--default-sizes 1: every class in SUMO's own vType, a passenger car 5 m x 1.8 m (SUMO's
+    defaults); the manifest says so (and a recording without the option does not mention it), and
+    its episodes run again to the same scenes."""
+    import json
+
+    from sumo_scendiff.data.rerecord import rerecorded
+    out = tmp_path / "default"
+    res = run("-n", cross_net, "-o", out, "--scenes", 20, "-s", 4, "--scenes-per-episode", 20,
+              "--density", 300, 300, "--default-sizes", 1)
+    assert res.returncode == 0, res.stderr
+    store = SceneStore(str(out))
+    cars = np.concatenate([s.boxes[s.vclass == 0, 3:5] for s in map(store.scene, range(len(store)))])
+    assert len(cars) > 20 and np.allclose(cars, [5.0, 1.8])
+    with open(out / "manifest.json") as f:
+        assert [e["default_sizes"] for e in json.load(f)["episodes"]] == [1.0]
+    with open(os.path.join(recorded, "manifest.json")) as f:
+        assert all("default_sizes" not in e for e in json.load(f)["episodes"])
+    windows = [store.scene(i).window for i in range(len(store))]
+    again = rerecorded(str(out), windows, (0.0,))[0.0]
+    assert all(np.array_equal(a.boxes, store.scene(i).boxes) for i, a in enumerate(again))
+
+
 def test_episodes_run_again_reproduce_their_scenes_whole_turned_windows_and_later(recorded):
     from sumo_scendiff.core.geometry import Window
     from sumo_scendiff.core.scene import crop_to_window, rotate_scene

@@ -43,13 +43,25 @@ class RandomDemand:
     fringe_factor: float = 5.0
 
 
-def write_vtypes(path: str) -> str:
-    """Write the vehicle-type distribution ``mix`` as an additional file."""
+def write_vtypes(path: str, default_share: float = 0.0) -> str:
+    """Write the vehicle-type distribution ``mix`` as an additional file. ``default_share`` of each
+    vehicle class's vehicles take SUMO's own vType of that class instead (one naming only its
+    vClass: SUMO's defaults for it, e.g. a passenger car of 5 m x 1.8 m, as scenarios that define no
+    vType of their own drive); the classes' shares stay those of :data:`VEHICLE_MIX`."""
+    if not 0.0 <= default_share <= 1.0:
+        raise ValueError(f"the share of SUMO's default vehicle types must lie in [0, 1], not {default_share:g}")
     lines = ['<additional>', '    <vTypeDistribution id="mix">']
     for vid, vcls, shape, length, width, gap, acc, dec, vmax, p in VEHICLE_MIX:
+        p = p * (1.0 - default_share) if default_share else p   # (without: the file as before)
         lines.append(f'        <vType id="{vid}" vClass="{vcls}" guiShape="{shape}" length="{length}" '
                      f'width="{width}" minGap="{gap}" accel="{acc}" decel="{dec}" maxSpeed="{vmax}" '
-                     f'speedFactor="normc(1,0.1,0.2,2)" probability="{p}"/>')
+                     f'speedFactor="normc(1,0.1,0.2,2)" probability="{p:.6g}"/>')
+    if default_share:
+        classes: dict[str, float] = {}
+        for m in VEHICLE_MIX:
+            classes[m[1]] = classes.get(m[1], 0.0) + m[9]
+        lines += [f'        <vType id="sumo_{vcls}" vClass="{vcls}" probability="{p * default_share:.6g}"/>'
+                  for vcls, p in classes.items()]
     lines += ['    </vTypeDistribution>', '</additional>', '']
     with open(path, "w") as f:
         f.write("\n".join(lines))

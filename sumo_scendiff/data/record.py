@@ -15,7 +15,7 @@ import contextlib
 import os
 import tempfile
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, fields, replace
 
 import numpy as np
 
@@ -39,6 +39,7 @@ INVALID = -1073741824.0
 RECORDER_VERSION = 3
 
 DENSITY = (15.0, 400.0)  # veh/h/km of lane: from nearly empty streets to congestion
+PEAK_DENSITY = (1000.0, 3000.0)  # veh/h/km of lane: peak-hour demand, queues at lights and junctions
 
 
 @dataclass(frozen=True)
@@ -55,6 +56,17 @@ class EpisodeSpec:
     p_ego: float = 0.6                  # fraction of windows centred on a vehicle
     window_size: float = 100.0
     disc: bool = False                  # record the window's circumscribed circle, not its square
+    default_sizes: float = 0.0          # random demand: share of the fleet in SUMO's default vTypes
+
+
+LATER_FIELDS = ("default_sizes",)   # EpisodeSpec's fields that recordings made before them lack
+
+
+def spec_entry(spec: EpisodeSpec) -> dict:
+    """``spec`` as a manifest stores it: a field of :data:`LATER_FIELDS` only when it differs from
+    its default, so that a recording that does not use it has the manifest it had."""
+    defaults = {f.name: f.default for f in fields(EpisodeSpec)}
+    return {k: v for k, v in asdict(spec).items() if k not in LATER_FIELDS or v != defaults[k]}
 
 
 class _Tracker:
@@ -165,7 +177,7 @@ def _simulation(net: Network, spec: EpisodeSpec, extra_seconds: float = 0.0):
         vtypes = None
         routes = spec.routes
         if routes is None:
-            vtypes = write_vtypes(os.path.join(tmp, "vtypes.add.xml"))
+            vtypes = write_vtypes(os.path.join(tmp, "vtypes.add.xml"), spec.default_sizes)
             # a longer end draws the same trips first, then more (randomTrips draws them in order)
             end = spec.warmup + spec.duration + 10 + extra_seconds
             routes = random_trips(net.path, os.path.join(tmp, "trips.rou.xml"),
@@ -256,9 +268,13 @@ def record_shard_task(task: tuple) -> dict:
 
 def plan_episodes(nets: list[Network], routes: list[str | None], begins: list[float],
                   scenes: int, seed: int, per_episode: int,
-                  density: tuple[float, float] = DENSITY, disc: bool = True
+                  density: tuple[float, float] = DENSITY, disc: bool = True, default_sizes: float = 0.0,
+                  peak_share: float = 0.0, peak_density: tuple[float, float] = PEAK_DENSITY
                   ) -> list[tuple[int, str, EpisodeSpec]]:
-    """Deterministic episode plan: (net index, shard file name, spec) for every episode."""
+    """Deterministic episode plan: (net index, shard file name, spec) for every episode. A
+    ``peak_share`` of the random-demand episodes draw their density log-uniformly from
+    ``peak_density`` instead of ``density`` (peak-hour demand: queues at lights and junctions);
+    ``default_sizes``: :attr:`EpisodeSpec.default_sizes`."""
     counts = [scenes // len(nets) + (i < scenes % len(nets)) for i in range(len(nets))]
     plan = []
     for k, (net, rou, begin, n) in enumerate(zip(nets, routes, begins, counts)):
@@ -271,7 +287,11 @@ def plan_episodes(nets: list[Network], routes: list[str | None], begins: list[fl
             spec = EpisodeSpec(seed=ep_seed, scenes=todo, routes=rou, begin=begin,
                                density=float(np.exp(rng.uniform(*np.log(density)))),
                                warmup=float(rng.uniform(200.0, 900.0)),
-                               sample_every=float(rng.choice([2.0, 3.0, 5.0])), disc=disc)
+                               sample_every=float(rng.choice([2.0, 3.0, 5.0])), disc=disc,
+                               default_sizes=default_sizes if rou is None else 0.0)
+            # drawn after the others, and only when asked: plans without peaks stay as they were
+            if peak_share and rng.random() < peak_share:
+                spec = replace(spec, density=float(np.exp(rng.uniform(*np.log(peak_density)))))
             if todo > 0:
                 plan.append((k, f"shard-{k:03d}-{e:04d}.npz", spec))
     return plan

@@ -14,13 +14,13 @@ import json
 import os
 import signal
 from contextlib import closing
-from dataclasses import asdict, replace
+from dataclasses import replace
 
 from ..core.outputs import claim
 from ..core.procs import die_with_parent
 from ..map.network import Network, NetworkError
 from .demand import DemandError, check_routes
-from .record import DENSITY, plan_episodes, record_shard_task
+from .record import DENSITY, PEAK_DENSITY, plan_episodes, record_shard_task, spec_entry
 from .shards import DataError, Shard, net_entry, write_manifest
 
 
@@ -59,13 +59,17 @@ def _record_all(tasks: list[tuple], workers: int):
 
 def record_dataset(nets: list[str], out: str, scenes: int, seed: int, routes: list[str | None] | None = None,
                    per_episode: int = 300, density: tuple[float, float] = DENSITY, disc: bool = True,
-                   workers: int = 1, resume: bool = False, progress: bool | None = None) -> dict:
+                   workers: int = 1, resume: bool = False, progress: bool | None = None,
+                   default_sizes: float = 0.0, peak_share: float = 0.0,
+                   peak_density: tuple[float, float] = PEAK_DENSITY) -> dict:
     """Record ``scenes`` scenes from the networks ``nets`` into the directory ``out``; returns its
     manifest.
 
     ``routes``: each network's own demand file (or None: random trips of a density drawn
     log-uniformly from ``density``, veh/h/km of lane, per episode); ``per_episode``: scenes per
     SUMO run; ``disc``: record the circle through each window's corners (False: only the square);
+    ``default_sizes``: the share of the random trips' fleet in SUMO's default vTypes of its classes;
+    ``peak_share``: the share of random-demand episodes whose density comes from ``peak_density``;
     ``workers``: parallel SUMO processes; ``resume``: continue the interrupted run in
     ``out.partial``; ``progress``: a progress bar on stderr (None: when it is a terminal).
 
@@ -75,18 +79,37 @@ def record_dataset(nets: list[str], out: str, scenes: int, seed: int, routes: li
     KeyboardInterrupt) on Ctrl-C or SIGTERM, after keeping the finished episodes."""
     if scenes <= 0:
         raise RecordingError(f"scenes must be positive, not {scenes}")
-    if not 0 < density[0] <= density[1]:
-        raise RecordingError(f"density {density[0]:g} {density[1]:g}: need 0 < LO <= HI")
+    for name, (lo, hi) in (("density", density), ("peak density", peak_density)):
+        if not 0 < lo <= hi:
+            raise RecordingError(f"{name} {lo:g} {hi:g}: need 0 < LO <= HI")
+    for name, share in (("default sizes", default_sizes), ("peak share", peak_share)):
+        if not 0 <= share <= 1:
+            raise RecordingError(f"{name} {share:g}: need a share in [0, 1]")
     if routes and len(routes) != len(nets):
         raise RecordingError(f"give routes once per net ({len(nets)} nets, {len(routes)} route files)")
     path = os.path.abspath(out)
     # one recording at a time owns DIR.partial, from the first check to the rename to DIR
     with claim(path + ".partial") as owner:
-        return _record(owner, nets, out, path, scenes, seed, routes, per_episode, tuple(density), disc,
+        options = {"density": tuple(density), "default_sizes": default_sizes, "peak_share": peak_share,
+                   "peak_density": tuple(peak_density)}
+        return _record(owner, nets, out, path, scenes, seed, routes, per_episode, options, disc,
                        workers, resume, progress)
 
 
-def _record(owner, net_paths, given, out, scenes, seed, routes, per_episode, density, disc, workers,
+def _plan_config(options: dict) -> dict:
+    """The demand options of ``plan.json``: each only when it differs from its default (plans of
+    runs started before an option stay resumable)."""
+    config = {}
+    if options["density"] != DENSITY:
+        config["density"] = list(options["density"])
+    if options["default_sizes"]:
+        config["default_sizes"] = options["default_sizes"]
+    if options["peak_share"]:
+        config["peak"] = [options["peak_share"], *options["peak_density"]]
+    return config
+
+
+def _record(owner, net_paths, given, out, scenes, seed, routes, per_episode, options, disc, workers,
             resume, progress) -> dict:
     from tqdm import tqdm
     partial = owner.directory
@@ -106,11 +129,9 @@ def _record(owner, net_paths, given, out, scenes, seed, routes, per_episode, den
         raise RecordingError(f"two networks share the name {names}: rename one")
 
     plan = plan_episodes(nets, [None if r is None else os.path.abspath(r) for r in routes], begins,
-                         scenes, seed, per_episode, density, disc)
+                         scenes, seed, per_episode, disc=disc, **options)
     config = {"nets": [os.path.abspath(p) for p in net_paths], "routes": routes, "scenes": scenes,
-              "seed": seed, "scenes_per_episode": per_episode}
-    if density != DENSITY:  # (plans of runs started before the option stay resumable)
-        config["density"] = list(density)
+              "seed": seed, "scenes_per_episode": per_episode, **_plan_config(options)}
     if disc:
         config["disc"] = True
     plan_file = os.path.join(partial, "plan.json")
@@ -153,7 +174,7 @@ def _record(owner, net_paths, given, out, scenes, seed, routes, per_episode, den
         signal.signal(signal.SIGTERM, on_sigterm)
         bar.close()
 
-    episodes = [{"file": name, **asdict(replace(spec, routes=spec.routes and os.path.relpath(spec.routes, out)))}
+    episodes = [{"file": name, **spec_entry(replace(spec, routes=spec.routes and os.path.relpath(spec.routes, out)))}
                 for _, name, spec in plan]
     manifest = write_manifest(partial, [net_entry(n.path, out, n.name) for n in nets],
                               [entries[name] for _, name, _ in plan], seed=seed, disc=disc,
