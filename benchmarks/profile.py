@@ -263,6 +263,26 @@ def table(kind: str, results: dict[str, list[dict]]) -> list[str]:
     return lines
 
 
+def rows(results: dict) -> list[dict]:
+    """One object per profile and phase, a wall and a CPU column per checkout (the best run's),
+    for benchmarks/report.py's table."""
+    out = []
+    for kind, by_label in results.items():
+        docs = {label: best(v) for label, v in by_label.items()}
+        for p in order(kind) + ["total"]:
+            row = {"profile": kind, "phase": p}
+            for label, d in docs.items():
+                w = sum(d["wall"].values()) if p == "total" else d["wall"].get(p, 0.0)
+                c = sum(d["cpu"].values()) if p == "total" else d["cpu"].get(p, 0.0)
+                row[f"{label}: wall s"], row[f"{label}: CPU s"] = round(w, 3), round(c, 3)
+            if p == "total" or any(v >= 5e-4 for k, v in row.items() if k.endswith(" s")):
+                out.append(row)
+        if kind == "generate":
+            out.append({"profile": kind, "phase": "scenes per CPU s",
+                        **{f"{label}: CPU s": round(d["scenes_per_cpu_s"], 2) for label, d in docs.items()}})
+    return out
+
+
 def get_options(args=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
@@ -315,8 +335,8 @@ def main(o) -> int:
     if o.output:
         os.makedirs(os.path.dirname(os.path.abspath(o.output)), exist_ok=True)
         with open(o.output, "w") as f:
-            json.dump({"command": ["python", "benchmarks/profile.py", *sys.argv[1:]], "table": out,
-                       "results": results}, f, indent=1)
+            json.dump({"command": ["python", "benchmarks/profile.py", *sys.argv[1:]], "rows": rows(results),
+                       "table": out, "results": results}, f, indent=1)
     return 0
 
 
