@@ -16,7 +16,8 @@ random road windows, warms the generator up on one batch and times ``generate`` 
 commit) in the same invocation, taking turns with this checkout, so that a machine shared with other
 jobs slows both alike; the table puts them side by side. Phases a checkout does not have are empty.
 CPU seconds (this process and its threads) are given beside wall seconds: they depend less on
-what else runs on the machine.
+what else runs on the machine; the CPU of the processes ``run`` starts and waits for (stock SUMO
+judging the inputs) is a row of its own.
 """
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ import time
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
 BIG = os.path.normpath(os.path.join(ROOT, "..", "shared", "nets", "resco_ingolstadt21", "ingolstadt21.net.xml"))
 G = "sumo_scendiff.generation.generator"
+SUBPROCESSES = "subprocesses (the preflight's sumo), CPU"
 # (phase, [module:attribute ...]) in table order; an attribute a checkout lacks is skipped
 PHASES = [
     ("imports", []),
@@ -191,8 +193,9 @@ def child(o) -> None:
     prof.enter("other (the command's own code)")
     extra = (child_run if o.child == "run" else child_generate)(o, prof)
     prof.leave()
+    kids = os.times()
     doc = {"wall": prof.wall, "cpu": prof.cpu, "start_monotonic": start_wall, "startup_cpu": start_cpu,
-           "end_monotonic": time.monotonic(), **extra}
+           "end_monotonic": time.monotonic(), "children_cpu": kids.children_user + kids.children_system, **extra}
     with open(o.result, "w") as f:
         json.dump(doc, f)
 
@@ -223,13 +226,14 @@ def measure(kind: str, o, tree: str) -> dict:
         doc["wall"]["python startup"] = doc["start_monotonic"] - t0
         doc["cpu"]["python startup"] = doc["startup_cpu"]
         doc["wall"]["exit"] = t1 - doc["end_monotonic"]
+        doc["cpu"][SUBPROCESSES] = doc["children_cpu"]     # their wall time is their caller's phase's
         doc["cpu"]["exit"] = max(doc["total_cpu"] - sum(doc["cpu"].values()), 0.0)
     return doc
 
 
 def order(kind: str) -> list[str]:
     head = ["python startup"] if kind == "run" else []
-    tail = ["other (the command's own code)"] + (["exit"] if kind == "run" else [])
+    tail = ["other (the command's own code)"] + ([SUBPROCESSES, "exit"] if kind == "run" else [])
     return head + [p for p, _ in PHASES] + tail
 
 
@@ -245,7 +249,7 @@ def table(kind: str, results: dict[str, list[dict]]) -> list[str]:
              "|---|" + "---|---|" * len(labels)]
     for p in order(kind):
         cells = [(d["wall"].get(p), d["cpu"].get(p)) for d in docs.values()]
-        if all(w is None or w < 5e-4 for w, _ in cells):
+        if all((w or 0.0) < 5e-4 and (c or 0.0) < 5e-4 for w, c in cells):
             continue
         lines.append(f"| {p} | " + " | ".join(f"{w or 0:.3f} | {c or 0:.3f}" for w, c in cells) + " |")
     lines.append("| **sum of phases** | " + " | ".join(
