@@ -39,7 +39,7 @@ INVALID = -1073741824.0
 RECORDER_VERSION = 3
 
 DENSITY = (15.0, 400.0)  # veh/h/km of lane: from nearly empty streets to congestion
-PEAK_DENSITY = (1000.0, 3000.0)  # veh/h/km of lane: peak-hour demand, queues at lights and junctions
+PEAK_DENSITY = (300.0, 1000.0)  # veh/h/km of lane: peak hour, queues at lights (most networks gridlock above)
 
 
 @dataclass(frozen=True)
