@@ -242,31 +242,26 @@ def _requests(o, net, session, windows, spec, gen, edge_data, host: bool) -> lis
     return out
 
 
-def _warm_up(sim, o, at: float | None, progress: bool) -> None:
-    """Run the demand until the ego is on the road, or up to the seeding time ``at``."""
+def _wait_for_ego(sim, o, progress: bool) -> None:
+    """Run the demand until the ego is on the road and has driven ``--ego-after`` seconds."""
     from tqdm import tqdm
-    if o.ego:
-        dt = sim.simulation.getDeltaT()
-        bar = tqdm(desc=f"waiting for {o.ego}", unit=" s", disable=not progress, leave=False)
-        while o.ego not in sim.vehicle.getIDList():
-            if sim.simulation.getMinExpectedNumber() == 0:
-                raise RunError(f"--ego: vehicle {o.ego!r} never appears (the demand ended at "
-                               f"t = {sim.simulation.getTime():.0f} s)")
-            sim.simulationStep()
-            bar.update(dt)
-        # at its departure the ego stands at the network's fringe with nothing around it: seed once
-        # it has driven into the network
-        for k in range(int(round(o.ego_after / dt))):
-            sim.simulationStep()
-            bar.update(dt)
-            if o.ego not in sim.vehicle.getIDList():
-                raise RunError(f"--ego-after: vehicle {o.ego!r} left the network {(k + 1) * dt:.0f} s after "
-                               f"it departed; give a smaller --ego-after")
-        bar.close()
-        return
-    steps = int(round((at - sim.simulation.getTime()) / sim.simulation.getDeltaT()))
-    for _ in tqdm(range(steps), desc="warming up the demand", disable=not progress, leave=False):
+    dt = sim.simulation.getDeltaT()
+    bar = tqdm(desc=f"waiting for {o.ego}", unit=" s", disable=not progress, leave=False)
+    while o.ego not in sim.vehicle.getIDList():
+        if sim.simulation.getMinExpectedNumber() == 0:
+            raise RunError(f"--ego: vehicle {o.ego!r} never appears (the demand ended at "
+                           f"t = {sim.simulation.getTime():.0f} s)")
         sim.simulationStep()
+        bar.update(dt)
+    # at its departure the ego stands at the network's fringe with nothing around it: seed once
+    # it has driven into the network
+    for k in range(int(round(o.ego_after / dt))):
+        sim.simulationStep()
+        bar.update(dt)
+        if o.ego not in sim.vehicle.getIDList():
+            raise RunError(f"--ego-after: vehicle {o.ego!r} left the network {(k + 1) * dt:.0f} s after "
+                           f"it departed; give a smaller --ego-after")
+    bar.close()
 
 
 def _windows(o, net, sim, cosim):
@@ -316,7 +311,14 @@ def _session(o, scen, net, gen, sumo_settings: dict, times: tuple, progress: boo
     cfg = SimConfig(net=scen.net, routes=scen.routes, additional=scen.additional, gui=o.gui, traci=o.traci,
                     seed=o.seed, begin=begin, **sumo_settings)
     session = Session(cfg, net, gen, quiet=not o.verbose, model_fleet=o.model_fleet)
-    return session, (lambda sim: _warm_up(sim, o, at, progress)) if scen.routes else None
+    if not scen.routes:
+        return session, session.prepare
+    if o.ego:
+        return session, lambda: session.prepare(lambda sim: _wait_for_ego(sim, o, progress))
+    if progress:
+        print(f"running the demand to t = {at:g} s as SUMO runs it (its state kept for the next run)",
+              file=sys.stderr)
+    return session, lambda: session.prepare_at(at)
 
 
 def _generate(o, net, gen, requests, progress: bool, timing: dict) -> list:
@@ -382,10 +384,10 @@ def run(o) -> dict:
     spec = load_tokens(o.tokens, net=net) if o.tokens else None
     kept = _check_output(o)
     gen = ScenarioGenerator.load(o.checkpoint, counted_as_asked(GenerationConfig.from_options(o), o.vehicles))
-    session, warm_up = _session(o, scen, net, gen, sumo_settings, times, progress)
+    session, prepare = _session(o, scen, net, gen, sumo_settings, times, progress)
     timing = {}
     try:
-        session.prepare(warm_up)
+        prepare()
         places = _windows(o, net, session.sim, session.cosim())
         _check_kept(o, kept, [w for w, _ in places])
         host = bool(scen.routes)
@@ -469,9 +471,10 @@ def _user_errors() -> tuple[type, ...]:
     from .map.network import NetworkError
     from .model.checkpoint import CheckpointError
     from .sim.sumo import SimError
+    from .sim.warmup import WarmUpError
     from .tokens.file import TokenFileError
     return (RunError, NetworkError, CheckpointError, SimError, TokenFileError, LocationError,
-            FileExistsError, OutputError, ExportError)
+            FileExistsError, OutputError, ExportError, WarmUpError)
 
 
 def main(o) -> int:

@@ -48,14 +48,21 @@ class Session:
         self.cfg, self.net, self.generator, self.quiet = cfg, net, generator, quiet
         self.model_fleet = model_fleet   # the model's sizes on SUMO's default vType (run --model-fleet)
         self.base: str | None = None
+        self._owns_base = True           # a base state this session saved (removed at close)
         self.sim = None
         self._at_base = False
         self.timing = {"seed": 0.0, "export": 0.0, "rollout": 0.0}
 
     # ---- the base simulation --------------------------------------------------------------------
-    def prepare(self, warm_up=None) -> "Session":
+    def prepare(self, warm_up=None, state: str | None = None) -> "Session":
         """Start SUMO, run ``warm_up(sim)`` (the demand up to the seeding time) if given, and keep
-        the state as the base of every scene. The simulation stays open for :meth:`existing`."""
+        the state as the base of every scene; or start from ``state``, a saved state that is the
+        base as it is (sim/warmup.py's, kept by its cache: never removed here). The simulation stays
+        open for :meth:`existing`."""
+        if state is not None:
+            self.sim = start(replace(self.cfg, state=state), quiet=self.quiet)
+            self._at_base, self.base, self._owns_base = True, state, False
+            return self
         self.sim = start(self.cfg, quiet=self.quiet)
         self._at_base = True
         if warm_up is not None:
@@ -68,6 +75,19 @@ class Session:
             os.close(fd)
             self.sim.simulation.saveState(self.base)
         return self
+
+    def prepare_at(self, until: float) -> "Session":
+        """:meth:`prepare` with the demand run to ``until`` as stock SUMO runs it (sim/warmup.py: one
+        ``simulationStep(until)``, the state kept and reused when the same scenario and time are
+        asked again) and SUMO started from that state. Raises warmup.WarmUpError for a time before
+        the start, SimError when SUMO stops on the demand."""
+        from .warmup import warm_state
+        try:
+            with self._said():
+                state = warm_state(replace(self.cfg, gui=False, traci=False), until, quiet=self.quiet)
+        except Exception as e:   # SUMO stopping on the demand (an unknown vType, a broken route)
+            raise _stopped(e) from None
+        return self.prepare(state=state)
 
     def at_base(self):
         """The simulation at the base state (restarted if a scene has run since)."""
@@ -88,9 +108,9 @@ class Session:
         if self.sim is not None:
             close(self.sim)
             self.sim = None
-        if self.base:
+        if self.base and self._owns_base:
             os.remove(self.base)
-            self.base = None
+        self.base = None
 
     @contextmanager
     def _said(self):

@@ -87,10 +87,9 @@ class Worker:
             at = seeding_time(entry.begin, None, span, routes, flag="begin") if span else None
             cfg = SimConfig(net=entry.net, routes=routes, step_length=step_length,
                             begin=span[0] if span else entry.begin)
-            warm = (lambda sim: [sim.simulationStep() for _ in
-                                 range(int(round((at - sim.simulation.getTime()) / step_length)))]) \
-                if routes else None
-            self._sessions[key] = Session(cfg, net, self.generator).prepare(warm)
+            session = Session(cfg, net, self.generator)
+            # the demand run to the seeding time as stock SUMO runs it, its state kept (sim/warmup.py)
+            self._sessions[key] = session.prepare_at(at) if routes else session.prepare()
         return self._sessions[key]
 
     def window(self, entry: NetworkEntry, location: str):
