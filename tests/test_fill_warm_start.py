@@ -14,7 +14,9 @@ from .test_warmup import DEMAND
 def scenario(cross_net, tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))     # the saved states go here
     routes = tmp_path / "demand.rou.xml"
-    routes.write_text(DEMAND)
+    # and vehicles of SUMO's own DEFAULT_VEHTYPE, which the portable start may not define again
+    routes.write_text(DEMAND.replace('  <vehicle id="late"', '  <flow id="f_default" begin="0" end="400" '
+                                     'period="15"><route edges="ec cw"/></flow>\n  <vehicle id="late"'))
     return cross_net, str(routes)
 
 
@@ -33,12 +35,14 @@ def _sumos_own(net: str, routes: str, until: float) -> set[str]:
 def test_the_start_is_sumos_own_run(scenario, tmp_path):
     from sumo_scendiff.core.tools import sumo_binary
     from sumo_scendiff.fill.api import fill
+    from sumo_scendiff.fill.warm_start import PORTABLE_PREFIX
     net, routes = scenario
     done = fill(net, routes=(routes,), begin=200.0, out=str(tmp_path / "filled"), step_length=1.0)
     doc = done.doc
     assert doc["density"]["start"] == "sumo" and doc["state_time"] == 200.0
     own = _sumos_own(net, routes, 200.0)
     assert {a["vehicle"] for a in doc["agents"]} == own and len(own) > 3
+    assert any(v.startswith("f_default") for v in own)
     assert doc["summary"]["vehicles"] == len(own) and doc["summary"]["refused"] == 0
     assert os.listdir(tmp_path / "cache" / "sumo-scendiff" / "states")     # kept for the next time
     for cfg in ("scenario.sumocfg", "start.sumocfg"):    # both starts run in stock SUMO
@@ -48,6 +52,17 @@ def test_the_start_is_sumos_own_run(scenario, tmp_path):
     with open(os.path.join(done.folder, "start.rou.xml")) as f:
         text = f.read()
     assert text.count("<vehicle ") == len(own) and 'depart="200"' in text
+    assert all(f'id="{PORTABLE_PREFIX}{v}"' in text for v in own)   # the flows go on numbering from 0
+
+
+def test_a_flow_still_on_the_road_early(scenario, tmp_path):
+    """A start while a flow's first vehicle is still driving: the portable start loads (SUMO numbers
+    the flow's later vehicles from .0 again)."""
+    from sumo_scendiff.fill.api import fill
+    net, routes = scenario
+    done = fill(net, routes=(routes,), begin=20.0, out=str(tmp_path / "early"), step_length=1.0)
+    assert any(a["vehicle"] == "f_we.0" for a in done.doc["agents"])
+    assert done.summary["refused"] == 0 and done.summary["vehicles"] == len(done.doc["agents"])
 
 
 def test_the_estimate_is_kept_as_an_option():

@@ -62,23 +62,43 @@ def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
         exact = write_start_routes(routes, sim, ids, net, state_time,
                                    vtype_files=list(scen.routes) + list(scen.additional))
         _drop_their_vtypes(routes, [*scen.routes, *scen.additional])
+        _rename(routes)
         waiting = len(sim.simulation.getPendingVehicles())
     finally:
         close(sim)
     return cfg, agents, exact, state_time, waiting
 
 
+# the portable start's vehicles are named so: SUMO numbers a flow's vehicles from 0 again when it
+# starts after the flow's begin (sumo -b T), and would refuse the flow's "f.0" still on the road
+PORTABLE_PREFIX = "start."
+
+
+def _rename(path: str) -> None:
+    """start.rou.xml's vehicles (and their routes) as :data:`PORTABLE_PREFIX` + the state's id."""
+    import xml.etree.ElementTree as ET
+    tree = ET.parse(path)
+    for el in tree.getroot():
+        if el.tag in ("vehicle", "route") and el.get("id"):
+            el.set("id", PORTABLE_PREFIX + el.get("id"))
+        if el.tag == "vehicle" and el.get("route"):
+            el.set("route", PORTABLE_PREFIX + el.get("route"))
+    tree.write(path, encoding="UTF-8", xml_declaration=True)
+
+
 def _drop_their_vtypes(path: str, files: list[str]) -> None:
-    """start.rou.xml without the vTypes the scenario's own files define: the start loads those files
-    too (the demand continues), and SUMO refuses a vType defined twice. Its vehicles drive the
-    scenario's own vTypes."""
+    """start.rou.xml without the vTypes the scenario's own files define, nor SUMO's own defaults
+    (DEFAULT_VEHTYPE, ...): the start loads those files too (the demand continues), and SUMO refuses
+    a vType defined twice, or a default one redefined once a vehicle of the demand has used it. Its
+    vehicles drive the scenario's own vTypes, or SUMO's defaults as the scenario did."""
     import xml.etree.ElementTree as ET
 
     from ..sim.export import declared_vtypes
     theirs = set(declared_vtypes(files))
     tree = ET.parse(path)
     root = tree.getroot()
-    for el in [el for el in root if el.tag == "vType" and el.get("id") in theirs]:
+    for el in [el for el in root if el.tag == "vType" and (el.get("id") in theirs
+                                                            or el.get("id", "").startswith("DEFAULT_"))]:
         root.remove(el)
     tree.write(path, encoding="UTF-8", xml_declaration=True)
 
@@ -94,8 +114,9 @@ def sumo_start(req, net, scen, begin: float, start: float, folder: str, timing: 
     inflow = {"file": None, "reason": "the demand continues (its route files are in the configurations)"}
     options = write_configurations(folder, replace(cfg, routes=()), list(scen.routes), inflow, state_time,
                                    start_last=True)
-    refitted, refused = admit_start(folder, {a["vehicle"]: (a["x"], a["y"]) for a in agents},
+    refitted, refused = admit_start(folder, {PORTABLE_PREFIX + a["vehicle"]: (a["x"], a["y"]) for a in agents},
                                     place_ends(cfg.additional, net))
+    refused = {vid.removeprefix(PORTABLE_PREFIX): why for vid, why in refused.items()}
     refuse_at_load(agents, refused)
     seeded = [a for a in agents if a["vehicle"] is not None]
     rows = np.array([[a[k] for k in ("x", "y", "heading", "length", "width", "speed")] for a in seeded]
@@ -109,6 +130,7 @@ def sumo_start(req, net, scen, begin: float, start: float, folder: str, timing: 
     doc = {"format": FORMAT, "version": VERSION, "network": os.path.abspath(scen.net),
            "configuration": scen.config, "routes": [os.path.abspath(r) for r in scen.routes],
            "begin": begin, "state_time": state_time, "seed": req.seed, "area": None, "stride": None,
+           "portable_ids": f"{PORTABLE_PREFIX}<vehicle> in start.rou.xml",
            "density": source, "sumo_options": options, "inflow": inflow, "fleet": "scenario",
            "summary": summary(net, agents, seeded, rows, km, 0, exact, refused, refitted),
            "tiles": [], "agents": agents,
@@ -126,4 +148,4 @@ def _bounds_box(net):
     return shapely.box(x0 - 1.0, y0 - 1.0, x1 + 1.0, y1 + 1.0)
 
 
-__all__ = ["METHOD", "sumo_start"]
+__all__ = ["METHOD", "PORTABLE_PREFIX", "sumo_start"]
