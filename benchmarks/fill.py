@@ -540,7 +540,7 @@ def cost_table(results: list[dict]) -> list[str]:
     lines = ["### Cost", "", "| network | car-lane km | tiles | SUMO's warm-up (s) | fill, whole CLI (s) | "
              "fill s / km | fill.json timing_s |", "|---|---|---|---|---|---|---|"]
     for r in [x for res in results for x in (res, res.get("estimate")) if x]:
-        if "doc" not in r:
+        if "doc" not in r or "error" in r:
             continue
         s = r["doc"]["summary"]
         warm = f"{r['sumo']['wall']:.2f}" if r["demand"] else "–"
@@ -561,9 +561,9 @@ def tables(results: list[dict], o, command: str) -> str:
             lines += [f"### {r['net']}: the fill failed", "", r["error"]]
         else:
             lines += demand_table(r, o) if r["demand"] else density_table(r, o)
-            if "estimate" in r and "error" not in r["estimate"]:
+            if "estimate" in r:
                 lines += ["", "The same from the demand estimate (`--demand-estimate`):", ""]
-                lines += demand_table(r["estimate"], o)[2:]
+                lines += [r["estimate"]["error"]] if "error" in r["estimate"] else demand_table(r["estimate"], o)[2:]
         lines.append("")
     return "\n".join(lines + cost_table(results))
 
