@@ -1,10 +1,19 @@
 """Shared fixtures: tiny SUMO networks built with netconvert from plain XML (real SUMO, small scale)."""
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import subprocess
+import tempfile
 
 import pytest
+
+# the project's caches (read networks, warm-up states, OpenDRIVE) in a folder of the test session's own,
+# not the user's ~/.cache; subprocesses inherit it
+_CACHE = tempfile.mkdtemp(prefix="scendiff-test-cache-")
+os.environ["XDG_CACHE_HOME"] = _CACHE
+atexit.register(shutil.rmtree, _CACHE, True)
 
 
 def netconvert(nodes: str, edges: str, out: str, *extra: str, turnarounds: bool = False) -> str:

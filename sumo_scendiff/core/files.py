@@ -13,6 +13,13 @@ from xml.etree.ElementTree import ParseError, iterparse
 FULL_BYTES = 1 << 20
 
 
+def cache_dir(kind: str) -> str:
+    """The project's cache folder for ``kind`` (``$XDG_CACHE_HOME`` or ~/.cache, then
+    sumo-scendiff/KIND): never beside a user's file, which may be read-only or shared."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "sumo-scendiff", kind)
+
+
 def file_sha256(path: str) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:

@@ -7,8 +7,6 @@ cost. Infeasible pairs are then dropped.
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
-from scipy.spatial.distance import cdist
 
 from .geometry import wrap_angle
 
@@ -24,6 +22,7 @@ def assign(cost: np.ndarray, feasible: np.ndarray) -> tuple[np.ndarray, np.ndarr
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     top = float(cost[feasible].max()) if feasible.any() else 0.0
     big = top * (min(cost.shape) + 1) + 1.0
+    from scipy.optimize import linear_sum_assignment   # imported when used: a run without tokens never loads scipy
     rows, cols = linear_sum_assignment(np.where(feasible, cost, big))
     keep = feasible[rows, cols]
     return rows[keep].astype(np.int64), cols[keep].astype(np.int64)
@@ -43,6 +42,7 @@ def match_agents(gen_boxes: np.ndarray, tok_boxes: np.ndarray, max_distance: flo
     g, t = np.asarray(gen_boxes, np.float64), np.asarray(tok_boxes, np.float64)
     if len(g) == 0 or len(t) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    from scipy.spatial.distance import cdist
     dist = cdist(g[:, :2], t[:, :2])
     dyaw = np.abs(wrap_angle(g[:, None, 2] - t[None, :, 2]))
     return assign(dist, (dist <= max_distance) & ((dyaw <= max_heading) | np.isnan(t[None, :, 2])))

@@ -50,8 +50,9 @@ class OpenDrive:
 
 
 def cache_dir() -> str:
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(base, "sumo-scendiff", "opendrive")
+    """Where converted OpenDRIVE networks are kept (core.files.cache_dir)."""
+    from ..core.files import cache_dir as project_cache
+    return project_cache("opendrive")
 
 
 _MEMO: dict[str, OpenDrive] = {}

@@ -124,10 +124,9 @@ _DUMP_DEPTH = 1_000_000
 
 
 def cache_dir() -> str:
-    """Where read networks are kept (``$XDG_CACHE_HOME`` or ~/.cache, then sumo-scendiff/networks):
-    never beside the user's file, which may be read-only or shared."""
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(base, "sumo-scendiff", "networks")
+    """Where read networks are kept (core.files.cache_dir)."""
+    from ..core.files import cache_dir as project_cache
+    return project_cache("networks")
 
 
 @dataclass(frozen=True)

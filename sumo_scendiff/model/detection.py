@@ -26,7 +26,6 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 import torch.nn.functional as F
-from scipy.optimize import linear_sum_assignment
 
 from ..core.geometry import T0, metres_to_pixels, pixel_centres
 from .heading import decode_heading, heading_loss
@@ -275,6 +274,7 @@ def match_boxes(y: torch.Tensor, boxes: torch.Tensor, valid: torch.Tensor,
             uniq, inv = np.unique(idx_np[finite], return_inverse=True)
             mat = np.full((len(gts), len(uniq)), 1e12)
             mat[np.nonzero(finite)[0], inv] = c_np[finite]
+            from scipy.optimize import linear_sum_assignment   # only here: generation without tokens never loads scipy
             r, c = linear_sum_assignment(mat)
             ok = mat[r, c] < 1e12
             gts = gts[torch.as_tensor(r[ok], device=y.device)]

@@ -36,9 +36,9 @@ class WarmUpError(RuntimeError):
 
 
 def state_dir() -> str:
-    """Where saved warm-up states live (``$XDG_CACHE_HOME`` or ~/.cache, then sumo-scendiff/states)."""
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(base, "sumo-scendiff", "states")
+    """Where saved warm-up states are kept (core.files.cache_dir)."""
+    from ..core.files import cache_dir as project_cache
+    return project_cache("states")
 
 
 def warm_config(cfg, rng: bool = True):
