@@ -145,6 +145,7 @@ def test_the_sampler_name_chooses_the_solver_the_generator_runs(generator, cross
 def test_run_evaluate_and_sweep_take_their_defaults_from_the_one_class(cross_net, tmp_path):
     from sumo_scendiff.evaluate.__main__ import get_options as evaluate_options
     from sumo_scendiff.run import get_options as run_options
+    from sumo_scendiff.sim.request import counted_as_asked
     from sumo_scendiff.sweep.spec import load_spec
     default = GenerationConfig()
     for o in (run_options(["-n", "x.net.xml"]), evaluate_options([])):
@@ -157,12 +158,14 @@ def test_run_evaluate_and_sweep_take_their_defaults_from_the_one_class(cross_net
     spec = tmp_path / "bare.toml"
     spec.write_text(f'networks = ["{cross_net}"]\nlocations = [{{center = [0.0, 0.0]}}]\n')
     (s,) = load_spec(str(spec)).scenarios()
-    assert s.generation == default
+    # a window not given a vehicle count is counted as SUMO's edgeData counts, in sweeps as in run
+    counted = counted_as_asked(default, None)
+    assert s.generation == counted and counted.count_on_edges
     assert {k: s.params()[k] for k in GenerationConfig.settings()} == \
-        {k: getattr(default, k) for k in GenerationConfig.settings()} and "batch_size" not in s.params()
+        {k: getattr(counted, k) for k in GenerationConfig.settings()} and "batch_size" not in s.params()
     spec.write_text(spec.read_text() + 'sampler = "euler"\npin_calibration = false\n')
     (s,) = load_spec(str(spec)).scenarios()
-    assert s.generation == replace(default, sampler="euler", pin_calibration=False) and s.sampler == "euler"
+    assert s.generation == replace(counted, sampler="euler", pin_calibration=False) and s.sampler == "euler"
 
 
 def test_no_function_takes_a_mutable_config_instance_as_its_default():
