@@ -140,14 +140,18 @@ class Session:
         """Seed ``scene`` into a fresh simulation at the base state, export it to
         ``out_dir/name``, hold the agents on their generated future for ``replay`` seconds (<= 2)
         and roll it out; returns the row of statistics (also in rollout.json)."""
-        if self.sim is not None:
+        # the simulation still at the base with this seed serves the scene as a fresh one would (the
+        # first scene of a run: SUMO started once, not twice)
+        reuse = self._at_base and self.sim is not None and seed == self.cfg.seed
+        if self.sim is not None and not reuse:
             close(self.sim)
             self.sim = None
         self._at_base = False
         writer = ScenarioWriter(out_dir, name, force=force)
         try:
             t = time.perf_counter()
-            sim = self.sim = start(replace(self.cfg, seed=seed, state=self.base), quiet=self.quiet)
+            sim = self.sim if reuse else start(replace(self.cfg, seed=seed, state=self.base), quiet=self.quiet)
+            self.sim = sim
             cosim = CoSimulation(sim, self.net, self.generator, seed=seed, prefix="sd")
             if self.model_fleet:   # a fleet without a mix: no drawn agent is given a scenario's vType
                 cosim.seeder.fleet = Fleet(sim, {})
