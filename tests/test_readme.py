@@ -187,7 +187,7 @@ def test_readme_is_a_guide():
     """Short enough to read in one sitting; its figures point at committed files or commands, not
     at one machine's `runs/`; no dates, rounds or commit prefixes in its tables; links resolve."""
     text = README.read_text()
-    assert len(text.split("\n")) <= 251, f"README.md has {len(text.splitlines())} lines (at most 250)"
+    assert len(text.splitlines()) <= 250, f"README.md has {len(text.splitlines())} lines (at most 250)"
     assert "runs/" not in text, "README.md names a runs/ path (not in git)"
     for line in text.split("\n"):
         if line.startswith("|"):
