@@ -155,6 +155,7 @@ def phase(progress: bool, text: str) -> None:
 
 def fill_into(req: FillRequest, folder: str) -> dict:
     """The fill of ``req`` written into ``folder``; returns fill.json's document."""
+    from ..sim.lights import light_states
     from .plan import fill_network
     from .workers import tile_engine
     t = time.perf_counter()
@@ -167,27 +168,29 @@ def fill_into(req: FillRequest, folder: str) -> dict:
         return sumo_start(req, net, scen, begin[0], begin[1], folder, {"load": time.perf_counter() - t})
     begin = begin[0]
     workers = req.workers or default_workers()
-    timing = {}
-    # started here, the workers load their model while this process prepares the rest
-    with tile_engine(net, gen, workers, req.ray_address, req.checkpoint) as engine:
-        amount = plan_amount(req, net, gen, tiles, scen, begin)
-        timing["load"] = time.perf_counter() - t
-        cfg, signals, timing["lights"] = _sim_config(req, net, gen, scen, begin)
-        t = time.perf_counter()
-        result = fill_network(net, gen, tiles, seed=req.seed, p_mask=req.p_mask, targets=amount.targets,
-                              use_density=amount.applied, area=req.area, progress=req.progress, signals=signals,
-                              engine=engine, demand=amount.placed)
-        timing["generate"] = time.perf_counter() - t
-    record = {"count": workers, "engine": "ray" if req.ray_address is not None else "local",
-              "ray_address": req.ray_address,
-              "note": "the fill does not depend on the workers: each tile's noise is its own and the "
-                      "model calls are cut from the plan alone"}
-    phase(req.progress, "seeding the tiles into SUMO, then writing the state and the portable start (each "
-                        "loaded once in SUMO)" + ("" if scen.routes else " and the inflow (the filled network "
-                                                                          "driven on to measure it)"))
-    from .output import write_outputs
-    return write_outputs(folder, req, net, gen, scen, list(scen.routes), cfg, result, amount.source, timing,
-                         req.progress, record)
+    cfg = _sim_config(req, scen, begin)
+    from .output import seeding_sumo, write_outputs
+    # one SUMO for the fill: the lights' states at the start read from it, the tiles seeded into it
+    with seeding_sumo(cfg, list(scen.routes), quiet=not req.verbose) as sumo:
+        # started here, the workers load their model while this process prepares the rest
+        with tile_engine(net, gen, workers, req.ray_address, req.checkpoint) as engine:
+            amount = plan_amount(req, net, gen, tiles, scen, begin)
+            timing = {"load": time.perf_counter() - t}
+            signals = light_states(sumo[0]) if net.signal_links and gen.config.signals else None
+            t = time.perf_counter()
+            result = fill_network(net, gen, tiles, seed=req.seed, p_mask=req.p_mask, targets=amount.targets,
+                                  use_density=amount.applied, area=req.area, progress=req.progress,
+                                  signals=signals, engine=engine, demand=amount.placed)
+            timing["generate"] = time.perf_counter() - t
+        record = {"count": workers, "engine": "ray" if req.ray_address is not None else "local",
+                  "ray_address": req.ray_address,
+                  "note": "the fill does not depend on the workers: each tile's noise is its own and the "
+                          "model calls are cut from the plan alone"}
+        phase(req.progress, "seeding the tiles into SUMO, then writing the state and the portable start (each "
+                            "loaded once in SUMO)" + ("" if scen.routes else " and the inflow (the filled "
+                                                                              "network driven on to measure it)"))
+        return write_outputs(folder, req, net, gen, scen, list(scen.routes), cfg, sumo, result, amount.source,
+                             timing, req.progress, record)
 
 
 def prepare(req: FillRequest, folder: str):
@@ -256,16 +259,11 @@ def _tiles(req: FillRequest, net) -> list:
     return tiles
 
 
-def _sim_config(req: FillRequest, net, gen, scen, begin: float):
-    """SUMO's configuration of the fill (the scenario's step and options), the lights' states at
-    ``begin`` where the model reads them, and the seconds that took."""
-    from ..sim.lights import initial_light_states
+def _sim_config(req: FillRequest, scen, begin: float):
+    """SUMO's configuration of the fill: the network and additional files (the demand goes into the
+    folder's configurations), the scenario's step and options, starting at ``begin``."""
     from ..sim.sumo import SimConfig, settings
-    cfg = SimConfig(net=scen.net, additional=scen.additional, seed=req.seed, begin=begin, **settings(req, scen))
-    t = time.perf_counter()
-    # with --signals, the lights as SUMO's programs show them at the start: the fill agrees with them
-    signals = initial_light_states(cfg) if net.signal_links and gen.config.signals else None
-    return cfg, signals, time.perf_counter() - t
+    return SimConfig(net=scen.net, additional=scen.additional, seed=req.seed, begin=begin, **settings(req, scen))
 
 
 def _nothing_to_fill(folder: str, req: FillRequest, scen, why: str) -> dict:

@@ -5,6 +5,7 @@ import json
 import os
 import tempfile
 import time
+from contextlib import contextmanager
 from dataclasses import replace
 
 import numpy as np
@@ -67,12 +68,14 @@ def _agents(result, reports) -> list[dict]:
     return out
 
 
-def write_outputs(folder, req, net, gen, scen, routes, cfg, result, source, timing, progress,
+def write_outputs(folder, req, net, gen, scen, routes, cfg, sumo, result, source, timing, progress,
                   workers: dict | None = None) -> dict:
-    """The filled network seeded into one SUMO, its state and portable start written with the
-    configurations that start them, fill.json and fill.png; ``req``: the fill.api.FillRequest."""
+    """The filled network seeded into the fill's SUMO (``sumo``: :func:`seeding_sumo` of ``cfg``), its
+    state and portable start written with the configurations that start them, fill.json and
+    fill.png; ``req``: the fill.api.FillRequest."""
     t = time.perf_counter()
-    agents, ids, exact, state_time, inflow = _seed_and_save(folder, req, net, routes, cfg, result, timing, progress)
+    agents, ids, exact, state_time, inflow = _seed_and_save(folder, req, net, routes, cfg, sumo, result, timing,
+                                                            progress)
     t += timing.get("seed", 0.0) + timing.get("inflow", 0.0)
     options = write_configurations(folder, cfg, routes, inflow, state_time)
     # the portable start's box centres where the state has them (a vehicle on a curve departs with
@@ -105,20 +108,33 @@ def write_outputs(folder, req, net, gen, scen, routes, cfg, result, source, timi
     return doc
 
 
-def _seed_and_save(folder, req, net, routes, cfg, result, timing, progress):
-    """Every tile seeded into one SUMO (fill/seed.py), its state saved and the portable start's
-    routes written; without a demand the network then driven on to measure the inflow. Returns
-    (agents, the seeded vehicles' ids, start_exact per vehicle, the state's time, the inflow record)."""
-    t = time.perf_counter()
+@contextmanager
+def seeding_sumo(cfg, routes, quiet: bool = True):
+    """The fill's one SUMO, (simulation, its configuration): started before the tiles are generated
+    (the lights' states at the start are read from it), the tiles seeded into it after; closed at
+    the end. With a demand it loads the demand's own vTypes too, for the vehicles that stand for its
+    vehicles and those the model adds (sim/fleet.py; only this SUMO loads them: the folder's
+    configurations load the route files themselves)."""
+    from ..sim.sumo import start
     with tempfile.TemporaryDirectory(prefix="scendiff-vtypes-") as work:
-        # the demand's own vTypes, for the vehicles that stand for its vehicles and those the model
-        # adds (sim/fleet.py; only the seeding SUMO loads them: the folder's configurations load the
-        # route files themselves)
         extra = os.path.join(work, "vtypes.add.xml")
         seed_cfg = replace(cfg, additional=tuple(cfg.additional) + (extra,)) \
             if routes and write_vtypes(routes, extra) else cfg
-        sim, reports = seed_fill(result, net, seed_cfg, seed=req.seed, quiet=not req.verbose, progress=progress,
-                                 demand=result.demand, routes=routes, model_fleet=req.model_fleet)
+        sim = start(seed_cfg, quiet=quiet)
+        try:
+            yield sim, seed_cfg
+        finally:
+            close(sim)
+
+
+def _seed_and_save(folder, req, net, routes, cfg, sumo, result, timing, progress):
+    """Every tile seeded into the fill's SUMO (``sumo``: :func:`seeding_sumo`'s; fill/seed.py), its
+    state saved and the portable start's routes written; without a demand the network then driven on
+    to measure the inflow. Returns (agents, the seeded vehicles' ids, start_exact per vehicle, the
+    state's time, the inflow record)."""
+    t = time.perf_counter()
+    sim, reports = seed_fill(result, net, sumo[1], seed=req.seed, quiet=not req.verbose, progress=progress,
+                             demand=result.demand, routes=routes, model_fleet=req.model_fleet, sim=sumo[0])
     try:
         timing["seed"] = time.perf_counter() - t
         agents = _agents(result, reports)
@@ -201,4 +217,4 @@ def _tile_rows(result, seeded) -> list[dict]:
     return tiles
 
 
-__all__ = ["FORMAT", "VERSION", "summary", "write_configurations", "write_outputs"]
+__all__ = ["FORMAT", "VERSION", "seeding_sumo", "summary", "write_configurations", "write_outputs"]

@@ -80,9 +80,9 @@ class InflowError(RuntimeError):
 
 
 def seed_fill(result, net, cfg, seed: int = 0, quiet: bool = True, progress: bool = False,
-              demand: list | None = None, routes=(), model_fleet: bool = False):
-    """Start SUMO (``cfg``), seed every tile, step once, verify and settle. Returns (sim, reports
-    per tile index). ``demand``: the placed demand vehicles the tiles were given (plan.py): an agent
+              demand: list | None = None, routes=(), model_fleet: bool = False, sim=None):
+    """Start SUMO (``cfg``; ``sim``: started on it already), seed every tile, step once, verify and
+    settle. Returns (sim, reports per tile index). ``demand``: the placed demand vehicles the tiles were given (plan.py): an agent
     drawn for one drives the rest of its route, with its vType where ``cfg`` loads it. With a
     demand (``routes``) every seeded vehicle is one of its vTypes (sim/fleet.py), unless
     ``model_fleet`` (then the model's sizes on SUMO's default vType). What SUMO
@@ -91,15 +91,15 @@ def seed_fill(result, net, cfg, seed: int = 0, quiet: bool = True, progress: boo
     from ..core.sumo_log import caught_stderr, echo
     with caught_stderr() as said:
         try:
-            out = _seed_all(result, net, cfg, seed, quiet, progress, demand, routes, model_fleet)
+            out = _seed_all(result, net, cfg, seed, quiet, progress, demand, routes, model_fleet, sim)
         finally:
             echo(said())
     return out
 
 
-def _seed_all(result, net, cfg, seed, quiet, progress, demand, routes, model_fleet=False):
+def _seed_all(result, net, cfg, seed, quiet, progress, demand, routes, model_fleet=False, sim=None):
     from tqdm import tqdm
-    sim = start(cfg, quiet=quiet)
+    sim = sim or start(cfg, quiet=quiet)
     seeder = Seeder(sim, net, prefix="fill", seed=seed)
     if model_fleet:        # a fleet without a mix: no drawn agent is given a scenario's vType (--model-fleet)
         seeder.fleet = Fleet(sim, {})
