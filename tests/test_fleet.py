@@ -184,10 +184,10 @@ def test_run_seeds_the_scenarios_vtypes_and_names_an_unknown_one(scenario, tmp_p
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("amount", [[], ["--density", "25"]])
+@pytest.mark.parametrize("amount", [["--demand-estimate"], ["--density", "25"]])
 def test_fill_seeds_the_scenarios_vtypes(tmp_path, amount):
-    """fill -r: every seeded vehicle, the demand's own (at the demand's level) or those the model
-    draws (at a density asked for), is one of the demand's vTypes (fill.json names it), in the
+    """fill -r: every seeded vehicle, the demand's own (placed by the demand's estimate) or those the
+    model draws (at a density asked for), is one of the demand's vTypes (fill.json names it), in the
     saved state as well."""
     import os
 
@@ -208,7 +208,7 @@ def test_fill_seeds_the_scenarios_vtypes(tmp_path, amount):
     seeded = [a for a in doc["agents"] if a["vehicle"]]
     assert seeded and all(a["vtype"] in OWN for a in seeded)
     assert all((a["length"], a["width"]) == pytest.approx(OWN[a["vtype"]][1:3]) for a in seeded)
-    assert all(a.get("demand") for a in seeded) == (not amount)
+    assert all(a.get("demand") for a in seeded) == ("--density" not in amount)
     libsumo.start([sumo_binary(), "-c", str(out / "scenario.sumocfg"), "--no-step-log", "true"])
     try:
         present = set(libsumo.vehicle.getIDList())
