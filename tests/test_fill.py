@@ -334,8 +334,8 @@ def test_ray_address_without_ray(tmp_path, capsys, monkeypatch):
 
 
 def test_density_needs_the_condition(tmp_path, capsys):
-    """A model without the density condition refuses --density in one line (round 15's layout:
-    the shipped model with its global token cut back to p_mask's 10 inputs)."""
+    """A model without the density condition refuses --density in one line (an older checkpoint's
+    layout: the shipped model with its global token cut back to p_mask's 10 inputs)."""
     from sumo_scendiff.generation.generator import DEFAULT_CHECKPOINT
     from sumo_scendiff.model import checkpoint as ckpt
     ck = ckpt.load(DEFAULT_CHECKPOINT, "scenario-diffusion")

@@ -146,7 +146,7 @@ def test_network_references_resolve_to_poses(diagonal_net):
 def test_a_stopping_token_stands_in_sumo_after_the_replayed_future(city, gen):
     """End to end: the partial token (x, y, heading, speed 8, manoeuvre "stop") seeded into SUMO
     and held on its generated future for 2 s stands then, delivered and as the model alone draws it
-    (delivery off: the decoder's gate toward the token's speeds, round 24; round 23 left it moving)."""
+    (delivery off: the decoder's gate toward the token's speeds; a decoder without it left it moving)."""
     from sumo_scendiff.sim.cosim import CoSimulation
     from sumo_scendiff.sim.sumo import SimConfig, start
     w = road_window(city)
@@ -253,9 +253,8 @@ def test_a_turn_whose_drawn_final_speed_is_too_slow_for_it_is_still_driven(city)
 
 def test_the_models_own_drawing_follows_a_partial_tokens_final_speed(city, gen):
     """No delivery, no pinning: the vehicle the model draws under a token (x, y, heading, speed 8)
-    is the token's, and its speed at +2 s follows the token's final speed, 0 or 12 m/s (round 18's
-    decoder reads the tokens: 2.4 / 10.9 and 3.6 / 12.0 m/s at seeds 0 and 1; round 17 drew the
-    speed now at 4.1 and 5.3 for 8 asked, and 4.9 m/s at +2 s for a stop at seed 1)."""
+    is the token's, and its speed at +2 s follows the token's final speed, 0 or 12 m/s (the decoder
+    reads the tokens; one that did not drew a stop still moving at +2 s)."""
     w = road_window(city)
     own = replace(gen.config, deliver_tokens=False, pin_tokens=False)
     for seed in (0, 1):
@@ -272,10 +271,9 @@ def test_the_models_own_drawing_follows_a_partial_tokens_final_speed(city, gen):
 
 def test_a_token_giving_one_of_its_speeds_is_drawn_at_it_without_braking_or_accelerating(city, gen):
     """No delivery, no pinning: a token giving its speed 8 m/s and nothing of its future, or its final
-    speed alone, is drawn near it and at about a constant speed. Round 18's decoder read the missing
-    speed as 0 m/s and drew the first braking (seeds 0-2: 10.2 / 11.4 / 9.5 m/s now, 5.6 / 7.4 / 4.7 at
-    +2 s) and the second accelerating (7.3 / 8.8 / 5.7 now, 9.3 / 12.0 / 8.0 at +2 s); round 19 reads
-    it as given (AutoencoderConfig.token_speeds_filled)."""
+    speed alone, is drawn near it and at about a constant speed. A decoder that read the missing speed
+    as 0 m/s drew the first braking and the second accelerating; the tokens' speeds are filled in
+    (the decoder reads the one given as the other)."""
     w = road_window(city)
     own = replace(gen.config, deliver_tokens=False, pin_tokens=False)
     for seed in (0, 1, 2):
