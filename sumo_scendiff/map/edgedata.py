@@ -44,8 +44,9 @@ class EdgeData:
         import xml.sax
         from xml.etree.ElementTree import ParseError
 
-        from sumolib.miscutils import parseTime    # seconds, or h:m:s (--human-readable-time)
         from sumolib.xml import parse
+
+        from ..core.sumo_xml import seconds     # seconds, or h:m:s (--human-readable-time)
         if not os.path.isfile(path):
             raise EdgeDataError(f"{path}: no such file")
         lanes = _lanes_per_edge(net) if net is not None else {}
@@ -54,7 +55,9 @@ class EdgeData:
         intervals = []
         try:
             for iv in parse(path, "interval"):
-                begin, end = parseTime(iv.begin), parseTime(iv.end)
+                begin, end = seconds(iv.begin), seconds(iv.end)
+                if begin is None or end is None:
+                    raise ValueError(f"interval begin {iv.begin!r} / end {iv.end!r} is not a time")
                 dens = {}
                 for e in iv.getChild("edge") if iv.hasChild("edge") else ():
                     d = _lane_density(e, end - begin, lanes.get(e.id))
