@@ -9,7 +9,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from ..core.scene import crop_to_window, rotate_scene
+from ..core.scene import crop_to_window, per_km, rotate_scene
 from ..map.raster import RasterConfig, render_agents, render_map
 from .shards import SceneStore
 
@@ -57,7 +57,8 @@ class SceneDataset(Dataset):
         # the density condition: every vehicle of the window per km of all its car lanes, internal
         # ones included (the model's unit; the generator converts a requested density into it)
         km = net.condition_km(scene.window)
-        density = len(scene) / km if km > 0 else float("nan")
+        density = per_km(len(scene), km)
+        density = float("nan") if density is None else density
         if len(scene) > self.max_agents:  # keep the agents nearest the centre
             keep = np.argsort(np.hypot(scene.boxes[:, 0], scene.boxes[:, 1]))[: self.max_agents]
             scene = scene.select(np.sort(keep))

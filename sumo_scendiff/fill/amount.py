@@ -72,6 +72,7 @@ def _edge_data(path: str, net, tiles, begin: float) -> Amount:
 def _estimate(req, net, scen, begin: float):
     """The demand's vehicles en route at ``begin`` (fill/demand.py), without simulating."""
     from ..sim.sumo import step_length_for
+    from ..core.sumo_xml import boolean
     from .demand import DemandEstimate
     from .routing import RoutingError
     options = dict(scen.options)
@@ -80,8 +81,7 @@ def _estimate(req, net, scen, begin: float):
         return DemandEstimate.at(net, list(scen.routes), begin, additional=scen.additional,
                                  due=begin + step_length_for(scen, req.step_length),
                                  depart_speed=options.get("default.departspeed"),
-                                 junction_taz=str(options.get("junction-taz", "false")).lower()
-                                 in ("true", "1", "on", "yes", "x"))
+                                 junction_taz=boolean(options.get("junction-taz")))
     except RoutingError as e:
         raise AmountError(f"{', '.join(scen.routes)}: {e}") from None
 
