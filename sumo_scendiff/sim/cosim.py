@@ -327,6 +327,10 @@ class CoSimulation:
     def seed_around(self, ego: str, tokens: list[dict] = (), ahead_m: float = 0.0, **kw) -> Seeding:
         """Seed the window ``ahead_m`` metres in front of vehicle ``ego`` (turned with it)."""
         seeding = self.seed_window(self.ego_window(ego, ahead_m), tokens, **kw)
+        # an ego gone from the simulation keeps no entry (a caller may name a new ego each episode)
+        present = set(self.sim.vehicle.getIDList())
+        for gone in [e for e in self._last_seed_xy if e not in present]:
+            del self._last_seed_xy[gone]
         self._last_seed_xy[ego] = np.asarray(self.sim.vehicle.getPosition(ego))
         return seeding
 
@@ -334,6 +338,8 @@ class CoSimulation:
     def reseed_ahead(self, ego: str, every_m: float = 60.0, ahead_m: float = 60.0, **kw) -> Seeding | None:
         """Once the ego has driven ``every_m`` metres since its last seeding, seed the window
         ``ahead_m`` metres in front of it; otherwise None. Call it each step."""
+        for gone in self.sim.simulation.getArrivedIDList():    # egos that arrived in the last step
+            self._last_seed_xy.pop(gone, None)
         xy = np.asarray(self.sim.vehicle.getPosition(ego))
         last = self._last_seed_xy.get(ego)
         if last is not None and np.hypot(*(xy - last)) < every_m:
