@@ -3,8 +3,8 @@
     scene = stand_at_red(scene, net, lights)      # lights: tls id -> SUMO state string
 
 The diffusion model draws the vehicles before a red stop line over slow speeds, where SUMO's queue
-stands (docs/evaluation.md, "Where the queues are lost": at red, a quarter of them at 0.5-4 m/s
-against SUMO's 3 %); its decoder carries the queues, its sampler smears them. Given the lights
+stands (docs/evaluation.md, "Traffic lights": a share of them at 0.5-4 m/s where SUMO has few);
+its decoder carries the queues, its sampler smears them. Given the lights
 (``--signals``), the vehicles that form a queue at a red light are made to stand: on a lane whose
 every link shows red (or red-amber), from the stop line back, each vehicle slower than CREEP, up to
 the first that is faster (one approaching the queue: it and those behind it keep their motion, the
