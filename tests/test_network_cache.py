@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import shapely
 
-from sumo_scendiff.map.network import Network, cache_entry
+from sumo_scendiff.map.network import Network
+from sumo_scendiff.map.network_cache import cache_entry
 
 
 def written(path: str, key: tuple) -> bool:

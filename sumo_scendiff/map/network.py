@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import gc
 import os
-import sys
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -23,6 +22,7 @@ import shapely
 from shapely import STRtree
 
 from ..core.geometry import wrap_angle
+from .network_cache import cache_entry, read_entry, write_entry
 
 CAR = "passenger"
 
@@ -114,126 +114,6 @@ def _read(path: str):
         raise NetworkError(f"{path}: not a readable SUMO network ({msg})") from None
 
 
-# ---- the on-disk cache -----------------------------------------------------------------------------
-# A new layout of what is cached (the Lane and Junction fields, sumolib's net) takes a new version
-CACHE_VERSION = 1
-# sumolib's net is a graph whose nodes, edges, lanes and connections refer to each other, and pickle
-# descends one C call per reference: a 9 000-lane city needs a deeper stack than a thread's default
-_DUMP_STACK = 1 << 28
-_DUMP_DEPTH = 1_000_000
-
-
-def cache_dir() -> str:
-    """Where read networks are kept (core.files.cache_dir)."""
-    from ..core.files import cache_dir as project_cache
-    return project_cache("networks")
-
-
-@dataclass(frozen=True)
-class CacheEntry:
-    path: str        # the entry's file
-    key: tuple       # what the network file must still be for the entry to hold: its path, size, mtime
-
-
-def cache_entry(path: str) -> CacheEntry | None:
-    """The cache entry of network file ``path``: one file per real path, valid while the file keeps
-    its size and modification time (and this code its :data:`CACHE_VERSION` and sumolib its
-    version). None when the file cannot be stat'ed."""
-    import hashlib
-
-    import sumolib
-    real = os.path.realpath(path)
-    try:
-        st = os.stat(real)
-    except OSError:
-        return None
-    name = hashlib.sha256(real.encode()).hexdigest()[:32]
-    key = (real, st.st_size, st.st_mtime_ns, CACHE_VERSION, getattr(sumolib, "__version__", ""))
-    return CacheEntry(os.path.join(cache_dir(), f"{name}.pkl"), key)
-
-
-def _from_cache(path: str, entry: CacheEntry) -> "Network | None":
-    """The network kept in ``entry`` if it is still the file's, else None (a missing, stale or
-    unreadable entry is read again from the network file)."""
-    import pickle
-    try:
-        with open(entry.path, "rb") as f:
-            if pickle.load(f) != entry.key:
-                return None
-            lanes, junctions, sumo_net = pickle.load(f)
-    except Exception:   # a half-written, truncated or foreign file: read the network again
-        return None
-    _thaw_sumo_net(sumo_net)
-    return Network(path, lanes, junctions, sumo_net)
-
-
-def _to_cache(network: "Network", entry: CacheEntry) -> None:
-    """Keep ``network`` in ``entry``, written by a forked copy of this process where the system
-    forks safely (Linux), so that the first run on a network does not wait for it; else here."""
-    if not sys.platform.startswith("linux"):
-        _write_entry(network, entry)
-        return
-    pid = os.fork()
-    if pid == 0:
-        try:      # the child forks the writer and ends at once: nobody waits for the writer
-            if os.fork() == 0:
-                _write_entry(network, entry)
-        finally:
-            os._exit(0)
-    os.waitpid(pid, 0)
-
-
-def _write_entry(network: "Network", entry: CacheEntry) -> None:
-    """Write ``entry`` (whole under another name, then renamed); a cache that cannot be written
-    (a read-only home, a full disk) is no error: the next run reads the network file again."""
-    import pickle
-    import tempfile
-    import threading
-
-    snet = network.sumo_net
-    routing = snet is not None and getattr(snet, "_routingCache", None) is not None
-    if snet is not None:    # lambdas pickle cannot name; put back by _thaw_sumo_net
-        snet._edgeTypes, snet._routingCache = dict(snet._edgeTypes), None
-
-    def dump():
-        tmp = None
-        try:
-            os.makedirs(os.path.dirname(entry.path), exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=os.path.dirname(entry.path), suffix=".partial")
-            with os.fdopen(fd, "wb") as f:
-                pickle.dump(entry.key, f, protocol=pickle.HIGHEST_PROTOCOL)
-                pickle.dump((network.lanes, network.junctions, snet), f, protocol=pickle.HIGHEST_PROTOCOL)
-            os.replace(tmp, entry.path)
-        except Exception:
-            if tmp is not None and os.path.exists(tmp):
-                os.remove(tmp)
-
-    depth, stack = sys.getrecursionlimit(), threading.stack_size(_DUMP_STACK)
-    sys.setrecursionlimit(max(depth, _DUMP_DEPTH))
-    try:
-        worker = threading.Thread(target=dump)
-        worker.start()
-        worker.join()
-    finally:
-        sys.setrecursionlimit(depth)
-        threading.stack_size(stack)
-    if snet is not None:
-        _thaw_sumo_net(snet, routing)
-
-
-def _thaw_sumo_net(snet, routing: bool = True) -> None:
-    """sumolib's net as readNet leaves it: an unknown edge type is its default one, and the
-    routing cache is on."""
-    if snet is None:
-        return
-    from collections import defaultdict
-
-    from sumolib.net import EdgeType
-    snet._edgeTypes = defaultdict(lambda: EdgeType("DEFAULT_EDGETYPE", "", ""), snet._edgeTypes)
-    if routing:
-        snet.initRoutingCache()
-
-
 def _lane_polygon(shape: np.ndarray, width: float) -> shapely.Polygon:
     line = shapely.LineString(shape) if len(shape) > 1 else shapely.Point(shape[0])
     return line.buffer(0.5 * width, cap_style="flat", join_style="mitre", mitre_limit=3.0)
@@ -301,14 +181,15 @@ class Network:
         collecting = gc.isenabled()
         gc.disable()    # unpickling ~100k objects, each allocation would count towards a collection
         try:
-            network = _from_cache(path, entry) if entry else None
+            parts = read_entry(entry) if entry else None
         finally:
             if collecting:
                 gc.enable()
+        network = cls(path, *parts) if parts else None
         if network is None:
             network = cls._read_file(path)
             if entry:
-                _to_cache(network, entry)
+                write_entry(network, entry)
             gc.collect()     # the parser's garbage, before the rest is frozen
         # A big network is ~100k long-lived Python objects; without this, every full garbage collection
         # triggered by per-window work walks them all, and a 100 m window costs more on a larger net
