@@ -17,6 +17,8 @@ import pytest
 
 from sumo_scendiff.train import recipe as rc
 
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CONFIGS = os.path.join(REPO, "configs")
 SCENDIFF = os.path.join(CONFIGS, "scendiff.json")
@@ -102,7 +104,9 @@ def test_the_recipe_trains_the_shipped_networks_and_budget():
     assert [a for a in lines[1] if a.endswith(".net.xml")] == [os.path.join(rc.NETWORKS, n) for n in train]
     steps = {s["name"]: s["steps"] for s in recipe["stages"] if s["run"] in rc.TRAINING}
     assert steps == {"autoencoder": 5500, "decoder": 3000, "diffusion": 4500}
-    assert "2 h 35 min" in recipe["about"]
+    total = re.search(r"about (\d+ h \d+ min) in all", recipe["about"]).group(1)
+    with open(os.path.join(ROOT, "docs", "training.md")) as f:  # one budget, stated twice
+        assert f"| **total** | | | | **≈ {total}** |" in f.read()
 
 
 @pytest.mark.parametrize("change, words", [
