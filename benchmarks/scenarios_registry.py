@@ -1,0 +1,133 @@
+"""The corpus's registry (benchmarks/scenarios.py): every scenario by name, where it comes from, its licence
+and what it exercises; the feature variants (``scenarios_features.py``) are rows of the same list."""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from scenarios_features import FEATURES
+
+
+@dataclasses.dataclass(frozen=True)
+class Scenario:
+    name: str
+    source: str            # where it comes from, for the table
+    licence: str
+    get: dict              # how to obtain it: kind (sumo-wheel / pypi / github) and its fields
+    config: str            # the .sumocfg, relative to the scenario folder
+    covers: tuple = ()     # what it exercises: left-hand, bicycles, trams, buses, pedestrians, ...
+    begin: float | None = None   # T; None: the configuration's begin + offset
+    offset: float = 120.0
+    area: tuple | None = None
+    timeout: dict = dataclasses.field(default_factory=dict)   # step -> s, over TIMEOUT
+    note: str = ""
+    clock: bool = False    # the product's --begin written as SUMO's clock (H:MM:SS), not in seconds
+
+
+def _game(name, cfg, covers=(), **kw):
+    return Scenario(name, "SUMO tools/game (eclipse-sumo wheel)", "EPL-2.0",
+                    {"kind": "sumo-wheel", "path": f"tools/game/{cfg}"}, Path(cfg).name, covers, **kw)
+
+
+SUMO_RL = {"kind": "pypi", "package": "sumo-rl", "version": "1.4.5"}
+
+
+def _sumo_rl(name, cfg, covers=(), source="sumo-rl (PyPI)", **kw):
+    return Scenario(name, source, "MIT", dict(SUMO_RL, path=f"sumo_rl/nets/{cfg}"), Path(cfg).name,
+                    covers, **kw)
+
+
+def _github(name, repo, files, cfg, licence, covers=(), steps=(), **kw):
+    """``files``: the scenario folder's path -> (path in the repository, commit); ``steps``: the
+    commands its authors give to build the rest (a SUMO binary or a SUMO tool's script, then its
+    arguments), run in the folder in order."""
+    return Scenario(name, f"github:{repo}", licence,
+                    {"kind": "github", "repo": repo, "files": {k: list(v) for k, v in files.items()},
+                     "steps": [list(c) for c in steps]}, cfg, covers, **kw)
+
+
+SUMO_REPO = "eclipse-sumo/sumo"
+MANHATTAN = "tests/complex/tutorial/manhattan/data/"
+
+
+REGISTRY: list[Scenario] = [
+    _game("game_cross", "cross.sumocfg", ("lights", "TLS program file"), offset=60),
+    _game("game_square", "square.sumocfg", ("right of way",), offset=60),
+    _game("game_ramp", "ramp.sumocfg", ("highway", "on-ramp"), offset=60),
+    _game("game_corridor", "corridor.sumocfg", ("arterial", "lights"), offset=60),
+    _game("game_grid6", "grid6.sumocfg", ("grid", "lights"), offset=60),
+    _game("game_fkk_in", "fkk_in.sumocfg", ("city", "lights"), offset=60),
+    _game("game_bs3d", "bs3d.sumocfg", ("city", "pedestrians"), offset=60),
+    _game("game_A10KW", "A10KW.sumocfg", ("highway", "trucks"), offset=300),
+    _game("game_rail", "rail.sumocfg", ("rail", "stops", "rerouters"), offset=120),
+    _game("game_DRT", "DRT.sumocfg", ("buses", "taxis", "persons", "stops"), offset=120),
+    _game("game_DRT2", "DRT2.sumocfg", ("buses", "taxis", "persons", "stops"), offset=120),
+    _game("game_fokr_bs", "fokr_bs_demo.sumocfg", ("bicycles", "pedestrians", "trips"), offset=60),
+    _game("game_rail_demo", "rail_demo.sumocfg", ("rail",), offset=120),
+    _sumo_rl("sumorl_single_intersection", "single-intersection/single-intersection.sumocfg",
+             ("lights",)),
+    _sumo_rl("sumorl_2way_single", "2way-single-intersection/single-intersection.sumocfg", ("lights",)),
+    _sumo_rl("sumorl_3x3grid", "3x3grid/3x3grid.sumocfg", ("grid",)),
+    _sumo_rl("sumorl_4x4_lucas", "4x4-Lucas/4x4.sumocfg", ("grid", "lights")),
+    _sumo_rl("sumorl_4x4loop", "4x4loop/4x4loop.sumocfg", ("grid", "loop")),
+    _sumo_rl("sumorl_nguyen", "Nguyen/nguyen.sumocfg", ("flows", "TAZ")),
+    _sumo_rl("sumorl_ow", "OW/OW-traci.sumocfg", ("arterial", "TraCI port"),
+             timeout={"sumo": 60, "run": 120, "fill": 120},
+             note="its configuration sets remote-port: stock sumo waits for a TraCI client"),
+    _sumo_rl("sumorl_simple", "simple/simple.sumocfg", ()),
+    _sumo_rl("resco_arterial4x4", "RESCO/arterial4x4/arterial4x4.sumocfg", ("arterial", "lights"),
+             source="RESCO via sumo-rl (PyPI)"),
+    _sumo_rl("resco_grid4x4", "RESCO/grid4x4/grid4x4.sumocfg", ("grid", "lights"),
+             source="RESCO via sumo-rl (PyPI)"),
+    _sumo_rl("resco_cologne1", "RESCO/cologne1/cologne1.sumocfg", ("city", "lights"),
+             source="RESCO via sumo-rl (PyPI)"),
+    _sumo_rl("resco_cologne3", "RESCO/cologne3/cologne3.sumocfg", ("city", "lights"),
+             source="RESCO via sumo-rl (PyPI)"),
+    _sumo_rl("resco_cologne8", "RESCO/cologne8/cologne8.sumocfg", ("city", "lights"),
+             source="RESCO via sumo-rl (PyPI)"),
+    _sumo_rl("resco_ingolstadt1", "RESCO/ingolstadt1/ingolstadt1.sumocfg", ("city", "lights", "buses"),
+             source="RESCO via sumo-rl (PyPI)"),
+    _sumo_rl("resco_ingolstadt7", "RESCO/ingolstadt7/ingolstadt7.sumocfg", ("city", "lights", "buses"),
+             source="RESCO via sumo-rl (PyPI)"),
+    _sumo_rl("resco_ingolstadt21", "RESCO/ingolstadt21/ingolstadt21.sumocfg", ("city", "lights", "buses"),
+             source="RESCO via sumo-rl (PyPI)"),
+    _github("tutorial_manhattan", SUMO_REPO,
+            {"manhattan.netgcfg": (MANHATTAN + "manhattan.netgcfg", "5629ad53b59bd84a98083b544c472c050eb1aeb8"),
+             "manhattan.jtrrcfg": (MANHATTAN + "manhattan.jtrrcfg", "5629ad53b59bd84a98083b544c472c050eb1aeb8"),
+             "manhattan.sumocfg": (MANHATTAN + "manhattan.sumocfg", "6b9178fc9d7b59efd33ab6f9dc98ea86bf1a57f8")},
+            "manhattan.sumocfg", "EPL-2.0", ("grid", "jtrrouter flows"),
+            steps=[["netgenerate", "-c", "manhattan.netgcfg", "-o", "net.net.xml"],
+                   ["randomTrips.py", "--flows", "100", "-b", "0", "-e", "1", "-n", "net.net.xml", "-o",
+                    "flows.xml", "--jtrrouter", "--trip-attributes", 'departPos="random" departSpeed="max"',
+                    "--seed", "42"],
+                   ["jtrrouter", "-c", "manhattan.jtrrcfg"]], offset=300),
+    Scenario("lust_osm_wizard", "github:lcodeca/LuSTScenario, built by SUMO's osmWebWizard", "MIT (OSM: ODbL)",
+             {"kind": "osm-wizard", "repo": "lcodeca/LuSTScenario",
+              "commit": "5edb7ecb9ad196c39172b6eb95d19ed789f4b1a6", "path": "misc/lust.legacy.scenario.osm"},
+             "osm.sumocfg", ("city", "roundabouts", "actuated lights", "bicycles", "pedestrians", "OSM"),
+             offset=300),
+    Scenario("gen_lefthand_grid", "built by SUMO's netgenerate + randomTrips", "EPL-2.0",
+             {"kind": "generate", "netgenerate": ["--grid", "--grid.number", "4", "--grid.length", "150",
+                                                  "--default.lanenumber", "2", "--lefthand", "--tls.guess",
+                                                  "--sidewalks.guess", "--crossings.guess"],
+              "trips": {"passenger": ["--period", "2"], "bicycle": ["--period", "8"],
+                        "pedestrian": ["--period", "6", "--pedestrians"]}},
+             "scenario.sumocfg", ("left-hand", "lights", "bicycles", "pedestrians")),
+    Scenario("gen_lefthand_spider", "built by SUMO's netgenerate + randomTrips", "EPL-2.0",
+             {"kind": "generate", "netgenerate": ["--spider", "--spider.arm-number", "6",
+                                                  "--spider.circle-number", "4", "--spider.space-radius", "80",
+                                                  "--lefthand", "--default.junctions.radius", "6"],
+              "trips": {"passenger": ["--period", "1.5"], "truck": ["--period", "10"],
+                        "motorcycle": ["--period", "6"]}},
+             "scenario.sumocfg", ("left-hand", "right of way", "trucks", "motorcycles")),
+]
+
+def _feature(name: str) -> Scenario:
+    """A feature variant: the generated grid with one SUMO feature (scenarios_features.FEATURES)."""
+    _, covers, kw = FEATURES[name]
+    return Scenario(name, "feature variant: netgenerate grid + randomTrips", "generated",
+                    {"kind": "feature", "feature": name}, **{"config": "scenario.sumocfg", "covers": covers, **kw})
+
+
+REGISTRY += [_feature(name) for name in FEATURES]
+
