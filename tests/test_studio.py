@@ -150,6 +150,19 @@ def _same_as_run(kept: str, scene: str, command: str, tmp) -> None:
         assert a.read().split(b"-->", 1)[1] == b.read().split(b"-->", 1)[1]
 
 
+def _is_a_bus(folder: str, vid: str) -> None:
+    """The vehicle ``vid`` of a kept folder is a 12 m bus in SUMO's state and in the OpenSCENARIO export."""
+    import xml.etree.ElementTree as ET
+    with gzip.open(os.path.join(folder, "state.xml.gz")) as f:
+        state = ET.parse(f).getroot()
+    vtype = next(v.get("type") for v in state.iter("vehicle") if v.get("id") == vid)
+    t = next(t for t in state.iter("vType") if t.get("id") == vtype)
+    assert t.get("vClass") == "bus" and float(t.get("length")) == 12.0
+    entity = next(e for e in ET.parse(os.path.join(folder, "scenario.xosc")).getroot().iter("ScenarioObject")
+                  if any(p.get("name") == "sumo_id" and p.get("value") == vid for p in e.iter("Property")))
+    assert entity.find("Vehicle").get("vehicleCategory") == "bus"
+
+
 @pytest.mark.slow
 def test_generate_keep_replay_and_run_gives_the_same_scene(studio, tmp_path):
     url, out = studio
@@ -161,9 +174,10 @@ def test_generate_keep_replay_and_run_gives_the_same_scene(studio, tmp_path):
     n = scene["counts"]   # records add up: each generated agent has one status
     assert n["placed"] + n["misplaced"] + n["refused"] + n["dropped"] == n["generated"] == len(scene["agents"])
     bus = [a for a in scene["agents"] if a["source"] == "user" and a["token"] == 0]
-    # the token's class conditions the box's size (docs/tokens.md): a bus-long vehicle, not a car (the class
-    # decoded from that box may read truck)
-    assert len(bus) == 1 and bus[0]["length"] > 9.0 and len(bus[0]["path"]) == 5
+    # the token's class is its vehicle's, at the class's size (docs/tokens.md), though the model draws a bus
+    # token's box about a truck's length: drawn, in scene.json and in SUMO a bus (the export's checked below)
+    assert len(bus) == 1 and len(bus[0]["path"]) == 5
+    assert bus[0]["vclass"] == "bus" and (bus[0]["length"], bus[0]["width"]) == pytest.approx((12.0, 2.55))
     assert all(a["reason"] for a in scene["agents"] if a["status"] in ("refused", "dropped"))
     assert 'manoeuvre = "stop"' in doc["tokens"] and "--seed 3" in doc["command"] and "--steps 2" in doc["command"]
 
@@ -173,6 +187,7 @@ def test_generate_keep_replay_and_run_gives_the_same_scene(studio, tmp_path):
     assert kept["folder"] == os.path.abspath(os.path.join(out, "mine")) and kept["openscenario"]
     assert {"scene.json", "scenario.sumocfg", "state.xml.gz", "tokens.toml"} <= set(kept["files"])
     assert any(f.endswith(".xosc") for f in os.listdir(kept["folder"]))
+    _is_a_bus(kept["folder"], bus[0]["vehicle"])
     status, again = call(f"{url}/api/keep", {"draft": doc["draft"], "scene": "scene_000", "name": "mine"})
     assert status == 409 and "exists" in again["error"]   # nothing the user made is overwritten
     _replays(kept["folder"])

@@ -206,10 +206,14 @@ def test_a_users_terms_become_features_and_references():
         {"edge": "E1", "lane": 2, "pos": 0.5, "vclass": "motorcycle", "manoeuvre": "turn_right"},
         {"x": 1, "y": 2, "manoeuvre": "straight", "vclass": "car"}]}, "t.toml")
     a, b, c, d = spec.agents
-    assert a == {"length": 10.5, "width": 2.5, "speed": 8.0, "final_speed": 0.0, "ahead": 15.0, "lane_offset": -1}
+    assert a == {"length": 10.5, "width": 2.5, "speed": 8.0, "final_speed": 0.0, "ahead": 15.0, "lane_offset": -1,
+                 "vclass": "truck"}
     assert b == {"heading_to_final": 0.4, "edge": "E1", "lane": 0, "pos": 30.0}       # CCW = left
     assert c["heading_to_final"] == -0.4 and (c["length"], c["width"], c["lane"]) == (2.2, 0.9, 2)
-    assert d == {"x": 1.0, "y": 2.0, "length": 4.6, "width": 1.8, "heading_to_final": 0.0}
+    assert d == {"x": 1.0, "y": 2.0, "length": 4.6, "width": 1.8, "heading_to_final": 0.0, "vclass": "passenger"}
+    # the class stays with the token for the seeding (an alias as the model's class name); the model never sees it
+    np.testing.assert_array_equal(agent_tokens_from_dicts([d]),
+                                  agent_tokens_from_dicts([{k: v for k, v in d.items() if k != "vclass"}]))
     # references pass the window frame unchanged: generation resolves them on the network
     assert spec.for_window(Window(500.0, 500.0, 1.0))[1] == b
 

@@ -29,7 +29,7 @@ import torch
 
 from ..core.geometry import T0, TIMES, Window, box_corners
 from ..core.matching import match_agents
-from ..core.scene import Scene, speeds_from_traj, vclass_from_size
+from ..core.scene import VEHICLE_CLASSES, Scene, speeds_from_traj, vclass_from_size
 from ..map.raster import MAP_CHANNELS, RasterConfig, render_map
 from ..model import checkpoint as ckpt
 from ..model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
@@ -184,6 +184,21 @@ class Draft:
                 meta["token_warnings"] = tuple(self.warnings)
         return Scene(window, b, t, mask, speeds_from_traj(t, mask), vclass_from_size(b[:, 3], b[:, 4]),
                      net.name, meta=meta)
+
+
+def _token_classes(scene: Scene, given: Sequence | None) -> Scene:
+    """The agent standing for a positioned token that names a class (``vclass``) is of that class at
+    the class's size (the token's length and width): the class read back from the drawn box
+    (vclass_from_size) would miss it, the model drawing a bus token's box about a truck's length."""
+    asked = [t for t in (given or ()) if isinstance(t, Mapping) and t.get("vclass") in VEHICLE_CLASSES
+             and t.get("x") is not None and t.get("y") is not None]
+    if not asked or not len(scene):
+        return scene
+    where = np.array([[float(t["x"]), float(t["y"])] for t in asked], np.float64)
+    for a, k in match_pins(scene.boxes.astype(np.float64), where, ASKED_RADIUS):
+        scene.vclass[a] = VEHICLE_CLASSES.index(asked[k]["vclass"])
+        scene.boxes[a, 3:5] = float(asked[k]["length"]), float(asked[k]["width"])
+    return scene
 
 
 def _turn_pins(d: Draft, pins: np.ndarray, cfg: GenerationConfig) -> None:
@@ -395,7 +410,7 @@ class ScenarioGenerator:
             rows = np.concatenate([rows, missing_pins(given, d.boxes, ASKED_RADIUS)])
         if len(rows) and net is not None:
             _place(d, rows, window, net)
-        return d.scene(window, net, delivering=len(rows) > 0)
+        return _token_classes(d.scene(window, net, delivering=len(rows) > 0), given)
 
     # ---- public API -----------------------------------------------------------------------
     def generate(self, net, windows: Sequence[Window], tokens=None, p_mask=1.0, seed: int = 0,

@@ -12,8 +12,9 @@ import numpy as np
 FEATURES: tuple[str, ...] = ("x", "y", "heading", "length", "width", "speed", "final_speed",
                              "heading_to_final")
 
-# what a token says to the seeder, not to the model: the scenario's vType its vehicle is (sim/fleet.py)
-SEEDING_KEYS = ("vtype",)
+# what a token says to the seeder, not to the model: the scenario's vType its vehicle is (sim/fleet.py),
+# the class it is (generation/generator.py: the model's box for a bus is often truck-long)
+SEEDING_KEYS = ("vtype", "vclass")
 
 # every feature a pinned agent needs: pose, size and speed (generation.pinning)
 PIN_FEATURES = ("x", "y", "heading", "length", "width", "speed")

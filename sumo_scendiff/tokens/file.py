@@ -46,6 +46,8 @@ REFERENCE_KEYS = ("ahead", "lane_offset", "edge", "lane", "pos")
 # equal; data/ is a room this one may not import), with core.scene.VEHICLE_CLASSES' names and aliases
 VCLASS_SIZES = {"passenger": (4.6, 1.8), "car": (4.6, 1.8), "delivery": (6.0, 2.1), "van": (6.0, 2.1),
                 "truck": (10.5, 2.5), "bus": (12.0, 2.55), "motorcycle": (2.2, 0.9)}
+# the aliases' names among core.scene.VEHICLE_CLASSES (a token's class is its vehicle's, sim/seeding.py)
+VCLASS_NAMES = {"car": "passenger", "van": "delivery"}
 # manoeuvres in the token's own features. A turn's 0.4 rad chord turns the heading by 0.8 rad over
 # the 2 s, about what a car turning at a junction does in its first 2 s; inside the model's
 # [-0.7, 0.7] heading_to_final range (tokens/encoding.py: CCW positive = left)
@@ -221,6 +223,8 @@ def _parse_agent(item: Mapping[str, Any], frame: str, source: str, where: str) -
     agent = {k: float(given[k]) for k in FEATURES if k in valid and np.isfinite(valid[k][0])}
     agent.update(_references(user, given, source, where))
     agent.update(_vtype(user, source, where))
+    if "vclass" in user:    # checked by _user_features; the vehicle is of that class, whatever box the model draws
+        agent["vclass"] = VCLASS_NAMES.get(user["vclass"], user["vclass"])
     if not agent:
         raise _error(source, where, f"no token features (give at least one of {', '.join(FEATURES)})")
     return agent
