@@ -38,6 +38,10 @@ SUMO_STEP_LENGTH = 1.0      # s: SUMO's own default --step-length
 # what the seeding adds to a scenario's options (docs/sumo-options.md says why); the scenario's own
 # value of one wins, SimConfig(seeding_options=False) (the CLIs' --no-seeding-options) leaves them out
 ADDED_OPTIONS = {"collision.check-junctions": "true", "save-state.precision": "6"}
+# what a saved state holds, on every run (the warm-up's, the seeding's, the exported configurations'):
+# SUMO leaves persons and containers out of a state unless asked, and a scene started from it would lose
+# the pedestrians and passengers on the road at --begin; no difference in what SUMO simulates
+STATE_OPTIONS = {"save-state.transportables": "true"}
 # SUMO's console kept quiet: no difference in what it simulates
 QUIET_OPTIONS = {"no-step-log": "true", "duration-log.disable": "true"}
 # and its warnings too, for a SUMO that only loads, checks or replays what was already reported
@@ -95,14 +99,14 @@ class SimConfig:
     scenario_options: tuple[tuple[str, str], ...] = ()
 
     def run_options(self) -> dict[str, str]:
-        """The options on how SUMO runs, name -> value: ours (:data:`ADDED_OPTIONS`, the sublane
-        model asked for) under the scenario's own, which win."""
+        """The options on how SUMO runs, name -> value: ours (:data:`STATE_OPTIONS`, :data:`ADDED_OPTIONS`,
+        the sublane model asked for) under the scenario's own, which win."""
         theirs = {name: value for name, value in self.scenario_options if name not in OWN_OPTIONS}
         if self.lateral_resolution is not None:       # the user's flag over the scenario's setting
             theirs.pop("lateral-resolution", None)
             if self.lateral_resolution > 0:
                 theirs["lateral-resolution"] = f"{self.lateral_resolution:g}"
-        return {**QUIET_OPTIONS, **(ADDED_OPTIONS if self.seeding_options else {}), **theirs}
+        return {**QUIET_OPTIONS, **STATE_OPTIONS, **(ADDED_OPTIONS if self.seeding_options else {}), **theirs}
 
     def args(self) -> list[str]:
         """Command line (without the binary); also what ``scenario.sumocfg`` repeats."""

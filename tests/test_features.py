@@ -1,0 +1,67 @@
+"""SUMO features that real-world scenarios use, each a case the corpus's feature matrix found
+(benchmarks/scenarios_features.py builds the variants: a small generated grid plus one feature), run at
+small scale against the real SUMO."""
+from __future__ import annotations
+
+import importlib.util
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from sumo_scendiff.sim.scenario import scenario_from_files
+from sumo_scendiff.sim.sumo import SimConfig, close, settings, start
+from sumo_scendiff.sim.warmup import warm_state, warm_up
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+@pytest.fixture(scope="module")
+def features():
+    spec = importlib.util.spec_from_file_location("scenarios_features", BENCH / "scenarios_features.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def variant(features, name: str, folder: Path) -> Path:
+    """The feature variant ``name`` (a key of FEATURES) built in ``folder``; its configuration."""
+    folder.mkdir(parents=True, exist_ok=True)
+    build, _, kw = features.FEATURES[name]
+    build(folder)
+    return folder / kw.get("config", "scenario.sumocfg")
+
+
+def scenario_config(cfg: Path) -> SimConfig:
+    """The SUMO run of a user's configuration as run -c and fill -c start it (sim.sumo.settings)."""
+    scen = scenario_from_files(config=str(cfg))
+
+    class Flags:
+        step_length = lateral_resolution = None
+        seeding_options = True
+    return SimConfig(net=scen.net, routes=scen.routes, additional=scen.additional, begin=scen.begin,
+                     **settings(Flags, scen))
+
+
+def _persons_at(sim) -> set:
+    return set(sim.person.getIDList())
+
+
+def test_the_persons_on_the_road_at_begin_are_in_the_warm_state(features, tmp_path):
+    """Persons walking and riding a bus at T: SUMO leaves them out of a saved state unless asked
+    (save-state.transportables), so the warm-up's state, and every scene started from it, lost them."""
+    cfg = scenario_config(variant(features, "feat_persons", tmp_path / "s"))
+    sim = start(cfg)
+    try:
+        warm_up(sim, 120.0)
+        ref = _persons_at(sim)
+    finally:
+        close(sim)
+    assert len(ref) > 5
+    sim = start(replace(cfg, state=warm_state(cfg, 120.0, folder=str(tmp_path / "states"))))
+    try:
+        assert _persons_at(sim) == ref
+    finally:
+        close(sim)
