@@ -65,3 +65,15 @@ def test_the_persons_on_the_road_at_begin_are_in_the_warm_state(features, tmp_pa
         assert _persons_at(sim) == ref
     finally:
         close(sim)
+
+
+def test_a_calibrator_in_the_additional_files_leaves_the_demand_routable(features, tmp_path):
+    """A calibrator (with the <flow> it holds its edge's count by), a variable speed sign and a rerouter
+    closing an edge: stock SUMO runs them, and duarouter, given the calibrator, ended without a word,
+    so the fill refused the scenario."""
+    from sumo_scendiff.fill.routing import routed_departures
+    cfg = variant(features, "feat_traffic_control", tmp_path / "s")
+    scen = scenario_from_files(config=str(cfg))
+    departures, unrouted = routed_departures(scen.net, scen.routes, scen.additional, until=120.0)
+    assert len(departures) > 30 and unrouted == 0
+    assert "<calibrator" in (tmp_path / "s" / "control.add.xml").read_text()     # the user's file as it was

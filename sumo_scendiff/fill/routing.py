@@ -82,13 +82,14 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
         if since > 0 and not traits.probability_flow:
             args += ["--begin", f"{since:.3f}"]
         if additional:
-            args += ["-a", ",".join(os.path.abspath(p) for p in additional)]
+            args += ["-a", ",".join(_for_router(additional, work))]
         try:
             done = subprocess.run(args, capture_output=True, text=True, timeout=ROUTER_TIMEOUT_S, cwd=work)
         except subprocess.TimeoutExpired:
             raise RoutingError(f"duarouter did not finish routing the demand in {ROUTER_TIMEOUT_S:g} s") from None
         if done.returncode != 0 or not os.path.exists(out):
-            lines = (done.stderr or done.stdout).strip().splitlines() or ["no message"]
+            lines = (done.stderr or done.stdout).strip().splitlines() or [f"it ended (exit code {done.returncode}) "
+                                                                          "without a message"]
             cause = first_error(done.stderr or done.stdout) or lines[-1]
             raise RoutingError(f"duarouter could not route the demand: {cause}")
         unknown = next((ln for ln in done.stderr.splitlines() if _UNKNOWN.search(ln)), None)
@@ -99,6 +100,36 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
         echo(done.stderr, prefix="duarouter: ", warnings_only=True)
         departures, triggered = _read(out, since, until, depart_speed, traits.repeats)
         return departures, triggered + sum("has no valid route" in line for line in done.stderr.splitlines())
+
+
+# additional elements that are no demand and that duarouter 1.28 cannot read: a calibrator's <flow>
+# (the vehicles it inserts to hold a count on its edge) ends duarouter without a word
+_NOT_FOR_ROUTER = frozenset({"calibrator"})
+
+
+def _for_router(additional, work: str) -> list[str]:
+    """The additional files as duarouter is given them: each as it is, but a file holding elements of
+    :data:`_NOT_FOR_ROUTER`, whose copy without them is written into ``work``."""
+    import xml.etree.ElementTree as ET
+
+    from ..core.sumo_xml import XmlError, elements, open_xml
+    out = []
+    for k, path in enumerate(os.path.abspath(p) for p in additional):
+        try:
+            # one in a file this one includes stays: the copy's includes would point elsewhere
+            needless = any(f == path for f, _ in elements([path], _NOT_FOR_ROUTER))
+        except XmlError:
+            needless = False          # a broken file: duarouter names it in its own words
+        if needless:
+            with open_xml(path) as f:
+                tree = ET.parse(f)
+            for parent in list(tree.getroot().iter()):
+                for el in [c for c in parent if c.tag in _NOT_FOR_ROUTER]:
+                    parent.remove(el)
+            path = os.path.join(work, f"{k}_{os.path.basename(path).removesuffix('.gz')}")
+            tree.write(path)
+        out.append(path)
+    return out
 
 
 @dataclass(frozen=True)
