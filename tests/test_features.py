@@ -77,3 +77,23 @@ def test_a_calibrator_in_the_additional_files_leaves_the_demand_routable(feature
     departures, unrouted = routed_departures(scen.net, scen.routes, scen.additional, until=120.0)
     assert len(departures) > 30 and unrouted == 0
     assert "<calibrator" in (tmp_path / "s" / "control.add.xml").read_text()     # the user's file as it was
+
+
+def test_a_stop_until_a_time_holds_its_vehicle_in_the_fills_estimate(features, tmp_path):
+    """``<stop lane=... until="140"/>``: at 120 s stock SUMO has the vehicles standing at their stop; the
+    fill's estimate read only a stop's duration and had them long arrived."""
+    from sumo_scendiff.fill.demand import DemandEstimate
+    from sumo_scendiff.map.network import Network
+    cfg = variant(features, "feat_parking", tmp_path / "s")
+    scen = scenario_from_files(config=str(cfg))
+    est = DemandEstimate.at(Network.load(scen.net), scen.routes, begin=120.0, additional=scen.additional)
+    waiting = {r.id: r.edges[0] for r in est.en_route if r.id.startswith("waiter.")}
+    sim = start(scenario_config(cfg))
+    try:
+        warm_up(sim, 120.0)
+        ref = {v: sim.vehicle.getRoadID(v) for v in sim.vehicle.getIDList() if v.startswith("waiter.")}
+        standing = {v for v in ref if sim.vehicle.isStopped(v)}
+    finally:
+        close(sim)
+    assert standing and set(ref) <= set(waiting), (ref, waiting)
+    assert {v: waiting[v] for v in standing} == {v: ref[v] for v in standing}

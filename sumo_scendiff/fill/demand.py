@@ -93,7 +93,7 @@ class DemandEstimate:
             trips.append(Trip(d.id, d.type, d.edges, driver, d.depart,
                               times.start(driver, d.edges[0]) if d.standing else 0.0,
                               _depart_offset(d.depart_pos, snet.getEdge(d.edges[0]).getLength()),
-                              _dwell(d, places)))
+                              *_dwell(d, places)))
             stops[id(trips[-1])] = d.stops
         on_edge: dict[str, int] = {}
         en_route: list[EnRoute] = []
@@ -124,20 +124,22 @@ class DemandEstimate:
         return net.region_density(region, self.edge_density(net))
 
 
-def _dwell(d, places: dict[str, str]) -> tuple[float, ...]:
-    """Per edge of ``d``'s route the seconds its stops hold it there (its stops in route order, each
-    on the first of its edges at or after the one before; () without stops)."""
-    from ..sim.stops import stop_lane, stop_seconds
+def _dwell(d, places: dict[str, str]) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Per edge of ``d``'s route the seconds its stops hold it there and the latest time one holds it
+    until (``until``; -inf: none), its stops in route order, each on the first of its edges at or after
+    the one before; ((), ()) without stops."""
+    from ..sim.stops import stop_lane, stop_seconds, stop_until
     if not d.stops:
-        return ()
-    out, k = [0.0] * len(d.edges), 0
+        return (), ()
+    out, until, k = [0.0] * len(d.edges), [float("-inf")] * len(d.edges), 0
     for s in d.stops:
         lane = stop_lane(s, places)
         edge = lane.rpartition("_")[0] if lane else None
         if edge in d.edges[k:]:
             k = d.edges.index(edge, k)
             out[k] += stop_seconds(s)
-    return tuple(out)
+            until[k] = max(until[k], stop_until(s) or float("-inf"))
+    return tuple(out), tuple(until)
 
 
 def _depart_offset(pos: str | None, length: float) -> float:

@@ -60,6 +60,7 @@ class Trip:
     start_s: float                 # s spent before its first cruise (accelerating from standing)
     offset: float = 0.0            # m along its first edge where it enters (departPos)
     dwell: tuple[float, ...] = ()  # s it stands at its stops on each edge of its route (none: ())
+    until: tuple[float, ...] = ()  # the time its stops on each edge hold it until (-inf: none; none: ())
 
 
 @dataclass(frozen=True)
@@ -156,7 +157,11 @@ class _Queues:
         self.lane_of[id(trip)] = lane
         length = self.snet.getEdge(e).getLength()
         cruise, _ = self.times.edge(e, trip.driver)
-        travel = max(before + cruise * (length - offset) / length + (trip.dwell[k] if trip.dwell else 0.0), 1e-3)
+        drive = before + cruise * (length - offset) / length
+        hold = trip.dwell[k] if trip.dwell else 0.0
+        if trip.until:      # a stop's until holds it past its duration (reached about the edge's end)
+            hold = max(hold, trip.until[k] - t - drive)
+        travel = max(drive + hold, 1e-3)
         self.where[id(trip)] = OnEdge(trip, k, t, travel, offset)
         self.push(t + travel, LINE, trip, k)
 

@@ -75,6 +75,12 @@ def stop_lane(stop: dict, places: dict[str, str]) -> str | None:
     return stop.get("lane") or (places.get(place) if place else None)
 
 
+def stop_until(stop: dict) -> float | None:
+    """The time a ``<stop>`` (attribute dict) holds its vehicle until (its ``until``), None if it names none."""
+    t = _time(stop.get("until"))
+    return None if t == INVALID else t
+
+
 def stop_seconds(stop: dict) -> float:
     """How long a ``<stop>`` (attribute dict) holds its vehicle, as far as it says (its duration)."""
     d = _time(stop.get("duration"))
