@@ -97,3 +97,23 @@ def test_a_stop_until_a_time_holds_its_vehicle_in_the_fills_estimate(features, t
         close(sim)
     assert standing and set(ref) <= set(waiting), (ref, waiting)
     assert {v: waiting[v] for v in standing} == {v: ref[v] for v in standing}
+
+
+def test_a_state_of_a_scaled_demand_loads_again(features, tmp_path):
+    """``--scale 2`` (with the other insertion options: no teleporting, route errors ignored, a maximum
+    departure delay, collisions removed): SUMO saves the copy ``pas4.1`` naming its owner's route
+    ``!pas4``, which it leaves out of the state once ``pas4`` arrived, and refuses to load its own
+    state; the warm-up, run -c and the exported scenes all start from one."""
+    cfg = scenario_config(variant(features, "feat_options_insertion", tmp_path / "s"))
+    sim = start(cfg)
+    try:
+        warm_up(sim, 120.0)
+        ref = set(sim.vehicle.getIDList())
+    finally:
+        close(sim)
+    assert any(v.endswith(".1") for v in ref)          # the copies --scale makes
+    sim = start(replace(cfg, state=warm_state(cfg, 120.0, folder=str(tmp_path / "states"))))
+    try:
+        assert set(sim.vehicle.getIDList()) == ref
+    finally:
+        close(sim)

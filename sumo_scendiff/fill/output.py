@@ -10,10 +10,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..core.files import check_whole
 from ..sim.export import write_sumocfg
 from ..sim.fleet import DRAWN_KEY
 from ..sim.seeding import STATUSES
+from ..sim.state import save_state
 from ..sim.stops import place_ends
 from ..sim.sumo import close
 from .en_route import write_vtypes
@@ -140,8 +140,7 @@ def _seed_and_save(folder, req, net, routes, cfg, sumo, result, timing, progress
         agents = _agents(result, reports)
         present = set(sim.vehicle.getIDList())
         ids = [a["vehicle"] for a in agents if a["vehicle"] in present]
-        sim.simulation.saveState(os.path.join(folder, "state.xml.gz"))
-        check_whole(os.path.join(folder, "state.xml.gz"))
+        save_state(sim, os.path.join(folder, "state.xml.gz"))
         state_time = float(sim.simulation.getTime())
         # the portable start departs its vehicles where the state has them, at the state's time: the
         # demand's departures before it are the fill's, and SUMO skips them from the route files

@@ -42,7 +42,7 @@ def _agents(sim, ids: list[str]) -> list[dict]:
 def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
     """SUMO at ``begin``; its state, the portable start's routes. Returns (cfg, agents, exact, state time,
     vehicles waiting to enter)."""
-    from ..core.files import check_whole
+    from ..sim.state import save_state
     from ..sim.sumo import SimConfig, close, settings
     from ..sim.warmup import start_warm
     from .seed import write_start_routes
@@ -55,8 +55,7 @@ def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
         ids = list(sim.vehicle.getIDList())
         agents = _agents(sim, ids)
         state = os.path.join(folder, "state.xml.gz")
-        sim.simulation.saveState(state)
-        check_whole(state)
+        save_state(sim, state)
         state_time = float(sim.simulation.getTime())
         routes = os.path.join(folder, "start.rou.xml")
         exact = write_start_routes(routes, sim, ids, net, state_time,

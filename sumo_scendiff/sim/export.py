@@ -20,13 +20,14 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from ..core.geometry import sumo_to_pose, wrap_angle
-from ..core.files import check_whole, write_png
+from ..core.files import write_png
 from ..core.outputs import partial_path, publish
 from ..map.picture import draw_scene
 from ..tokens.features import is_pinnable
 from .additional import output_folders
 from .bundle import bundle
 from .fleet import DRAWN_KEY, PARENT_PARAM
+from .state import save_state
 from .stops import stops_xml
 
 FORMAT, VERSION = "sumo-scendiff-scenario", 1
@@ -325,8 +326,7 @@ class ScenarioWriter:
     def after_seeding(self, sim, seeding, net, options: dict[str, str], info: dict,
                       extra_vehicles=()) -> dict:
         """Everything that describes the seeded start (call right after the verification step)."""
-        sim.simulation.saveState(self.path("state.xml.gz"))
-        check_whole(self.path("state.xml.gz"))     # SUMO does not fail where the disk is full
+        save_state(sim, self.path("state.xml.gz"))     # checked whole: SUMO does not fail where the disk is full
         exact = write_routes(self.path("scenario.rou.xml"), sim, list(seeding.agent_ids) + list(extra_vehicles), net)
         # begun where the state was saved (SUMO warns of a configuration that begins elsewhere)
         write_sumocfg(self.path("scenario.sumocfg"), {**options, "b": f"{sim.simulation.getTime():g}"},

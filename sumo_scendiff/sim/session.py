@@ -28,6 +28,7 @@ from .cosim import CoSimulation, Existing
 from .export import ScenarioWriter
 from .fleet import Fleet
 from .rollout import rollout
+from .state import save_state
 from .sumo import SimConfig, SimError, close, died, start
 
 
@@ -73,7 +74,7 @@ class Session:
                 raise _stopped(e, self.sim) from None
             fd, self.base = tempfile.mkstemp(suffix=".xml.gz", prefix="scendiff-base-")
             os.close(fd)
-            self.sim.simulation.saveState(self.base)
+            save_state(self.sim, self.base)
         return self
 
     def prepare_at(self, until: float) -> "Session":

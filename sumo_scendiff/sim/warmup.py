@@ -19,10 +19,11 @@ import os
 import tempfile
 from dataclasses import replace
 
-from ..core.files import check_whole, file_sha256
+from ..core.files import file_sha256
+from .state import save_state
 
 # bumped when what a cached state holds changes (its options, how it is saved)
-STATE_VERSION = 1
+STATE_VERSION = 2
 # options naming an input file: their contents, not their paths, are the key
 FILE_OPTIONS = frozenset({"n", "r", "a", "net-file", "route-files", "additional-files"})
 # SUMO saves its random number generators with a state only when asked: without them a run started
@@ -116,8 +117,7 @@ def save(sim, cfg, until: float, folder: str | None = None) -> str:
     fd, tmp = tempfile.mkstemp(suffix=".xml.gz", prefix=".partial-", dir=folder)
     os.close(fd)
     try:
-        sim.simulation.saveState(tmp)
-        os.replace(check_whole(tmp), path)
+        os.replace(save_state(sim, tmp), path)
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)

@@ -1,0 +1,43 @@
+"""A SUMO state saved so that SUMO loads it again.
+
+    save_state(sim, "state.xml.gz")     # saveState, the routes it left out added, checked whole
+
+SUMO 1.28 writes a route into a state with the vehicle it was made for: a vehicle that shares that
+route and is still driving after its owner arrived -- the copies ``--scale`` makes of a vehicle (ids
+``pas4.1``, route ``!pas4``) -- is saved naming a route the state no longer defines, and
+``sumo --load-state`` refuses the file ("The route '!pas4' for vehicle 'pas4.1' is not known"), stock
+SUMO's own round trip included. Each such route is written into the state from the running simulation.
+"""
+from __future__ import annotations
+
+import gzip
+import re
+
+from ..core.files import check_whole
+
+_ROUTE = re.compile(rb'<route id="([^"]*)"')
+_VEHICLE_ROUTE = re.compile(rb'<vehicle id="([^"]*)"[^>]*? route="([^"]*)"')
+
+
+def save_state(sim, path: str) -> str:
+    """``sim``'s state saved to ``path`` (gzip by its name, as SUMO), every route its vehicles name
+    defined in it; raises core.files' error where the disk left the file short. Returns ``path``."""
+    sim.simulation.saveState(path)
+    check_whole(path)
+    opener = gzip.open if path.endswith(".gz") else open
+    with opener(path, "rb") as f:
+        text = f.read()
+    defined = set(_ROUTE.findall(text))
+    # a route SUMO dropped with its owner is no longer known by its id: its edges are the vehicle's
+    missing = {r: v for v, r in _VEHICLE_ROUTE.findall(text) if r not in defined}
+    if missing:
+        lines = b"".join(b'    <route id="%s" state="0" edges="%s"/>\n'
+                         % (r, " ".join(sim.vehicle.getRoute(v.decode())).encode()) for r, v in sorted(missing.items()))
+        at = text.index(b"<vehicle ")
+        at = text.rindex(b"\n", 0, at) + 1
+        with opener(path, "wb") as f:
+            f.write(text[:at] + lines + text[at:])
+    return path
+
+
+__all__ = ["save_state"]
