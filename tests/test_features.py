@@ -117,3 +117,23 @@ def test_a_state_of_a_scaled_demand_loads_again(features, tmp_path):
         assert set(sim.vehicle.getIDList()) == ref
     finally:
         close(sim)
+
+
+def test_the_fills_estimate_scales_the_demand_as_sumo_does(features, tmp_path):
+    """``--scale 2``: SUMO drives a copy of every vehicle (``pas4.1`` beside ``pas4``); the fill's estimate
+    routed the demand unscaled and placed half the vehicles SUMO has on the road."""
+    from sumo_scendiff.fill.demand import DemandEstimate
+    from sumo_scendiff.map.network import Network
+    cfg = variant(features, "feat_options_insertion", tmp_path / "s")
+    scen = scenario_from_files(config=str(cfg))
+    options = dict(scen.options)
+    est = DemandEstimate.at(Network.load(scen.net), scen.routes, begin=120.0, scale=options["scale"])
+    sim = start(scenario_config(cfg))
+    try:
+        warm_up(sim, 120.0)
+        running = set(sim.vehicle.getIDList())
+    finally:
+        close(sim)
+    copies = {r.id for r in est.en_route if r.id.endswith(".1")}
+    assert copies and copies & running
+    assert est.departed == 2 * DemandEstimate.at(Network.load(scen.net), scen.routes, begin=120.0).departed

@@ -81,7 +81,7 @@ def _estimate(req, net, scen, begin: float):
         return DemandEstimate.at(net, list(scen.routes), begin, additional=scen.additional,
                                  due=begin + step_length_for(scen, req.step_length),
                                  depart_speed=options.get("default.departspeed"),
-                                 junction_taz=boolean(options.get("junction-taz")))
+                                 junction_taz=boolean(options.get("junction-taz")), scale=options.get("scale"))
     except RoutingError as e:
         raise AmountError(f"{', '.join(scen.routes)}: {e}") from None
 

@@ -62,12 +62,12 @@ class DemandEstimate:
 
     @classmethod
     def at(cls, net, route_files, begin: float, additional=(), due: float | None = None,
-           depart_speed: str | None = None, junction_taz: bool = False) -> DemandEstimate:
+           depart_speed: str | None = None, junction_taz: bool = False, scale: str | None = None) -> DemandEstimate:
         """The departures up to ``begin`` and, with ``due`` (> ``begin``), those before ``due`` too, as
         if departing at ``begin``: a fill's state is saved a seeding step after ``begin``, and SUMO
         started from it skips the demand's departures before that time, so the fill carries them.
         ``depart_speed``: SUMO's ``default.departspeed`` the demand runs with (None: the installed
-        SUMO's); ``junction_taz``: its ``junction-taz`` option. Raises :class:`~.routing.RoutingError` when SUMO's router cannot read the demand."""
+        SUMO's); ``junction_taz``, ``scale``: its ``junction-taz`` and ``scale`` options. Raises :class:`~.routing.RoutingError` when SUMO's router cannot read the demand."""
         from .queues import Trip, run_to
         from .routing import routed_departures
         from ..sim.stops import stopping_places
@@ -76,7 +76,7 @@ class DemandEstimate:
         drivers = vtype_drivers([*route_files, *additional])
         departures, unrouted = routed_departures(net.path, route_files, additional, until=max(begin, due or begin),
                                                  since=begin - HORIZON_S, depart_speed=depart_speed,
-                                                 junction_taz=junction_taz)
+                                                 junction_taz=junction_taz, scale=scale)
         if due is not None and due > begin:
             departures = [replace(d, depart=min(d.depart, begin)) for d in departures if d.depart < due]
         # the lights' load: the demand's flow through each link over the last hour (or since it began)

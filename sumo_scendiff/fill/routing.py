@@ -8,8 +8,8 @@ SUMO's own router (duarouter) reads the route files as SUMO does: trips between 
 their ``via`` edges), between junctions (``fromJunction``/``toJunction``, where the scenario sets
 ``junction-taz``, as SUMO refuses them otherwise) or the TAZs of the additional files; flows by period, rate, number or probability unfolded into
 their vehicles (SUMO's ids, ``flow.k``); a vehicle on a ``routeDistribution`` given one of its
-routes and one of a ``vTypeDistribution`` one of its types; each routed by free-flow time for its
-vehicle class. What it cannot route is left out, as SUMO would not drive it, and so is a vehicle
+routes and one of a ``vTypeDistribution`` one of its types; scaled as the scenario's ``scale`` has SUMO
+scale it (the copies ``id.1``, ...); each routed by free-flow time for its vehicle class. What it cannot route is left out, as SUMO would not drive it, and so is a vehicle
 that departs on a trigger (``depart="triggered"``: when its person or container boards), whose
 time no estimate without the simulation knows; both are counted as unrouted.
 """
@@ -48,12 +48,13 @@ class Departure:
 
 def routed_departures(net_path: str, route_files, additional=(), until: float = float("inf"),
                       since: float = float("-inf"), depart_speed: str | None = None,
-                      junction_taz: bool = False) -> tuple[list[Departure], int]:
+                      junction_taz: bool = False, scale: str | None = None) -> tuple[list[Departure], int]:
     """Every vehicle of ``route_files`` departing from ``since`` to ``until``, routed by duarouter,
     in the order of departure, and how many it found no route for. A vehicle without a
     ``departSpeed`` departs at ``depart_speed`` (SUMO's ``default.departspeed``: the scenario's, else
     the installed SUMO's); ``junction_taz``: the scenario's ``junction-taz`` (trips between
-    junctions). Raises :class:`RoutingError`."""
+    junctions); ``scale``: its ``scale`` option (SUMO's copies of each vehicle, ``id.1``, ..., as duarouter
+    makes them). Raises :class:`RoutingError`."""
     from ..core.sumo_log import echo, first_error
     from ..core.tools import sumo_binary, sumo_defaults
     if depart_speed is None:
@@ -67,7 +68,8 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
         out = os.path.join(work, "routed.rou.xml")
         args = [sumo_binary("duarouter"), "-n", os.path.abspath(net_path),
                 "-r", ",".join(os.path.abspath(p) for p in route_files), "-o", out,
-                *(["--junction-taz"] if junction_taz else []), "--ignore-errors", "--no-step-log",
+                *(["--junction-taz"] if junction_taz else []), *(["--scale", scale] if scale else []),
+                "--ignore-errors", "--no-step-log",
                 # a public transport vehicle (one with a line) is left out of duarouter's output otherwise
                 "--ptline-routing",
                 # the files were judged by stock SUMO with the scenario's own options (sim/preflight.py);
