@@ -142,9 +142,9 @@ def commands(cfg: Path, t: float, area: tuple, out: Path, scenes: int = 2, rollo
              clock: bool = False) -> dict:
     """Each step's argument list (STEPS order): stock SUMO, run, its replay, fill, its two replays;
     ``clock``: the product's --begin as SUMO's H:MM:SS."""
-    from sumolib.miscutils import humanReadableTime
     py, end = sys.executable, f"{t + ROLL:g}"
-    begin = humanReadableTime(t) if clock else f"{t:g}"
+    clock_time = f"{int(t // 3600)}:{int(t % 3600 // 60):02d}:" + f"{t % 60:05.2f}".removesuffix(".00")
+    begin = clock_time if clock else f"{t:g}"
     a = ",".join(f"{v:.1f}" for v in area)
     return {
         "sumo": [_sumo(), "-c", cfg, "--end", end, "--no-step-log", "true",

@@ -203,3 +203,25 @@ def test_the_scenarios_car_following_model_travels_with_the_seeded_vehicles(corp
     ref = subprocess.run([corpus._sumo(), "-c", str(out / "start.sumocfg"), "--end", "70"],
                          capture_output=True, text=True)
     assert ref.returncode == 0 and "Error" not in ref.stderr, ref.stderr
+
+
+def test_the_feature_matrix_is_one_generated_variant_per_feature(corpus):
+    """The feature rows (benchmarks/scenarios_features.py): each a small generated grid plus one SUMO
+    feature, built by the corpus's own build (source kind ``feature``), named for what it covers."""
+    rows = [s for s in corpus.REGISTRY if s.get["kind"] == "feature"]
+    assert len(rows) >= 14 and all(s.name.startswith("feat_") and s.licence == "generated" and s.covers
+                                   for s in rows)
+    covered = {c for s in rows for c in s.covers}
+    assert {"mesoscopic", "sublane model", "parkingAreas", "TAZ", "trams", "electric vehicles",
+            "calibrators", "gzip files", "triggered departure"} <= covered
+
+
+@pytest.mark.slow
+def test_every_feature_variant_runs_in_stock_sumo(corpus, tmp_path):
+    """A variant stock SUMO refuses is a wrong variant, not a finding: each is built and run to T+30."""
+    for sc in (s for s in corpus.REGISTRY if s.get["kind"] == "feature"):
+        cfg = corpus.build(sc, tmp_path)
+        assert json.loads((tmp_path / sc.name / "source.json").read_text())["get"]["feature"] == sc.name
+        ref = subprocess.run([corpus._sumo(), "-c", str(cfg), "--end", f"{corpus.begin_time(sc, cfg) + 30:g}"],
+                             capture_output=True, text=True)
+        assert ref.returncode == 0 and "Error" not in ref.stderr, f"{sc.name}: {ref.stderr[-300:]}"
