@@ -51,8 +51,11 @@ def test_a_cached_network_is_the_file_read_again(cache_home, cross2_net):
     first = Network.load(cross2_net)                   # reads the file, writes the entry
     entry = cache_entry(cross2_net)
     assert written(entry.path, entry.key) and entry.path.startswith(str(cache_home))
-    cached = Network.load(cross2_net)                  # from the entry
     _same(read, first)
+    # while this process holds it, loading the same path again is that object (the studio's runs)
+    assert Network.load(cross2_net) is first and Network.load(os.path.relpath(cross2_net)) is not first
+    del first
+    cached = Network.load(cross2_net)                  # from the entry
     _same(read, cached)
     # sumolib's net works as readNet leaves it: routing (its cache on) and unknown edge types
     snet = cached.sumo_net

@@ -46,12 +46,17 @@ def net(tmp_path_factory) -> str:
 
 
 @pytest.fixture(scope="module")
-def studio(tmp_path_factory, net):
-    """The studio's app under uvicorn on a free port of 127.0.0.1, as ``python -m sumo_scendiff.studio
-    --steps 2`` (one server for the module's tests)."""
+def studio_app(tmp_path_factory, net):
+    """The studio's app, as ``python -m sumo_scendiff.studio --steps 2`` makes it (its model loading in the
+    background)."""
     from sumo_scendiff.studio.app import make_app
-    out = str(tmp_path_factory.mktemp("studio") / AWKWARD)
-    app = make_app(net, None, out, steps=STEPS)
+    return make_app(net, None, str(tmp_path_factory.mktemp("studio") / AWKWARD), steps=STEPS)
+
+
+@pytest.fixture(scope="module")
+def studio(studio_app):
+    """The studio's app under uvicorn on a free port of 127.0.0.1 (one server for the module's tests)."""
+    app, out = studio_app, studio_app.state.studio.out
     sock = socket.socket()
     sock.bind(("127.0.0.1", 0))
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning"))
@@ -202,6 +207,33 @@ def test_generate_keep_replay_and_run_gives_the_same_scene(studio, tmp_path):
     assert status == 200 and dens["vehicles"] == sum(a["vehicle"] is not None for a in agents)
     assert dens["edges"].get("A1B1", 0) > 0
     assert call(f"{url}/api/fill", {"fill": fill})[1] == dens
+
+
+def _counted(reads: list, name: str, real):
+    """``real``, each call noted in ``reads`` under ``name``."""
+    def counted(*args, **kwargs):
+        reads.append(name)
+        return real(*args, **kwargs)
+    return counted
+
+
+@pytest.mark.slow
+def test_a_generation_reads_neither_the_model_nor_the_network_again(studio, studio_app, monkeypatch):
+    """The server holds its network and model for its life, and every run inside it is handed them
+    (Network.load, ScenarioGenerator.load: what the process holds): a generation reads neither file."""
+    import sumo_scendiff.map.network as network
+    import sumo_scendiff.model.checkpoint as checkpoint
+    url, _ = studio
+    held = studio_app.state.studio
+    assert held.warm.wait(600) and held.generator is not None
+    reads = []
+    monkeypatch.setattr(checkpoint, "load", _counted(reads, "checkpoint", checkpoint.load))
+    monkeypatch.setattr(network, "read_entry", _counted(reads, "network cache", network.read_entry))
+    monkeypatch.setattr(network.Network, "_read_file", classmethod(
+        _counted(reads, "network file", network.Network._read_file.__func__)))
+    status, doc = call(f"{url}/api/generate", {"center": CENTER, "scenes": 1, "seed": 5})
+    assert status == 200, doc
+    assert reads == [] and doc["scenes"][0]["counts"]["generated"] == len(doc["scenes"][0]["agents"])
 
 
 def _no_display(monkeypatch) -> None:

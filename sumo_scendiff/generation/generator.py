@@ -20,6 +20,7 @@ from the trajectory.
 from __future__ import annotations
 
 import os
+import weakref
 from dataclasses import dataclass, field, replace
 from typing import Mapping, Sequence
 
@@ -56,6 +57,9 @@ from .token_resolve import resolve_tokens
 
 DECIMALS = 3   # generated poses are rounded to mm / mrad
 ASKED_RADIUS = 2.0  # m: a decoded agent this close to a token's position is what the token asked for
+# the models this process holds, by checkpoint file (real path, size, mtime): a generator loaded while
+# another of the same file lives shares its model (the studio's runs); weak, so nobody else keeps one
+_HELD: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
 DEFAULT_CHECKPOINT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "weights", "scendiff.pt")
 
 
@@ -79,6 +83,44 @@ def keep_freed_memory() -> None:
         libc.mallopt(-1, TRIM_THRESHOLD)    # M_TRIM_THRESHOLD
     except (ValueError, OSError, AttributeError):   # no such name, no such library or function
         return
+
+
+def _file_key(path: str) -> tuple | None:
+    """What a checkpoint file must still be for a held model to be its own; None: no such file (the
+    checkpoint's reader says so)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return os.path.realpath(path), st.st_size, st.st_mtime_ns
+
+
+@dataclass(frozen=True, eq=False)
+class _Model:
+    """A checkpoint's modules and calibrated guidance, as read from its file."""
+    ae: ScenarioAutoencoder
+    diffusion: ScenarioDiffusion
+    latent_scale: float
+    sha256: str
+    scene_guidance: float
+    scene_guidance_sigma: float
+    density_guidance: float | None
+
+
+def _read_model(path: str) -> _Model:
+    ck = ckpt.load(path, "scenario-diffusion")
+    try:
+        unet = ck["diffusion_config"].get("unet", {})
+        for name in ("pos_freqs", "splat_ch"):  # saved before these existed
+            unet.setdefault(name, 0)
+        ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ck["autoencoder_config"]))
+        df = ScenarioDiffusion(ckpt.config_from_dict(DiffusionConfig, ck["diffusion_config"]))
+    except (KeyError, TypeError) as e:
+        raise ckpt.CheckpointError(f"{path}: incomplete or incompatible checkpoint ({e})") from None
+    ckpt.load_state(ae, {k: v.float() for k, v in ck["autoencoder"].items()}, path)
+    ckpt.load_state(df, {k: v.float() for k, v in ck["diffusion"].items()}, path)
+    return _Model(ae, df, float(ck["latent_scale"]), ckpt.sha256(path), float(ck.get("scene_guidance", 1.0)),
+                  float(ck.get("scene_guidance_sigma", 0.0)), ck.get("density_guidance"))
 
 
 def remove_overlaps(boxes: np.ndarray, prob: np.ndarray) -> np.ndarray:
@@ -309,23 +351,19 @@ class ScenarioGenerator:
 
     @classmethod
     def load(cls, path: str | None = None, config: GenerationConfig = GenerationConfig()):
-        """Load a ``scenario-diffusion`` checkpoint (default: the shipped one)."""
+        """Load a ``scenario-diffusion`` checkpoint (default: the shipped one); while this process
+        holds a generator of the same, unchanged file, that one's model."""
         path = path or DEFAULT_CHECKPOINT
-        ck = ckpt.load(path, "scenario-diffusion")
-        try:
-            unet = ck["diffusion_config"].get("unet", {})
-            for field in ("pos_freqs", "splat_ch"):  # saved before these existed
-                unet.setdefault(field, 0)
-            ae = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ck["autoencoder_config"]))
-            df = ScenarioDiffusion(ckpt.config_from_dict(DiffusionConfig, ck["diffusion_config"]))
-        except (KeyError, TypeError) as e:
-            raise ckpt.CheckpointError(f"{path}: incomplete or incompatible checkpoint ({e})") from None
-        ckpt.load_state(ae, {k: v.float() for k, v in ck["autoencoder"].items()}, path)
-        ckpt.load_state(df, {k: v.float() for k, v in ck["diffusion"].items()}, path)
-        gen = cls(ae, df, float(ck["latent_scale"]), sha256=ckpt.sha256(path), config=config,
-                  scene_guidance=float(ck.get("scene_guidance", 1.0)),
-                  scene_guidance_sigma=float(ck.get("scene_guidance_sigma", 0.0)))
-        gen.density_guidance = ck.get("density_guidance")
+        key = _file_key(path)
+        model = _HELD.get(key) if key else None
+        if model is None:
+            model = _read_model(path)
+            if key:
+                _HELD[key] = model
+        gen = cls(model.ae, model.diffusion, model.latent_scale, sha256=model.sha256, config=config,
+                  scene_guidance=model.scene_guidance, scene_guidance_sigma=model.scene_guidance_sigma)
+        gen.density_guidance = model.density_guidance
+        gen.held_model = model    # keeps it held while this generator lives
         return gen
 
 

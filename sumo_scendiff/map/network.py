@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import gc
 import os
+import weakref
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -25,6 +26,10 @@ from ..core.geometry import wrap_angle
 from .network_cache import cache_entry, read_entry, write_entry
 
 CAR = "passenger"
+# the networks this process holds, by what they were loaded as (the path given, then the cache
+# entry's key: real path, size, mtime): a long-lived caller (the studio) keeps its network and every
+# run inside it gets that object instead of reading the file again; weak, so nobody else keeps one
+_HELD: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
 
 
 class NetworkError(ValueError):
@@ -174,10 +179,14 @@ class Network:
     @classmethod
     def load(cls, path: str, cache: bool = True) -> "Network":
         """The network of a ``.net.xml[.gz]`` file; with ``cache``, read once and kept in the cache
-        directory (:func:`cache_entry`) for the next process that loads the same, unchanged file."""
+        directory (:func:`cache_entry`) for the next process that loads the same, unchanged file, and
+        the very object while this process still holds one loaded from the same path."""
         path = os.fspath(path)
         _check_file(path)
         entry = cache_entry(path) if cache else None
+        held = _HELD.get((path, *entry.key)) if entry else None
+        if held is not None:
+            return held
         collecting = gc.isenabled()
         gc.disable()    # unpickling ~100k objects, each allocation would count towards a collection
         try:
@@ -195,6 +204,8 @@ class Network:
         # triggered by per-window work walks them all, and a 100 m window costs more on a larger net
         # (benchmarks/raster.py).
         gc.freeze()
+        if entry:
+            _HELD[(path, *entry.key)] = network
         return network
 
     @classmethod

@@ -31,7 +31,12 @@ class Studio:
         from ..map.network import Network
         from ..sim.scenario import scenario_from_files
         self.scenario = scenario_from_files(config, net)
+        # held for the server's life: every run inside it is handed these instead of reading them
+        # again (Network.load, ScenarioGenerator.load: what this process holds); the model at first use
         self.net = Network.load(self.scenario.net)
+        self.checkpoint, self.generator = checkpoint, None
+        self._hold = threading.Lock()
+        self.warm = threading.Event()    # set once the background warm-up (make_app) is done
         self.inputs = (["-c", config] if config else []) + (["-n", net] if net else []) + \
             (["--checkpoint", checkpoint] if checkpoint else []) + (["--steps", str(steps)] if steps else [])
         self.out = out
@@ -39,6 +44,16 @@ class Studio:
         os.makedirs(self.drafts, exist_ok=True)
         self._count = itertools.count(len(os.listdir(self.drafts)))
         self._new = threading.Lock()
+
+    def hold_model(self):
+        """The model of this server's generations, loaded once (threads set first, as run does)."""
+        with self._hold:
+            if self.generator is None:
+                from ..core.threads import GENERATION_THREADS, share_cpu
+                share_cpu(default=GENERATION_THREADS)   # before torch is imported (core/threads.py)
+                from ..generation.generator import ScenarioGenerator
+                self.generator = ScenarioGenerator.load(self.checkpoint)
+            return self.generator
 
     @property
     def name(self) -> str:
@@ -131,22 +146,24 @@ async def _server_error(request, exc):
     return JSONResponse({"error": f"{type(exc).__name__}: {exc}"}, 500)
 
 
-def _warm_up() -> None:
-    """Import what a generation needs (torch, the model's code, SUMO's session) while the user places
-    a window and tokens: the first generation then does only run's own work (docs/studio.md, "Speed")."""
-    from ..core.threads import GENERATION_THREADS, share_cpu
+def _warm_up(studio: Studio) -> None:
+    """Load the model and import what a generation needs (torch, run, SUMO's session) while the user
+    places a window and tokens: the first generation then does only run's own work (docs/studio.md,
+    "Speed"). ``studio.warm`` is set when done."""
     try:
-        share_cpu(default=GENERATION_THREADS)   # as run does, before torch is imported
+        studio.hold_model()
         from .. import run  # noqa: F401
-        from ..generation.generator import ScenarioGenerator  # noqa: F401
         from ..sim.session import Session  # noqa: F401
-    except Exception:   # a broken install: the generation reports it, in its one line, when it is asked for
+    except Exception:   # a broken install or checkpoint: the generation reports it, in its one line
         pass
+    finally:
+        studio.warm.set()
 
 
 def make_app(net: str | None, config: str | None, out: str, checkpoint: str | None = None,
              steps: int | None = None, warm: bool = True) -> Starlette:
-    """The studio's app; ``warm`` imports the generation's modules in the background from the start."""
+    """The studio's app; ``warm`` loads the model and imports the generation's modules in the background
+    from the start."""
     routes = [Route("/", _index), Route("/api/network", _geometry),
               Route("/api/snap", _endpoint(lambda s, b: snap(s.net, b if isinstance(b, dict) else {})),
                     methods=["POST"]),
@@ -159,5 +176,5 @@ def make_app(net: str | None, config: str | None, out: str, checkpoint: str | No
     app = Starlette(routes=routes, exception_handlers={404: _not_found, 405: _not_found, 500: _server_error})
     app.state.studio = Studio(net, config, out, checkpoint, steps)
     if warm:
-        threading.Thread(target=_warm_up, name="studio-warm-up", daemon=True).start()
+        threading.Thread(target=_warm_up, args=(app.state.studio,), name="studio-warm-up", daemon=True).start()
     return app

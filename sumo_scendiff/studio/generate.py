@@ -81,6 +81,7 @@ def run_flags(studio, args: list[str]) -> tuple[dict, list[str]]:
     with _LOCK, contextlib.redirect_stderr(err):
         try:
             o = run.get_options(studio.inputs + args)
+            studio.hold_model()   # held by the server: run is handed its model (ScenarioGenerator.load)
             with claim(o.out):
                 summary = run.run(o)
         except SystemExit:   # argparse: usage + one line
