@@ -224,8 +224,10 @@ def prepare(req: FillRequest, folder: str):
     from ..generation.generator import GenerationConfig, ScenarioGenerator
     phase(req.progress, "loading the model")
     # a density asked in veh/km (or read from edgeData) is kept as SUMO's edgeData counts it; a
-    # demand's vehicles are counted one by one
-    gen_cfg = replace(req.generation or GenerationConfig(),
+    # demand's vehicles are counted one by one. A tile's pins are its neighbours' vehicles in the
+    # overlap, context the tile does not keep (only its core's agents are), so their speeds are not
+    # calibrated (generation/pinning.py): the same counts and hold for a third less CPU (docs/fill.md)
+    gen_cfg = replace(req.generation or GenerationConfig(), pin_calibration=False,
                       count_on_edges=req.density is not None or bool(req.edge_data))
     return net, ScenarioGenerator.load(req.checkpoint, gen_cfg), scen, tiles, begin
 
