@@ -306,6 +306,53 @@ def test_two_workers_export_two_folders_alike(folder, exported, tmp_path, cache)
             assert f.read() == one
 
 
+def _seeded_copies(folder: str, tmp_path, seeds) -> list[str]:
+    """Copies of ``folder`` unexported, each with its own ``--seed`` (SUMO's drive from it differs)."""
+    out = []
+    for seed in seeds:
+        copy = tmp_path / f"seed{seed}"
+        shutil.copytree(folder, copy, ignore=shutil.ignore_patterns("scenario.xo*", "openscenario.json"))
+        cfg = copy / "scenario.sumocfg"
+        text = cfg.read_text()
+        cfg.write_text(text.replace('<seed value="0"/>', f'<seed value="{seed}"/>'))
+        assert f'<seed value="{seed}"/>' in cfg.read_text()
+        out.append(str(copy))
+    return out
+
+
+def test_one_sumo_replays_the_folders_of_a_network_as_each_its_own(folder, tmp_path):
+    """Folders of one network replayed in one SUMO, each state loaded into it, record what each
+    records in a SUMO of its own, in any order and whatever seed (the generators as ``--seed`` sets
+    them, no lane left simulated from the folder before), and that SUMO is kept for them."""
+    from sumo_scendiff.export.openscenario import kept_vehicles
+    from sumo_scendiff.export.replay import Replayer, replay
+    folders = _seeded_copies(folder, tmp_path, (0, 7, 23))
+    doc = _scene(folder)
+    ids = [a["vehicle"] for a in doc["agents"] if a.get("vehicle")] + list(kept_vehicles(doc))
+    own = {f: replay(os.path.join(f, "scenario.sumocfg"), ids, ROLLOUT) for f in folders}
+    assert len({repr(r.paths) for r in own.values()}) == 3      # the seeds drive differently
+    with Replayer() as r:
+        for f in folders + folders[::-1]:
+            assert r.replay(os.path.join(f, "scenario.sumocfg"), ids, ROLLOUT) == own[f], f
+        assert r.key is not None and not r.untrusted
+
+
+def test_exporting_many_folders_writes_what_one_at_a_time_writes(folder, exported, tmp_path, cache):
+    """``python -m sumo_scendiff.export`` on three folders of one network (one SUMO) writes the files it
+    writes for each alone (a SUMO each)."""
+    many = _seeded_copies(folder, tmp_path / "many", (0, 7, 23))
+    alone = _seeded_copies(folder, tmp_path / "alone", (0, 7, 23))
+    res = _cli("sumo_scendiff.export", *many, cache=cache)
+    assert res.returncode == 0, res.stderr
+    for f in alone:
+        res = _cli("sumo_scendiff.export", f, cache=cache)
+        assert res.returncode == 0, res.stderr
+    for a, b in zip(many, alone):
+        for name in ("scenario.xosc", "scenario.xodr"):
+            with open(os.path.join(a, name), "rb") as x, open(os.path.join(b, name), "rb") as y:
+                assert x.read() == y.read(), (a, name)
+
+
 def test_a_lane_position_on_netconverts_opendrive_is_read(exported, cross_net, tmp_path):
     """LanePosition (road, lane -1, s, offset) on the exported scenario.xodr: the SUMO lane its road
     and lane stand for, s scaled to the lane's length, offset to the left (sumolib computes it here)."""

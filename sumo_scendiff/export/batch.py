@@ -9,18 +9,23 @@ import time
 
 from .opendrive import ExportError, opendrive_for
 from .openscenario import FILES, export_folder, read_folder
+from .replay import Replayer
 
 FORMATS = ("openscenario",)
 
 
 class Exporter:
-    """A pool worker (core.pool): one folder per task."""
+    """A pool worker (core.pool): one folder per task, replayed in one SUMO per network (replay.Replayer)."""
 
-    def __init__(self, force: bool = False, seconds: float | None = None):
+    def __init__(self, force: bool = False, seconds: float | None = None, share: bool = True):
         self.force, self.seconds = force, seconds
+        self.replayer = Replayer(share)   # share: more than one folder to come (a single one: no second start)
 
     def run(self, folder: str) -> dict:
-        return export_folder(folder, force=self.force, seconds=self.seconds)
+        return export_folder(folder, force=self.force, seconds=self.seconds, replayer=self.replayer)
+
+    def close(self) -> None:
+        self.replayer.close()
 
 
 def _networks_first(folders: list[str]) -> None:
@@ -50,13 +55,18 @@ def export_folders(folders: list[str], fmt: str = "openscenario", force: bool = 
     workers = max(1, min(workers, len(todo)))
     if workers > 1:
         _networks_first(todo)
-    pool = InProcess(Exporter(force, seconds)) if workers == 1 else \
-        LocalPool(Exporter, (force, seconds), workers=workers)
+    share = len(todo) > workers
+    here = Exporter(force, seconds, share) if workers == 1 else None
+    pool = InProcess(here) if here is not None else LocalPool(Exporter, (force, seconds, share), workers=workers)
     vehicles = 0
-    with pool, tqdm(total=len(todo), desc="exporting OpenSCENARIO", disable=not progress, leave=False) as bar:
-        for _, record in pool.map_unordered([(f,) for f in todo]):
-            vehicles += record["vehicles"]
-            bar.update()
+    try:
+        with pool, tqdm(total=len(todo), desc="exporting OpenSCENARIO", disable=not progress, leave=False) as bar:
+            for _, record in pool.map_unordered([(f,) for f in todo]):
+                vehicles += record["vehicles"]
+                bar.update()
+    finally:   # libsumo is one simulation per process: the next command here starts its own
+        if here is not None:
+            here.close()
     return {"exported": len(todo), "kept": len(folders) - len(todo), "vehicles": vehicles,
             "seconds": round(time.perf_counter() - t0, 3)}
 

@@ -222,10 +222,11 @@ def validate_xosc(path: str) -> None:
                           f"({n} errors; {first[0]})")
 
 
-def export_folder(folder: str, force: bool = False, seconds: float | None = None) -> dict:
+def export_folder(folder: str, force: bool = False, seconds: float | None = None, replayer=None) -> dict:
     """Write scenario.xodr, scenario.xosc and openscenario.json into a finished scene folder, each
     under a .partial name until the xosc has validated. ``seconds``: SUMO's path to record (default:
-    the folder's rollout; 0: none)."""
+    the folder's rollout; 0: none); ``replayer``: a :class:`~.replay.Replayer` to record it in (default:
+    a SUMO of its own)."""
     import time
     t0 = time.perf_counter()
     doc, config = read_folder(folder)
@@ -239,7 +240,8 @@ def export_folder(folder: str, force: bool = False, seconds: float | None = None
     od = opendrive_for(net)
     t1 = time.perf_counter()
     secs = rollout_seconds(folder, 0.0) if seconds is None else seconds
-    rep = replay(config, [a["vehicle"] for a in doc["agents"] if a.get("vehicle")] + list(kept_vehicles(doc)), secs)
+    ids = [a["vehicle"] for a in doc["agents"] if a.get("vehicle")] + list(kept_vehicles(doc))
+    rep = replayer.replay(config, ids, secs) if replayer is not None else replay(config, ids, secs)
     t2 = time.perf_counter()
     scenario, held = build_scenario(doc, rep, od.info)
     final = {f: os.path.join(folder, f) for f in FILES}
