@@ -351,6 +351,10 @@ def test_exporting_many_folders_writes_what_one_at_a_time_writes(folder, exporte
         for name in ("scenario.xosc", "scenario.xodr"):
             with open(os.path.join(a, name), "rb") as x, open(os.path.join(b, name), "rb") as y:
                 assert x.read() == y.read(), (a, name)
+    # again with --force: the files replaced, nothing left beside them (the OpenDRIVE is a link to the cache)
+    res = _cli("sumo_scendiff.export", *many, "--force", cache=cache)
+    assert res.returncode == 0, res.stderr
+    assert not [p for f in many for p in os.listdir(f) if "partial" in p]
 
 
 def test_a_lane_position_on_netconverts_opendrive_is_read(exported, cross_net, tmp_path):

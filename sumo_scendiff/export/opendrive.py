@@ -41,6 +41,8 @@ class OpenDrive:
     def place(self, target: str) -> None:
         """The conversion at ``target``, hard-linked from the cache where the file system allows
         (a city's OpenDRIVE is megabytes; a sweep has one per scene), else copied."""
+        if os.path.exists(target) and os.path.samefile(self.path, target):
+            return    # linked by an export before (--force): a rename onto its own link would leave tmp beside it
         tmp = partial_path(target)
         try:
             os.link(self.path, tmp)
