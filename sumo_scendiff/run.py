@@ -276,11 +276,27 @@ def _windows(o, net, sim, cosim):
 
 
 def _scenario(o):
-    """The user's inputs judged by SUMO itself, before the model is even imported."""
+    """The user's inputs as SUMO reads them, and SUMO judging them (its preflight, a Future: the
+    network loads meanwhile; :func:`_verdict` takes it before the model is even imported)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     from .sim.preflight import preflight
     from .sim.scenario import ScenarioError, scenario_from_files
     try:
-        return preflight(scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional)))
+        scen = scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional))
+    except ScenarioError as e:
+        raise RunError(str(e)) from None
+    pool = ThreadPoolExecutor(max_workers=1)   # its thread mostly waits for SUMO's process
+    judged = pool.submit(preflight, scen)
+    pool.shutdown(wait=False)
+    return scen, judged
+
+
+def _verdict(judged) -> None:
+    """SUMO's refusal of the inputs as the run's error (it comes first, whatever else failed)."""
+    from .sim.scenario import ScenarioError
+    try:
+        judged.result()
     except ScenarioError as e:
         raise RunError(str(e)) from None
 
@@ -362,27 +378,32 @@ def _realise(o, net, gen, session, places, requests, scenes, kept: set[str], pro
 
 def run(o) -> dict:
     t = time.perf_counter()
-    scen = _scenario(o)
-    from .core.threads import GENERATION_THREADS, share_cpu
-    threads = share_cpu(default=GENERATION_THREADS)   # before torch is imported (core/threads.py: why one)
-    from .generation.generator import GenerationConfig, ScenarioGenerator
+    scen, judged = _scenario(o)
     from .map.network import Network, NoCarLane
-    from .sim.density import default_density, host_has_traffic
-    from .sim.request import counted_as_asked
     from .sim.sumo import settings
     from .tokens.file import load_tokens
     progress = sys.stderr.isatty() or o.verbose
-    sumo_settings = settings(o, scen)     # the scenario's step length and options, the flags over them
     try:
+        sumo_settings = settings(o, scen)     # the scenario's step length and options, the flags over them
         net = Network.load(scen.net)
     except NoCarLane as e:
+        _verdict(judged)
         if not o.config:     # a bare -n: the user chose a network the model cannot use
             raise
         return _nothing_to_generate(o, scen, f"no car lane: {e}")
+    except Exception:
+        _verdict(judged)
+        raise
+    _verdict(judged)
     times = _demand_times(o, scen, net)   # the demand's problems before the model is loaded
     edge_data = _edge_data(o, net)
     spec = load_tokens(o.tokens, net=net) if o.tokens else None
     kept = _check_output(o)
+    from .core.threads import GENERATION_THREADS, share_cpu
+    threads = share_cpu(default=GENERATION_THREADS)   # before torch is imported (core/threads.py: why one)
+    from .generation.generator import GenerationConfig, ScenarioGenerator
+    from .sim.density import default_density, host_has_traffic
+    from .sim.request import counted_as_asked
     gen = ScenarioGenerator.load(o.checkpoint, counted_as_asked(GenerationConfig.from_options(o), o.vehicles))
     session, prepare = _session(o, scen, net, gen, sumo_settings, times, progress)
     timing = {}
