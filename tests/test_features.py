@@ -137,3 +137,30 @@ def test_the_fills_estimate_scales_the_demand_as_sumo_does(features, tmp_path):
     copies = {r.id for r in est.en_route if r.id.endswith(".1")}
     assert copies and copies & running
     assert est.departed == 2 * DemandEstimate.at(Network.load(scen.net), scen.routes, begin=120.0).departed
+
+
+def _running_after_a_step(cfg: Path, tmp_path: Path) -> int:
+    """Vehicles on the road after stock SUMO's first step of a configuration."""
+    import subprocess
+    import xml.etree.ElementTree as ET
+
+    from sumo_scendiff.core.tools import sumo_binary
+    fcd = tmp_path / f"{cfg.stem}.fcd.xml"
+    done = subprocess.run([sumo_binary("sumo"), "-c", str(cfg), "--fcd-output", str(fcd), "--no-step-log",
+                           "--end", "122"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-300:]
+    return len(list(next(iter(ET.parse(fcd).getroot()))))
+
+
+def test_the_fills_portable_start_is_not_scaled_twice(features, tmp_path):
+    """``--scale 2``: SUMO scales the portable start's vehicles too, which are those on the road, copies
+    included: the fill from SUMO's run stopped ("Another vehicle with the id 'start.pas27.1' exists") and
+    the fill from the estimate started with every vehicle twice, stacked."""
+    import subprocess
+    cfg = variant(features, "feat_options_insertion", tmp_path / "s")
+    out = tmp_path / "fill"
+    done = subprocess.run([sys.executable, "-m", "sumo_scendiff.fill", "-c", str(cfg), "--begin", "120",
+                           "-o", str(out)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-300:]
+    running = _running_after_a_step(out / "scenario.sumocfg", tmp_path)
+    assert running > 10 and _running_after_a_step(out / "start.sumocfg", tmp_path) == running

@@ -162,7 +162,9 @@ def write_start_routes(path: str, sim, ids, net, begin: float, vtype_files=()) -
     remaining route, departLane/departPos/departPosLat/departSpeed); vehicles inside a junction
     start at the end of the lane leading into it (``exact`` False). ``vtype_files``: the scenario's
     files defining the vTypes the seeded vehicles copy."""
-    exact = write_routes(path, sim, ids, net, vtype_files=list(vtype_files) + list(loaded_files(sim)))
+    files = list(vtype_files) + list(loaded_files(sim))
+    exact = write_routes(path, sim, ids, net, vtype_files=files)
+    _unscaled(path, _scale(sim), files)
     if begin:
         # export.write_routes departs everyone at 0 (a scene folder starts at 0); here at --begin
         with open(path) as f:
@@ -170,6 +172,55 @@ def write_start_routes(path: str, sim, ids, net, begin: float, vtype_files=()) -
         with open(path, "w") as f:
             f.write(re.sub(r' depart="0" ', f' depart="{begin:g}" ', text))
     return exact
+
+
+# SUMO's default vTypes by the vClass they are (a vehicle of the demand without a type drives one)
+DEFAULT_VTYPES = {"DEFAULT_VEHTYPE": "passenger", "DEFAULT_BIKETYPE": "bicycle", "DEFAULT_TAXITYPE": "taxi",
+                  "DEFAULT_RAILTYPE": "rail"}
+
+
+def _scale(sim) -> float:
+    """The scenario's ``--scale`` (SUMO's demand factor) the running SUMO has."""
+    try:
+        return float(sim.simulation.getOption("scale"))
+    except Exception:   # a SUMO without getOption: no scaling known
+        return 1.0
+
+
+def _unscaled(path: str, scale: float, files) -> None:
+    """The portable start's vehicles each loaded once where the scenario scales its demand: SUMO scales
+    every vehicle it reads by ``--scale`` times its vType's ``scale``, and the start's vehicles are those
+    on the road, copies included (a second copy, stacked on the first, or "Another vehicle with the id
+    'pas27.1' exists"). Each vType they drive gets ``scale`` 1/``scale``: their own as written, one of
+    the scenario's (``files``) or SUMO's defaults as a copy ``start.TYPE`` (the demand keeps its own)."""
+    if abs(scale - 1.0) < 1e-9:
+        return
+    import copy
+    import xml.etree.ElementTree as ET
+
+    from ..sim.export import declared_vtypes
+    tree = ET.parse(path)
+    root = tree.getroot()
+    own = {el.get("id"): el for el in root if el.tag == "vType"}
+    theirs = declared_vtypes(files)
+    copies = {}
+    for veh in (el for el in root if el.tag == "vehicle"):
+        tid = veh.get("type") or "DEFAULT_VEHTYPE"
+        if tid in own and tid not in theirs and not tid.startswith("DEFAULT_"):
+            own[tid].set("scale", f"{1.0 / scale:.9g}")
+            continue
+        if tid not in copies:
+            el = copy.deepcopy(theirs[tid]) if tid in theirs else \
+                ET.Element("vType", vClass=DEFAULT_VTYPES.get(tid, "passenger"))
+            el.attrib.pop("probability", None)      # a member of a vTypeDistribution stands alone here
+            el.set("id", f"start.{tid}")
+            el.set("scale", f"{1.0 / scale:.9g}")
+            el.tail = "\n    "
+            copies[tid] = el
+        veh.set("type", f"start.{tid}")
+    for k, el in enumerate(copies.values()):
+        root.insert(k, el)
+    tree.write(path, encoding="UTF-8", xml_declaration=True)
 
 
 def load_each(load, vehicles, remove) -> dict[str, str]:
