@@ -281,11 +281,13 @@ def _scenario(o):
     from concurrent.futures import ThreadPoolExecutor
 
     from .sim.preflight import preflight
-    from .sim.scenario import ScenarioError, scenario_from_files
+    from .sim.scenario import ScenarioError, meso_notice, scenario_from_files
     try:
         scen = scenario_from_files(o.config, o.net, _files(o.routes), _files(o.additional))
     except ScenarioError as e:
         raise RunError(str(e)) from None
+    if meso_notice(o.config):
+        print(f"{PROG}: warning: {meso_notice(o.config)}", file=sys.stderr)
     pool = ThreadPoolExecutor(max_workers=1)   # its thread mostly waits for SUMO's process
     judged = pool.submit(preflight, scen)
     pool.shutdown(wait=False)

@@ -164,3 +164,14 @@ def test_the_fills_portable_start_is_not_scaled_twice(features, tmp_path):
     assert done.returncode == 0, done.stderr[-300:]
     running = _running_after_a_step(out / "scenario.sumocfg", tmp_path)
     assert running > 10 and _running_after_a_step(out / "start.sumocfg", tmp_path) == running
+
+
+def test_a_mesoscopic_scenario_is_said_to_run_microscopically(features, tmp_path):
+    """``<mesosim value="true"/>``: the product seeds lanes, which only SUMO's microscopic model has, so
+    it runs the scenario microscopically; it did so without a word."""
+    import subprocess
+    cfg = variant(features, "feat_meso", tmp_path / "s")
+    done = subprocess.run([sys.executable, "-m", "sumo_scendiff.fill", "-c", str(cfg), "--begin", "120",
+                           "-o", str(tmp_path / "fill")], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-300:]
+    assert any("mesosim" in ln and "microscopic" in ln for ln in done.stderr.splitlines()), done.stderr

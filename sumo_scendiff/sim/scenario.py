@@ -157,6 +157,23 @@ def run_options(path: str) -> tuple[tuple[str, str], ...]:
     return tuple(out)
 
 
+def meso_notice(config: str | None) -> str | None:
+    """The warning for a configuration that runs SUMO's mesoscopic model (``mesosim``), which the product
+    does not carry (the seeding places vehicles on lanes, which only the microscopic model has): its
+    warm-up, scenes and fills are microscopic. None for any other configuration."""
+    import xml.etree.ElementTree as ET
+
+    from ..core.sumo_xml import boolean
+    if not config or not os.path.isfile(config):
+        return None
+    try:
+        meso = any(boolean(el.get("value")) for el in ET.parse(config).getroot().iter("mesosim"))
+    except (ET.ParseError, ValueError):
+        return None                   # read_sumocfg names what is wrong with it
+    return (f"{config}: mesosim: the mesoscopic model is not carried, the simulation here is microscopic "
+            "(the seeding places vehicles on lanes, which only the microscopic model has)") if meso else None
+
+
 def scenario_from_files(config: str | None = None, net: str | None = None,
                         routes: Sequence[str] = (), additional: Sequence[str] = ()) -> SumoScenario:
     """The scenario of a ``.sumocfg`` with ``-n``/``-r``/``-a`` replacing what it names, so a
