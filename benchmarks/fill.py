@@ -325,12 +325,12 @@ RT_MIN_RATE = 2.0     # ... and at least this many a second (short trips leave a
 RT_LIMIT_S = 900.0    # ... and SUMO runs until the network holds them, or this long
 
 
-def timed(cmd: list[str], env: dict | None = None) -> tuple[subprocess.CompletedProcess, float, float]:
-    """``cmd`` run to its end: (the process, wall s, CPU s of it and its children)."""
+def timed(cmd: list[str], env: dict | None = None, cwd: str = ROOT) -> tuple[subprocess.CompletedProcess, float, float]:
+    """``cmd`` run to its end in ``cwd``: (the process, wall s, CPU s of it and its children)."""
     import resource
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
-    done = subprocess.run(cmd, check=False, cwd=ROOT, capture_output=True, text=True, env=env)
+    done = subprocess.run(cmd, check=False, cwd=cwd, capture_output=True, text=True, env=env)
     wall = time.perf_counter() - t
     after_ = resource.getrusage(resource.RUSAGE_CHILDREN)
     return done, wall, (after_.ru_utime - before.ru_utime) + (after_.ru_stime - before.ru_stime)
@@ -339,9 +339,11 @@ def timed(cmd: list[str], env: dict | None = None) -> tuple[subprocess.Completed
 def speed_fill(net: str, src: str | None, folder: str, o) -> dict:
     """The fill CLI at its defaults (--density) from source tree ``src`` (None: this one)."""
     env = {**os.environ, "PYTHONPATH": os.path.abspath(src)} if src else None
-    cmd = [sys.executable, "-m", "sumo_scendiff.fill", "-n", net, "--density", f"{o.density:g}", "-s", str(o.seed),
-           "-o", folder, "--force"] + (["-q"] if src is None else [])
-    done, wall, cpu = timed(cmd, env)
+    cmd = [sys.executable, "-m", "sumo_scendiff.fill", "-n", os.path.join(ROOT, net), "--density", f"{o.density:g}",
+           "-s", str(o.seed), "-o", os.path.abspath(folder), "--force"] + (["-q"] if src is None else [])
+    # `python -m` puts its working directory first on sys.path, ahead of PYTHONPATH: the older tree's
+    # package is imported only when run from there
+    done, wall, cpu = timed(cmd, env, cwd=os.path.abspath(src) if src else ROOT)
     if done.returncode != 0:
         return {"error": (done.stderr or done.stdout).strip().splitlines()[-1:]}
     with open(os.path.join(folder, "fill.json")) as f:
