@@ -339,6 +339,30 @@ def tram(dest: Path) -> None:
             [stops])
 
 
+DEPARTURES = """    <flow id="best_lane" from="A0B0" to="D3C3" begin="0" end="300" period="9" departLane="best"
+          departPos="random_free" departSpeed="desired" arrivalPos="random"/>
+    <flow id="free_lane" from="D0C0" to="A3A2" via="C0C1 C1B1" begin="0" end="300" period="11" departLane="free"
+          departPos="last" departSpeed="max" arrivalLane="current"/>
+    <flow id="random_lane" from="B3B2" to="C0D0" begin="0" end="300" vehsPerHour="360" departLane="random"
+          departSpeed="random" departPos="base" arrivalSpeed="0"/>
+    <include href="included.rou.xml"/>
+"""
+INCLUDED = """    <vehicle id="late_one" depart="110" departSpeed="speedLimit">
+        <route edges="A2B2 B2C2 C2D2"/>
+    </vehicle>
+"""
+
+
+def departures(dest: Path) -> None:
+    """Departure and arrival attributes as generated demand writes them (departLane best/free/random,
+    departPos random_free/last, departSpeed desired/max/random/speedLimit, arrivalPos, via, vehsPerHour)
+    and a route file that includes another."""
+    base(dest)
+    write(dest, "included.rou.xml", "routes", INCLUDED)
+    flows = write(dest, "departures.rou.xml", "routes", DEPARTURES)
+    sumocfg(dest / "scenario.sumocfg", "net.net.xml", ["passenger.rou.xml", flows])
+
+
 # name -> (builder, what it covers, the row's fields over the corpus's defaults)
 FEATURES = {
     "feat_meso": (meso, ("mesoscopic",), {}),
@@ -360,6 +384,7 @@ FEATURES = {
     "feat_paths": (paths, ("paths with spaces and non-ASCII", "../ paths"),
                    {"config": f"{PATHS_HOME}/cfg/scenario.sumocfg"}),
     "feat_tram": (tram, ("trams", "stops"), {}),
+    "feat_departures": (departures, ("departure attributes", "via", "included route file"), {}),
 }
 
 
