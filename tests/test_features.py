@@ -175,3 +175,21 @@ def test_a_mesoscopic_scenario_is_said_to_run_microscopically(features, tmp_path
                            "-o", str(tmp_path / "fill")], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-300:]
     assert any("mesosim" in ln and "microscopic" in ln for ln in done.stderr.splitlines()), done.stderr
+
+
+def test_a_route_file_that_includes_another_travels_with_it(features, tmp_path):
+    """``<include href="included.rou.xml"/>`` in a route file: the exported folder had the route file and
+    not the one it includes, and stock SUMO said "Cannot read file" (and went on without its demand)."""
+    import subprocess
+
+    from sumo_scendiff.core.tools import sumo_binary
+    cfg = variant(features, "feat_departures", tmp_path / "s")
+    out = tmp_path / "fill"
+    done = subprocess.run([sys.executable, "-m", "sumo_scendiff.fill", "-c", str(cfg), "--begin", "100",
+                           "-o", str(out)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-300:]
+    assert (out / "included.rou.xml").is_file()
+    for name in ("scenario.sumocfg", "start.sumocfg"):
+        ran = subprocess.run([sumo_binary("sumo"), "-c", str(out / name), "--end", "130", "--no-step-log"],
+                             capture_output=True, text=True)
+        assert ran.returncode == 0 and "Error" not in ran.stderr, ran.stderr[-300:]

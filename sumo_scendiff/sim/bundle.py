@@ -2,7 +2,8 @@
 
 Each input (network, route and additional files) is stored gzip-compressed under its own name in the
 folder (SUMO reads ``.gz`` inputs). A file is compressed once per process and hard-linked into every
-further folder on the same file system, so a run of many scenes costs the disk one copy.
+further folder on the same file system, so a run of many scenes costs the disk one copy. The files a
+route or additional file includes (``<include href>``, relative to it) travel beside it as they are.
 """
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import shutil
 import tempfile
 
 _cache: dict[tuple[str, float, int], str] = {}
+_hrefs: dict[tuple[str, float, int], list[str]] = {}
 _tmp: tempfile.TemporaryDirectory | None = None
 
 
@@ -34,9 +36,47 @@ def _compressed(src: str) -> str:
     return _cache[key]
 
 
-def bundle(src: str, folder: str) -> str:
+def _key(src: str) -> tuple[str, float, int]:
+    st = os.stat(src)
+    return os.path.abspath(src), st.st_mtime, st.st_size
+
+
+def _included(src: str) -> list[str]:
+    """The hrefs of ``src``'s ``<include>`` elements as written, read once per process."""
+    import xml.etree.ElementTree as ET
+
+    from ..core.sumo_xml import open_xml
+    key = _key(src)
+    if key not in _hrefs:
+        with open_xml(src) as f:
+            data = f.read()
+        _hrefs[key] = [el.get("href") for el in ET.fromstring(data).iter("include") if el.get("href")] \
+            if b"<include" in data else []
+    return _hrefs[key]
+
+
+def _bundle_includes(src: str, folder: str) -> None:
+    """The files ``src`` includes, copied under ``folder`` where its relative hrefs point from there (an
+    absolute href points where it did; one leading out of the folder is left, the folder would not
+    travel)."""
+    from ..core.sumo_xml import include_path
+    for href in _included(src):
+        if os.path.isabs(href) or os.path.normpath(href).startswith(".."):
+            continue
+        target, dest = include_path(src, href), os.path.join(folder, href)
+        if not os.path.isfile(target):
+            continue                  # SUMO names the missing file when it loads the folder
+        if not os.path.exists(dest):
+            os.makedirs(os.path.dirname(dest), exist_ok=True)
+            shutil.copyfile(target, dest)
+        _bundle_includes(target, os.path.dirname(dest))
+
+
+def bundle(src: str, folder: str, includes: bool = False) -> str:
     """Put ``src`` (compressed) into ``folder``; returns its name there (a file already in the
-    folder stays as it is)."""
+    folder stays as it is). ``includes``: and the files it includes (a route or additional file)."""
+    if includes:
+        _bundle_includes(src, folder)
     if os.path.dirname(os.path.abspath(src)) == os.path.abspath(folder):
         return os.path.basename(src)
     packed = _compressed(src)

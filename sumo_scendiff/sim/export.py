@@ -284,7 +284,7 @@ def write_sumocfg(path: str, options: dict[str, str], state: str | None,
             if name == "additional-files":
                 for sub in {s for v in value.split(",") for s in output_folders(v)}:
                     os.makedirs(os.path.join(here, sub), exist_ok=True)
-            value = ",".join(bundle(v, here) for v in value.split(","))
+            value = ",".join(bundle(v, here, includes=name != "net-file") for v in value.split(","))
         lines.append(f"    <{name} value={quoteattr(value)}/>")
     if state:
         lines.append(f"    <load-state value={quoteattr(state)}/>")
