@@ -207,6 +207,7 @@ CONTROL = """    <route id="cal_route" edges="A2B2 B2C2 C2D2"/>
         <step time="100" speed="9"/>
         <step time="200" speed="13.89"/>
     </variableSpeedSign>
+    <variableSpeedSign id="vss_by_file" lanes="C3B3_0" file="speeds/vss.xml"/>
     <rerouter id="closure" edges="B0B1 A1B1 C1B1">
         <interval begin="0" end="1000">
             <closingReroute id="B1B2"/>
@@ -215,9 +216,17 @@ CONTROL = """    <route id="cal_route" edges="A2B2 B2C2 C2D2"/>
 """
 
 
+VSS_STEPS = """    <step time="0" speed="8"/>
+    <step time="150" speed="13.89"/>
+"""
+
+
 def traffic_control(dest: Path) -> None:
-    """A calibrator, a variable speed sign and a rerouter closing an edge."""
+    """A calibrator, variable speed signs (one with its steps in a file of their own) and a rerouter
+    closing an edge."""
     base(dest)
+    (dest / "speeds").mkdir()
+    write(dest, "speeds/vss.xml", "vss", VSS_STEPS)
     sumocfg(dest / "scenario.sumocfg", "net.net.xml", ["passenger.rou.xml"],
             [write(dest, "control.add.xml", "additional", CONTROL)])
 

@@ -193,3 +193,20 @@ def test_a_route_file_that_includes_another_travels_with_it(features, tmp_path):
         ran = subprocess.run([sumo_binary("sumo"), "-c", str(out / name), "--end", "130", "--no-step-log"],
                              capture_output=True, text=True)
         assert ran.returncode == 0 and "Error" not in ran.stderr, ran.stderr[-300:]
+
+
+def test_a_variable_speed_signs_own_file_travels_with_its_additional_file(features, tmp_path):
+    """``<variableSpeedSign ... file="speeds/vss.xml"/>``: the exported folder had the additional file
+    and not the definitions it reads, and stock SUMO refused the folder."""
+    import subprocess
+
+    from sumo_scendiff.core.tools import sumo_binary
+    cfg = variant(features, "feat_traffic_control", tmp_path / "s")
+    out = tmp_path / "fill"
+    done = subprocess.run([sys.executable, "-m", "sumo_scendiff.fill", "-c", str(cfg), "--begin", "120",
+                           "-o", str(out)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-300:]
+    assert (out / "speeds" / "vss.xml").is_file()
+    ran = subprocess.run([sumo_binary("sumo"), "-c", str(out / "start.sumocfg"), "--end", "130", "--no-step-log"],
+                         capture_output=True, text=True)
+    assert ran.returncode == 0 and "Error" not in ran.stderr, ran.stderr[-300:]

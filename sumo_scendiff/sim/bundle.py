@@ -3,7 +3,8 @@
 Each input (network, route and additional files) is stored gzip-compressed under its own name in the
 folder (SUMO reads ``.gz`` inputs). A file is compressed once per process and hard-linked into every
 further folder on the same file system, so a run of many scenes costs the disk one copy. The files a
-route or additional file includes (``<include href>``, relative to it) travel beside it as they are.
+route or additional file reads (``<include href>``, a rerouter's or variable speed sign's ``file``, relative
+to it) travel beside it as they are.
 """
 from __future__ import annotations
 
@@ -42,21 +43,28 @@ def _key(src: str) -> tuple[str, float, int]:
 
 
 def _included(src: str) -> list[str]:
-    """The hrefs of ``src``'s ``<include>`` elements as written, read once per process."""
+    """The files ``src`` reads, as written: its ``<include>``s' hrefs and the ``file`` of an element that
+    is no output (a rerouter's or a variable speed sign's definitions), read once per process."""
     import xml.etree.ElementTree as ET
 
     from ..core.sumo_xml import open_xml
+    from .additional import OUTPUTS
     key = _key(src)
     if key not in _hrefs:
         with open_xml(src) as f:
             data = f.read()
-        _hrefs[key] = [el.get("href") for el in ET.fromstring(data).iter("include") if el.get("href")] \
-            if b"<include" in data else []
+        refs = []
+        if b"<include" in data or b" file=" in data:
+            for el in ET.fromstring(data).iter():
+                ref = el.get("href") if el.tag == "include" else \
+                    el.get("file") if OUTPUTS.get(el.tag) != "file" else None
+                refs += [ref] if ref else []
+        _hrefs[key] = refs
     return _hrefs[key]
 
 
 def _bundle_includes(src: str, folder: str) -> None:
-    """The files ``src`` includes, copied under ``folder`` where its relative hrefs point from there (an
+    """The files ``src`` reads (:func:`_included`), copied under ``folder`` where its relative hrefs point from there (an
     absolute href points where it did; one leading out of the folder is left, the folder would not
     travel)."""
     from ..core.sumo_xml import include_path
