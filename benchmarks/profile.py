@@ -35,6 +35,7 @@ import time
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
 BIG = os.path.normpath(os.path.join(ROOT, "..", "shared", "nets", "resco_ingolstadt21", "ingolstadt21.net.xml"))
 G = "sumo_scendiff.generation.generator"
+P = "sumo_scendiff.generation.scene_passes"   # the passes after the model (in G before)
 SUBPROCESSES = "subprocesses (the preflight's sumo), CPU"
 # (phase, [module:attribute ...]) in table order; an attribute a checkout lacks is skipped
 PHASES = [
@@ -53,20 +54,24 @@ PHASES = [
     ("lane headings", [f"{G}:junction_yaw"]),
     ("box decoding", [f"{G}:decode_boxes", f"{G}:_decode"]),
     ("batch assembly (tokens, noise)", [f"{G}:ScenarioGenerator._batch"]),
-    ("box selection", [f"{G}:select_boxes", f"{G}:_select"]),
-    ("overlap removal", [f"{G}:remove_overlaps"]),
+    ("box selection", [f"{G}:select_boxes", f"{G}:_select", f"{P}:select_boxes"]),
+    ("overlap removal", [f"{G}:remove_overlaps", f"{P}:remove_overlaps"]),
     ("pinned tokens (turn, pace)", [f"{G}:turn_to_pins", f"{G}:pace_to_pins", f"{G}:match_pins",
-                                    f"{G}:_turn_pins"]),
+                                    f"{G}:_turn_pins", f"{P}:turn_to_pins", f"{P}:pace_to_pins",
+                                    f"{P}:match_pins", f"{P}:_turn_pins"]),
     ("delivered tokens (match, apply, pace)", [f"{G}:delivered_rows", f"{G}:match_rows", f"{G}:apply_rows",
-                                               f"{G}:pace_rows", f"{G}:missing_pins", f"{G}:_deliver"]),
-    ("lane snap", [f"{G}:snap_to_lanes", f"{G}:_snap"]),
+                                               f"{G}:pace_rows", f"{G}:missing_pins", f"{G}:_deliver",
+                                               f"{P}:delivered_rows", f"{P}:match_rows", f"{P}:apply_rows",
+                                               f"{P}:pace_rows", f"{P}:missing_pins", f"{P}:_deliver"]),
+    ("lane snap", [f"{G}:snap_to_lanes", f"{G}:_snap", f"{P}:snap_to_lanes", f"{P}:_snap"]),
     ("count (trim to the density)", [f"{G}:trim_to_count", f"{G}:area_mask", f"{G}:_trim",
-                                     f"{G}:ScenarioGenerator._count", f"{G}:ScenarioGenerator._condition"]),
-    ("placing unmatched tokens", [f"{G}:place_rows", f"{G}:_place"]),
+                                     f"{G}:ScenarioGenerator._count", f"{G}:ScenarioGenerator._condition",
+                                     f"{P}:trim_to_count", f"{P}:area_mask", f"{P}:_trim"]),
+    ("placing unmatched tokens", [f"{G}:place_rows", f"{G}:_place", f"{P}:place_rows", f"{P}:_place"]),
     ("infill passes", [f"{G}:ScenarioGenerator._infill", f"{G}:add_new_agents", f"{G}:in_area",
                        f"{G}:scene_tokens"]),
     ("red queues", [f"{G}:stand_at_red"]),
-    ("scene assembly", [f"{G}:ScenarioGenerator._scene", f"{G}:_finish"]),
+    ("scene assembly", [f"{G}:ScenarioGenerator._scene", f"{G}:_finish", f"{P}:build_scene"]),
     ("generate's own loop", [f"{G}:ScenarioGenerator.generate"]),
     ("SUMO seeding", ["sumo_scendiff.sim.cosim:CoSimulation.place", "sumo_scendiff.sim.cosim:CoSimulation.verify"]),
     ("writing the scene", ["sumo_scendiff.sim.export:ScenarioWriter.after_seeding",

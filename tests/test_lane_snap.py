@@ -13,6 +13,7 @@ from sumo_scendiff.generation.generator import (
     speeds_from_traj,
 )
 from sumo_scendiff.generation.lane_snap import snap_to_lanes, walk_lanes
+from sumo_scendiff.generation.scene_passes import build_scene
 from sumo_scendiff.map.network import Network
 from sumo_scendiff.tokens.encoding import agent_tokens_from_dicts
 
@@ -147,7 +148,6 @@ def test_generator_removes_agents_on_no_lane_unless_a_token_asked(cross_net):
     net = Network.load(cross_net)
     c = _centre(net)
     win = Window(float(c[0]), float(c[1]), 0.0)
-    gen = ScenarioGenerator.load()
     poses = np.array([(-30.0, -1.6, 0.0),     # on the eastbound lane
                       (-30.0, -20.0, 0.0),    # 18 m off the road
                       (30.0, -20.0, 0.0),     # off the road, where a token asked for a vehicle
@@ -156,8 +156,8 @@ def test_generator_removes_agents_on_no_lane_unless_a_token_asked(cross_net):
     traj = np.repeat(poses[:, None], 5, 1).astype(np.float32)
     prob = np.array([0.9, 0.95, 0.85, 0.99], np.float32)
     tokens = agent_tokens_from_dicts([{"x": 30.0, "y": -20.0}])
-    scene = gen._scene(win, prob, boxes, traj, GenerationConfig(), net, tokens)
+    scene = build_scene(win, prob, boxes, traj, GenerationConfig(), net, tokens)
     assert len(scene) == 2 and scene.meta["off_lane_removed"] == 2
     assert sorted(np.round(scene.boxes[:, 0]).tolist()) == [-30.0, 30.0]
-    raw = gen._scene(win, prob, boxes, traj, GenerationConfig(lane_snap=False), net, tokens)
+    raw = build_scene(win, prob, boxes, traj, GenerationConfig(lane_snap=False), net, tokens)
     assert len(raw) == 4 and raw.meta["off_lane_removed"] == 0

@@ -22,6 +22,7 @@ from sumo_scendiff.generation.pinning import (
     token_trajectories,
     turn_to_pins,
 )
+from sumo_scendiff.generation.scene_passes import build_scene
 from sumo_scendiff.map.network import Network
 from sumo_scendiff.model.edm import SAMPLERS, inpainted, karras_sigmas
 
@@ -276,9 +277,8 @@ def test_a_pinned_agent_on_a_junction_takes_the_tokens_lane(cross_net):
     decoded_yaw = 0.2                                    # the decoder says east, along the crossing lane
     boxes = np.array([[xy[0] + 0.5, xy[1], decoded_yaw, 4.5, 1.8]], np.float32)
     traj = np.repeat(boxes[:, None, :3], 5, 1)
-    gen = ScenarioGenerator.load()
-    scene = gen._scene(window, np.array([0.9], np.float32), boxes, traj, GenerationConfig(), net,
-                       pins=pinned_poses([token]))
+    scene = build_scene(window, np.array([0.9], np.float32), boxes, traj, GenerationConfig(), net,
+                        pins=pinned_poses([token]))
     assert len(scene) == 1 and scene.boxes[0, 2] == pytest.approx(np.pi / 2, abs=0.02)
     assert abs(scene.boxes[0, 0] - xy[0]) < 1e-2                   # on the northbound lane's centre line
     unpinned = snap_to_lanes(boxes, traj, window, net)[0]

@@ -1,5 +1,5 @@
 """The batched post-processing of generation gives what the straightforward loops it replaced gave,
-bit for bit, on random inputs: overlap removal (generator.remove_overlaps) and junction headings
+bit for bit, on random inputs: overlap removal (scene_passes.remove_overlaps) and junction headings
 (lane_heading.junction_yaw). The references below are those loops as they were."""
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Reaching a requested vehicle count the first drawing fell short of, by the paper's infill.
 
 A scene asked for N vehicles (``--density``/``--vehicles``) keeps the model's N most probable boxes
-(``generator.trim_to_count``). Where the model drew fewer, the window is drawn again with every agent
+(``scene_passes.trim_to_count``). Where the model drew fewer, the window is drawn again with every agent
 of the first scene as a pinned token (the paper's Sec. 4.2 infill, as the whole-network fill pins a
 tile's neighbours), its global token at p_mask 1 ("add what belongs here": the count is kept by
 trimming; a p_mask naming the share the pins describe is, under the tokens' classifier-free guidance,

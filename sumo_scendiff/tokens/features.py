@@ -13,7 +13,7 @@ FEATURES: tuple[str, ...] = ("x", "y", "heading", "length", "width", "speed", "f
                              "heading_to_final")
 
 # what a token says to the seeder, not to the model: the scenario's vType its vehicle is (sim/fleet.py),
-# the class it is (generation/generator.py: the model's box for a bus is often truck-long)
+# the class it is (generation/scene_passes.py: the model's box for a bus is often truck-long)
 SEEDING_KEYS = ("vtype", "vclass")
 
 # every feature a pinned agent needs: pose, size and speed (generation.pinning)
