@@ -147,7 +147,7 @@ def _running_after_a_step(cfg: Path, tmp_path: Path) -> int:
     from sumo_scendiff.core.tools import sumo_binary
     fcd = tmp_path / f"{cfg.stem}.fcd.xml"
     done = subprocess.run([sumo_binary("sumo"), "-c", str(cfg), "--fcd-output", str(fcd), "--no-step-log",
-                           "--end", "122"], capture_output=True, text=True)
+                           "--end", "122"], capture_output=True, text=True, cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-300:]
     return len(list(next(iter(ET.parse(fcd).getroot()))))
 
@@ -160,7 +160,7 @@ def test_the_fills_portable_start_is_not_scaled_twice(features, tmp_path):
     cfg = variant(features, "feat_options_insertion", tmp_path / "s")
     out = tmp_path / "fill"
     done = subprocess.run([sys.executable, "-m", "sumo_scendiff.fill", "-c", str(cfg), "--begin", "120",
-                           "-o", str(out)], capture_output=True, text=True)
+                           "-o", str(out)], capture_output=True, text=True, cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-300:]
     running = _running_after_a_step(out / "scenario.sumocfg", tmp_path)
     assert running > 10 and _running_after_a_step(out / "start.sumocfg", tmp_path) == running
@@ -172,7 +172,7 @@ def test_a_mesoscopic_scenario_is_said_to_run_microscopically(features, tmp_path
     import subprocess
     cfg = variant(features, "feat_meso", tmp_path / "s")
     done = subprocess.run([sys.executable, "-m", "sumo_scendiff.fill", "-c", str(cfg), "--begin", "120",
-                           "-o", str(tmp_path / "fill")], capture_output=True, text=True)
+                           "-o", str(tmp_path / "fill")], capture_output=True, text=True, cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-300:]
     assert any("mesosim" in ln and "microscopic" in ln for ln in done.stderr.splitlines()), done.stderr
 
@@ -186,12 +186,12 @@ def test_a_route_file_that_includes_another_travels_with_it(features, tmp_path):
     cfg = variant(features, "feat_departures", tmp_path / "s")
     out = tmp_path / "fill"
     done = subprocess.run([sys.executable, "-m", "sumo_scendiff.fill", "-c", str(cfg), "--begin", "100",
-                           "-o", str(out)], capture_output=True, text=True)
+                           "-o", str(out)], capture_output=True, text=True, cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-300:]
     assert (out / "included.rou.xml").is_file()
     for name in ("scenario.sumocfg", "start.sumocfg"):
         ran = subprocess.run([sumo_binary("sumo"), "-c", str(out / name), "--end", "130", "--no-step-log"],
-                             capture_output=True, text=True)
+                             capture_output=True, text=True, cwd=tmp_path)
         assert ran.returncode == 0 and "Error" not in ran.stderr, ran.stderr[-300:]
 
 
@@ -204,9 +204,9 @@ def test_a_variable_speed_signs_own_file_travels_with_its_additional_file(featur
     cfg = variant(features, "feat_traffic_control", tmp_path / "s")
     out = tmp_path / "fill"
     done = subprocess.run([sys.executable, "-m", "sumo_scendiff.fill", "-c", str(cfg), "--begin", "120",
-                           "-o", str(out)], capture_output=True, text=True)
+                           "-o", str(out)], capture_output=True, text=True, cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-300:]
     assert (out / "speeds" / "vss.xml").is_file()
     ran = subprocess.run([sumo_binary("sumo"), "-c", str(out / "start.sumocfg"), "--end", "130", "--no-step-log"],
-                         capture_output=True, text=True)
+                         capture_output=True, text=True, cwd=tmp_path)
     assert ran.returncode == 0 and "Error" not in ran.stderr, ran.stderr[-300:]
