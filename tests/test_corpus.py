@@ -223,5 +223,5 @@ def test_every_feature_variant_runs_in_stock_sumo(corpus, tmp_path):
         cfg = corpus.build(sc, tmp_path)
         assert json.loads((tmp_path / sc.name / "source.json").read_text())["get"]["feature"] == sc.name
         ref = subprocess.run([corpus._sumo(), "-c", str(cfg), "--end", f"{corpus.begin_time(sc, cfg) + 30:g}"],
-                             capture_output=True, text=True)
+                             capture_output=True, text=True, cwd=tmp_path)   # a calibrator writes there
         assert ref.returncode == 0 and "Error" not in ref.stderr, f"{sc.name}: {ref.stderr[-300:]}"
