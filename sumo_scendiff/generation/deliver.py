@@ -308,6 +308,55 @@ def _placed(net, window: Window, lane: int, pos: float, v0: float, v2: float, ro
     return tr
 
 
+def _row_lane(net, window: Window, row: np.ndarray) -> tuple[int, float, bool, float | None]:
+    """The car lane a row's vehicle is placed on, at the token's position (within lane snap's
+    radius, along its heading where it gives one): (lane, pos, stated, world yaw); lane -1: none.
+    ``stated``: the pose now is the token's, no lane running along its heading (lane_snap's exact)."""
+    xy = window.scene_to_world(row[None, 1:3])[0]
+    yaw = None if not np.isfinite(row[3]) else float(window.yaw_to_world(row[3]))
+    m = net.match_poses(xy[None], None if yaw is None else [yaw], radius=SNAP_RADIUS,
+                        max_angle=SNAP_MAX_ANGLE)
+    stated = False
+    if yaw is not None and m.lane[0] >= 0 and m.heading_diff[0] > GIVEN_MAX_ANGLE:
+        strict = net.match_poses(xy[None], [yaw], radius=SNAP_RADIUS, max_angle=GIVEN_MAX_ANGLE)
+        m, stated = (strict, False) if strict.lane[0] >= 0 else (m, True)
+    return int(m.lane[0]), float(m.pos[0]), stated, yaw
+
+
+def _row_path(net, window: Window, row: np.ndarray, lane: int, pos: float, stated: bool,
+              lines: list[str], where: str) -> np.ndarray:
+    """(T, 3) scene-frame poses of a placed row's vehicle: speeds from the token or the lane's limit,
+    along the lane graph, through the token's turn where the lanes let a vehicle drive it."""
+    v0 = row[6] if np.isfinite(row[6]) else float(net.lanes[lane].speed)
+    v2 = row[7] if np.isfinite(row[7]) else (_moving(float(v0), float(v0)) if np.isfinite(row[8]) else v0)
+    tr = _placed(net, window, lane, pos, float(v0), float(v2), row, stated)
+    if np.isfinite(row[8]):
+        # the token's turn from the pose now, where the lanes let a vehicle drive it (pace_rows)
+        t = np.asarray(TIMES)
+        found = turn_path(net, window, tr[T0].copy(), float(v0), float(v2), float(row[8]),
+                          free=not np.isfinite(row[7]))
+        if found is None:
+            lines.append(f"{where}: heading_to_final {row[8]:+.2f} rad: no car lane turns so: "
+                         f"the vehicle follows its lane")
+        else:
+            if found[1] != v2:             # slower into the turn: the past at that deceleration
+                tr = _placed(net, window, lane, pos, float(v0), found[1], row, stated)
+            tr[t > 0] = found[0][t > 0]
+    return tr
+
+
+def _hits(box: np.ndarray, boxes: np.ndarray, owner: np.ndarray, add_b: list, add_o: list,
+          removed: set[int]) -> tuple[list[int], np.ndarray]:
+    """The agents (not yet removed; the scene's, then those placed so far) a placed box overlaps,
+    and every agent's owner."""
+    mine = box_polygons(box[None])[0]
+    all_b = np.concatenate([boxes, np.array(add_b).reshape(-1, 5)])
+    all_o = np.concatenate([owner, np.array(add_o, owner.dtype)])
+    hit = np.flatnonzero(shapely.area(shapely.intersection(
+        box_polygons(all_b), mine)) > 1e-3) if len(all_b) else np.zeros(0, int)
+    return [k for k in hit.tolist() if k not in removed], all_o
+
+
 def place_rows(boxes: np.ndarray, traj: np.ndarray, owner: np.ndarray, rows: np.ndarray,
                window: Window, net) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int], list[str]]:
     """Place the rows no generated agent matched: on the car lane at the token's position (within
@@ -326,42 +375,15 @@ def place_rows(boxes: np.ndarray, traj: np.ndarray, owner: np.ndarray, rows: np.
         if i in done:
             continue
         where = f"token {i} at ({row[1]:.1f}, {row[2]:.1f}) m (window frame)"
-        xy = window.scene_to_world(row[None, 1:3])[0]
-        yaw = None if not np.isfinite(row[3]) else float(window.yaw_to_world(row[3]))
-        m = net.match_poses(xy[None], None if yaw is None else [yaw], radius=SNAP_RADIUS,
-                            max_angle=SNAP_MAX_ANGLE)
-        stated = False      # the pose now is the token's: no lane runs along its heading (lane_snap's exact)
-        if yaw is not None and m.lane[0] >= 0 and m.heading_diff[0] > GIVEN_MAX_ANGLE:
-            strict = net.match_poses(xy[None], [yaw], radius=SNAP_RADIUS, max_angle=GIVEN_MAX_ANGLE)
-            m, stated = (strict, False) if strict.lane[0] >= 0 else (m, True)
-        if m.lane[0] < 0:
+        lane, pos, stated, yaw = _row_lane(net, window, row)
+        if lane < 0:
             lines.append(f"{where}: on no car lane within {SNAP_RADIUS:g} m"
                          f"{'' if yaw is None else ' that runs along its heading'}: not placed")
             continue
-        lane, pos = int(m.lane[0]), float(m.pos[0])
-        v0 = row[6] if np.isfinite(row[6]) else float(net.lanes[lane].speed)
-        v2 = row[7] if np.isfinite(row[7]) else (_moving(float(v0), float(v0)) if np.isfinite(row[8]) else v0)
-        tr = _placed(net, window, lane, pos, float(v0), float(v2), row, stated)
-        if np.isfinite(row[8]):
-            # the token's turn from the pose now, where the lanes let a vehicle drive it (pace_rows)
-            t = np.asarray(TIMES)
-            found = turn_path(net, window, tr[T0].copy(), float(v0), float(v2), float(row[8]),
-                              free=not np.isfinite(row[7]))
-            if found is None:
-                lines.append(f"{where}: heading_to_final {row[8]:+.2f} rad: no car lane turns so: "
-                             f"the vehicle follows its lane")
-            else:
-                if found[1] != v2:             # slower into the turn: the past at that deceleration
-                    tr = _placed(net, window, lane, pos, float(v0), found[1], row, stated)
-                tr[t > 0] = found[0][t > 0]
+        tr = _row_path(net, window, row, lane, pos, stated, lines, where)
         size = row[4:6] if np.isfinite(row[4]) else np.array([CAR_LENGTH, CAR_WIDTH])
         box = np.r_[tr[T0], size]
-        mine = box_polygons(box[None])[0]
-        all_b = np.concatenate([boxes, np.array(add_b).reshape(-1, 5)])
-        all_o = np.concatenate([owner, np.array(add_o, owner.dtype)])
-        hit = np.flatnonzero(shapely.area(shapely.intersection(
-            box_polygons(all_b), mine)) > 1e-3) if len(all_b) else np.zeros(0, int)
-        hit = [k for k in hit.tolist() if k not in removed]
+        hit, all_o = _hits(box, boxes, owner, add_b, add_o, removed)
         if any(all_o[k] >= 0 for k in hit):
             lines.append(f"{where}: overlaps the vehicle of token {int(all_o[[k for k in hit if all_o[k] >= 0][0]])}"
                          f": not placed")
