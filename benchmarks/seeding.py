@@ -46,9 +46,9 @@ Determinism: with libsumo 1.28 the steps after a ``loadState`` depend on where S
 in memory (measured on city.net.xml: the same state file loaded into a fresh SUMO gives other
 vehicle positions one step later from run to run, even within one process; warm-ups from scratch
 repeat exactly). So the model's scenes are generated here, and SUMO runs in a fresh interpreter
-per net (``--worker``) that is given only that net's inputs and has nothing that varies between
-runs: no address space randomisation (``personality``, as ``setarch -R``), no torch, one BLAS
-thread, a fixed hash seed, a fixed environment (only ``WORKER_ENV``: its size moves the stack),
+per net (``--worker``: benchmarks/seeding_sim.py) that is given only that net's inputs and has
+nothing that varies between runs: no address space randomisation (``personality``, as
+``setarch -R``), no torch, one BLAS thread, a fixed hash seed, a fixed environment (only ``WORKER_ENV``: its size moves the stack),
 fixed file names (``$TMPDIR/scendiff-bench-seeding-UID/work``, locked),
 stdout / stderr to a pipe / file, windows and methods in a fixed order, the begin time on the step
 grid. Then the same seed gives the same numbers, whatever other nets the command has (checked by
@@ -70,7 +70,8 @@ import sys
 import time
 from collections import Counter
 
-from seeding_tables import METHODS, tables
+from seeding_sim import sim_config, worker
+from seeding_tables import tables
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
 SHARED = os.path.join(ROOT, "..", "shared", "nets")
@@ -134,11 +135,6 @@ def get_options(args=None):
 def default_nets() -> list[str]:
     return [CITY] + [os.path.normpath(os.path.join(SHARED, r)) for r in REAL
                      if os.path.exists(os.path.join(SHARED, r))]
-
-
-def _reason(msg: str) -> str:
-    """A refusal message with vehicle / route / type ids blanked, so equal causes count together."""
-    return re.sub(r"'[^']*'", "'…'", msg)[:120]
 
 
 # ---- one network ---------------------------------------------------------------------------------
@@ -215,10 +211,7 @@ def bench_net(path: str, gen, o, explicit: bool) -> dict | None:
     """Windows and the model's scenes here; everything SUMO does in a fresh child process."""
     import pickle
     import shutil
-    import subprocess
     import tempfile
-
-    from tqdm import tqdm
 
     from sumo_scendiff.data.demand import find_demand
     from sumo_scendiff.map.locations import auto_windows
@@ -258,20 +251,7 @@ def bench_net(path: str, gen, o, explicit: bool) -> dict | None:
         with open(src, "wb") as f:
             pickle.dump({"path": os.path.abspath(path), "windows": windows, "scenes": scenes, "opts": opts,
                          "demand": dem, "dir": io}, f)
-        # only the variables a worker needs: without address space randomisation the environment's
-        # size moves the stack and with it SUMO's memory layout (measured: one more variable of 3 kB
-        # changed Lane-uniform's teleports on cologne1)
-        env = {k: os.environ[k] for k in WORKER_ENV if k in os.environ}
-        env.update(PYTHONHASHSEED="0", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
-        with no_aslr() as fixed, open(log, "w") as err, \
-                tqdm(total=len(windows), desc=net.name, unit="window", leave=False) as bar:
-            proc = subprocess.Popen([sys.executable, os.path.abspath(__file__), "--worker", src, dst],
-                                    env=env, stdout=subprocess.PIPE, stderr=err, text=True)
-            for _ in proc.stdout:                         # one line per window done
-                bar.update(1)
-            if proc.wait() != 0:
-                with open(log) as f:
-                    sys.exit(f"{net.name}: the SUMO worker failed:\n{f.read()[-3000:]}")
+        fixed = run_worker(net.name, len(windows), src, dst, log)
         with open(dst, "rb") as f:
             r = pickle.load(f)
         shutil.rmtree(io, ignore_errors=True)
@@ -281,12 +261,28 @@ def bench_net(path: str, gen, o, explicit: bool) -> dict | None:
     return r
 
 
-def sim_config(path: str, dem: tuple, o):
-    """The SUMO configuration of a net's warm-up and rollouts (``dem`` from :func:`demand`)."""
-    from sumo_scendiff.sim.sumo import SimConfig
-    routes, begin, extra, _ = dem
-    return SimConfig(net=path, routes=(routes,), step_length=o.step_length, seed=o.seed, begin=begin,
-                     extra=tuple(["--ignore-route-errors", "true"] + extra))
+def run_worker(name: str, windows: int, src: str, dst: str, log: str) -> bool:
+    """``seeding.py --worker SRC DST`` (seeding_sim.py) in a fresh interpreter, its progress shown;
+    exits naming the net if it fails. Returns whether address space randomisation was off."""
+    import subprocess
+
+    from tqdm import tqdm
+
+    # only the variables a worker needs: without address space randomisation the environment's
+    # size moves the stack and with it SUMO's memory layout (measured: one more variable of 3 kB
+    # changed Lane-uniform's teleports on cologne1)
+    env = {k: os.environ[k] for k in WORKER_ENV if k in os.environ}
+    env.update(PYTHONHASHSEED="0", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    with no_aslr() as fixed, open(log, "w") as err, \
+            tqdm(total=windows, desc=name, unit="window", leave=False) as bar:
+        proc = subprocess.Popen([sys.executable, os.path.abspath(__file__), "--worker", src, dst],
+                                env=env, stdout=subprocess.PIPE, stderr=err, text=True)
+        for _ in proc.stdout:                         # one line per window done
+            bar.update(1)
+        if proc.wait() != 0:
+            with open(log) as f:
+                sys.exit(f"{name}: the SUMO worker failed:\n{f.read()[-3000:]}")
+    return fixed
 
 
 def host_at_t(path: str, dem: tuple, o, net, windows: list) -> tuple[list | None, list | None]:
@@ -314,105 +310,6 @@ def host_at_t(path: str, dem: tuple, o, net, windows: list) -> tuple[list | None
         return lights, density
     finally:
         close(sim)
-
-
-def simulate(path: str, windows: list, scenes: list, o, dem: tuple, work: str) -> dict:
-    """The SUMO part of one network (runs in the child process); ``dem`` from :func:`demand`,
-    ``work`` the directory for the saved state."""
-    import numpy as np
-
-    from sumo_scendiff.evaluate.baselines import LaneUniform
-    from sumo_scendiff.map.network import Network
-    from sumo_scendiff.sim.cosim import CoSimulation, Existing
-    from sumo_scendiff.sim.rollout import rollout
-    from sumo_scendiff.sim.sumo import close, start
-
-    net = Network.load(path)
-    lane = LaneUniform(net, seed=o.seed)
-    lu_scenes = [lane.generate(w, index=i) for i, w in enumerate(windows)]
-    begin, label = dem[1], dem[3]
-    cfg = sim_config(path, dem, o)
-    base = os.path.join(work, "state.xml")
-    sim = start(cfg)
-    try:
-        t = time.perf_counter()
-        sim.simulationStep(begin + o.warmup)
-        t_warm = time.perf_counter() - t
-        on_road = len(sim.vehicle.getIDList())
-        sim.simulation.saveState(base)
-    finally:
-        close(sim)
-    res = {m: {"stats": [], "generated": 0, "dropped": 0, "refused": Counter(), "absent": 0,
-               "off_pose": 0, "placed": 0, "slowed": 0, "fitted": 0, "junction": 0,
-                  "narrowed": 0, "pulled_back": 0, "to_stop_line": 0} for m in METHODS}
-    t = time.perf_counter()
-    events = []
-    for k, w in enumerate(windows):
-        for name, scene in zip(METHODS, (None, scenes[k], lu_scenes[k])):
-            # a fresh SUMO at the base state for every rollout, as run's Session does: each starts
-            # from the same state and the same random streams, whatever ran before it
-            sim = start(cfg)
-            try:
-                sim.simulation.loadState(base)
-                cosim = CoSimulation(sim, net, None, seed=o.seed)
-                cosim.seeder.resolve_junctions = getattr(o, "junction_rule", True)
-                cosim.seeder.junction_leaders_on = getattr(o, "junction_leaders", True)
-                cosim.seeder.red_to_stop_line = getattr(o, "red_stop_line", True)
-                if not getattr(o, "width_cap", True):
-                    cosim.seeder.width_cap = None
-                ex = cosim.existing(w)
-                tracer = None
-                if getattr(o, "events", False) and name != "Lane-uniform":
-                    from sumo_scendiff.sim.events import EventTracer
-                    tracer = EventTracer(sim, net, [], label={"net": net.name, "window": k, "method": name})
-                if scene is None:                          # (a) SUMO's own traffic in the window
-                    sim.simulationStep()
-                    if tracer is not None:
-                        tracer.agents = set(ex.token_ids())
-                    res[name]["stats"].append(rollout(sim, ex.token_ids(), o.rollout, tracer=tracer))
-                    if tracer is not None:
-                        events += tracer.events + [{"kind": "host-host", "t": x[0], "lane": x[3], "ids": x[1:3],
-                                                    **tracer.label} for x in tracer.others]
-                    continue
-                for vid in ex.token_ids():                 # (b), (c): the window emptied, then seeded
-                    sim.vehicle.remove(vid)
-                out = ~ex.inside
-                around = Existing([i for i, keep in zip(ex.ids, out) if keep], ex.boxes[out],
-                                  ex.speed[out], np.zeros(int(out.sum()), bool))
-                seeding = cosim.place(scene, [], [], around, seed=o.seed, p_mask=1.0)
-                sim.simulationStep()
-                cosim.verify(seeding)
-                r, rep = res[name], seeding.report
-                r["generated"] += len(scene)
-                r["dropped"] += seeding.dropped
-                r["refused"].update(_reason(m) for m in rep.refused.values())
-                r["absent"] += sum(1 for e in rep.misplaced.values() if not np.isfinite(e))
-                r["off_pose"] += sum(1 for e in rep.misplaced.values() if np.isfinite(e))
-                r["placed"] += rep.placed
-                r["slowed"] += len(rep.slowed)
-                r["fitted"] += len(rep.gap_fitted)
-                r["narrowed"] += len(rep.narrowed)
-                r["pulled_back"] += len(rep.pulled_back)
-                r["to_stop_line"] += len(rep.to_stop_line)
-                r["junction"] += len(getattr(rep, "conflicts", ()))
-                if tracer is not None:
-                    from sumo_scendiff.sim.events import seed_info
-                    tracer.agents = set(seeding.agent_ids)
-                    tracer.seeded = seed_info(sim, rep, seeding.scene)
-                    for d in tracer.seeded.values():
-                        if d.get("internal"):
-                            d["own_link"] = tracer.link_of(d["lane"])
-                r["stats"].append(rollout(sim, seeding.agent_ids, o.rollout, tracer=tracer))
-                if tracer is not None:
-                    events += tracer.events + [{"kind": "host-host", "t": x[0], "lane": x[3], "ids": x[1:3],
-                                                **tracer.label} for x in tracer.others]
-                    events.append({"kind": "seeded", "seeded": tracer.seeded, **tracer.label})
-            finally:
-                close(sim)
-        print(k + 1, flush=True)                           # progress, for the parent's bar
-    t_windows = time.perf_counter() - t
-    return {"demand": label, "on_road": on_road, "methods": res, "events": events,
-            "seconds": {"warmup": t_warm, "windows": t_windows}}
 
 
 def main(o) -> int:
@@ -445,19 +342,6 @@ def main(o) -> int:
     text = tables(results, o, command) + f"\n\nTotal wall time {time.perf_counter() - t:.0f} s.\n"
     from report import emit
     emit(text, o.output, "Seeding benchmark")
-    return 0
-
-
-def worker(src: str, dst: str) -> int:
-    """``--worker IN OUT``: :func:`simulate` on a pickled net's inputs (the SUMO process)."""
-    import pickle
-    import types
-    with open(src, "rb") as f:
-        job = pickle.load(f)
-    r = simulate(job["path"], job["windows"], job["scenes"], types.SimpleNamespace(**job["opts"]),
-                 job["demand"], job["dir"])
-    with open(dst, "wb") as f:
-        pickle.dump(r, f)
     return 0
 
 
