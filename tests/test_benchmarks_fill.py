@@ -1,4 +1,5 @@
-"""benchmarks/fill.py's helpers (no fill, no model): inputs chosen, Spearman, overlaps, options."""
+"""benchmarks/fill.py's helpers (no fill, no model): inputs chosen, Spearman, overlaps, options; and
+its --speed part's (benchmarks/fill_speed.py) other side, randomTrips + SUMO."""
 from __future__ import annotations
 
 import importlib.util
@@ -11,12 +12,21 @@ import pytest
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
-@pytest.fixture(scope="module")
-def bench():
-    spec = importlib.util.spec_from_file_location("bench_fill", os.path.join(HERE, "..", "benchmarks", "fill.py"))
+def _load(name: str):
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", os.path.join(HERE, "..", "benchmarks", f"{name}.py"))
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
+
+
+@pytest.fixture(scope="module")
+def bench():
+    return _load("fill")
+
+
+@pytest.fixture(scope="module")
+def speed():
+    return _load("fill_speed")
 
 
 def test_options(bench):
@@ -62,13 +72,13 @@ def test_inputs_config_else_net_and_routes(bench, diagonal_net, tmp_path):
     assert bench.inputs(net) == (["-n", os.path.abspath(diagonal_net)], None)
 
 
-def test_random_trips_reach_the_fills_number(bench, grid, tmp_path):
+def test_random_trips_reach_the_fills_number(bench, speed, grid, tmp_path):
     """The head-to-head's other side: randomTrips.py + SUMO until that many vehicles stand on the
     normal lanes (real tools, a tiny grid)."""
     o = bench.get_options(["--speed", "--step-length", "1"])
     km = sum(ln.length for ln in grid.lanes if ln.car and not ln.edge.startswith(":")) / 1000.0
-    r = bench.random_trips_side(grid.path, km, 10, str(tmp_path), o)
+    r = speed.random_trips_side(grid.path, km, 10, str(tmp_path), o)
     assert r["reached"] and r["vehicles"] >= 10 and r["veh_per_km"] == pytest.approx(r["vehicles"] / km)
-    assert 0 < r["simulated_s"] <= bench.RT_LIMIT_S and r["random_trips_s"] > 0
-    table = bench.speed_table([{"net": "grid", "after": {"error": ["boom"]}, "random_trips": r}], o)
+    assert 0 < r["simulated_s"] <= speed.RT_LIMIT_S and r["random_trips_s"] > 0
+    table = speed.speed_table([{"net": "grid", "after": {"error": ["boom"]}, "random_trips": r}], o)
     assert "randomTrips + SUMO" in table and "failed: ['boom']" in table
