@@ -44,11 +44,8 @@ def _merge(results: list[dict], method: str) -> dict:
     return out
 
 
-def tables(results: list[dict], o, command: str) -> str:
-    from sumo_scendiff.sim.rollout import RolloutStats
-    groups = [(r["net"], r["methods"]) for r in results]
-    if len(results) > 1:
-        groups.append((f"**all ({len(results)} nets)**", {m: _merge(results, m) for m in METHODS}))
+def _header(results: list[dict], o, command: str) -> list[str]:
+    """The command, the settings and one row per net: its demand, windows, vehicles and wall times."""
     lines = [f"Command: `{command}`", "",
              f"seed {o.seed}, {o.windows} windows per net (auto_windows), warm-up {o.warmup:g} s, "
              f"rollout {o.rollout:g} s, step {o.step_length:g} s, sublane 0.8 m; the model's scenes at density "
@@ -63,13 +60,17 @@ def tables(results: list[dict], o, command: str) -> str:
         kinds = ", ".join(f"{v} {k}" for k, v in r["kinds"].items())
         lines.append(f"| {r['net']} | {r['demand']} | {r['windows']} ({kinds}) | {r['on_road']} | "
                      f"{s['warmup']:.1f} / {s['generate']:.1f} / {s['windows']:.1f} / {s['total']:.1f} |")
+    return lines
 
-    lines += ["", "### Placement: generated agents within 0.5 m / 0.1 rad of their pose after the first step",
-              "", "| network | method | generated | dropped (on existing) | dropped (junction foe) | refused "
-              "| absent after step | off pose | placed | placement (placed / generated) "
-              "| placement of those seeded (placed / generated − dropped) | slowed to a safe speed "
-              "| minGap fitted to SUMO's leader | narrowed to the junctions' width | nose moved back behind "
-              "the stop line | moved from a red junction to its stop line |", "|---|" + "---|" * 15]
+
+def _placement(results: list[dict], groups: list) -> list[str]:
+    """Per net and method, where the generated agents stood after the first step; the refusals' reasons."""
+    lines = ["", "### Placement: generated agents within 0.5 m / 0.1 rad of their pose after the first step",
+             "", "| network | method | generated | dropped (on existing) | dropped (junction foe) | refused "
+             "| absent after step | off pose | placed | placement (placed / generated) "
+             "| placement of those seeded (placed / generated − dropped) | slowed to a safe speed "
+             "| minGap fitted to SUMO's leader | narrowed to the junctions' width | nose moved back behind "
+             "the stop line | moved from a red junction to its stop line |", "|---|" + "---|" * 15]
     for label, methods in groups:
         for k, name in enumerate(METHODS[1:]):
             m = methods[name]
@@ -89,12 +90,16 @@ def tables(results: list[dict], o, command: str) -> str:
         if refused:
             lines += ["", "| count | reason |", "|---|---|"]
             lines += [f"| {n} | {reason} |" for reason, n in refused.most_common()]
+    return lines
 
+
+def _rollout(groups: list, o) -> list[str]:
+    """Per net and method, the rollout's rates per 100 agents and their ratio to SUMO's own traffic."""
     head = " | ".join(c for _, c in RATES)
-    lines += ["", f"### Rollout: {o.rollout:g} s after hand-off, same windows and state; "
-                  "rates per 100 agents, ratio to SUMO's own traffic", "",
-              f"| network | method | agents | {head} | mean speed (m/s) | collisions × SUMO | "
-              "teleports × SUMO | e-brakes × SUMO | speed × SUMO |", "|---|" * 1 + "---|" * 10]
+    lines = ["", f"### Rollout: {o.rollout:g} s after hand-off, same windows and state; "
+                 "rates per 100 agents, ratio to SUMO's own traffic", "",
+             f"| network | method | agents | {head} | mean speed (m/s) | collisions × SUMO | "
+             "teleports × SUMO | e-brakes × SUMO | speed × SUMO |", "|---|" * 1 + "---|" * 10]
     for label, methods in groups:
         ref = totals(methods["SUMO"]["stats"])
         for k, name in enumerate(METHODS):
@@ -103,12 +108,18 @@ def tables(results: list[dict], o, command: str) -> str:
             ratios = ["" if name == "SUMO" else _ratio(d[key], ref[key]) for key, _ in RATES]
             ratios.append("" if name == "SUMO" else _ratio(d["mean_speed"], ref["mean_speed"]))
             lines.append(f"| {label if k == 0 else ''} | {name} | " + " | ".join(cells + ratios) + " |")
+    return lines
+
+
+def _collisions(groups: list) -> list[str]:
+    """The collision events by where and with whom, the teleports; the whole simulation's collision rate."""
+    from sumo_scendiff.sim.rollout import RolloutStats
     kinds = (("collisions_junction", "on a junction"), ("collisions_host", "with a host vehicle"),
              ("collisions_host_behind", "a host vehicle ran into the agent"),
              ("collisions_early", f"in the first {RolloutStats().brake_window:g} s"))
-    lines += ["", "Collision events (an event can be in several columns) and teleports, per net and in all:", "",
-              "| network | method | collisions | " + " | ".join(c for _, c in kinds) + " | teleports |",
-              "|---|---|" + "---|" * (2 + len(kinds))]
+    lines = ["", "Collision events (an event can be in several columns) and teleports, per net and in all:", "",
+             "| network | method | collisions | " + " | ".join(c for _, c in kinds) + " | teleports |",
+             "|---|---|" + "---|" * (2 + len(kinds))]
     for label, methods in groups:
         for k, name in enumerate(METHODS):
             stats = methods[name]["stats"]
@@ -126,4 +137,12 @@ def tables(results: list[dict], o, command: str) -> str:
             rate = (sum(100.0 * s.network_collisions / s.network_vehicles for s in runs) / len(runs)) if runs else float("nan")
             cells.append(_f(rate))
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    return lines
+
+
+def tables(results: list[dict], o, command: str) -> str:
+    groups = [(r["net"], r["methods"]) for r in results]
+    if len(results) > 1:
+        groups.append((f"**all ({len(results)} nets)**", {m: _merge(results, m) for m in METHODS}))
+    return "\n".join(_header(results, o, command) + _placement(results, groups) + _rollout(groups, o)
+                     + _collisions(groups))
