@@ -24,7 +24,8 @@ import shapely
 
 from ..core.geometry import T0, Window, box_polygons
 
-MIN_AREA = 1e-3   # m^2: boxes touching along an edge are not an overlap (as generator.remove_overlaps)
+MIN_AREA = 1e-3   # m^2: boxes touching along an edge are not an overlap (as scene_passes.remove_overlaps)
+AT_BOUNDARY = 0.01   # m: an --area side this close to the network's boundary is on it (its file's 2 decimals)
 
 
 class TileError(ValueError):
@@ -66,6 +67,20 @@ def car_bounds(net) -> tuple:
     """The bounding box of the network's car lanes."""
     xy = np.concatenate([net.lanes[i].shape for i in net.car_lane_ids])
     return (*xy.min(0), *xy.max(0))
+
+
+def whole_area(net, area: tuple | None) -> tuple | None:
+    """``area`` as the fill uses it: each side on or beyond the network's boundary (sumolib's
+    ``getBoundary``, the junctions and the edges' centre lines) taken out to the outline of the
+    outermost car lanes, which lie half a lane width and more beyond it; the other sides kept exactly.
+    A user giving the network's boundary means the whole network, outer streets included."""
+    if area is None:
+        return None
+    bx0, by0, bx1, by1 = net.sumo_net.getBoundary()
+    lx0, ly0, lx1, ly1 = shapely.total_bounds([net.lanes[i].polygon for i in net.car_lane_ids])
+    x0, y0, x1, y1 = area
+    return (min(x0, lx0) if x0 <= bx0 + AT_BOUNDARY else x0, min(y0, ly0) if y0 <= by0 + AT_BOUNDARY else y0,
+            max(x1, lx1) if x1 >= bx1 - AT_BOUNDARY else x1, max(y1, ly1) if y1 >= by1 - AT_BOUNDARY else y1)
 
 
 def tile_grid(net, area: tuple | None = None, stride: float = 75.0, size: float = 100.0) -> list[Tile]:
@@ -190,4 +205,5 @@ __all__ = [
     "pins_for",
     "scene_rows",
     "tile_grid",
+    "whole_area",
 ]
