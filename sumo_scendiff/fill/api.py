@@ -167,6 +167,9 @@ def fill_into(req: FillRequest, folder: str) -> dict:
         from .warm_start import sumo_start
         return sumo_start(req, net, scen, begin[0], begin[1], folder, {"load": time.perf_counter() - t})
     begin = begin[0]
+    from dataclasses import replace
+    from .tiles import whole_area
+    req = replace(req, area=whole_area(net, req.area))    # as the tiles were laid (tiles.whole_area)
     workers = req.workers or default_workers()
     cfg = _sim_config(req, scen, begin)
     from .output import seeding_sumo, write_outputs
@@ -250,9 +253,9 @@ def _begin(req: FillRequest, net, scen) -> tuple[float, float | None]:
 
 def _tiles(req: FillRequest, net) -> list:
     from ..map.raster import RasterConfig
-    from .tiles import TileError, tile_grid
+    from .tiles import TileError, tile_grid, whole_area
     try:
-        tiles = tile_grid(net, req.area, req.stride, RasterConfig().size)
+        tiles = tile_grid(net, whole_area(net, req.area), req.stride, RasterConfig().size)
     except TileError as e:
         raise FillError(str(e)) from None
     if not tiles:
