@@ -60,8 +60,8 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from scenarios_build import _named_files, _sumo_home, build  # noqa: E402,F401 -- the corpus's interface
 from scenarios_registry import REGISTRY, Scenario  # noqa: E402,F401
 from scenarios_run import (DEFAULT_CACHE, TIMEOUT, _merge, _one_line, _share, _sumo, _write_markdown,  # noqa: E402,F401
-                           begin_time, commands, fill_area, first_failure, markdown, placement, run_scenario,
-                           running_at, step)
+                           begin_time, check_count, commands, fill_area, first_failure, markdown, placement,
+                           run_scenario, running_at, step)
 
 
 # --------------------------------------------------------------------------- command line

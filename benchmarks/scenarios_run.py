@@ -152,26 +152,105 @@ def commands(cfg: Path, t: float, area: tuple, out: Path, scenes: int = 2, rollo
         "run": [py, "-m", "sumo_scendiff.run", "-c", cfg, "--begin", begin, "--scenes", str(scenes),
                 "--rollout", f"{rollout:g}", "-o", out / "run"],
         "run_replay": [_sumo(), "-c", out / "run" / "scene_000" / "scenario.sumocfg", "--end", f"{t + 5:g}",
-                       "--no-step-log", "true"],
+                       "--no-step-log", "true", "--summary-output", out / "run_replay_summary.xml"],
         "fill": [py, "-m", "sumo_scendiff.fill", "-c", cfg, "--begin", begin, f"--area={a}",
                  "-o", out / "fill"],
         "fill_replay": [_sumo(), "-c", out / "fill" / "scenario.sumocfg", "--end", end,
-                        "--no-step-log", "true"],
+                        "--no-step-log", "true", "--summary-output", out / "fill_replay_summary.xml"],
         "fill_start": [_sumo(), "-c", out / "fill" / "start.sumocfg", "--end", end,
-                       "--no-step-log", "true"],
+                       "--no-step-log", "true", "--summary-output", out / "fill_start_summary.xml"],
     }
+
+
+def summary_steps(summary: Path):
+    """The <step> elements of a SUMO summary-output, as dicts of their attributes, in time order."""
+    if summary.is_file():
+        for _, el in ET.iterparse(summary):
+            if el.tag == "step":
+                yield dict(el.attrib)
+            el.clear()
+
+
+def step_at(summary: Path, t: float) -> dict | None:
+    """The summary's last step at or before ``t``."""
+    last = None
+    for st in summary_steps(summary):
+        if float(st["time"]) > t + 1e-6:
+            break
+        last = st
+    return last
 
 
 def running_at(summary: Path, t: float) -> int | None:
     """Vehicles on the road in stock SUMO's run at T (its summary-output): how much traffic the product
     was given to fill around."""
-    running = None
-    if summary.is_file():
-        for _, el in ET.iterparse(summary):
-            if el.tag == "step" and float(el.get("time")) <= t + 1e-6:
-                running = int(el.get("running"))
-            el.clear()
-    return running
+    st = step_at(summary, t)
+    return int(st["running"]) if st else None
+
+
+def held(st: dict | None) -> int | None:
+    """The vehicles SUMO holds at a step: on the road (running) and loaded, due, not yet inserted
+    (waiting: the portable start's vehicles still queued at their departure)."""
+    return int(st["running"]) + int(st["waiting"]) if st else None
+
+
+# a replay's first step may differ from what the folder says by this much (docs/corpus.md: vehicles
+# arriving or teleported in the first step, the demand's departures due in it)
+COUNT_TOLERANCE = (2, 0.02)     # vehicles, share of the expected count: the larger of the two
+
+
+def _seeded(doc: dict) -> int:
+    """The agents a scene.json / fill.json says stand in SUMO: placed, or seeded off their pose."""
+    return sum(a.get("status") in ("placed", "misplaced") for a in doc.get("agents", []))
+
+
+def expected_vehicles(name: str, out: Path) -> tuple[int | None, str]:
+    """What a replay must hold at its first step and the words naming where that count comes from:
+    for the run's scene, stock SUMO's vehicles at the scene's time plus the scene's seeded agents; for
+    the fill's state and portable start, fill.json's seeded agents (the demand's own among them)."""
+    if name == "run_replay":
+        doc_path = out / "run" / "scene_000" / "scene.json"
+        if not doc_path.is_file():
+            return None, ""
+        doc = json.loads(doc_path.read_text())
+        t, seed = float(doc["time"]), doc["sumo_options"].get("seed")
+        stock = held(step_at(_stock_summary(out, t, seed), t))
+        if stock is None:
+            return None, ""
+        return stock + _seeded(doc), f"stock SUMO (seed {seed}) held {stock} at {t:g} s + {_seeded(doc)} placed"
+    doc_path = out / "fill" / "fill.json"
+    if not doc_path.is_file():
+        return None, ""
+    seeded = _seeded(json.loads(doc_path.read_text()))
+    return seeded, f"fill.json placed {seeded}"
+
+
+def _stock_summary(out: Path, t: float, seed) -> Path:
+    """Stock SUMO's summary-output of the run's configuration up to ``t`` with the product's SUMO seed:
+    the vehicles the scene kept from the simulation are those of a run with that seed (the corpus's own
+    stock step keeps the configuration's, SUMO's default where it names none)."""
+    cfg = json.loads((out / "run" / "run.json").read_text())["configuration"]
+    path = out / "run_reference_summary.xml"
+    subprocess.run([_sumo(), "-c", cfg, "--end", f"{t:g}", "--no-step-log", "true", "--summary-output", path,
+                    *(["--seed", str(seed)] if seed is not None else [])],
+                   capture_output=True, cwd=out, timeout=TIMEOUT["sumo"], check=False)
+    return path
+
+
+def check_count(name: str, res: dict, out: Path) -> dict:
+    """``res`` of a replay with SUMO's vehicles at its first step against what the folder holds
+    (:func:`expected_vehicles`): a mismatch beyond :data:`COUNT_TOLERANCE` fails the step."""
+    if name not in NEEDS or not res.get("ok"):
+        return res
+    want, source = expected_vehicles(name, out)
+    got = held(next(summary_steps(out / f"{name}_summary.xml"), None))
+    if want is None or got is None:
+        return res
+    res = {**res, "vehicles": {"sumo": got, "expected": want}}
+    if abs(got - want) > max(COUNT_TOLERANCE[0], COUNT_TOLERANCE[1] * want):
+        what = "scene" if name == "run_replay" else ("state" if name == "fill_replay" else "start")
+        res.update(ok=False, error=f"{what} holds {got} vehicles, {source}")
+    return res
 
 
 NEEDS = {"run_replay": "run", "fill_replay": "fill", "fill_start": "fill"}
@@ -199,7 +278,7 @@ def run_scenario(sc: Scenario, cache: Path, mirror: Path | None = None) -> dict:
             row["steps"][name] = {"ok": None, "error": f"skip: {NEEDS[name]} wrote no {Path(cmd[2]).name}"}
             continue
         limit = sc.timeout.get(name, TIMEOUT[name])
-        row["steps"][name] = step(cmd, limit, out / "logs" / f"{name}.log", out)
+        row["steps"][name] = check_count(name, step(cmd, limit, out / "logs" / f"{name}.log", out), out)
     row["sumo_running_at_T"] = running_at(out / "sumo_summary.xml", t)
     row["placement_run"] = placement(out / "run" / "scene_000" / "scene.json")
     row["placement_fill"] = placement(out / "fill" / "fill.json")

@@ -91,6 +91,30 @@ def test_placement_counts_agents_at_any_depth(corpus, tmp_path):
     assert corpus.placement(tmp_path / "missing.json") is None
 
 
+@pytest.mark.parametrize("copies", [1, 2])
+def test_a_replay_holding_other_vehicles_than_the_folder_says_fails(corpus, tmp_path, copies):
+    """A portable start that doubled every vehicle (as a --scale 2 did) exits 0 in stock SUMO; the
+    step compares SUMO's vehicles at its first step (summary-output) with fill.json's placed ones."""
+    from sumo_scendiff.core.tools import sumo_binary
+    subprocess.run([sumo_binary("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "200",
+                    "-o", str(tmp_path / "g.net.xml")], check=True, capture_output=True)
+    edges = ["A0A1", "A1A2", "B0B1", "B1B2", "C0C1", "C1C2", "A1B1", "B1C1"]
+    vehicles = [f'<vehicle id="v{k}_{c}" depart="10" departPos="{20 + 60 * c}" departLane="best">'
+                f'<route edges="{e}"/></vehicle>' for c in range(copies) for k, e in enumerate(edges)]
+    (tmp_path / "start.rou.xml").write_text("<routes>" + "".join(vehicles) + "</routes>")
+    (tmp_path / "fill").mkdir()
+    (tmp_path / "fill" / "fill.json").write_text(json.dumps({"agents": [{"status": "placed"}] * len(edges)}))
+    cmd = [corpus._sumo(), "-n", tmp_path / "g.net.xml", "-r", tmp_path / "start.rou.xml", "-b", "10", "-e", "20",
+           "--no-step-log", "true", "--summary-output", tmp_path / "fill_start_summary.xml"]
+    res = corpus.check_count("fill_start", corpus.step(cmd, 60, tmp_path / "log", tmp_path), tmp_path)
+    assert res["vehicles"] == {"sumo": len(edges) * copies, "expected": len(edges)}
+    if copies == 1:
+        assert res["ok"]
+    else:
+        assert res["ok"] is False and res["error"] == "start holds 16 vehicles, fill.json placed 8"
+    assert corpus.first_failure({"steps": {"fill_start": res}})[0] == (None if copies == 1 else "fill_start")
+
+
 def test_table_names_the_first_failing_step(corpus):
     row = {"name": "n", "source": "s", "licence": "MIT", "covers": ["buses"],
            "steps": {"sumo": {"ok": True, "seconds": 1.0},
@@ -119,8 +143,10 @@ def test_committed_scenario_runs_fills_and_replays_in_stock_sumo(corpus, tmp_pat
     t, area = corpus.begin_time(sc, cfg), corpus.fill_area(sc, cfg, side=200.0)
     out = tmp_path / "out"
     for step, cmd in corpus.commands(cfg, t, area, out, scenes=1, rollout=5).items():
-        res = corpus.step(cmd, corpus.TIMEOUT[step], out / "logs" / f"{step}.log", tmp_path)
+        res = corpus.check_count(step, corpus.step(cmd, corpus.TIMEOUT[step], out / "logs" / f"{step}.log", tmp_path),
+                                 out)
         assert res["ok"], f"{step}: {res.get('error')}  ({res['cmd']})"
+        assert step not in ("run_replay", "fill_replay", "fill_start") or "vehicles" in res, step
     for doc in (out / "run" / "scene_000" / "scene.json", out / "fill" / "fill.json"):
         counts = corpus.placement(doc)
         assert counts is not None and set(counts) - {"agents", "placed_share"} <= STATUSES, counts
