@@ -303,23 +303,24 @@ def _verdict(judged) -> None:
         raise RunError(str(e)) from None
 
 
-def _demand_times(o, scen, net) -> tuple[float | None, float | None]:
+def _demand_times(o, scen, net, demand: list[str]) -> tuple[float | None, float | None]:
     """(the time SUMO starts at, the seeding time it runs the demand up to; None: the ego decides,
-    or there is no demand), as :func:`_session` says."""
+    or there is no demand), as :func:`_session` says. ``demand``: the files holding it
+    (``data.demand.demand_files``: route files, and additional files with vehicles in them)."""
     from .data.demand import DemandError, demand_span, seeding_time
-    if not scen.routes:
+    if not demand:
         return (o.begin if o.begin is not None else scen.begin), None
     try:  # the route files as the set SUMO loads, against this network
         span = demand_span(scen.routes, {ln.edge for ln in net.lanes}, scen.additional,
                            begin=scen.begin, end=scen.end)
-        at = seeding_time(o.begin, scen.begin, span, scen.routes, config_end=scen.end) if span and not o.ego else None
+        at = seeding_time(o.begin, scen.begin, span, demand, config_end=scen.end) if span and not o.ego else None
     except DemandError as e:
         raise RunError(str(e)) from None
     first = span[0] if span else None
     return (scen.begin if scen.begin is not None else first), at
 
 
-def _session(o, scen, net, gen, sumo_settings: dict, times: tuple, progress: bool):
+def _session(o, scen, net, gen, sumo_settings: dict, times: tuple, progress: bool, demand: list[str]):
     """The simulation of the scenario and the warm-up that runs its demand up to the seeding time
     (sim/session.py); with demand SUMO starts at the configuration's begin, else the demand's first
     departure (before it the network is empty), and without demand at --begin."""
@@ -329,7 +330,7 @@ def _session(o, scen, net, gen, sumo_settings: dict, times: tuple, progress: boo
     cfg = SimConfig(net=scen.net, routes=scen.routes, additional=scen.additional, gui=o.gui, traci=o.traci,
                     seed=o.seed, begin=begin, **sumo_settings)
     session = Session(cfg, net, gen, quiet=not o.verbose, model_fleet=o.model_fleet)
-    if not scen.routes:
+    if not demand:
         return session, session.prepare
     if o.ego:
         return session, lambda: session.prepare(lambda sim: _wait_for_ego(sim, o, progress))
@@ -381,6 +382,7 @@ def _realise(o, net, gen, session, places, requests, scenes, kept: set[str], pro
 def run(o) -> dict:
     t = time.perf_counter()
     scen, judged = _scenario(o)
+    from .data.demand import demand_files
     from .map.network import Network, NoCarLane
     from .sim.sumo import settings
     from .tokens.file import load_tokens
@@ -397,7 +399,8 @@ def run(o) -> dict:
         _verdict(judged)
         raise
     _verdict(judged)
-    times = _demand_times(o, scen, net)   # the demand's problems before the model is loaded
+    demand = demand_files(scen.routes, scen.additional)
+    times = _demand_times(o, scen, net, demand)   # the demand's problems before the model is loaded
     edge_data = _edge_data(o, net)
     spec = load_tokens(o.tokens, net=net) if o.tokens else None
     kept = _check_output(o)
@@ -407,13 +410,13 @@ def run(o) -> dict:
     from .sim.density import default_density, host_has_traffic
     from .sim.request import counted_as_asked
     gen = ScenarioGenerator.load(o.checkpoint, counted_as_asked(GenerationConfig.from_options(o), o.vehicles))
-    session, prepare = _session(o, scen, net, gen, sumo_settings, times, progress)
+    session, prepare = _session(o, scen, net, gen, sumo_settings, times, progress, demand)
     timing = {}
     try:
         prepare()
         places = _windows(o, net, session.sim, session.cosim())
         _check_kept(o, kept, [w for w, _ in places])
-        host = bool(scen.routes)
+        host = bool(demand)
         level = _level(o, default_density(o.density, o.vehicles, host and host_has_traffic(session.sim),
                                           gen.has_density))
         requests = _requests(o, net, session, [w for w, _ in places], spec, gen, edge_data, host)

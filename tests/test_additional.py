@@ -50,3 +50,18 @@ def test_the_exported_folder_has_its_outputs_folders(tmp_path, cross_net):
                           capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert (folder / "results" / "e1.xml").exists() and (folder / "results" / "edges" / "ed.xml").exists()
+
+
+def test_an_additional_file_with_vehicles_is_part_of_the_demand(tmp_path):
+    """SUMO loads vehicles and flows from an additional file as demand (SUMO's games keep theirs in
+    one): run warms such a scenario to --begin as it does a route file's."""
+    from sumo_scendiff.data.demand import demand_files
+    vehicles = tmp_path / "traffic.add.xml"
+    vehicles.write_text('<additional><vType id="car"/><flow id="f" type="car" from="a" to="b" '
+                        'begin="0" end="60" number="5"/></additional>')
+    detectors = tmp_path / "detectors.add.xml"
+    detectors.write_text('<additional><inductionLoop id="d" lane="a_0" pos="5" period="60" '
+                         'file="NUL"/></additional>')
+    routes = str(tmp_path / "demand.rou.xml")
+    assert demand_files([routes], [str(detectors), str(vehicles)]) == [routes, str(vehicles)]
+    assert demand_files([], [str(detectors)]) == []

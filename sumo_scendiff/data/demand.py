@@ -155,6 +155,18 @@ def check_demand(route_files: Sequence[str], edge_ids: set[str], additional: Seq
     return demand_span(route_files, edge_ids, additional, sample)[0]
 
 
+def demand_files(route_files: Sequence[str], additional: Sequence[str] = ()) -> list[str]:
+    """The files that hold a scenario's demand: its route files, and the additional files with
+    vehicles, trips, flows, persons or containers in them (SUMO loads those as demand too: a game's
+    or a scenario's traffic often lives in an .add.xml)."""
+    def holds_demand(path: str) -> bool:
+        try:
+            return next(elements([path], DEMAND), None) is not None
+        except XmlError:   # SUMO's preflight has judged the file; unreadable here is no demand
+            return False
+    return list(route_files) + [p for p in additional if holds_demand(p)]
+
+
 def demand_span(route_files: Sequence[str], edge_ids: set[str], additional: Sequence[str] = (),
                 sample: int = 2000, begin: float | None = None, end: float | None = None) -> tuple[float, float]:
     """:func:`check_demand`'s checks; returns the first and the last departure (s) of the set (a
