@@ -293,8 +293,12 @@ class Loop:
             bar.close()
             for s, h in old_handlers.items():
                 signal.signal(s, h)
-        if stop["signal"] is not None and rank() == 0:
-            print(f"stopped by signal {stop['signal']} at step {self.step}: saved {self.path}")
+        if stop["signal"] is not None:
+            if rank() == 0:
+                print(f"stopped by signal {stop['signal']} at step {self.step}: saved {self.path}")
+            # not finished: a shell's status for a signal, so that whoever runs the stage (the
+            # recipe, a job queue) starts it again instead of taking it as done
+            raise SystemExit(128 + stop["signal"])
 
 
 @torch.no_grad()
