@@ -1,21 +1,29 @@
 """Compare two model files side by side on the rows the README reports, same windows, same seeds.
 
-    python benchmarks/compare_models.py sumo_scendiff/weights/scendiff.pt runs/scendiff/scendiff.pt \\
-        --names shipped new --out runs/compare [-o docs/compare.md]
+    python benchmarks/compare_models.py sumo_scendiff/weights/scendiff.pt OUT/scendiff.pt \\
+        --names shipped new --out compare [--jobs 2] [-o docs/compare.md]
 
-For each model, in turn (each part's result is kept in OUT/NAME/ and not run again):
+Each model's parts are separate runs of the commands docs/evaluation.md gives, one file each under
+OUT/NAME/ (written under a temporary name and renamed when the run ends well, so a part stopped half
+way runs again and a finished one is kept): a long comparison resumes where it stopped, and one model's
+side can run ahead of the other's from the same tree.
 
-* ``evaluate``: ``python -m sumo_scendiff.evaluate --tokens`` on the real cities of ../shared/nets:
-  the distribution (MMD² joint, agents per window) with the model's own count and told the true
-  count, Scenario Dreamer's JSD set against SUMO's own traffic in other windows (the floor), and the
-  token tables (match rate per p_mask, speed MAE per token feature set: partial tokens);
-* ``density``: ``experiments/density_response.py`` (median relative error of the delivered and
+* ``evaluate/CITY``: ``python -m sumo_scendiff.evaluate --scenes 100 -n NET`` per real city: the
+  distribution (MMD² joint, agents per window) with the model's own count and told the true count,
+  and Scenario Dreamer's JSD set against SUMO's own traffic in other windows (the floor);
+* ``density``: ``experiments/density_response.py --windows 16`` (median error of the delivered and
   the drawn density against the request, networks whose medians rise with the request);
-* ``turns``: ``experiments/turn_choice.py`` (the turn a token asks where the road offers one).
+* ``tokens/CITY``: ``experiments/user_tokens.py --windows 30``: partial tokens as users write them,
+  per kind, drawn and delivered;
+* ``turns``: ``experiments/turn_choice.py`` (the turn a token asks where the road offers one);
+* ``handoff/S``: ``benchmarks/seeding.py --windows 16 -s S`` for ten seeds, pooled by
+  ``benchmarks/seeding_pool.py`` (placement, collisions, teleports, braking beside SUMO's own);
+* ``fill``: ``benchmarks/fill.py`` on networks/city.net.xml at 25 veh/km (vehicles placed, overlaps,
+  what stock SUMO makes of them, CPU);
+* ``token-tables/CITY`` (``--token-tables``): the paper's tables 2, 3 and E.2 (evaluate ``--tokens``).
 
-Then one table: a row per measure, a column per model, and the reference where there is one
-(SUMO 2 min later, the JSD floor). The hand-off (benchmarks/seeding.py, ten samples) and the fill
-targets (benchmarks/fill.py) take their own runs: docs/evaluation.md gives their commands.
+Then one table: a row per measure, a column per model, and the reference where there is one (SUMO
+2 min later, Lane-uniform told the count, the JSD floor), followed by each part's own tables.
 """
 from __future__ import annotations
 
@@ -24,13 +32,33 @@ import json
 import os
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
-PARTS = ("evaluate", "density", "turns")
+PARTS = ("evaluate", "density", "tokens", "turns", "handoff", "fill")
 MODEL = "Scenario Diffusion"
 TOLD = f"{MODEL} (true count)"
+
+
+@dataclass(frozen=True)
+class Part:
+    """One run of one model: ``cmd`` writes ``path`` (given the temporary name ``tmp``)."""
+    model: str
+    name: str
+    cmd: tuple[str, ...]
+    path: str
+
+    @property
+    def tmp(self) -> str:
+        stem, ext = os.path.splitext(self.path)
+        return f"{stem}.part{ext}"
+
+    @property
+    def log(self) -> str:
+        return os.path.join(os.path.dirname(self.path), "logs", os.path.basename(self.path) + ".log")
 
 
 def get_options(args=None):
@@ -38,16 +66,22 @@ def get_options(args=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("models", nargs=2, metavar="MODEL.pt")
     p.add_argument("--names", nargs=2, default=None, help="column names (default: the files' names)")
-    p.add_argument("--out", default=os.path.join(ROOT, "runs", "compare"), help="where each part's results go")
+    p.add_argument("--out", default="compare", help="where each part's results go (OUT/NAME/...)")
     p.add_argument("-n", "--net-file", dest="nets", action="append", default=None,
                    help="network (repeat); default: the real cities of ../shared/nets")
-    p.add_argument("--scenes", type=int, default=200, help="ground-truth windows per network (evaluate)")
-    p.add_argument("--token-scenes", type=int, default=100, help="windows per network of the token tables")
-    p.add_argument("--windows", type=int, default=24, help="windows per network of the density response")
+    p.add_argument("--scenes", type=int, default=100, help="ground-truth windows per network (evaluate)")
+    p.add_argument("--windows", type=int, default=16, help="windows per network of the density response and hand-off")
+    p.add_argument("--token-windows", type=int, default=30, help="recorded windows per city of the partial tokens")
     p.add_argument("--turn-windows", type=int, default=240, help="recorded windows per city of the turn choice")
+    p.add_argument("--seeds", type=int, default=10, help="hand-off samples (seeds 0..N-1)")
+    p.add_argument("--token-tables", action="store_true", help="also the paper's token tables (evaluate --tokens)")
+    p.add_argument("--token-scenes", type=int, default=50, help="windows per network of the token tables")
     p.add_argument("--train-data", default=None, help="evaluate's Random Log pool (default: evaluate's)")
     p.add_argument("--cache", default=None, help="evaluate's ground-truth cache (default: evaluate's)")
-    p.add_argument("--skip", nargs="+", default=[], choices=PARTS, help="parts not to run")
+    p.add_argument("--skip", nargs="+", action="extend", default=[], choices=PARTS, help="parts not to run")
+    p.add_argument("--only", nargs="+", default=None, metavar="NAME", help="run these models' parts only "
+                   "(one side ahead of the other); the table is drawn when both sides are there")
+    p.add_argument("-j", "--jobs", type=int, default=1, help="parts run at once (each one process)")
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("-o", "--output", default=None, help="also write the table here (markdown)")
     o = p.parse_args(args)
@@ -57,43 +91,99 @@ def get_options(args=None):
     o.names = o.names or [os.path.splitext(os.path.basename(m))[0] for m in o.models]
     if o.names[0] == o.names[1]:
         p.error(f"--names: two columns named {o.names[0]!r}; name them apart")
-    o.nets = o.nets or [os.path.join(SHARED_NETS, c) for c in REAL_CITIES if os.path.exists(os.path.join(SHARED_NETS, c))]
+    if o.only and set(o.only) - set(o.names):
+        p.error(f"--only: {', '.join(sorted(set(o.only) - set(o.names)))} is not one of --names")
+    if o.jobs < 1 or o.seeds < 1:
+        p.error("--jobs and --seeds must be >= 1")
+    o.explicit = bool(o.nets)   # -n given: every part on those networks; else each part's own default set
+    o.nets = [os.path.abspath(n) for n in o.nets] if o.nets else \
+        [os.path.join(SHARED_NETS, c) for c in REAL_CITIES if os.path.exists(os.path.join(SHARED_NETS, c))]
+    for n in o.nets:
+        if not os.path.isfile(n):
+            p.error(f"-n {n}: no such network file")
     return o
 
 
-def commands(o, model: str, out: str) -> dict[str, tuple[list[str], str]]:
-    """Each part's command line and the file it writes."""
-    nets = [a for n in o.nets for a in ("-n", n)]
-    ev, dens, turns = (os.path.join(out, f) for f in ("evaluate.json", "density.json", "turns.md"))
-    cities = sorted({os.path.basename(os.path.dirname(os.path.abspath(n))) for n in o.nets})
-    return {"evaluate": ([sys.executable, "-m", "sumo_scendiff.evaluate", *nets, "--checkpoint", model,
-                          "--scenes", str(o.scenes), "--tokens", "--token-scenes", str(o.token_scenes),
-                          "-s", str(o.seed), "--json", ev, *_passed(o)], ev),
-            "density": ([sys.executable, os.path.join(ROOT, "experiments", "density_response.py"), *nets,
-                         "--checkpoint", model, "--windows", str(o.windows), "-s", str(o.seed), "--json", dens], dens),
-            "turns": ([sys.executable, os.path.join(ROOT, "experiments", "turn_choice.py"), "--cities", *cities,
-                       "--checkpoint", model, "--windows", str(o.turn_windows), "-s", str(o.seed), "-o", turns], turns)}
+def city(net: str) -> str:
+    """A network's folder name: the real cities' names (resco_cologne1, wildau...)."""
+    return os.path.basename(os.path.dirname(os.path.abspath(net)))
 
 
-def _passed(o) -> list[str]:
-    return [a for flag, v in (("--train-data", o.train_data), ("--cache", o.cache)) if v for a in (flag, v)]
+def _has_demand(net: str) -> bool:
+    folder = os.path.dirname(os.path.abspath(net))
+    return any(f.endswith(".rou.xml") for f in os.listdir(folder))
 
 
-def run_parts(o) -> dict[str, dict[str, str]]:
-    """Run every part not skipped for both models (a part whose file exists is kept); name -> part -> file."""
-    files = {}
-    for name, model in zip(o.names, o.models):
-        out = os.path.join(o.out, name)
-        os.makedirs(out, exist_ok=True)
-        files[name] = {}
-        for part, (cmd, path) in commands(o, os.path.abspath(model), out).items():
-            if part in o.skip:
-                continue
-            if not os.path.exists(path):
-                print(f"compare: {name}: {part}", file=sys.stderr, flush=True)
-                subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
-            files[name][part] = path
-    return files
+def parts(o, name: str, model: str) -> list[Part]:
+    """Every run of one model, in the order they are run."""
+    out, py, m = os.path.join(os.path.abspath(o.out), name), sys.executable, os.path.abspath(model)
+    seed = ("-s", str(o.seed))
+    pool = [a for flag, v in (("--train-data", o.train_data), ("--cache", o.cache)) if v for a in (flag, v)]
+    cache = ("--cache", o.cache) if o.cache else ()
+    nets = tuple(a for n in o.nets for a in ("-n", n)) if o.explicit else ()
+    got: list[Part] = []
+    if "evaluate" not in o.skip:
+        got += [Part(name, f"evaluate/{city(n)}", (py, "-m", "sumo_scendiff.evaluate", "-n", n, "--checkpoint", m,
+                     "--scenes", str(o.scenes), *seed, *pool, "--json", "{tmp}"),
+                     os.path.join(out, "evaluate", f"{city(n)}.json")) for n in o.nets]
+    if "density" not in o.skip:
+        got.append(Part(name, "density", (py, os.path.join(ROOT, "experiments", "density_response.py"), *nets,
+                        "--checkpoint", m, "--windows", str(o.windows), *seed, "--json", "{tmp}"),
+                        os.path.join(out, "density.json")))
+    with_demand = [n for n in o.nets if o.explicit or _has_demand(n)]   # user_tokens' default: cities with demand
+    if "tokens" not in o.skip:
+        got += [Part(name, f"tokens/{city(n)}", (py, os.path.join(ROOT, "experiments", "user_tokens.py"),
+                     "-n", n, "--checkpoint", m, "--windows", str(o.token_windows), *seed, *cache,
+                     "-o", "{tmp}"), os.path.join(out, "tokens", f"{city(n)}.md")) for n in with_demand]
+    if "turns" not in o.skip and not o.explicit:   # turn_choice reads the real cities' folders
+        got.append(Part(name, "turns", (py, os.path.join(ROOT, "experiments", "turn_choice.py"), "--cities",
+                        *[city(n) for n in with_demand], "--checkpoint", m, "--windows", str(o.turn_windows),
+                        *seed, *cache, "-o", "{tmp}"), os.path.join(out, "turns.md")))
+    if "handoff" not in o.skip:
+        got += [Part(name, f"handoff/{s}", (py, os.path.join(ROOT, "benchmarks", "seeding.py"), *nets, "--checkpoint", m,
+                     "--windows", str(o.windows), "-s", str(s), "-o", "{tmp}"),
+                     os.path.join(out, "handoff", f"{s}.md")) for s in range(o.seeds)]
+    if "fill" not in o.skip:
+        got.append(Part(name, "fill", (py, os.path.join(ROOT, "benchmarks", "fill.py"), "-n",
+                        os.path.join(ROOT, "networks", "city.net.xml"), "--density", "25", "--hold", "300",
+                        "--checkpoint", m, *seed, "-o", "{tmp}"), os.path.join(out, "fill.md")))
+    if o.token_tables:
+        got += [Part(name, f"token-tables/{city(n)}", (py, "-m", "sumo_scendiff.evaluate", "-n", n, "--checkpoint", m,
+                     "--scenes", str(o.token_scenes), "--tokens", "--token-scenes", str(o.token_scenes), *seed,
+                     *pool, "--json", "{tmp}"), os.path.join(out, "token-tables", f"{city(n)}.json")) for n in o.nets]
+    return got
+
+
+def run_part(part: Part) -> str | None:
+    """Run one part unless its file is there; None when it ended well, else the line saying why not."""
+    if os.path.exists(part.path):
+        return None
+    os.makedirs(os.path.dirname(part.log), exist_ok=True)
+    cmd = [a.replace("{tmp}", part.tmp) for a in part.cmd]
+    with open(part.log, "w") as log:
+        log.write(" ".join(cmd) + "\n")
+        log.flush()
+        res = subprocess.run(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+    if res.returncode != 0 or not os.path.exists(part.tmp):
+        return f"{part.model}: {part.name} failed (exit {res.returncode}): {part.log}"
+    os.replace(part.tmp, part.path)
+    return None
+
+
+def run_parts(o) -> list[str]:
+    """Run every part of the models asked (``--only``), ``--jobs`` at a time; the failures' lines."""
+    from tqdm import tqdm
+    todo = [p for name, model in zip(o.names, o.models) if not o.only or name in o.only
+            for p in parts(o, name, model)]
+    failed = []
+    with ThreadPoolExecutor(o.jobs) as pool, tqdm(total=len(todo), unit="part", desc="compare") as bar:
+        for part, why in zip(todo, pool.map(run_part, todo)):
+            bar.set_postfix_str(f"{part.model}: {part.name}")
+            bar.update(1)
+            if why:
+                failed.append(why)
+                tqdm.write(why, file=sys.stderr)
+    return failed
 
 
 def _mean(values) -> float:
@@ -101,9 +191,9 @@ def _mean(values) -> float:
     return float(np.mean(v)) if v else float("nan")
 
 
-def evaluate_rows(result: dict) -> dict[str, tuple[float, float | None]]:
-    """measure -> (the model's value, the reference's) from one evaluate --json."""
-    dist, rows = result["distribution"], {}
+def evaluate_rows(dist: list[dict]) -> dict[str, tuple[float, float | None]]:
+    """measure -> (the model's value, the reference's) from evaluate's distribution results."""
+    rows = {}
     for r in dist + [None]:
         where = r["net"] if r else "mean"
         pick = (lambda method, key: r["methods"].get(method, {}).get(key)) if r else \
@@ -111,14 +201,25 @@ def evaluate_rows(result: dict) -> dict[str, tuple[float, float | None]]:
         rows[f"MMD² joint, own count — {where}"] = (pick(MODEL, "mmd2_joint"), pick("SUMO 2 min later", "mmd2_joint"))
         rows[f"MMD² joint, told the count — {where}"] = (pick(TOLD, "mmd2_joint"), pick("Lane-uniform (true count)", "mmd2_joint"))
         rows[f"agents per window — {where}"] = (pick(MODEL, "agents_per_scene"), pick("Ground truth", "agents_per_scene"))
+    for told, ref in ((MODEL, None), (TOLD, "Lane-uniform (true count)")):
+        for key in ("mmd2_position", "mmd2_heading", "mmd2_velocity"):
+            if ref:   # the target: every per-city MMD² told the count below Lane-uniform's told the same
+                misses = sum(1 for r in dist if (r["methods"].get(told, {}).get(key) or 0)
+                             >= (r["methods"].get(ref, {}).get(key) or float("inf")))
+                rows[f"{key}, told the count: cities not below Lane-uniform told it"] = (float(misses), 0.0)
     jsd = [r["jsd"] for r in dist if "jsd" in r]
     for key in (jsd[0][MODEL] if jsd else {}):
         rows[f"{key} (mean of networks)"] = (_mean(j[MODEL][key] for j in jsd),
                                               _mean(j["SUMO, other windows"][key] for j in jsd))
-    for net, tables in result.get("tokens", {}).items():
+    return rows
+
+
+def token_table_rows(tokens: dict) -> dict[str, tuple[float, None]]:
+    rows = {}
+    for net, tables in tokens.items():
         for x in tables["speed"]:
-            rows[f"tokens {x['features']}: match rate — {net}"] = (x["match_rate"], None)
-            rows[f"tokens {x['features']}: speed MAE (m/s) — {net}"] = (x["speed_mae"], None)
+            rows[f"token tables {x['features']}: match rate — {net}"] = (x["match_rate"], None)
+            rows[f"token tables {x['features']}: speed MAE (m/s) — {net}"] = (x["speed_mae"], None)
     return rows
 
 
@@ -131,29 +232,51 @@ def density_rows(rows: list[dict]) -> dict[str, tuple[float, None]]:
     return out
 
 
-def table(names: list[str], files: dict[str, dict[str, str]]) -> str:
-    """The side-by-side markdown table (and the turn-choice tables as written)."""
-    rows: dict[str, dict[str, tuple]] = {}
-    for name in names:
-        f = files[name]
-        got = {}
-        if "evaluate" in f:
-            with open(f["evaluate"]) as fh:
-                got.update(evaluate_rows(json.load(fh)))
-        if "density" in f:
-            with open(f["density"]) as fh:
-                got.update(density_rows(json.load(fh)))
-        for key, v in got.items():
-            rows.setdefault(key, {})[name] = v
-    lines = [f"| measure | {' | '.join(names)} | reference |", "|---|" + "---|" * (len(names) + 1)]
-    for key, by in rows.items():
-        ref = next((v[1] for v in by.values() if v[1] is not None), None)
-        cells = [_fmt(by[n][0]) if n in by else "–" for n in names]
+def _read_json(path: str):
+    with open(path) as f:
+        return json.load(f)
+
+
+def model_rows(o, name: str, model: str) -> dict[str, tuple]:
+    """Every numeric row of one model's finished parts."""
+    done = [p for p in parts(o, name, model) if os.path.exists(p.path)]
+    dist = [r for p in done if p.name.startswith("evaluate/") for r in _read_json(p.path)["distribution"]]
+    rows = evaluate_rows(dist) if dist else {}
+    for p in done:
+        if p.name == "density":
+            rows.update(density_rows(_read_json(p.path)))
+        elif p.name.startswith("token-tables/"):
+            rows.update(token_table_rows(_read_json(p.path)["tokens"]))
+    return rows
+
+
+def pooled_handoff(o, name: str, model: str) -> str | None:
+    """seeding_pool.py over the model's finished hand-off samples."""
+    files = [p.path for p in parts(o, name, model) if p.name.startswith("handoff/") and os.path.exists(p.path)]
+    if not files:
+        return None
+    res = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "seeding_pool.py"), *files],
+                         cwd=ROOT, capture_output=True, text=True)
+    return f"{len(files)} samples:\n\n{res.stdout.strip()}" if res.returncode == 0 else None
+
+
+def table(o) -> str:
+    """The side-by-side markdown table, then each model's markdown parts."""
+    got = {name: model_rows(o, name, model) for name, model in zip(o.names, o.models)}
+    keys = list(dict.fromkeys(k for rows in got.values() for k in rows))
+    lines = [f"| measure | {' | '.join(o.names)} | reference |", "|---|" + "---|" * (len(o.names) + 1)]
+    for key in keys:
+        ref = next((got[n][key][1] for n in o.names if key in got[n] and got[n][key][1] is not None), None)
+        cells = [_fmt(got[n][key][0]) if key in got[n] else "–" for n in o.names]
         lines.append(f"| {key} | {' | '.join(cells)} | {_fmt(ref)} |")
-    for name in names:
-        if "turns" in files[name]:
-            with open(files[name]["turns"]) as fh:
-                lines += ["", f"Turn choice, {name}:", "", fh.read().strip()]
+    for name, model in zip(o.names, o.models):
+        pool = pooled_handoff(o, name, model)
+        if pool:
+            lines += ["", f"Hand-off, {name}, {pool}"]
+        for p in parts(o, name, model):
+            if p.path.endswith(".md") and not p.name.startswith("handoff/") and os.path.exists(p.path):
+                with open(p.path) as fh:
+                    lines += ["", f"{p.name}, {name}:", "", fh.read().strip()]
     return "\n".join(lines)
 
 
@@ -164,13 +287,15 @@ def _fmt(v) -> str:
 
 
 def main(o) -> int:
-    files = run_parts(o)
-    text = table(o.names, files)
+    failed = run_parts(o)
+    text = table(o)
     print(text)
     if o.output:
         with open(o.output, "w") as f:
             f.write(text + "\n")
-    return 0
+    for why in failed:
+        print(f"compare_models.py: {why}", file=sys.stderr)
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":
