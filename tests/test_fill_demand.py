@@ -51,9 +51,6 @@ def test_no_demand_vehicle_twice(tmp_path):
     """A fill at T carries the demand's departures before its state's time (T + one step), and both
     configurations start at that time, so SUMO loads none of them again from the route files: each
     demand vehicle departs once, a later one from its file."""
-    import libsumo
-
-    from sumo_scendiff.core.tools import sumo_binary
     from sumo_scendiff.map.network import Network
     edges = [e.getID() for e in Network.load(NET).sumo_net.getEdges() if e.getLength() > 40]
     demand = tmp_path / "demand.rou.xml"
@@ -65,17 +62,27 @@ def test_no_demand_vehicle_twice(tmp_path):
     carried = {a["demand"]["id"] for a in doc["agents"] if a.get("demand") and a["vehicle"]}
     assert {"at", "within"} <= carried and not carried & {"due", "later"}
     for cfg in ("scenario.sumocfg", "start.sumocfg"):
-        libsumo.start([sumo_binary(), "-c", str(tmp_path / "o" / cfg), "--no-step-log", "true"])
-        try:
-            assert libsumo.simulation.getTime() == pytest.approx(doc["state_time"], abs=0.51)
-            departed = []
-            while libsumo.simulation.getTime() < 130:
-                libsumo.simulationStep()
-                departed += libsumo.simulation.getDepartedIDList()
-        finally:
-            libsumo.close()
+        begin, _, departed = replayed(str(tmp_path / "o" / cfg), 130.0)
+        assert begin == pytest.approx(doc["state_time"], abs=0.51)
         from_file = [v for v in departed if v in dict(times)]
         assert sorted(from_file) == ["due", "later"], cfg
+
+
+def replayed(cfg: str, until: float) -> tuple[float, set[str], list[str]]:
+    """Stock SUMO (libsumo) on ``cfg``: the time it starts at, the vehicles there then, and the
+    vehicles departing from then until ``until``."""
+    import libsumo
+
+    from sumo_scendiff.core.tools import sumo_binary
+    libsumo.start([sumo_binary(), "-c", cfg, "--no-step-log", "true"])
+    try:
+        begin, present, departed = libsumo.simulation.getTime(), set(libsumo.vehicle.getIDList()), []
+        while libsumo.simulation.getTime() < until:
+            libsumo.simulationStep()
+            departed += libsumo.simulation.getDepartedIDList()
+    finally:
+        libsumo.close()
+    return begin, present, departed
 
 
 def _edge_pair(net):

@@ -20,10 +20,11 @@ def scenario(cross_net, tmp_path, monkeypatch):
     return cross_net, str(routes)
 
 
-def _sumos_own(net: str, routes: str, until: float) -> set[str]:
+def _sumos_own(net: str, routes: str | None, until: float, additional: tuple[str, ...] = ()) -> set[str]:
     """The vehicles stock SUMO has on the network at ``until`` (libsumo, one step at a time)."""
     from sumo_scendiff.sim.sumo import SimConfig, close, start
-    sim = start(SimConfig(net=net, routes=(routes,), step_length=1.0, begin=0.0, seeding_options=False))
+    sim = start(SimConfig(net=net, routes=(routes,) if routes else (), additional=additional, step_length=1.0,
+                          begin=0.0, seeding_options=False))
     try:
         while sim.simulation.getTime() < until - 1e-9:
             sim.simulationStep()

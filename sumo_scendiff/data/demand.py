@@ -10,6 +10,7 @@ import glob
 import os
 import subprocess
 import sys
+import tempfile
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -155,16 +156,51 @@ def check_demand(route_files: Sequence[str], edge_ids: set[str], additional: Seq
     return demand_span(route_files, edge_ids, additional, sample)[0]
 
 
+# a calibrator's <flow>s are the vehicles it inserts to hold its edge's count, not demand of their own
+NOT_DEMAND_PARENTS = ("calibrator",)
+
+
 def demand_files(route_files: Sequence[str], additional: Sequence[str] = ()) -> list[str]:
     """The files that hold a scenario's demand: its route files, and the additional files with
     vehicles, trips, flows, persons or containers in them (SUMO loads those as demand too: a game's
     or a scenario's traffic often lives in an .add.xml)."""
-    def holds_demand(path: str) -> bool:
-        try:
-            return next(elements([path], DEMAND), None) is not None
-        except XmlError:   # SUMO's preflight has judged the file; unreadable here is no demand
-            return False
-    return list(route_files) + [p for p in additional if holds_demand(p)]
+    return list(route_files) + [p for p in additional if _holds_demand(p)]
+
+
+def _holds_demand(path: str) -> bool:
+    try:
+        return any(el.tag in DEMAND for _, el in elements([path], DEMAND + NOT_DEMAND_PARENTS))
+    except XmlError:   # SUMO's preflight has judged the file; unreadable here is no demand
+        return False
+
+
+def write_without_demand(path: str, folder: str) -> str:
+    """A copy of the additional file ``path`` in ``folder`` without its vehicles, trips, flows, persons
+    and containers (those of a file it includes too), the rest as it is (vTypes, routes, stops,
+    detectors, programs), its relative input paths pointing at the original's folder: what SUMO loads
+    of it but its demand. Returns the copy's path."""
+    import xml.etree.ElementTree as ET
+
+    from ..core.sumo_xml import include_path, open_xml
+    from ..sim.additional import INPUTS, OUTPUTS
+    path = os.path.abspath(path)
+    with open_xml(path) as f:
+        tree = ET.parse(f)
+    for parent in [el for el in tree.iter() if el.tag not in NOT_DEMAND_PARENTS]:
+        for el in [c for c in parent if c.tag in DEMAND]:
+            parent.remove(el)
+    for el in tree.iter():
+        for attr in INPUTS:
+            v = el.get(attr)
+            if not v or OUTPUTS.get(el.tag) == attr:
+                continue
+            target = include_path(path, v)
+            el.set(attr, write_without_demand(target, folder) if el.tag == "include" and _holds_demand(target)
+                   else target)
+    fd, copy = tempfile.mkstemp(suffix="-" + os.path.basename(path).removesuffix(".gz"), dir=folder)
+    with os.fdopen(fd, "w") as f:
+        tree.write(f, encoding="unicode")
+    return copy
 
 
 def demand_span(route_files: Sequence[str], edge_ids: set[str], additional: Sequence[str] = (),

@@ -36,7 +36,8 @@ def _parser():
                    help="demand (comma-separated route files): its vehicles en route at --begin set the "
                         "density, and it continues after the start")
     p.add_argument("-a", "--additional-files", dest="additional", default=None,
-                   help="comma-separated additional files (vTypes, TLS programs)")
+                   help="comma-separated additional files (vTypes, TLS programs; vehicles, flows or persons "
+                        "in them are demand, as -r's)")
     p.add_argument("-b", "--begin", type=sumo_time, default=None, metavar="TIME",
                    help="the time of the filled start (s, or clock time HH:MM:SS as SUMO reads it); with "
                         "demand default: its first departure + 600, and it must lie within the demand's "

@@ -40,9 +40,11 @@ class Amount:
     placed: list | None = None
 
 
-def tile_amount(req, net, gen, tiles, scen, begin: float) -> Amount:
+def tile_amount(req, net, gen, tiles, scen, begin: float, demand=()) -> Amount:
     """Per tile the density target of ``req`` (fill.api.FillRequest) on ``net``'s ``tiles`` at
-    ``begin``; ``scen``: the user's scenario (its demand, additional files and options)."""
+    ``begin``; ``scen``: the user's scenario (its additional files and options), ``demand``: the
+    files holding its demand (its route files and additional files with vehicles:
+    data.demand.demand_files)."""
     name = req.checkpoint or "the shipped model"
     if (req.density is not None or req.edge_data) and not gen.has_density:
         flag = "--density" if req.density is not None else "--edge-data"
@@ -53,8 +55,8 @@ def tile_amount(req, net, gen, tiles, scen, begin: float) -> Amount:
                                                          "applied": True})
     if req.edge_data:
         return _edge_data(req.edge_data, net, tiles, begin)
-    if scen.routes:
-        return _demand(req, net, gen, tiles, scen, begin)
+    if demand:
+        return _demand(req, net, gen, tiles, scen, begin, demand)
     return Amount(None, False, {"kind": "prior", "p_mask": req.p_mask, "applied": False})
 
 
@@ -69,7 +71,7 @@ def _edge_data(path: str, net, tiles, begin: float) -> Amount:
                                   "applied": True})
 
 
-def _estimate(req, net, scen, begin: float):
+def _estimate(req, net, scen, begin: float, demand):
     """The demand's vehicles en route at ``begin`` (fill/demand.py), without simulating."""
     from ..sim.sumo import step_length_for
     from ..core.sumo_xml import boolean
@@ -83,11 +85,11 @@ def _estimate(req, net, scen, begin: float):
                                  depart_speed=options.get("default.departspeed"),
                                  junction_taz=boolean(options.get("junction-taz")), scale=options.get("scale"))
     except RoutingError as e:
-        raise AmountError(f"{', '.join(scen.routes)}: {e}") from None
+        raise AmountError(f"{', '.join(demand)}: {e}") from None
 
 
-def _demand(req, net, gen, tiles, scen, begin: float) -> Amount:
-    est = _estimate(req, net, scen, begin)
+def _demand(req, net, gen, tiles, scen, begin: float, demand) -> Amount:
+    est = _estimate(req, net, scen, begin, demand)
     # each tile's count is kept in its core: the core's own density, so the tiles add up to the
     # estimate (a window's would spread a vehicle over every tile whose window sees it)
     targets = [est.region_density(net, shapely.box(*t.core)) for t in tiles]

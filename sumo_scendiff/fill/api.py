@@ -162,7 +162,7 @@ def fill_into(req: FillRequest, folder: str) -> dict:
     prep = prepare(req, folder)
     if isinstance(prep, dict):          # nothing to fill: fill.json says why
         return prep
-    net, gen, scen, tiles, begin = prep
+    net, gen, scen, tiles, begin, demand = prep
     if gen is None:     # SUMO's own start: no model
         from .warm_start import sumo_start
         return sumo_start(req, net, scen, begin[0], begin[1], folder, {"load": time.perf_counter() - t})
@@ -174,10 +174,10 @@ def fill_into(req: FillRequest, folder: str) -> dict:
     cfg = _sim_config(req, scen, begin)
     from .output import seeding_sumo, write_outputs
     # one SUMO for the fill: the lights' states at the start read from it, the tiles seeded into it
-    with seeding_sumo(cfg, list(scen.routes), quiet=not req.verbose) as sumo:
+    with seeding_sumo(cfg, list(scen.routes), quiet=not req.verbose, demand=demand) as sumo:
         # started here, the workers load their model while this process prepares the rest
         with tile_engine(net, gen, workers, req.ray_address, req.checkpoint) as engine:
-            amount = plan_amount(req, net, gen, tiles, scen, begin)
+            amount = plan_amount(req, net, gen, tiles, scen, begin, demand)
             timing = {"load": time.perf_counter() - t}
             signals = light_states(sumo[0]) if net.signal_links and gen.config.signals else None
             t = time.perf_counter()
@@ -190,16 +190,16 @@ def fill_into(req: FillRequest, folder: str) -> dict:
                   "note": "the fill does not depend on the workers: each tile's noise is its own and the "
                           "model calls are cut from the plan alone"}
         phase(req.progress, "seeding the tiles into SUMO, then writing the state and the portable start (each "
-                            "loaded once in SUMO)" + ("" if scen.routes else " and the inflow (the filled "
-                                                                              "network driven on to measure it)"))
-        return write_outputs(folder, req, net, gen, scen, list(scen.routes), cfg, sumo, result, amount.source,
+                            "loaded once in SUMO)" + ("" if demand else " and the inflow (the filled "
+                                                                       "network driven on to measure it)"))
+        return write_outputs(folder, req, net, gen, scen, demand, cfg, sumo, result, amount.source,
                              timing, req.progress, record)
 
 
 def prepare(req: FillRequest, folder: str):
-    """The inputs judged and loaded: (network, generator, scenario, tiles, (begin, SUMO's start)),
-    the generator and tiles None where SUMO's own run makes the start; or fill.json's document
-    where the scenario has no car lane."""
+    """The inputs judged and loaded: (network, generator, scenario, tiles, (begin, SUMO's start), the
+    files holding its demand), the generator and tiles None where SUMO's own run makes the start; or
+    fill.json's document where the scenario has no car lane."""
     from dataclasses import replace
 
     from ..sim.preflight import preflight
@@ -216,11 +216,15 @@ def prepare(req: FillRequest, folder: str):
         if not req.config:     # a bare -n: the user chose a network the model cannot use
             raise
         return _nothing_to_fill(folder, req, scen, f"no car lane: {e}")
-    if req.demand_level_only and not scen.routes:
-        raise FillError("--demand-level-only: there is no demand (give -r, or -c with route files)")
-    begin = _begin(req, net, scen)
-    if scen.routes and req.sumo_start:
-        return net, None, scen, None, begin       # SUMO's own run: no model, no torch
+    from ..data.demand import demand_files
+    # route files and additional files holding vehicles (SUMO's games keep their traffic in one)
+    demand = tuple(demand_files(scen.routes, scen.additional))
+    if req.demand_level_only and not demand:
+        raise FillError("--demand-level-only: there is no demand (give -r, or -c with route files or "
+                        "additional files holding vehicles)")
+    begin = _begin(req, net, scen, demand)
+    if demand and req.sumo_start:
+        return net, None, scen, None, begin, demand       # SUMO's own run: no model, no torch
     tiles = _tiles(req, net)
     from ..core.threads import GENERATION_THREADS, share_cpu
     share_cpu(default=GENERATION_THREADS)   # before torch is imported (core/threads.py: why one)
@@ -232,20 +236,20 @@ def prepare(req: FillRequest, folder: str):
     # calibrated (generation/pinning.py): the same counts and hold for a third less CPU (docs/fill.md)
     gen_cfg = replace(req.generation or GenerationConfig(), pin_calibration=False,
                       count_on_edges=req.density is not None or bool(req.edge_data))
-    return net, ScenarioGenerator.load(req.checkpoint, gen_cfg), scen, tiles, begin
+    return net, ScenarioGenerator.load(req.checkpoint, gen_cfg), scen, tiles, begin, demand
 
 
-def _begin(req: FillRequest, net, scen) -> tuple[float, float | None]:
-    """The fill's time and SUMO's start: ``req.begin``, with a demand checked against its departures
-    (its default: the first departure + the seeding's warm-up), SUMO starting at the configuration's
-    begin, else the first departure."""
+def _begin(req: FillRequest, net, scen, demand: tuple[str, ...]) -> tuple[float, float | None]:
+    """The fill's time and SUMO's start: ``req.begin``, with a demand (``demand``: the files holding
+    it) checked against its departures (its default: the first departure + the seeding's warm-up),
+    SUMO starting at the configuration's begin, else the first departure."""
     from ..data.demand import DemandError, demand_span, seeding_time
-    if not scen.routes:
+    if not demand:
         return (req.begin if req.begin is not None else 0.0), None
     try:
         span = demand_span(list(scen.routes), {ln.edge for ln in net.lanes}, scen.additional,
                            begin=scen.begin, end=scen.end)
-        begin = seeding_time(req.begin, scen.begin, span, list(scen.routes), config_end=scen.end)
+        begin = seeding_time(req.begin, scen.begin, span, list(demand), config_end=scen.end)
     except DemandError as e:
         raise FillError(str(e)) from None
     return begin, span[0] if scen.begin is None else scen.begin
@@ -285,16 +289,17 @@ def _nothing_to_fill(folder: str, req: FillRequest, scen, why: str) -> dict:
     return doc
 
 
-def plan_amount(req: FillRequest, net, gen, tiles, scen, begin: float):
-    """How much traffic each tile gets (fill/amount.py), made whole counts where the model is given it."""
+def plan_amount(req: FillRequest, net, gen, tiles, scen, begin: float, demand: tuple[str, ...] = ()):
+    """How much traffic each tile gets (fill/amount.py), made whole counts where the model is given it;
+    ``demand``: the files holding the scenario's demand."""
     import shapely
 
     from .amount import AmountError, tile_amount
     from .plan import whole_counts
-    if scen.routes:
+    if demand:
         phase(req.progress, f"routing the demand (duarouter) and estimating its vehicles at {begin:g} s")
     try:
-        amount = tile_amount(req, net, gen, tiles, scen, begin)
+        amount = tile_amount(req, net, gen, tiles, scen, begin, demand)
     except AmountError as e:
         raise FillError(str(e)) from None
     if amount.applied and amount.targets is not None:

@@ -30,6 +30,9 @@ from .seed import (
 from .tiles import scene_rows
 
 FORMAT, VERSION = "sumo-scendiff-fill", 1
+# fill.json's inflow with a demand: its files (route files, additional files with vehicles) are in the
+# configurations, SUMO departs what follows the state's time
+ONWARD = "the demand continues (its files are in the configurations)"
 
 
 def _agents(result, reports) -> list[dict]:
@@ -68,15 +71,17 @@ def _agents(result, reports) -> list[dict]:
     return out
 
 
-def write_outputs(folder, req, net, gen, scen, routes, cfg, sumo, result, source, timing, progress,
+def write_outputs(folder, req, net, gen, scen, demand, cfg, sumo, result, source, timing, progress,
                   workers: dict | None = None) -> dict:
     """The filled network seeded into the fill's SUMO (``sumo``: :func:`seeding_sumo` of ``cfg``), its
     state and portable start written with the configurations that start them, fill.json and
-    fill.png; ``req``: the fill.api.FillRequest."""
+    fill.png; ``req``: the fill.api.FillRequest; ``demand``: the files holding the scenario's demand
+    (its route files and additional files with vehicles: data.demand.demand_files)."""
     t = time.perf_counter()
-    agents, ids, exact, state_time, inflow = _seed_and_save(folder, req, net, routes, cfg, sumo, result, timing,
+    agents, ids, exact, state_time, inflow = _seed_and_save(folder, req, net, demand, cfg, sumo, result, timing,
                                                             progress)
     t += timing.get("seed", 0.0) + timing.get("inflow", 0.0)
+    routes = list(scen.routes)
     options = write_configurations(folder, cfg, routes, inflow, state_time)
     # the portable start's box centres where the state has them (a vehicle on a curve departs with
     # its lane's heading, which swings its box about its front)
@@ -109,17 +114,20 @@ def write_outputs(folder, req, net, gen, scen, routes, cfg, sumo, result, source
 
 
 @contextmanager
-def seeding_sumo(cfg, routes, quiet: bool = True):
+def seeding_sumo(cfg, routes, quiet: bool = True, demand=()):
     """The fill's one SUMO, (simulation, its configuration): started before the tiles are generated
     (the lights' states at the start are read from it), the tiles seeded into it after; closed at
     the end. With a demand it loads the demand's own vTypes too, for the vehicles that stand for its
     vehicles and those the model adds (sim/fleet.py; only this SUMO loads them: the folder's
-    configurations load the route files themselves)."""
+    configurations load the route files themselves). ``demand``: the files holding the demand
+    (data.demand.demand_files); an additional file among them is loaded without its vehicles, as
+    the route files are not loaded: the demand's departures up to the state's time are the fill's."""
+    from ..data.demand import write_without_demand
     from ..sim.sumo import start
     with tempfile.TemporaryDirectory(prefix="scendiff-vtypes-") as work:
         extra = os.path.join(work, "vtypes.add.xml")
-        seed_cfg = replace(cfg, additional=tuple(cfg.additional) + (extra,)) \
-            if routes and write_vtypes(routes, extra) else cfg
+        additional = tuple(write_without_demand(p, work) if p in demand else p for p in cfg.additional)
+        seed_cfg = replace(cfg, additional=additional + ((extra,) if routes and write_vtypes(routes, extra) else ()))
         sim = start(seed_cfg, quiet=quiet)
         try:
             yield sim, seed_cfg
@@ -127,14 +135,14 @@ def seeding_sumo(cfg, routes, quiet: bool = True):
             close(sim)
 
 
-def _seed_and_save(folder, req, net, routes, cfg, sumo, result, timing, progress):
+def _seed_and_save(folder, req, net, demand, cfg, sumo, result, timing, progress):
     """Every tile seeded into the fill's SUMO (``sumo``: :func:`seeding_sumo`'s; fill/seed.py), its
     state saved and the portable start's routes written; without a demand the network then driven on
     to measure the inflow. Returns (agents, the seeded vehicles' ids, start_exact per vehicle, the
     state's time, the inflow record)."""
     t = time.perf_counter()
     sim, reports = seed_fill(result, net, sumo[1], seed=req.seed, quiet=not req.verbose, progress=progress,
-                             demand=result.demand, routes=routes, model_fleet=req.model_fleet, sim=sumo[0])
+                             demand=result.demand, routes=demand, model_fleet=req.model_fleet, sim=sumo[0])
     try:
         timing["seed"] = time.perf_counter() - t
         agents = _agents(result, reports)
@@ -143,11 +151,11 @@ def _seed_and_save(folder, req, net, routes, cfg, sumo, result, timing, progress
         save_state(sim, os.path.join(folder, "state.xml.gz"))
         state_time = float(sim.simulation.getTime())
         # the portable start departs its vehicles where the state has them, at the state's time: the
-        # demand's departures before it are the fill's, and SUMO skips them from the route files
+        # demand's departures before it are the fill's, and SUMO skips them from its files
         exact = write_start_routes(os.path.join(folder, "start.rou.xml"), sim, ids, net, state_time,
-                                   vtype_files=list(routes) + list(cfg.additional))
-        inflow = {"file": None, "reason": "the demand continues (its route files are in the configurations)"}
-        if not routes:
+                                   vtype_files=list(dict.fromkeys([*demand, *cfg.additional])))
+        inflow = {"file": None, "reason": ONWARD}
+        if not demand:
             # the state and start routes are written: now drive the filled network on, with the
             # inflow's own trips replacing those that leave, to see how fast it flows when held
             # (seed.probe_speed); those replacements are the inflow's first departures
@@ -216,4 +224,4 @@ def _tile_rows(result, seeded) -> list[dict]:
     return tiles
 
 
-__all__ = ["FORMAT", "VERSION", "seeding_sumo", "summary", "write_configurations", "write_outputs"]
+__all__ = ["FORMAT", "ONWARD", "VERSION", "seeding_sumo", "summary", "write_configurations", "write_outputs"]

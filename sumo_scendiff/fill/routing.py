@@ -49,7 +49,8 @@ class Departure:
 def routed_departures(net_path: str, route_files, additional=(), until: float = float("inf"),
                       since: float = float("-inf"), depart_speed: str | None = None,
                       junction_taz: bool = False, scale: str | None = None) -> tuple[list[Departure], int]:
-    """Every vehicle of ``route_files`` departing from ``since`` to ``until``, routed by duarouter,
+    """Every vehicle of ``route_files`` and ``additional`` (SUMO loads an additional file's vehicles
+    as demand) departing from ``since`` to ``until``, routed by duarouter,
     in the order of departure, and how many it found no route for. A vehicle without a
     ``departSpeed`` departs at ``depart_speed`` (SUMO's ``default.departspeed``: the scenario's, else
     the installed SUMO's); ``junction_taz``: the scenario's ``junction-taz`` (trips between
@@ -59,7 +60,7 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
     from ..core.tools import sumo_binary, sumo_defaults
     if depart_speed is None:
         depart_speed = sumo_defaults().get("default.departspeed", "0")
-    traits = _traits(route_files)
+    traits = _traits([*route_files, *additional])   # an additional file's vehicles are demand too
     if not junction_taz:
         if traits.from_junction:
             raise RoutingError("trips from or to junctions (fromJunction/toJunction) need SUMO's junction-taz "
@@ -67,7 +68,8 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
     with tempfile.TemporaryDirectory(prefix="scendiff-route-") as work:
         out = os.path.join(work, "routed.rou.xml")
         args = [sumo_binary("duarouter"), "-n", os.path.abspath(net_path),
-                "-r", ",".join(os.path.abspath(p) for p in route_files), "-o", out,
+                # duarouter routes an additional file's vehicles too, and refuses an empty -r
+                *(["-r", ",".join(os.path.abspath(p) for p in route_files)] if route_files else []), "-o", out,
                 *(["--junction-taz"] if junction_taz else []), *(["--scale", scale] if scale else []),
                 "--ignore-errors", "--no-step-log",
                 # a public transport vehicle (one with a line) is left out of duarouter's output otherwise

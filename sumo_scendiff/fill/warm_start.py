@@ -105,12 +105,12 @@ def _drop_their_vtypes(path: str, files: list[str]) -> None:
 def sumo_start(req, net, scen, begin: float, start: float, folder: str, timing: dict) -> dict:
     """The fill's folder from SUMO's own run of ``scen`` from ``start`` to ``begin``; returns fill.json."""
     from ..sim.stops import place_ends
-    from .output import FORMAT, VERSION, summary, write_configurations
+    from .output import FORMAT, ONWARD, VERSION, summary, write_configurations
     from .picture import draw_fill
     from .seed import admit_start, refuse_at_load
     cfg, agents, exact, state_time, waiting = _run(req, net, scen, begin, start, folder, timing)
     t = time.perf_counter()
-    inflow = {"file": None, "reason": "the demand continues (its route files are in the configurations)"}
+    inflow = {"file": None, "reason": ONWARD}
     options = write_configurations(folder, replace(cfg, routes=()), list(scen.routes), inflow, state_time,
                                    start_last=True)
     refitted, refused = admit_start(folder, {PORTABLE_PREFIX + a["vehicle"]: (a["x"], a["y"]) for a in agents},
