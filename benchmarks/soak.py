@@ -43,7 +43,10 @@ MEMORY_GROWTH = 0.10     # target: RSS after the first period grows at most this
 LATENCY_RATIO = 1.5      # target: p95 latency of the last window <= this x the first window's
 LATENCY_WINDOW = 600.0   # s of simulated time the latency target compares at both ends
 PENDING_S = 120.0        # s an ego may wait for its insertion before it is replaced
-SEEDED = re.compile(r"^(sd\.\d+\.\d+)")   # a seeded vehicle's id (CoSimulation prefix "sd") and its _type/_route
+SEEDED = re.compile(r"^(sd\.\d+\.\d+)")   # a seeded vehicle's id (CoSimulation prefix "sd") and its _route
+# the seeded vehicle a SUMO vType or route is of: its own type (SUMO's "{type}@{id}"), its route
+# (SUMO's "!{id}!var#1", the seeder's staging "{id}_route")
+OF_SEEDED = re.compile(r"(?:^|[@!])(sd\.\d+\.\d+)(?:$|[!_])")
 
 
 def get_options(argv=None):
@@ -121,8 +124,8 @@ def leftovers(cosim, sim, added: set[str], egos_gone: set[str]) -> dict:
     their vType or route still in SUMO; and the object's entries for egos gone."""
     live = set(sim.vehicle.getIDList())
     removed = added - live
-    kept_types = {SEEDED.match(t).group(1) for t in sim.vehicletype.getIDList() if SEEDED.match(t)}
-    kept_routes = {SEEDED.match(r).group(1) for r in sim.route.getIDList() if SEEDED.match(r)}
+    kept_types = {m.group(1) for t in sim.vehicletype.getIDList() if (m := OF_SEEDED.search(t))}
+    kept_routes = {m.group(1) for r in sim.route.getIDList() if (m := OF_SEEDED.search(r))}
     in_state = named_vehicles(cosim) & removed
     ego_entries = sorted(set(cosim._last_seed_xy) & egos_gone)
     return {"added": len(added), "removed_by_sumo": len(removed), "alive": len(added & live),

@@ -137,3 +137,36 @@ def test_an_agent_the_host_vehicle_behind_cannot_stop_for_is_dropped(cross_net, 
             sim.simulationStep()
     finally:
         sim.close()
+
+
+def test_seeded_vehicles_that_leave_leave_no_vtype_or_route_behind(cross_net):
+    """A co-simulation seeding window after window, each seeding's vehicles driving out of the
+    network before the next: no vType or route SUMO holds once they have left is one of a vehicle
+    (SUMO's own vTypes and the seeder's one per vehicle class remain, and one route per edge for a
+    route of one edge), however many vehicles were seeded; while a seeded vehicle drives, its vType
+    is its own (``{type}@{id}``, SUMO's vehicle-specific type) with the box it was seeded with."""
+    from sumo_scendiff.core.scene import VEHICLE_CLASSES
+    net = Network.load(cross_net)
+    gen = ScenarioGenerator.load(config=GenerationConfig(steps=8, threshold=0.5))
+    sim = start(SimConfig(net=cross_net))
+    try:
+        allowed = set(sim.vehicletype.getIDList()) | {f"sd_{c}" for c in VEHICLE_CLASSES}
+        edges = {e.getID() for e in net.sumo_net.getEdges(withInternal=False)}
+        cosim = CoSimulation(sim, net, gen, seed=3)
+        seeded = 0
+        for _ in range(3):
+            seeding = cosim.seed_window(Window(0.0, 0.0, 0.0), vehicles=8)
+            sim.simulationStep()
+            cosim.verify(seeding, warn=False)
+            present = [(i, v) for i, v in seeding.report.ids.items() if v in sim.vehicle.getIDList()]
+            for i, vid in present:
+                assert sim.vehicle.getTypeID(vid).endswith(f"@{vid}")
+                assert sim.vehicle.getLength(vid) == pytest.approx(float(seeding.scene.boxes[i, 3]), abs=1e-3)
+            seeded += len(present)
+            while sim.vehicle.getIDCount():
+                sim.simulationStep()
+            assert set(sim.vehicletype.getIDList()) <= allowed
+            assert {r.split(":", 1)[-1] for r in sim.route.getIDList()} <= edges    # no vehicle's route
+        assert seeded >= 12
+    finally:
+        sim.close()

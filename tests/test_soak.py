@@ -52,6 +52,8 @@ def test_removed_vehicles_leave_nothing_in_the_cosimulation(run):
     assert len(res["seedings"]) >= 4 and left["added"] > 0 and res["egos_used"] > 2   # an ego was replaced
     assert left["removed_by_sumo"] > 0              # the property is tried on vehicles SUMO took out
     assert left["removed_named_in_state"] == 0, left["examples_in_state"]
+    # nor in SUMO: their own vTypes and routes went with them (Seeder.fit_type, Seeder.add_on_route)
+    assert left["removed_vtypes_left_in_sumo"] == 0 and left["removed_routes_left_in_sumo"] == 0, left
     assert res["periods"][-1]["ours_alive"] == left["alive"]
 
 

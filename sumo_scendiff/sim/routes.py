@@ -2,7 +2,7 @@
 
     chooser = RouteChooser(sim, net, exclude_prefix="sd")
     chooser.refresh()                                     # destinations from the host's traffic now
-    edges = chooser.complete(["wc"], "wc_0", "sd0_type", rng)   # ["wc", "cn", "nX", ...]
+    edges = chooser.complete(["wc"], "wc_0", "sd_passenger", rng)   # ["wc", "cn", "nX", ...]
 
 A generated agent says where it is and where it goes for two seconds; beyond that its route is ours
 to choose. A random walk along the network (the old continuation) loops around blocks and turns

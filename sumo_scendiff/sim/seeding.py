@@ -15,7 +15,9 @@ SUMO's router to a destination the host's traffic drives to, or the network's fr
 fits the gap to the vehicle ahead in the scene and at most the width the network's junctions were
 built for (``width_cap``), a departure speed that is its generated speed capped at the Krauss safe
 speed behind that vehicle, then ``vehicle.add`` and ``vehicle.moveToXY``; a nose over the stop line is
-first moved back onto its lane (:meth:`Seeder.fit_lane_ends`). SUMO
+first moved back onto its lane (:meth:`Seeder.fit_lane_ends`). Its vType and route are the vehicle's
+own in SUMO, deleted with it (:meth:`Seeder.fit_type`, :meth:`Seeder.add_on_route`): a long
+co-simulation does not pile up one of each per vehicle it seeded. SUMO
 refusing a vehicle never crashes the host simulation: the agent is reported as refused. Before any
 is added, agents on internal lanes of one junction whose links conflict are resolved
 (:mod:`~sumo_scendiff.sim.junctions`): of two already in the area their links share, one is
@@ -128,6 +130,9 @@ class Seeder(Settling, StopLines):
         # at most that wide (scene.json keeps the generated width); None: the generated widths.
         self.width_cap: float | None = net.junction_vehicle_width
         self.fleet = None      # the scenario's vTypes and their mix (sim/fleet.py), read at the first seeding
+        self._bases: set[str] = set()        # the per-class vTypes made (vtype)
+        self._edge_routes: set[str] = set()  # the one-edge routes added (add_on_route)
+        self._staged: set[str] = set()       # vehicles whose staging route is still in SUMO (add_on_route)
 
     # ---- network helpers --------------------------------------------------------------------
     def _internal_links(self) -> dict[str, tuple[str, str]]:
@@ -296,27 +301,71 @@ class Seeder(Settling, StopLines):
             self.fleet = Fleet.read(self.sim, exclude=self.prefix.split(".")[0])
         return self.fleet
 
-    def vtype(self, vid: str, length: float, width: float, vclass: int, min_gap: float,
-              parent: str | None = None) -> str:
-        """The agent's own vType (``{vid}_type``, its own so that settling its minGap touches no other
-        vehicle): with ``parent`` one of the scenario's vTypes (:meth:`Fleet.assign`) a copy of it
-        that differs only by a minGap fitted to the gap ahead where that is below its own; else a
-        copy of SUMO's default with the class of its size, its box and fitted minGap."""
-        t = self.sim.vehicletype
-        tid = f"{vid}_type"
+    def vtype(self, vclass: int, parent: str | None = None) -> str:
+        """The vType an agent is added as: ``parent`` where it is one of the scenario's vTypes
+        (:meth:`Fleet.assign`), else the seeder's copy of SUMO's default with the class of its size
+        (``{root}_{class}``: one per class, made once). The agent's box and minGap are its own
+        (:meth:`fit_type`); SUMO's router takes this type, never a vehicle's own (a findRoute with a
+        vehicle-specific type deletes it with the router's temporary vehicle)."""
         if parent is not None and parent in self._known_types():
-            t.copy(parent, tid)
-            t.setMinGap(tid, min(float(min_gap), float(t.getMinGap(parent))))
+            return parent
+        vclass_name = VEHICLE_CLASSES[int(vclass)]
+        tid = f"{self.prefix.split('.')[0]}_{vclass_name}"
+        if tid not in self._bases:
+            t = self.sim.vehicletype
+            if tid not in t.getIDList():      # an earlier seeder in this simulation made it
+                t.copy("DEFAULT_VEHTYPE", tid)
+                t.setVehicleClass(tid, vclass_name)
+            self._bases.add(tid)
+        return tid
+
+    def fit_type(self, vid: str, length: float, width: float, min_gap: float, parent: str | None) -> None:
+        """The added vehicle's own size and minGap. SUMO gives a vehicle whose size or minGap is set
+        (``vehicle.setMinGap`` ...) a type of its own, ``{type}@{vid}``, which settling can change
+        without touching another vehicle and which SUMO deletes with the vehicle (the seeder leaves
+        no vType behind). A copy of one of the scenario's vTypes (``parent``) differs only by a
+        minGap fitted to the gap ahead where that is below its own; else its box too."""
+        v, t = self.sim.vehicle, self.sim.vehicletype
+        if parent is not None:
+            v.setMinGap(vid, min(float(min_gap), float(t.getMinGap(parent))))
             # an export writes the parent's own definition (its car-following model and parameters,
             # which TraCI cannot read back)
-            t.setParameter(tid, PARENT_PARAM, parent)
-            return tid
-        t.copy("DEFAULT_VEHTYPE", tid)
-        t.setVehicleClass(tid, VEHICLE_CLASSES[int(vclass)])
-        t.setLength(tid, float(length))
-        t.setWidth(tid, float(width))
-        t.setMinGap(tid, float(min_gap))
-        return tid
+            t.setParameter(v.getTypeID(vid), PARENT_PARAM, parent)
+            return
+        v.setLength(vid, float(length))
+        v.setWidth(vid, float(width))
+        v.setMinGap(vid, float(min_gap))
+
+    def add_on_route(self, vid: str, edges: list[str], **depart) -> None:
+        """``vehicle.add`` on ``edges``, leaving no route behind: SUMO keeps a route added by id
+        (``route.add``) for ever, but frees the route a vehicle is given (``vehicle.setRoute``) with
+        the vehicle. So the vehicle is added on a staging route of its first edge (which SUMO checks
+        its departure against), given its route, and the staging route removed; a route of one edge
+        is the staging route, one per edge, shared."""
+        sim = self.sim
+        if len(edges) == 1:
+            stage = f"{self.prefix.split('.')[0]}:{edges[0]}"
+            if stage not in self._edge_routes:
+                if stage not in sim.route.getIDList():     # an earlier seeder in this simulation added it
+                    sim.route.add(stage, edges)
+                self._edge_routes.add(stage)
+            sim.vehicle.add(vid, stage, **depart)
+            return
+        sim.route.add(f"{vid}_route", edges[:1])
+        self._staged.add(vid)
+        sim.vehicle.add(vid, f"{vid}_route", **depart)
+        sim.vehicle.setRoute(vid, edges)
+        self._drop_stage(vid)
+
+    def _drop_stage(self, vid: str) -> None:
+        """Remove ``vid``'s staging route (:meth:`add_on_route`), if it still has one."""
+        if vid not in self._staged:
+            return
+        self._staged.discard(vid)
+        try:
+            self.sim.route.remove(f"{vid}_route")
+        except Exception:   # a SUMO without route.remove keeps it
+            pass
 
     @staticmethod
     def leaders(boxes: np.ndarray, others: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -453,20 +502,21 @@ class Seeder(Settling, StopLines):
             if self.width_cap is not None and width > self.width_cap and vtype is None:
                 report.narrowed[i] = (width, self.width_cap)
                 width = self.width_cap
-            tid = self.vtype(vid, scene.boxes[i, 3], width, scene.vclass[i], gap, vtype)
+            tid = self.vtype(scene.vclass[i], vtype)
             full, how = self.routes.along(edges, last_lane, given, tid) if given else ([], "")
             if given:
                 report.own_route[i] = how or "lost"
-            sim.route.add(f"{vid}_route", full or self.routes.complete(edges, last_lane, tid, self.rng))
+            full = full or self.routes.complete(edges, last_lane, tid, self.rng)
             speed, slowed = max(float(scene.speed[i, T0]), 0.0), None
             # held for a foe on its junction, safe behind the one ahead, or at most what its vType
             # drives (a scenario's slow type: SUMO refuses a departure above its maxSpeed)
             cap = min(float(depart), sim.vehicletype.getMaxSpeed(tid))
             if cap < speed:
                 slowed, speed = (speed, cap), cap
-            sim.vehicle.add(vid, f"{vid}_route", typeID=tid, depart="now",
-                            departLane=str(lane_index) if not lane.internal else "best",
-                            departPos="base", departSpeed=f"{speed:.3f}")
+            self.add_on_route(vid, full, typeID=tid, depart="now",
+                              departLane=str(lane_index) if not lane.internal else "best",
+                              departPos="base", departSpeed=f"{speed:.3f}")
+            self.fit_type(vid, scene.boxes[i, 3], width, gap, vtype if tid == vtype else None)
             sim.vehicle.moveToXY(vid, "" if lane.internal else lane.edge, lane.index,
                                  float(fx), float(fy), float(angle), keepRoute=self.keep_route)
         except Exception as e:  # libsumo.TraCIException / traci.TraCIException
@@ -541,6 +591,7 @@ class Seeder(Settling, StopLines):
             self.sim.vehicle.remove(vid)
         except Exception:   # never added, or already gone
             pass
+        self._drop_stage(vid)
 
     def verify(self, report: SeedReport) -> SeedReport:
         """After a simulation step: which seeded agents are not where they were generated (those

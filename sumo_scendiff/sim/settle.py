@@ -39,10 +39,9 @@ class Settling:
         counts from front bumper + minGap): SUMO registers a collision whenever a gap is below the
         follower's minGap (``--collision.mingap-factor``, default: the whole minGap), so a vehicle
         seeded that close would collide standing still. Its minGap shrinks to fit the bumper gap."""
-        tid = self.sim.vehicle.getTypeID(vid)
-        old = float(self.sim.vehicletype.getMinGap(tid))
+        old = float(self.sim.vehicle.getMinGap(vid))
         new = max(old + gap - MIN_GAP_MARGIN, 0.0)
-        self.sim.vehicletype.setMinGap(tid, new)
+        self.sim.vehicle.setMinGap(vid, new)     # its own vType's (Seeder.fit_type): no other vehicle's
         report.gap_fitted[i] = (report.gap_fitted.get(i, (old,))[0], new)
 
     def link_stops(self, vid: str, reach: float = 100.0, links: int = LINKS_AHEAD) -> list[tuple[float, float]]:
