@@ -44,11 +44,45 @@ class EnRoute:
                                    # not fit its edge stands: :data:`SPILL_EDGES` of them)
     offset: float = 0.0            # m along the edge where it began moving on it (its departPos)
     stops: tuple[dict, ...] = ()   # its route's <stop>s (attributes; the seeder keeps those ahead)
+    stop: int | None = None        # the one of ``stops`` it makes on this edge (None: none here)
+    stop_at: float = 0.0           # m along the edge where that stop ends (where its front stands)
+    to_stop: float = 0.0           # s after entering the edge it reaches that stop
+    hold: float = 0.0              # s it stands there (its duration, or to its until)
 
     @property
     def waiting(self) -> bool:
         """At the edge's end, waiting for its light (the signal delay)."""
         return self.since >= self.travel
+
+    @property
+    def stopped(self) -> float | None:
+        """The seconds it has stood at its stop on this edge at ``begin``; None: not standing at one."""
+        if self.stop is None or not self.to_stop <= self.since < self.to_stop + self.hold:
+            return None
+        return self.since - self.to_stop
+
+    @property
+    def front(self) -> float:
+        """m along the edge where its front is while it moves (or stands at its stop): at the typical
+        speed from where it began on the edge, the time at its stop left out."""
+        if self.stop is None:
+            return self.offset + self.since * self.speed
+        if self.since < self.to_stop:
+            return self.offset + (self.stop_at - self.offset) * self.since / max(self.to_stop, 1e-6)
+        length, after = self.offset + self.speed * self.travel, self.to_stop + self.hold
+        share = (self.since - after) / max(self.travel - after, 1e-6)
+        return self.stop_at + (length - self.stop_at) * min(max(share, 0.0), 1.0)
+
+    def stops_left(self, late: float = 0.0) -> tuple[dict, ...]:
+        """Its stops as the seeded vehicle is given them: the one it stands at with what remains of
+        its ``duration`` (SUMO ends a stop ``duration`` after it began, or at its ``until``), less
+        ``late``: the seconds after ``begin`` the seeded vehicle begins it."""
+        from ..sim.stops import stop_seconds
+        stood = self.stopped
+        if stood is None or not self.stops[self.stop].get("duration"):
+            return self.stops
+        rest = max(stop_seconds(self.stops[self.stop]) - stood - late, 0.0)
+        return self.stops[:self.stop] + (dict(self.stops[self.stop], duration=f"{rest:.3f}"),) + self.stops[self.stop + 1:]
 
 
 @dataclass
@@ -70,7 +104,8 @@ class DemandEstimate:
         SUMO's); ``junction_taz``, ``scale``: its ``junction-taz`` and ``scale`` options. Raises :class:`~.routing.RoutingError` when SUMO's router cannot read the demand."""
         from .queues import Trip, run_to
         from .routing import routed_departures
-        from ..sim.stops import stopping_places
+        from ..sim.stops import place_ends
+        from .vtypes import vtype_table
         from .travel import DEFAULT_DRIVER, TravelTimes, link_flows, vtype_drivers
         snet = net.sumo_net
         drivers = vtype_drivers([*route_files, *additional])
@@ -84,26 +119,34 @@ class DemandEstimate:
         span = min(FLOW_SPAN_S, begin - first)
         times = TravelTimes(net, additional, link_flows([(d.depart, list(d.edges)) for d in departures], begin, span))
         trips: list[Trip] = []
-        stops: dict[int, tuple] = {}               # id(trip) -> its stops
-        places = stopping_places(additional) if any(d.stops for d in departures) else {}
+        stops: dict[int, tuple] = {}               # id(trip) -> (its stops, per edge the one made there)
+        stopping = any(d.stops for d in departures)
+        ends = place_ends(additional, net) if stopping else {}
+        classes = vtype_table([*route_files, *additional], lambda el: el.get("vClass") or "passenger") \
+            if stopping else {}
         for d in departures:
             if not all(snet.hasEdge(e) for e in d.edges):
                 continue
             driver = drivers.get(d.type, DEFAULT_DRIVER) if d.type else DEFAULT_DRIVER
+            own = tuple(on_lane(s, snet, classes.get(d.type, "passenger")) for s in d.stops)
+            dwell, until, at, which = _dwell(replace(d, stops=own), ends, snet)
             trips.append(Trip(d.id, d.type, d.edges, driver, d.depart,
                               times.start(driver, d.edges[0]) if d.standing else 0.0,
                               _depart_offset(d.depart_pos, snet.getEdge(d.edges[0]).getLength()),
-                              *_dwell(d, places)))
-            stops[id(trips[-1])] = d.stops
+                              dwell, until, at))
+            stops[id(trips[-1])] = (own, which)
         on_edge: dict[str, int] = {}
         en_route: list[EnRoute] = []
         for pos in run_to(trips, times, net, begin):
             edges, k = pos.trip.edges, pos.k
             on_edge[edges[k]] = on_edge.get(edges[k], 0) + 1
             ahead = snet.getEdge(edges[k]).getLength() - pos.offset
+            own, which = stops.get(id(pos.trip), ((), ()))
+            here = which[k] if which else None
             en_route.append(EnRoute(pos.trip.id, pos.trip.type, edges[k:], begin - pos.t_enter, pos.travel,
                                     ahead / pos.travel, edges[max(k - SPILL_EDGES, 0):k][::-1], pos.offset,
-                                    stops.get(id(pos.trip), ())))
+                                    own, here, pos.trip.stop_at[k] if here is not None else 0.0,
+                                    pos.to_stop, pos.hold))
         return cls(begin, on_edge, sum(on_edge.values()), unrouted, len(departures), en_route)
 
     def edge_density(self, net) -> dict[str, float]:
@@ -124,22 +167,56 @@ class DemandEstimate:
         return net.region_density(region, self.edge_density(net))
 
 
-def _dwell(d, places: dict[str, str]) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """Per edge of ``d``'s route the seconds its stops hold it there and the latest time one holds it
-    until (``until``; -inf: none), its stops in route order, each on the first of its edges at or after
-    the one before; ((), ()) without stops."""
-    from ..sim.stops import stop_lane, stop_seconds, stop_until
+def on_lane(stop: dict, snet, vclass: str) -> dict:
+    """A ``<stop>`` (attribute dict) of one edge (``edge=``, no lane) on the lane SUMO gives it: the
+    edge's first lane that allows the vehicle's class (MSBaseVehicle::addStop, MSEdge::getFirstAllowed);
+    any other stop as it is."""
+    from ..sim.stops import PLACES
+    edge = stop.get("edge")
+    if stop.get("lane") or any(stop.get(k) for k in PLACES) or not edge or not snet.hasEdge(edge):
+        return stop
+    lane = next((ln for ln in snet.getEdge(edge).getLanes() if ln.allows(vclass)), None)
+    return stop if lane is None else {k: v for k, v in stop.items() if k != "edge"} | {"lane": lane.getID()}
+
+
+def _stop_end(stop: dict, ends: dict, snet) -> tuple[str, float] | None:
+    """(edge, m along it where the stop ends) of a ``<stop>`` (attribute dict) on a lane or at a
+    stopping place (``ends``: sim.stops.place_ends), as SUMO reads ``endPos`` (default the lane's
+    end, a negative one from it); None where it names neither."""
+    from ..sim.stops import PLACES
+    place = next((stop[k] for k in PLACES if stop.get(k)), None)
+    if place:
+        return ends.get(place)
+    lane = stop.get("lane")
+    if not lane or not snet.hasEdge(lane.rpartition("_")[0]):
+        return None
+    length = snet.getLane(lane).getLength()
+    try:
+        end = float(stop["endPos"]) if stop.get("endPos") else length
+    except ValueError:
+        end = length
+    return lane.rpartition("_")[0], min(max(end + length if end < 0 else end, 0.0), length)
+
+
+def _dwell(d, ends: dict, snet) -> tuple[tuple, tuple, tuple, tuple]:
+    """Per edge of ``d``'s route the seconds its stops hold it there, the latest time one holds it
+    until (``until``; -inf: none), where the first of them ends (m; nan: none) and which of ``d.stops``
+    that is (None: none), its stops in route order, each on the first of its edges at or after the
+    one before; four () without stops."""
+    from ..sim.stops import stop_seconds, stop_until
     if not d.stops:
-        return (), ()
-    out, until, k = [0.0] * len(d.edges), [float("-inf")] * len(d.edges), 0
-    for s in d.stops:
-        lane = stop_lane(s, places)
-        edge = lane.rpartition("_")[0] if lane else None
+        return (), (), (), ()
+    n = len(d.edges)
+    out, until, at, which, k = [0.0] * n, [float("-inf")] * n, [float("nan")] * n, [None] * n, 0
+    for i, s in enumerate(d.stops):
+        edge, end = _stop_end(s, ends, snet) or (None, None)
         if edge in d.edges[k:]:
             k = d.edges.index(edge, k)
             out[k] += stop_seconds(s)
             until[k] = max(until[k], stop_until(s) or float("-inf"))
-    return tuple(out), tuple(until)
+            if which[k] is None:
+                at[k], which[k] = end, i
+    return tuple(out), tuple(until), tuple(at), tuple(which)
 
 
 def _depart_offset(pos: str | None, length: float) -> float:
@@ -154,4 +231,4 @@ def _depart_offset(pos: str | None, length: float) -> float:
     return min(max(p + length if p < 0 else p, 0.0), length)
 
 
-__all__ = ["DemandEstimate", "EnRoute"]
+__all__ = ["DemandEstimate", "EnRoute", "on_lane"]

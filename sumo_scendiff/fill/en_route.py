@@ -34,6 +34,9 @@ from .demand import DemandEstimate, EnRoute
 from .vtypes import DEFAULT_BODY, Body
 
 STOP_MARGIN = 0.3      # m a queue's first front stays behind the stop line
+# m a vehicle standing at its stop has its front behind the stop's end: inside SUMO's shortest stop
+# (2 x POSITION_EPS, 0.2 m), so that rounding never puts it past the stop (then passed, dropped)
+AT_STOP_M = 0.05
 
 
 @dataclass(frozen=True)
@@ -123,7 +126,7 @@ def place_en_route(net, est: DemandEstimate, bodies: dict[str, Body] | None = No
 
     # queues first, longest waiting at the front; then the movers, furthest along first; ties by id
     def order(v: EnRoute):
-        return (0, -(v.since - v.travel), v.id) if v.waiting else (1, -(v.offset + v.since * v.speed), v.id)
+        return (0, -(v.since - v.travel), v.id) if v.waiting else (1, -v.front, v.id)
 
     room: dict[int, float] = {}                  # lane -> the back of its last vehicle
     used: Counter = Counter()                    # lane -> vehicles placed on it
@@ -138,7 +141,7 @@ def place_en_route(net, est: DemandEstimate, bodies: dict[str, Body] | None = No
 
         def permitted(lanes: list[int]) -> list[int]:
             return lanes if vclass is None else [i for i in lanes if allows(net, i, vclass)]
-        want = None if v.waiting else v.offset + v.since * v.speed
+        want = None if v.waiting else v.stop_at - AT_STOP_M if v.stopped is not None else v.front
         best = _fit(permitted(lanes_for(v.edges)), v.id, want, body, room, used, net, shared, taken)
         for k in range(len(v.behind) if best is None else 0):
             # a queue longer than its edge stands back on the route's edges before it, as a queue

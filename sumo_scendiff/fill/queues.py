@@ -61,6 +61,7 @@ class Trip:
     offset: float = 0.0            # m along its first edge where it enters (departPos)
     dwell: tuple[float, ...] = ()  # s it stands at its stops on each edge of its route (none: ())
     until: tuple[float, ...] = ()  # the time its stops on each edge hold it until (-inf: none; none: ())
+    stop_at: tuple[float, ...] = ()  # m along each edge where its first stop there ends (nan: none; none: ())
 
 
 @dataclass(frozen=True)
@@ -73,6 +74,8 @@ class OnEdge:
     t_enter: float
     travel: float
     offset: float
+    to_stop: float = 0.0           # s after ``t_enter`` it reaches its stop on this edge (if it has one)
+    hold: float = 0.0              # s it stands at its stops on this edge
 
 
 def run_to(trips: list[Trip], times: TravelTimes, net, begin: float) -> list[OnEdge]:
@@ -158,11 +161,19 @@ class _Queues:
         length = self.snet.getEdge(e).getLength()
         cruise, _ = self.times.edge(e, trip.driver)
         drive = before + cruise * (length - offset) / length
+        # its stop is reached on the way along the edge (about the edge's end where the place is not
+        # known), and a stop's until holds it past its duration from there (MSStop::getMinDuration)
+        known = bool(trip.stop_at) and not np.isnan(trip.stop_at[k])
+        to_stop = before + cruise * max((trip.stop_at[k] if known else length) - offset, 0.0) / length
+        if known:          # it brakes to its stop and starts from it again
+            v = trip.driver.cruise(self.snet.getEdge(e).getSpeed())
+            to_stop += v / (2.0 * trip.driver.decel)
+            drive += trip.driver.slowing(v, 0.0)
         hold = trip.dwell[k] if trip.dwell else 0.0
-        if trip.until:      # a stop's until holds it past its duration (reached about the edge's end)
-            hold = max(hold, trip.until[k] - t - drive)
+        if trip.until:
+            hold = max(hold, trip.until[k] - t - to_stop)
         travel = max(drive + hold, 1e-3)
-        self.where[id(trip)] = OnEdge(trip, k, t, travel, offset)
+        self.where[id(trip)] = OnEdge(trip, k, t, travel, offset, to_stop, hold)
         self.push(t + travel, LINE, trip, k)
 
     def leave(self, trip: Trip, e: str, t: float) -> None:

@@ -127,6 +127,7 @@ def _seed_all(result, net, cfg, seed, quiet, progress, demand, routes, model_fle
         seeder.prefix, seeder.count = f"fill{k}.", 0
         which = scene.meta.get("demand")
         mine = [None if d is None else demand[d].vehicle for d in which] if demand and which else None
+        _stand_at_stops(scene, mine)
         reports[k] = seeder.seed(scene, others=(others, pins[:, 5] if len(pins) else np.zeros(0)),
                                  routes=[v and v.edges for v in mine] if mine else None,
                                  types=[v and v.type for v in mine] if mine else None)
@@ -142,17 +143,28 @@ def _seed_all(result, net, cfg, seed, quiet, progress, demand, routes, model_fle
     return sim, reports
 
 
+def _stand_at_stops(scene, mine) -> None:
+    """The agents whose demand vehicle stands at its stop at the fill's time (``mine``, per agent)
+    seeded standing, whatever speed the model drew: SUMO lets a vehicle make a stop only if it can
+    brake for it, and one moving at the stop's end would pass it."""
+    for a, v in enumerate(mine or ()):
+        if v is not None and v.stopped is not None:
+            scene.speed[a] = 0.0
+
+
 def _give_stops(sim, rep, mine) -> list[str]:
     """The stops each seeded vehicle's demand vehicle (``mine``, per agent) still has to make, but
-    those behind where it stands on its lane (sim.stops); returns the vehicles given any."""
-    out = []
+    those behind where it stands on its lane (sim.stops); returns the vehicles given any. One
+    standing at its stop begins it in the step after the seeding one: the rest of its duration is
+    counted from then."""
+    out, late = [], 2.0 * sim.simulation.getDeltaT()
     for a, v in enumerate(mine or ()):
         vid = rep.ids.get(a)
         if v is None or not v.stops or vid is None:
             continue
         lane = rep.lanes.get(a)      # (normal lane, front position); none inside a junction
         at = (lane[0].rpartition("_")[0], lane[1]) if lane else None
-        if add_stops(sim, vid, v.stops, at=at):
+        if add_stops(sim, vid, v.stops_left(late), at=at):
             out.append(vid)
     return out
 
