@@ -87,8 +87,8 @@ def _from_github(sc: Scenario, dest: Path, cache: Path, mirror: Path | None) -> 
         (dest / rel).parent.mkdir(parents=True, exist_ok=True)
         (dest / rel).write_bytes(_github_file(g["repo"], commit, path, cache, mirror))
     for cmd in g["steps"]:
-        prog = [sys.executable, _tool(cmd[0])] if cmd[0].endswith(".py") else \
-            [_binary(cmd[0])]
+        prog = [_binary(cmd[0])] if not cmd[0].endswith(".py") else \
+            [sys.executable, cmd[0] if (dest / cmd[0]).is_file() else _tool(cmd[0])]   # the tutorial's own script
         subprocess.run(prog + cmd[1:], cwd=dest, check=True, capture_output=True, timeout=1800)
     return {}
 

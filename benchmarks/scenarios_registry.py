@@ -29,12 +29,15 @@ def _game(name, cfg, covers=(), **kw):
                     {"kind": "sumo-wheel", "path": f"tools/game/{cfg}"}, Path(cfg).name, covers, **kw)
 
 
-SUMO_RL = {"kind": "pypi", "package": "sumo-rl", "version": "1.4.5"}
+def _pypi(name, package, version, cfg, licence, covers=(), source=None, **kw):
+    """``cfg``: the configuration's path inside the package's wheel."""
+    return Scenario(name, source or f"{package} (PyPI)", licence,
+                    {"kind": "pypi", "package": package, "version": version, "path": cfg}, Path(cfg).name,
+                    covers, **kw)
 
 
 def _sumo_rl(name, cfg, covers=(), source="sumo-rl (PyPI)", **kw):
-    return Scenario(name, source, "MIT", dict(SUMO_RL, path=f"sumo_rl/nets/{cfg}"), Path(cfg).name,
-                    covers, **kw)
+    return _pypi(name, "sumo-rl", "1.4.5", f"sumo_rl/nets/{cfg}", "MIT", covers, source, **kw)
 
 
 def _github(name, repo, files, cfg, licence, covers=(), steps=(), **kw):
@@ -48,6 +51,53 @@ def _github(name, repo, files, cfg, licence, covers=(), steps=(), **kw):
 
 SUMO_REPO = "eclipse-sumo/sumo"
 MANHATTAN = "tests/complex/tutorial/manhattan/data/"
+TUTORIAL = "tests/complex/tutorial/"
+
+
+def _tutorial(folder: str, files: list) -> dict:
+    """A tutorial's files (name, commit) as ``_github`` takes them: each at the commit the code index holds
+    it at (the tutorials' files were last changed at different commits)."""
+    return {f: (TUTORIAL + folder + f, c) for f, c in files}
+
+
+PEDCROSSING = _tutorial("traci_pedestrian_crossing/data/", [
+    ("pedcrossing.netccfg", "61b58fbf780d2cc31e15438dd590a5270c4da0c9"),
+    ("pedcrossing.nod.xml", "ebef3bdbdf7d42f7a917365ac173d6f246b628e7"),
+    ("pedcrossing.edg.xml", "61b58fbf780d2cc31e15438dd590a5270c4da0c9"),
+    ("pedcrossing.con.xml", "61b58fbf780d2cc31e15438dd590a5270c4da0c9"),
+    ("pedcrossing.tll.xml", "eb22e6fce8c11320876996dc4f363f0cfd5b773b"),
+    ("pedcrossing.rou.xml", "ebef3bdbdf7d42f7a917365ac173d6f246b628e7"),
+    ("run.sumocfg", "6b9178fc9d7b59efd33ab6f9dc98ea86bf1a57f8"),
+    ("viewsettings.xml", "61b58fbf780d2cc31e15438dd590a5270c4da0c9")])   # sumo, too, wants its gui-settings-file
+CIRCLES = _tutorial("circles/data/", [
+    ("circles.sumocfg", "61b58fbf780d2cc31e15438dd590a5270c4da0c9"),
+    ("circles.net.xml", "3eeb82c0a9f6c82e3137626a807f11e4eca2837a"),
+    ("circles.rou.xml", "61b58fbf780d2cc31e15438dd590a5270c4da0c9"),
+    ("circles.add.xml", "61b58fbf780d2cc31e15438dd590a5270c4da0c9")])
+PUBLIC_TRANSPORT = _tutorial("public_transport/data/", [
+    ("run.sumocfg", "81cf4240216734bc309054a668a97d70c25ba923"),
+    ("net.net.xml", "81cf4240216734bc309054a668a97d70c25ba923"),
+    ("pt.rou.xml", "deab49b2f227161684af2ebeece90ef1081d8292"),
+    ("persons.rou.xml", "deab49b2f227161684af2ebeece90ef1081d8292"),
+    ("stops.add.xml", "ec7f6e56e227fd342ce38a8dfd9f79e4328960c3")])
+OUTPUT_PARSING = _tutorial("output_parsing/data/", [
+    ("output_file.sumocfg", "9acde516efaa1e70d9292ea356e52678f1fe3f79"),
+    ("circular.netccfg", "5629ad53b59bd84a98083b544c472c050eb1aeb8"),
+    ("circular.nod.xml", "eb22e6fce8c11320876996dc4f363f0cfd5b773b"),
+    ("circular.edg.xml", "eb22e6fce8c11320876996dc4f363f0cfd5b773b"),
+    ("circular.typ.xml", "eb22e6fce8c11320876996dc4f363f0cfd5b773b"),
+    ("circular.rou.xml", "5d6cd00a5b891ba5efeb98da52c4b9411aa6000c"),
+    ("circular.add.xml", "61b58fbf780d2cc31e15438dd590a5270c4da0c9")])
+# the network as shipped beside the tutorial (its plain files, at the commits the index holds, no longer agree
+# on the junction's id); the routes by the tutorial's own generateRoutes.py (seeded)
+TRACI_TLS = _tutorial("traci_tls/", [
+    ("data/cross.sumocfg", "684df0808bd33fe16adcd6201571d7727b768d6e"),
+    ("data/cross.net.xml", "387b777a8d365505feaeb206898386a5714b15de"),
+    ("data/cross.det.xml", "d187f75d88e4098fdd0426690d5fdfb878992b20"),
+    ("generateRoutes.py", "434fdf0cecdd2acd8c09278662d1b8ba852c249f")])
+SUMO_EXPERIMENTS = ("sumo-experiments", "5.8.4")
+BOLOGNA = "sumo_experiments/preset_networks/bologna/acosta/"
+BOLOGNA_COVERS = ("city", "lights", "buses", "bus lanes", "stops", "detectors", "vTypes in additional files")
 
 
 REGISTRY: list[Scenario] = [
@@ -120,6 +170,32 @@ REGISTRY: list[Scenario] = [
               "trips": {"passenger": ["--period", "1.5"], "truck": ["--period", "10"],
                         "motorcycle": ["--period", "6"]}},
              "scenario.sumocfg", ("left-hand", "right of way", "trucks", "motorcycles")),
+    # SUMO's tutorials (tests/complex/tutorial), built by the steps of each tutorial's runner.py
+    _github("tutorial_pedcrossing", SUMO_REPO, {"data/" + k: v for k, v in PEDCROSSING.items()},
+            "data/run.sumocfg", "EPL-2.0", ("pedestrians", "crossing", "TLS program file", "../ paths"),
+            steps=[["netconvert", "-c", "data/pedcrossing.netccfg", "--output-file", "pedcrossing.net.xml"],
+                   ["randomTrips.py", "--net-file", "pedcrossing.net.xml", "--output-trip-file",
+                    "pedestrians.trip.xml", "--seed", "42", "--pedestrians", "--prefix", "ped",
+                    "--min-distance", "1", "--trip-attributes", 'departPos="random" arrivalPos="random"',
+                    "--binomial", "4", "--period", "35"]], offset=300),
+    _github("tutorial_circles", SUMO_REPO, CIRCLES, "circles.sumocfg", "EPL-2.0",
+            ("loop", "rerouters", "vehicles that never arrive"), offset=300),
+    _github("tutorial_public_transport", SUMO_REPO, PUBLIC_TRANSPORT, "run.sumocfg", "EPL-2.0",
+            ("buses", "trams", "stops", "persons", "repeated route", "intermodal trips"), offset=300),
+    _github("tutorial_output_parsing", SUMO_REPO, OUTPUT_PARSING, "output_file.sumocfg", "EPL-2.0",
+            ("loop", "routes in additional files", "rerouters", "no internal links", "trucks", "fcd-output"),
+            steps=[["netconvert", "-c", "circular.netccfg"]], offset=300,
+            area=(-50.0, -50.0, 350.0, 350.0)),    # a corner: no lane about the loop's centre
+    _github("tutorial_traci_tls", SUMO_REPO, TRACI_TLS, "data/cross.sumocfg", "EPL-2.0",
+            ("lights", "induction loop", "additional file without <additional> root", "old network version"),
+            steps=[["generateRoutes.py"]], offset=300),
+    _pypi("se_bologna_acosta", *SUMO_EXPERIMENTS, BOLOGNA + "run.sumocfg", "LGPL-2.1-or-later", BOLOGNA_COVERS,
+          offset=600),
+    _pypi("se_bologna_acosta_2704", *SUMO_EXPERIMENTS, BOLOGNA + "run_2704.sumocfg", "LGPL-2.1-or-later",
+          BOLOGNA_COVERS, offset=600),
+    _pypi("se_champs_elysees", *SUMO_EXPERIMENTS,
+          "sumo_experiments/preset_networks/champs_elysees/run_11112.sumocfg", "LGPL-2.1-or-later",
+          ("city", "lights", "OSM", "flows", "detectors"), offset=600),
 ]
 
 def _feature(name: str) -> Scenario:

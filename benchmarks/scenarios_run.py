@@ -221,8 +221,39 @@ def expected_vehicles(name: str, out: Path) -> tuple[int | None, str]:
     doc_path = out / "fill" / "fill.json"
     if not doc_path.is_file():
         return None, ""
-    seeded = _seeded(json.loads(doc_path.read_text()))
-    return seeded, f"fill.json placed {seeded}"
+    doc = json.loads(doc_path.read_text())
+    seeded, due = _seeded(doc), _demand_due(name, out, doc)
+    return seeded + due, f"fill.json placed {seeded}" + (f" + {due} the demand departs then" if due else "")
+
+
+def _demand_due(name: str, out: Path, doc: dict) -> int:
+    """The demand's own vehicles SUMO holds at a fill replay's first step (its departures due then, many
+    a second in a city's demand): the replay's configuration run for that step without the fill's vehicles
+    (its state, its start file); 0 where there is no such configuration."""
+    cfg = out / "fill" / ("scenario.sumocfg" if name == "fill_replay" else "start.sumocfg")
+    if not cfg.is_file():
+        return 0
+    demand = {Path(r).name for r in doc.get("routes", [])}
+    tree = ET.parse(cfg)
+    for parent in list(tree.getroot().iter()):
+        for el in list(parent):
+            if el.tag == "route-files":
+                kept = [f for f in el.get("value", "").split(",") if f.removesuffix(".gz") in demand]
+                if kept:
+                    el.set("value", ",".join(kept))
+                else:
+                    parent.remove(el)
+            elif el.tag == "load-state":
+                parent.remove(el)
+    begin = float(_config_value(cfg, "begin") or 0)
+    bare, summary = cfg.with_name(f"_{name}_demand.sumocfg"), out / f"{name}_demand_summary.xml"
+    tree.write(bare)
+    try:
+        subprocess.run([_sumo(), "-c", bare, "--end", f"{begin + 1:g}", "--no-step-log", "true",
+                        "--summary-output", summary], capture_output=True, timeout=TIMEOUT["sumo"], check=False)
+    finally:
+        bare.unlink()
+    return held(next(summary_steps(summary), None)) or 0
 
 
 def _stock_summary(out: Path, t: float, seed) -> Path:

@@ -43,7 +43,8 @@ def test_registry_is_public_and_covers_the_kinds_of_traffic(corpus):
     assert not any("DLR-TS/sumo-scenarios" in json.dumps(s.get) for s in corpus.REGISTRY)
     covered = {c for s in corpus.REGISTRY for c in s.covers}
     assert {"left-hand", "bicycles", "pedestrians", "buses", "actuated lights", "roundabouts",
-            "highway", "rail"} <= covered
+            "highway", "rail", "trams", "persons", "rerouters"} <= {c for s in corpus.REGISTRY
+                                                                   if s.get["kind"] != "feature" for c in s.covers}
 
 
 def test_every_wheel_scenario_is_in_the_installed_sumo(corpus):
@@ -73,6 +74,30 @@ def test_a_github_source_not_at_hand_is_named(corpus, tmp_path):
     row = corpus.run_scenario(sc, tmp_path, tmp_path / "no-mirror")
     assert row["steps"]["build"]["ok"] is False and "someone/nothing" in row["steps"]["build"]["error"]
     assert corpus.first_failure(row)[0] == "build"
+
+
+def test_a_github_source_runs_the_scripts_it_ships(corpus, tmp_path):
+    """As SUMO's traci_tls tutorial: its demand is written by its own generateRoutes.py (the folder's
+    script runs; a step naming a SUMO tool or binary runs that), and source.json names each file's commit."""
+    commit = "1" * 40
+    files = {"gen.py": "open('data/r.rou.xml', 'w').write('<routes><flow id=\"f\" begin=\"0\" end=\"60\" '\n"
+                       "    'number=\"5\" from=\"A0A1\" to=\"A1B1\"/></routes>')\n",
+             "data/s.sumocfg": '<configuration><input><net-file value="n.net.xml"/>'
+                               '<route-files value="r.rou.xml"/></input></configuration>'}
+    for rel, text in files.items():
+        saved = tmp_path / "_github" / "someone+tut" / commit / "tut" / rel
+        saved.parent.mkdir(parents=True, exist_ok=True)
+        saved.write_text(text)
+    sc = corpus.Scenario("tut", "github:someone/tut", "EPL-2.0",
+                         {"kind": "github", "repo": "someone/tut",
+                          "files": {rel: ["tut/" + rel, commit] for rel in files},
+                          "steps": [["netgenerate", "--grid", "--grid.number", "2", "-o", "data/n.net.xml"],
+                                    ["gen.py"]]}, "data/s.sumocfg")
+    cfg = corpus.build(sc, tmp_path)
+    assert (cfg.parent / "r.rou.xml").is_file()
+    assert json.loads((tmp_path / "tut" / "source.json").read_text())["get"]["files"]["gen.py"] == ["tut/gen.py", commit]
+    ref = subprocess.run([corpus._sumo(), "-c", str(cfg), "--end", "30"], capture_output=True, text=True)
+    assert ref.returncode == 0, ref.stderr
 
 
 def test_one_line_takes_sumos_error_else_the_traceback_tail(corpus):
@@ -113,6 +138,33 @@ def test_a_replay_holding_other_vehicles_than_the_folder_says_fails(corpus, tmp_
     else:
         assert res["ok"] is False and res["error"] == "start holds 16 vehicles, fill.json placed 8"
     assert corpus.first_failure({"steps": {"fill_start": res}})[0] == (None if copies == 1 else "fill_start")
+
+
+def test_a_replay_counts_the_demands_departures_due_in_its_first_step(corpus, tmp_path):
+    """As sumo-experiments' Bologna: three of the demand's own vehicles depart in the portable start's
+    first step beside its eight seeded ones; they are the demand's, measured by SUMO in the start's
+    configuration without its own file, not a fault of the start."""
+    from sumo_scendiff.core.tools import sumo_binary
+    fill = tmp_path / "fill"
+    fill.mkdir()
+    subprocess.run([sumo_binary("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "200",
+                    "-o", str(fill / "g.net.xml")], check=True, capture_output=True)
+    edges = ["A0A1", "A1A2", "B0B1", "B1B2", "C0C1", "C1C2", "A1B1", "B1C1"]
+    (fill / "start.rou.xml").write_text("<routes>" + "".join(
+        f'<vehicle id="s{k}" depart="10" departPos="80"><route edges="{e}"/></vehicle>'
+        for k, e in enumerate(edges)) + "</routes>")
+    (fill / "d.rou.xml").write_text("<routes>" + "".join(
+        f'<vehicle id="d{k}" depart="10" departPos="10"><route edges="{e}"/></vehicle>'
+        for k, e in enumerate(["A2A1", "B2B1", "C2C1"])) + "</routes>")
+    (fill / "start.sumocfg").write_text('<configuration><net-file value="g.net.xml"/><begin value="10"/>'
+                                        '<route-files value="start.rou.xml,d.rou.xml"/></configuration>')
+    (fill / "fill.json").write_text(json.dumps({"agents": [{"status": "placed"}] * len(edges),
+                                                "routes": [str(tmp_path / "user" / "d.rou.xml")]}))
+    cmd = [corpus._sumo(), "-c", fill / "start.sumocfg", "--end", "20", "--no-step-log", "true",
+           "--summary-output", tmp_path / "fill_start_summary.xml"]
+    res = corpus.check_count("fill_start", corpus.step(cmd, 60, tmp_path / "log", tmp_path), tmp_path)
+    assert res["ok"] and res["vehicles"] == {"sumo": 11, "expected": 11}, res
+    assert not list(fill.glob("_*.sumocfg"))
 
 
 def test_table_names_the_first_failing_step(corpus):
