@@ -146,3 +146,16 @@ def test_the_script_is_the_same_command(tmp_path):
                           str(tmp_path / "run"), "--print", "stages"], capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     assert res.stdout.split() == [s["name"] for s in rc.load(SCENDIFF)["stages"]]
+
+
+def test_a_running_stage_writes_its_time_as_it_goes():
+    """The runner writes a stage's wall time while it runs: a runner killed with its stage (a
+    session ending) leaves the time up to its last tick in recipe.json, not nothing."""
+    from sumo_scendiff.train.recipe_run import run_timed
+    ticks = []
+    status = run_timed([sys.executable, "-c", "import time; time.sleep(1.3)"], dict(os.environ), ticks.append,
+                       every=0.4)
+    assert status == 0
+    assert len(ticks) >= 3 and ticks == sorted(ticks) and 1.2 <= ticks[-1] < 10
+    failed = run_timed([sys.executable, "-c", "raise SystemExit(3)"], dict(os.environ), ticks.append, every=0.4)
+    assert failed == 3

@@ -7,7 +7,8 @@ training stage of a recipe with ``procs`` > 1 as that many one-thread Distribute
 processes, ``torch.distributed.run``). ``OUT/recipe.json`` records the recipe, the commit, each
 stage's command line and wall time, and the model's SHA-256 at the end. Resumable: run the same
 command again and a finished stage with the same command line is skipped, a recording continues in
-``DIR.partial``, a training stage from its ``last.pt``; the wall times add up over the runs.
+``DIR.partial``, a training stage from its ``last.pt``; the wall times add up over the runs (a running
+stage's is written every minute, so a runner killed with its stage loses at most that).
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from . import recipe as rc
 
 ROOT = os.path.dirname(rc.NETWORKS)
 LOG = "recipe.json"
+TICK = 60.0   # s between the log's updates of a running stage's wall time
 
 
 def commit() -> str | None:
@@ -46,6 +48,25 @@ def command(args: list[str], procs: int) -> tuple[list[str], dict]:
             return [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node",
                     str(procs), "-m", "sumo_scendiff.train", *args], env
     return [sys.executable, "-m", "sumo_scendiff.train", *args], env
+
+
+def run_timed(cmd: list[str], env: dict, tick, every: float = TICK) -> int:
+    """Run ``cmd`` to its end; ``tick(seconds so far)`` every ``every`` s and once at the end. A runner
+    killed with its stage (a session ending, a machine going down) leaves the time up to the last tick."""
+    start = time.time()
+    proc = subprocess.Popen(cmd, env=env, cwd=ROOT)
+    try:
+        while True:
+            try:
+                status = proc.wait(timeout=every)
+                break
+            except subprocess.TimeoutExpired:
+                tick(time.time() - start)
+    except KeyboardInterrupt:   # the stage got the same SIGINT: it saves and exits; wait for it
+        proc.wait()
+        status = 130
+    tick(time.time() - start)
+    return status
 
 
 def _write(path: str, log: dict) -> None:
@@ -83,12 +104,13 @@ def run(path: str, recipe: dict, out: str, data: str, procs: int, steps: dict, s
             cmd, env = command(todo, procs)
             print(f"recipe: stage {name}: {' '.join(cmd[1:])}", flush=True)
             _write(log_path, log)
-            start = time.time()
-            try:
-                status = subprocess.run(cmd, env=env, cwd=ROOT).returncode
-            except KeyboardInterrupt:
-                status = 130
-            entry["seconds"] = round(entry["seconds"] + time.time() - start, 1)
+            spent = entry["seconds"]
+
+            def tick(seconds: float) -> None:   # the log holds the stage's time even if this runner is killed
+                entry["seconds"] = round(spent + seconds, 1)
+                _write(log_path, log)
+
+            status = run_timed(cmd, env, tick)
             if status != 0:
                 _write(log_path, log)
                 print(f"recipe: stage {name} stopped (exit {status}); run the same command again to continue",
