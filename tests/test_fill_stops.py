@@ -62,14 +62,14 @@ def _at_stops(args: list[str], names: dict | None, until: float) -> tuple[dict, 
 
 
 def test_stops_and_parking_as_sumo_has_them(stop_fill):
-    """Two steps into the fill's start (the seeded vehicles make their stops in the step after the
-    seeding one), the vehicles at a lane's stop, an edge's stop and parked are those SUMO's own run
+    """A step into the fill's start (the seeded vehicles make their stops in the step after the
+    seeding one, parked ones each in a lot of its own), the vehicles at a lane's stop, an edge's stop and parked are those SUMO's own run
     has there (parked off the lane where it parks them), and each leaves its stop within LEAVE_S of
     when SUMO's own lets it go: the rest of its duration, not the whole again."""
     from sumo_scendiff.core.tools import sumo_binary
     d, doc = stop_fill
     names = {a["vehicle"]: a["demand"]["id"] for a in doc["agents"] if a.get("demand") and a.get("vehicle")}
-    until = BEGIN + 3
+    until = BEGIN + 2
     own, own_left = _at_stops([sumo_binary(), "-n", str(d / "grid.net.xml"), "-r", str(d / "d.rou.xml"),
                                "-a", str(d / "stops.add.xml")], None, until)
     filled, filled_left = _at_stops([sumo_binary(), "-c", str(d / "o" / "scenario.sumocfg")], names, until)

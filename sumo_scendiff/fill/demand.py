@@ -48,6 +48,7 @@ class EnRoute:
     stop_at: float = 0.0           # m along the edge where that stop ends (where its front stands)
     to_stop: float = 0.0           # s after entering the edge it reaches that stop
     hold: float = 0.0              # s it stands there (its duration, or to its until)
+    lot: float = 0.0               # m between the lots of the parking area that stop is at (0: none)
 
     @property
     def waiting(self) -> bool:
@@ -122,6 +123,7 @@ class DemandEstimate:
         stops: dict[int, tuple] = {}               # id(trip) -> (its stops, per edge the one made there)
         stopping = any(d.stops for d in departures)
         ends = place_ends(additional, net) if stopping else {}
+        lots = parking_lots(additional) if stopping else {}
         classes = vtype_table([*route_files, *additional], lambda el: el.get("vClass") or "passenger") \
             if stopping else {}
         for d in departures:
@@ -146,7 +148,8 @@ class DemandEstimate:
             en_route.append(EnRoute(pos.trip.id, pos.trip.type, edges[k:], begin - pos.t_enter, pos.travel,
                                     ahead / pos.travel, edges[max(k - SPILL_EDGES, 0):k][::-1], pos.offset,
                                     own, here, pos.trip.stop_at[k] if here is not None else 0.0,
-                                    pos.to_stop, pos.hold))
+                                    pos.to_stop, pos.hold,
+                                    lots.get(own[here].get("parkingArea"), 0.0) if here is not None else 0.0))
         return cls(begin, on_edge, sum(on_edge.values()), unrouted, len(departures), en_route)
 
     def edge_density(self, net) -> dict[str, float]:
@@ -177,6 +180,24 @@ def on_lane(stop: dict, snet, vclass: str) -> dict:
         return stop
     lane = next((ln for ln in snet.getEdge(edge).getLanes() if ln.allows(vclass)), None)
     return stop if lane is None else {k: v for k, v in stop.items() if k != "edge"} | {"lane": lane.getID()}
+
+
+def parking_lots(additional) -> dict[str, float]:
+    """Every parking area of the additional files with roadside lots: id -> m from one lot's end to
+    the next (its ``length``, else its stretch over its ``roadsideCapacity``, as MSParkingArea lays
+    them out back from ``endPos``); numbers only (a negative or missing position: left out)."""
+    from ..core.sumo_xml import elements
+    out = {}
+    for _, el in elements(additional, ("parkingArea",)):
+        try:
+            capacity = int(el.get("roadsideCapacity", "0"))
+            span = float(el.get("endPos")) - float(el.get("startPos", "0"))
+            lot = float(el.get("length")) if el.get("length") else span / capacity if capacity > 0 else 0.0
+        except (TypeError, ValueError):
+            continue
+        if el.get("id") and lot > 0:
+            out[el.get("id")] = lot
+    return out
 
 
 def _stop_end(stop: dict, ends: dict, snet) -> tuple[str, float] | None:

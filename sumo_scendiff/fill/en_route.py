@@ -132,6 +132,7 @@ def place_en_route(net, est: DemandEstimate, bodies: dict[str, Body] | None = No
     used: Counter = Counter()                    # lane -> vehicles placed on it
     shared = net.shared_lanes
     taken: set[int] = set()                      # shared lanes the other direction is on
+    parked: Counter = Counter()                  # (edge, parking area's end) -> vehicles placed in its lots
     placed: list[Placed] = []
     skipped: list[EnRoute] = []
     for v in sorted(est.en_route, key=order):
@@ -141,7 +142,11 @@ def place_en_route(net, est: DemandEstimate, bodies: dict[str, Body] | None = No
 
         def permitted(lanes: list[int]) -> list[int]:
             return lanes if vclass is None else [i for i in lanes if allows(net, i, vclass)]
-        want = None if v.waiting else v.stop_at - AT_STOP_M if v.stopped is not None else v.front
+        want = None if v.waiting else v.front
+        if v.stopped is not None:        # at its stop's end; in a parking area at its next free lot
+            lot = (v.edges[0], v.stop_at)
+            want = v.stop_at - AT_STOP_M - parked[lot] * v.lot
+            parked[lot] += v.lot > 0
         best = _fit(permitted(lanes_for(v.edges)), v.id, want, body, room, used, net, shared, taken)
         for k in range(len(v.behind) if best is None else 0):
             # a queue longer than its edge stands back on the route's edges before it, as a queue
