@@ -9,9 +9,9 @@
 
 For each agent:
 the lane it stands on (heading agreement; an internal junction lane gives the route its incoming
-and outgoing edges, never starts a route), a route through the lanes of its +1/+2 s poses and on by
-SUMO's router to a destination the host's traffic drives to, or the network's fringe
-(:mod:`~sumo_scendiff.sim.routes`), a vehicle type with its box and a minGap that
+and outgoing edges, never starts a route), a route through the lanes of its +1/+2 s poses
+(:mod:`~sumo_scendiff.sim.pose_routes`) and on by SUMO's router to a destination the host's traffic
+drives to, or the network's fringe (:mod:`~sumo_scendiff.sim.routes`), a vehicle type with its box and a minGap that
 fits the gap to the vehicle ahead in the scene and at most the width the network's junctions were
 built for (``width_cap``), a departure speed that is its generated speed capped at the Krauss safe
 speed behind that vehicle, then ``vehicle.add`` and ``vehicle.moveToXY``; a nose over the stop line is
@@ -20,7 +20,7 @@ own in SUMO, deleted with it (:meth:`Seeder.fit_type`, :meth:`Seeder.add_on_rout
 co-simulation does not pile up one of each per vehicle it seeded. SUMO
 refusing a vehicle never crashes the host simulation: the agent is reported as refused. Before any
 is added, agents on internal lanes of one junction whose links conflict are resolved
-(:mod:`~sumo_scendiff.sim.junctions`): of two already in the area their links share, one is
+(:mod:`~sumo_scendiff.sim.drops`, :mod:`~sumo_scendiff.sim.junctions`): of two already in the area their links share, one is
 seeded (the other is in ``report.dropped``); of two still before it, the later departs standing
 and waits (in ``report.slowed``). After the
 seeding step, :meth:`Seeder.settle` (:mod:`~sumo_scendiff.sim.settle`) checks both again against the
@@ -43,14 +43,15 @@ import shapely
 from ..core.geometry import OVERLAP_AREA, T0, box_polygons, pose_to_sumo, wrap_angle
 from ..core.scene import VEHICLE_CLASSES, Scene
 from ..map.network import Network
+from .drops import Drops
 from .fleet import DEFAULT_MIN_GAP, PARENT_PARAM, Fleet
 from .junctions import JunctionConflicts
+from .pose_routes import PoseRoutes
 from .routes import RouteChooser
 from .settle import MIN_GAP_MARGIN, Settling, krauss_safe_speed
 from .stop_lines import StopLines
 
 POS_TOLERANCE, YAW_TOLERANCE = 0.5, 0.1   # m, rad: "present where it was generated"
-GAP_EDGES = 3          # at most this many edges between two generated poses' edges are filled in
 CLAMPED = 0.01         # m: a position on an internal lane this near its start is SUMO's clamp, not a pose
 LANE_END_MARGIN = 0.05  # m: a nose further than this past its lane's end is moved back behind it
 
@@ -111,7 +112,7 @@ def sublane(sim) -> bool:
         return False
 
 
-class Seeder(Settling, StopLines):
+class Seeder(Settling, StopLines, PoseRoutes, Drops):
     def __init__(self, sim, net: Network, prefix: str = "sd", seed: int = 0):
         self.sim, self.net, self.prefix = sim, net, prefix
         self.rng = np.random.default_rng(seed)
@@ -133,165 +134,6 @@ class Seeder(Settling, StopLines):
         self._bases: set[str] = set()        # the per-class vTypes made (vtype)
         self._edge_routes: set[str] = set()  # the one-edge routes added (add_on_route)
         self._staged: set[str] = set()       # vehicles whose staging route is still in SUMO (add_on_route)
-
-    # ---- network helpers --------------------------------------------------------------------
-    def _internal_links(self) -> dict[str, tuple[str, str]]:
-        """Internal lane id -> (incoming edge, outgoing edge) of the connection it belongs to."""
-        out: dict[str, tuple[str, str]] = {}
-        snet = self.net.sumo_net
-        for edge in snet.getEdges(withInternal=False):
-            for conns in edge.getOutgoing().values():
-                for c in conns:
-                    lane_id = c.getViaLaneID()
-                    seen = 0
-                    while lane_id and seen < 8:  # follow chains of internal lanes
-                        out[lane_id] = (c.getFrom().getID(), c.getTo().getID())
-                        nxt = [x.getViaLaneID() or x.getToLane().getID()
-                               for x in snet.getLane(lane_id).getOutgoing()] if snet.hasEdge(
-                            lane_id.rsplit("_", 1)[0]) else []
-                        lane_id = next((n for n in nxt if n.startswith(":")), "")
-                        seen += 1
-        return out
-
-    def _exit_lane(self, internal: str) -> str | None:
-        """The normal lane a junction's internal lane leads to (through its link's later lanes)."""
-        last = self.junctions.rest.get(internal, (internal,))[-1]
-        try:
-            out = self.net.sumo_net.getLane(last).getOutgoing()
-        except (KeyError, AttributeError):
-            return None
-        return out[0].getToLane().getID() if out else None
-
-    def _edges_at(self, x: float, y: float, yaw: float) -> tuple | None:
-        """(route edges for this pose, lane index on the first edge, lane) or None."""
-        hit = self.net.lookup(x, y, yaw)
-        if hit is None:
-            return None
-        lane = hit[0]
-        if lane.internal:
-            link = self._via.get(lane.id)
-            return None if link is None else (list(link), 0, lane)
-        return [lane.edge], lane.index, lane
-
-    def _fill(self, a: str, b: str) -> list[str]:
-        """Edges after ``a`` up to ``b`` when a generated pose skipped a short edge ([] if none)."""
-        snet = self.net.sumo_net
-        if snet.getEdge(b) in snet.getEdge(a).getOutgoing():
-            return [b]
-        try:
-            edges = list(self.sim.simulation.findRoute(a, b).edges)
-        except Exception:
-            return []
-        ok = edges and edges[0] == a and len(edges) <= GAP_EDGES + 2 and self.routes.valid(edges)
-        return edges[1:] if ok else []
-
-    def route_for(self, scene: Scene, i: int, world: np.ndarray, yaws: np.ndarray):
-        """Agent ``i``'s generated part of a route: (edges through its lane now and the lanes of its
-        observed future poses, lane index on the first edge, its lane now, the id of the last normal
-        lane it is seen on, or None). :meth:`seed` continues it to a destination."""
-        start = self._edges_at(world[T0, 0], world[T0, 1], yaws[T0])
-        if start is None:
-            return None
-        edges, lane_index, lane = start
-        last_lane = None if lane.internal else lane.id
-        for k in range(T0 + 1, len(yaws)):
-            if not scene.traj_mask[i, k]:
-                continue
-            nxt = self._edges_at(world[k, 0], world[k, 1], yaws[k])
-            for e in (nxt[0] if nxt else []):
-                if e != edges[-1] and e not in edges:
-                    fill = self._fill(edges[-1], e)
-                    edges += fill
-                    if fill and not nxt[2].internal:
-                        last_lane = nxt[2].id
-                elif e == edges[-1] and not nxt[2].internal:
-                    last_lane = nxt[2].id
-        moved = self.moved_from.get(i)
-        if moved is not None and moved in self._via and self._via[moved][1] not in edges:
-            edges.append(self._via[moved][1])     # the movement it waits for (fit_red_junctions)
-            last_lane = self._exit_lane(moved)
-        elif last_lane is None and lane.internal:
-            # seen only inside the junction: it leaves on its movement's lane, whose successors are
-            # the turns it can take without a lane change it has no room for
-            last_lane = self._exit_lane(lane.id)
-        if last_lane is not None and last_lane.rsplit("_", 1)[0] != edges[-1]:
-            last_lane = None
-        return edges, lane_index, lane, last_lane
-
-    def junction_lanes(self, scene: Scene, boxes: np.ndarray) -> list[str | None]:
-        """Per box (world frame), the internal lane its front bumper or centre stands on, else None:
-        SUMO puts a vehicle by its front bumper, so a car whose nose is past the stop line is on
-        the junction."""
-        out = []
-        for x, y, yaw, length in boxes[:, :4]:
-            lane = None
-            for d in (0.5 * length, 0.0):
-                hit = self.net.lookup(x + d * np.cos(yaw), y + d * np.sin(yaw), yaw)
-                if hit is not None and hit[0].internal and hit[0].id in self.junctions.link:
-                    lane = hit[0].id
-                    break
-            out.append(lane)
-        return out
-
-    def resolve(self, scene: Scene, others: np.ndarray, other_speed=None) -> tuple[np.ndarray, np.ndarray, dict]:
-        """(keep, hold, why dropped) for agents on conflicting internal lanes of one junction
-        (:class:`~sumo_scendiff.sim.junctions.JunctionConflicts`): of two in their shared area one is
-        kept, the later of two still before it departs standing; and for agents facing a vehicle on
-        a lane both directions share (:meth:`facing_on_shared_lanes`). ``others`` the host's boxes
-        (scene frame), which are never dropped (their speeds: ``other_speed``)."""
-        n = len(scene)
-        if not self.resolve_junctions or not n:
-            return np.ones(n, bool), np.zeros(n, bool), {}
-        w = scene.window
-
-        def world(b):
-            b = np.asarray(b, np.float64).reshape(-1, 5).copy()
-            if len(b):
-                b[:, :2] = w.scene_to_world(b[:, :2])
-                b[:, 2] = np.asarray(w.yaw_to_world(b[:, 2]))
-            return b
-        agents, hosts = world(scene.boxes[:, :5]), world(others)
-        score = scene.meta.get("score")
-        score = np.asarray(score, np.float64) if score is not None and len(score) == n else None
-        keep, hold, why = np.ones(n, bool), np.zeros(n, bool), {}
-        lanes = self.junction_lanes(scene, agents)
-        if any(lanes):
-            other_speed = np.zeros(len(hosts)) if other_speed is None else np.asarray(other_speed, np.float64)
-            fixed = [(ln, b, v) for ln, b, v in zip(self.junction_lanes(scene, hosts), hosts, other_speed) if ln]
-            keep, hold = self.junctions.resolve(lanes, agents, scene.speed[:, T0].astype(np.float64), score, fixed)
-            why = {int(i): f"on junction {self.junctions.link[lanes[i]][0]}: in the area its link "
-                           f"shares with another vehicle's" for i in np.flatnonzero(~keep)}
-        for i, lane in self.facing_on_shared_lanes(agents, hosts, keep, score).items():
-            keep[i] = False
-            why[i] = f"on lane {lane}, which both directions share, facing a vehicle on it"
-        return keep, hold & keep, why
-
-    def facing_on_shared_lanes(self, agents: np.ndarray, hosts: np.ndarray, keep: np.ndarray,
-                               score: np.ndarray | None) -> dict[int, str]:
-        """The kept agents (world boxes ``agents``) to drop because a lane both directions share
-        (:attr:`Network.shared_lanes`) holds a vehicle the other way: a host (``hosts``, never
-        dropped) or a more probable agent. SUMO lets no vehicle onto such a lane while an oncoming
-        one is on it; two seeded face to face on it collide in the first step."""
-        shared = self.net.shared_lanes
-        if not shared or not keep.any():
-            return {}
-        def lanes_of(b):
-            if not len(b):
-                return np.zeros(0, np.int64)
-            return self.net.match_poses(b[:, :2], b[:, 2], allow_internal=False).lane
-        on, host = lanes_of(agents), {int(ln) for ln in lanes_of(hosts) if int(ln) in shared}
-        score = np.zeros(len(agents)) if score is None else score
-        taken = {shared[ln] for ln in host}      # the lanes' other direction, held by a host
-        out: dict[int, str] = {}
-        for i in sorted(np.flatnonzero(keep), key=lambda i: (-score[i], i)):
-            lane = int(on[i])
-            if lane not in shared:
-                continue
-            if lane in taken:
-                out[int(i)] = self.net.lanes[lane].id
-            else:
-                taken.add(shared[lane])
-        return out
 
     # ---- vehicle types ------------------------------------------------------------------------
     def _known_types(self) -> Fleet:
@@ -391,19 +233,6 @@ class Seeder(Settling, StopLines):
         return np.clip(np.nan_to_num(bumper_gap - MIN_GAP_MARGIN, posinf=DEFAULT_MIN_GAP), 0.3, DEFAULT_MIN_GAP)
 
     # ---- seeding --------------------------------------------------------------------------------
-    @staticmethod
-    def on_others(scene: Scene, others: np.ndarray) -> dict[int, str]:
-        """Agents whose box overlaps one of ``others`` (scene frame), not to be seeded: a window is
-        drawn around the vehicles already there, but one of those the seeder moved before (a nose
-        pulled back over the stop line, a car sent from inside a junction to its stop line) may now
-        stand where this window drew an agent."""
-        if not len(scene) or not len(others):
-            return {}
-        agents, hosts = box_polygons(scene.boxes[:, :5]), box_polygons(np.asarray(others)[:, :5])
-        i, j = shapely.STRtree(hosts).query(agents, predicate="intersects")
-        hit = {int(a) for a, b in zip(i, j) if shapely.area(shapely.intersection(agents[a], hosts[b])) > OVERLAP_AREA}
-        return {a: "its box overlaps a vehicle seeded before" for a in sorted(hit)}
-
     def fit_lane_ends(self, scene: Scene, report: SeedReport, others: np.ndarray) -> None:
         """Agents standing on a normal lane with the nose past its end (over the stop line) are moved
         back along their heading until the nose is at the end, the whole trajectory with them; the
