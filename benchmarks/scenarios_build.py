@@ -87,10 +87,18 @@ def _from_github(sc: Scenario, dest: Path, cache: Path, mirror: Path | None) -> 
         (dest / rel).parent.mkdir(parents=True, exist_ok=True)
         (dest / rel).write_bytes(_github_file(g["repo"], commit, path, cache, mirror))
     for cmd in g["steps"]:
-        prog = [_binary(cmd[0])] if not cmd[0].endswith(".py") else \
-            [sys.executable, cmd[0] if (dest / cmd[0]).is_file() else _tool(cmd[0])]   # the tutorial's own script
-        subprocess.run(prog + cmd[1:], cwd=dest, check=True, capture_output=True, timeout=1800)
+        subprocess.run(_program(cmd[0], dest) + cmd[1:], cwd=dest, check=True, capture_output=True, timeout=1800)
     return {}
+
+
+def _program(name: str, dest: Path) -> list:
+    """A build step's program: Python itself, a script the source ships (a tutorial's own), a SUMO tool's
+    script, or a SUMO binary."""
+    if name == "python":
+        return [sys.executable]
+    if name.endswith(".py"):
+        return [sys.executable, name if (dest / name).is_file() else _tool(name)]
+    return [_binary(name)]
 
 
 def _tool(name: str) -> str:

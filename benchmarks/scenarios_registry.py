@@ -95,6 +95,14 @@ TRACI_TLS = _tutorial("traci_tls/", [
     ("data/cross.net.xml", "387b777a8d365505feaeb206898386a5714b15de"),
     ("data/cross.det.xml", "d187f75d88e4098fdd0426690d5fdfb878992b20"),
     ("generateRoutes.py", "434fdf0cecdd2acd8c09278662d1b8ba852c249f")])
+# MA2C's "real_net" (Chu et al.): a part of Monaco's MoST network with its induction loops; the demand is what
+# its environment writes at reset (real_net_env.py: build_file.gen_rou_file with config_ma2c_real.ini's
+# flow_rate 325 and seed 42, sim thread 0)
+MA2C = "c3cadbd088a3f6946ecba667fd07cbd689947d32"
+MA2C_FILES = {f: (f, MA2C) for f in ["real_net/data/build_file.py", "real_net/data/in/most.net.xml",
+                                     "real_net/data/in/most.add.xml"]}
+MA2C_ROUTES = ("import sys; sys.path.insert(0, 'real_net/data'); from build_file import gen_rou_file; "
+               "gen_rou_file('real_net/data/', 325, seed=42, thread=0)")
 SUMO_EXPERIMENTS = ("sumo-experiments", "5.8.4")
 BOLOGNA = "sumo_experiments/preset_networks/bologna/acosta/"
 BOLOGNA_COVERS = ("city", "lights", "buses", "bus lanes", "stops", "detectors", "vTypes in additional files")
@@ -189,6 +197,9 @@ REGISTRY: list[Scenario] = [
     _github("tutorial_traci_tls", SUMO_REPO, TRACI_TLS, "data/cross.sumocfg", "EPL-2.0",
             ("lights", "induction loop", "additional file without <additional> root", "old network version"),
             steps=[["generateRoutes.py"]], offset=300),
+    _github("ma2c_real_net", "cts198859/deeprl_signal_control", MA2C_FILES, "real_net/data/most_0.sumocfg",
+            "MIT (network from MoST: GPL-3.0)", ("city", "lights", "flows with via", "lane area detectors"),
+            steps=[["python", "-c", MA2C_ROUTES]], offset=600),
     _pypi("se_bologna_acosta", *SUMO_EXPERIMENTS, BOLOGNA + "run.sumocfg", "LGPL-2.1-or-later", BOLOGNA_COVERS,
           offset=600),
     _pypi("se_bologna_acosta_2704", *SUMO_EXPERIMENTS, BOLOGNA + "run_2704.sumocfg", "LGPL-2.1-or-later",
