@@ -47,7 +47,7 @@ def _network(ctx: dict, path: str):
 
 
 def _read_scenario(ctx: dict, config=None, routes=(), additional=()) -> None:
-    """What `run` does with its -c/-n/-r/-a before generating (run.py), up to the seeding time."""
+    """What `run` does with its -c/-n/-r/-a before generating (sumo_scendiff/run/), up to the seeding time."""
     from sumo_scendiff.data.demand import demand_span, seeding_time
     from sumo_scendiff.sim.preflight import preflight
     from sumo_scendiff.sim.scenario import scenario_from_files
@@ -104,7 +104,7 @@ READERS = {
 
 
 def documented_errors() -> dict[str, tuple[type, ...]]:
-    """Per kind, the errors the commands turn into one line and exit 2 (run.py, sweep/__main__.py)."""
+    """Per kind, the errors the commands turn into one line and exit 2 (run/cli.py, sweep/__main__.py)."""
     from sumo_scendiff.data.demand import DemandError
     from sumo_scendiff.map.edgedata import EdgeDataError
     from sumo_scendiff.map.network import NetworkError

@@ -8,9 +8,8 @@ overhead relative to SUMO driving (target: raster + generate + seed + export <= 
 Runs ``python -m sumo_scendiff.run -n NET -r ROUTES --scenes 8 --rollout 60 -o TMP`` in-process
 (``sumo_scendiff.run.get_options`` / ``run``; windows auto-chosen) once per ``--begin`` value
 (``default``: run's own, 600 s of demand from its first departure; a number is passed as run's
-``--begin``) and reads ``TMP/run.json``'s ``timing_s``. The warm-up inside run (part of its "load")
-is timed separately by wrapping ``run._warm_up``, together with the simulation time and the
-vehicles on the road when seeding starts. Prints a markdown table, configurations side by side
+``--begin``) and reads ``TMP/run.json``'s ``timing_s``: the warm-up to ``--begin`` is its ``warm_up``
+(a part of "load"), beside SUMO's own vehicles kept in the windows. Prints a markdown table, configurations side by side
 (and writes it with ``-o``).
 """
 from __future__ import annotations
@@ -44,29 +43,15 @@ def get_options(args=None):
 
 
 def one_run(o, routes: str, begin: float | None, tmp: str) -> dict:
-    """Run the CLI in-process; its summary plus the timed warm-up and the state after it."""
+    """Run the CLI in-process; its summary (run.json's, with ``timing_s``) and wall time."""
     from sumo_scendiff import run as run_mod
     args = ["-n", o.net, *(["-r", routes] if routes else []), "--scenes", str(o.scenes),
             "--rollout", f"{o.rollout:g}", "-s", str(o.seed), "-o", tmp]
     if begin is not None:
         args += ["--begin", f"{begin:g}"]
-    warm = {}
-    original = run_mod._warm_up
-
-    def timed_warm_up(sim, opts, progress):
-        t = time.perf_counter()
-        original(sim, opts, progress)
-        warm.update(seconds=time.perf_counter() - t, sim_time=float(sim.simulation.getTime()),
-                    vehicles=len(sim.vehicle.getIDList()))
-
-    run_mod._warm_up = timed_warm_up
-    try:
-        t = time.perf_counter()
-        summary = run_mod.run(run_mod.get_options(args))
-        wall = time.perf_counter() - t
-    finally:
-        run_mod._warm_up = original
-    return {"args": args, "summary": summary, "warm": warm, "wall": wall}
+    t = time.perf_counter()
+    summary = run_mod.run(run_mod.get_options(args))
+    return {"args": args, "summary": summary, "wall": time.perf_counter() - t}
 
 
 def table(results: list[tuple[str, dict]], o, routes: str, command: str) -> str:
@@ -87,17 +72,16 @@ def table(results: list[tuple[str, dict]], o, routes: str, command: str) -> str:
     n = [max(len(s["scenes"]), 1) for s in S]
     row("`--begin` passed", [" ".join(r["args"][r["args"].index("--begin"):][:2]) if "--begin" in r["args"]
                              else "none (no demand)" if o.no_demand else "none (600 s of demand)" for _, r in results])
-    row("simulation time when seeding (s)", [f"{r['warm'].get('sim_time', float('nan')):.0f}" for _, r in results])
-    row("vehicles on the net when seeding", [str(r["warm"].get("vehicles", "–")) for _, r in results])
+    row("vehicles kept in the windows (SUMO's own when seeding)",
+        [str(sum(sc.get("existing_vehicles", 0) for sc in s["scenes"])) for s in S])
     for ph in PHASES:
         row(f"{ph} (s): total / per scene",
             [f"{t.get(ph, 0.0):.2f} / {t.get(ph, 0.0) / k:.2f}" for t, k in zip(T, n)])
         if ph == "load":
-            row("  of which warm-up inside run (s)", [f"{r['warm'].get('seconds', 0.0):.2f}" for _, r in results])
-            row("  load without warm-up (s)",
-                [f"{t.get('load', 0.0) - r['warm'].get('seconds', 0.0):.2f}" for t, (_, r) in zip(T, results)])
-    row("sum of phases / wall of run() (s)",
-        [f"{sum(t.values()):.1f} / {r['wall']:.1f}" for t, (_, r) in zip(T, results)])
+            row("  of which warm-up inside run (s)", [f"{t.get('warm_up', 0.0):.2f}" for t in T])
+            row("  load without warm-up (s)", [f"{t.get('load', 0.0) - t.get('warm_up', 0.0):.2f}" for t in T])
+    row("sum of phases / wall of run() (s)",   # the warm-up is inside load
+        [f"{sum(v for k, v in t.items() if k != 'warm_up'):.1f} / {r['wall']:.1f}" for t, (_, r) in zip(T, results)])
     over = [sum(t.get(k, 0.0) for k in OVERHEAD) for t in T]
     row("seeding overhead (raster + generate + seed + export) (s)", [f"{v:.2f}" for v in over])
     row("**overhead / rollout** (target ≤ 10 %)",
@@ -106,18 +90,17 @@ def table(results: list[tuple[str, dict]], o, routes: str, command: str) -> str:
     row("simulated rollout time (s); simulated s per wall s",
         [f"{v:g}; {v / t['rollout']:.0f}x" if t.get("rollout") else f"{v:g}; –" for v, t in zip(sim_s, T)])
     row("overhead / simulated rollout time", [f"{100.0 * v / x:.1f} %" if x else "–" for v, x in zip(over, sim_s)])
-    for key, name in (("generated", "agents generated (seeded after drops)"),
+    for key, name in (("generated", "agents generated (each placed, misplaced, refused or dropped)"),
                       ("dropped_on_existing", "dropped on existing vehicles"),
                       ("existing_vehicles", "existing vehicles in the windows (tokens)"),
                       ("refused", "refused"), ("misplaced", "misplaced")):
         row(name, [str(sum(sc.get(key, 0) for sc in s["scenes"])) for s in S])
     placed = [sum(sc["placed"] for sc in s["scenes"]) for s in S]
     gen = [sum(sc["generated"] for sc in s["scenes"]) for s in S]
-    drop = [sum(sc["dropped_on_existing"] for sc in s["scenes"]) for s in S]
-    row("**placement** (placed / seeded, run's definition)",
-        [f"**{100.0 * p / g:.1f} %** ({p}/{g})" if g else "–" for p, g in zip(placed, gen)])
-    row("placed / (seeded + dropped)",
-        [f"{100.0 * p / (g + d):.1f} %" if g + d else "–" for p, g, d in zip(placed, gen, drop)])
+    drop = [sum(sc["dropped"] for sc in s["scenes"]) for s in S]   # every rule's drops
+    row("**placement** (placed / seeded: generated less those dropped)",
+        [f"**{100.0 * p / (g - d):.1f} %** ({p}/{g - d})" if g > d else "–" for p, g, d in zip(placed, gen, drop)])
+    row("placed / generated", [f"{100.0 * p / g:.1f} %" if g else "–" for p, g in zip(placed, gen)])
     for key, name in (("collisions", "collisions"), ("teleports", "teleports"),
                       ("emergency_brakes", "e-brake agents (first 10 s)")):
         row(f"{name} / 100 agents",

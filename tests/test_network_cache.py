@@ -31,8 +31,14 @@ def written(path: str, key: tuple) -> bool:
 
 @pytest.fixture
 def cache_home(tmp_path, monkeypatch):
+    """An empty on-disk cache, and no network held by the process (an earlier test's, still alive,
+    would be handed back without the disk being read)."""
+    import weakref
+
+    from sumo_scendiff.map import network
     home = tmp_path / "cache-home"
     monkeypatch.setenv("XDG_CACHE_HOME", str(home))
+    monkeypatch.setattr(network, "_HELD", weakref.WeakValueDictionary())
     return home
 
 

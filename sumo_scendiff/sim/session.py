@@ -83,11 +83,13 @@ class Session:
         asked again) and SUMO started from that state. Raises warmup.WarmUpError for a time before
         the start, SimError when SUMO stops on the demand."""
         from .warmup import warm_state
+        t = time.perf_counter()
         try:
             with self._said():
                 state = warm_state(replace(self.cfg, gui=False, traci=False), until, quiet=self.quiet)
         except Exception as e:   # SUMO stopping on the demand (an unknown vType, a broken route)
             raise _stopped(e) from None
+        self.timing["warm_up"] = time.perf_counter() - t   # a part of the caller's load (0 when reused)
         return self.prepare(state=state)
 
     def at_base(self):
