@@ -103,6 +103,13 @@ MA2C_FILES = {f: (f, MA2C) for f in ["real_net/data/build_file.py", "real_net/da
                                      "real_net/data/in/most.add.xml"]}
 MA2C_ROUTES = ("import sys; sys.path.insert(0, 'real_net/data'); from build_file import gen_rou_file; "
                "gen_rou_file('real_net/data/', 325, seed=42, thread=0)")
+# Vidali's deep Q-learning signal control: one four-arm intersection; the demand by its own generator with its
+# testing settings (settings/testing_settings.yaml: episode seed 10000, 1000 cars over 5400 s, turn chance 0.25)
+TLCS = "482e4857504e80ffc8011a42cb44ebb8563877b5"
+TLCS_FILES = {f: (f, TLCS) for f in ["intersection/sumo_config.sumocfg", "intersection/environment.net.xml",
+                                     "src/tlcs/__init__.py", "src/tlcs/constants.py", "src/tlcs/generator.py"]}
+TLCS_ROUTES = ("import sys; sys.path.insert(0, 'src'); from tlcs.generator import generate_routefile; "
+               "generate_routefile(seed=10000, n_cars_generated=1000, max_steps=5400, turn_chance=0.25)")
 SUMO_EXPERIMENTS = ("sumo-experiments", "5.8.4")
 BOLOGNA = "sumo_experiments/preset_networks/bologna/acosta/"
 BOLOGNA_COVERS = ("city", "lights", "buses", "bus lanes", "stops", "detectors", "vTypes in additional files")
@@ -200,6 +207,9 @@ REGISTRY: list[Scenario] = [
     _github("ma2c_real_net", "cts198859/deeprl_signal_control", MA2C_FILES, "real_net/data/most_0.sumocfg",
             "MIT (network from MoST: GPL-3.0)", ("city", "lights", "flows with via", "lane area detectors"),
             steps=[["python", "-c", MA2C_ROUTES]], offset=600),
+    _github("tlcs_intersection", "AndreaVidali/Deep-QLearning-Agent-for-Traffic-Signal-Control", TLCS_FILES,
+            "intersection/sumo_config.sumocfg", "MIT", ("lights", "turn lanes", "random departure lanes"),
+            steps=[["python", "-c", TLCS_ROUTES]], offset=1800),
     _pypi("se_bologna_acosta", *SUMO_EXPERIMENTS, BOLOGNA + "run.sumocfg", "LGPL-2.1-or-later", BOLOGNA_COVERS,
           offset=600),
     _pypi("se_bologna_acosta_2704", *SUMO_EXPERIMENTS, BOLOGNA + "run_2704.sumocfg", "LGPL-2.1-or-later",
