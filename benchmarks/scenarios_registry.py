@@ -103,6 +103,9 @@ MA2C_FILES = {f: (f, MA2C) for f in ["real_net/data/build_file.py", "real_net/da
                                      "real_net/data/in/most.add.xml"]}
 MA2C_ROUTES = ("import sys; sys.path.insert(0, 'real_net/data'); from build_file import gen_rou_file; "
                "gen_rou_file('real_net/data/', 325, seed=42, thread=0)")
+# its "large_grid": the 5x5 grid its build_file.py writes (plain files, netconvert), the demand as its environment
+# writes it at reset (config_ma2c_large.ini: peak flows 1100 and 925 veh/h, no initial density)
+MA2C_GRID_ROUTES = ("from build_file import gen_rou_file; gen_rou_file('./', 1100, 925, 0, seed=12, thread=0)")
 # Vidali's deep Q-learning signal control: one four-arm intersection; the demand by its own generator with its
 # testing settings (settings/testing_settings.yaml: episode seed 10000, 1000 cars over 5400 s, turn chance 0.25)
 TLCS = "482e4857504e80ffc8011a42cb44ebb8563877b5"
@@ -210,6 +213,10 @@ REGISTRY: list[Scenario] = [
     _github("tlcs_intersection", "AndreaVidali/Deep-QLearning-Agent-for-Traffic-Signal-Control", TLCS_FILES,
             "intersection/sumo_config.sumocfg", "MIT", ("lights", "turn lanes", "random departure lanes"),
             steps=[["python", "-c", TLCS_ROUTES]], offset=1800),
+    _github("ma2c_large_grid", "cts198859/deeprl_signal_control",
+            {"build_file.py": ("large_grid/data/build_file.py", MA2C)}, "exp_0.sumocfg", "MIT",
+            ("grid", "lights", "two-lane avenues", "lane area detectors"),
+            steps=[["build_file.py"], ["python", "-c", MA2C_GRID_ROUTES]], offset=600),
     _pypi("se_bologna_acosta", *SUMO_EXPERIMENTS, BOLOGNA + "run.sumocfg", "LGPL-2.1-or-later", BOLOGNA_COVERS,
           offset=600),
     _pypi("se_bologna_acosta_2704", *SUMO_EXPERIMENTS, BOLOGNA + "run_2704.sumocfg", "LGPL-2.1-or-later",
