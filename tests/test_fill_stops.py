@@ -8,9 +8,9 @@ import json
 
 import pytest
 
+from .conftest import netconvert
 from .test_fill_robust import _netgenerate
 
-pytestmark = pytest.mark.slow   # a real fill
 BEGIN = 300
 LEAVE_S = 8.0     # s: the clock's arrival at a stop against SUMO's (its cruise and braking are estimates)
 # three lines on the grid: a stop of a lane, a parking area (a car parked 75 s), a stop of one edge;
@@ -61,6 +61,7 @@ def _at_stops(args: list[str], names: dict | None, until: float) -> tuple[dict, 
     return state, {name(v): t for v, t in left.items()}
 
 
+@pytest.mark.slow   # a real fill
 def test_stops_and_parking_as_sumo_has_them(stop_fill):
     """A step into the fill's start (the seeded vehicles make their stops in the step after the
     seeding one, parked ones each in a lot of its own), the vehicles at a lane's stop, an edge's stop and parked are those SUMO's own run
@@ -78,3 +79,48 @@ def test_stops_and_parking_as_sumo_has_them(stop_fill):
     assert filled == own
     late = {v: filled_left[v] - own_left[v] for v in own}
     assert all(abs(dt) <= LEAVE_S for dt in late.values()), late
+
+
+def test_a_stop_of_one_edge_is_on_the_lane_sumo_picks(tmp_path):
+    """A stop of one edge (``edge=``, no lane) on an edge whose first lane is a sidewalk: the estimate
+    puts it on the lane SUMO's own vehicle stops on (the first its class may use)."""
+    import libsumo
+
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.fill.demand import on_lane
+    from sumo_scendiff.map.network import Network
+    net = netconvert('<node id="a" x="0" y="0"/><node id="b" x="300" y="0"/>',
+                     '<edge id="ab" from="a" to="b" numLanes="2" speed="13.89" sidewalkWidth="2"/>',
+                     str(tmp_path / "walk.net.xml"))
+    stop = {"edge": "ab", "endPos": "150", "duration": "30"}
+    (tmp_path / "d.rou.xml").write_text('<routes><vehicle id="v" depart="0"><route edges="ab"/>'
+                                        '<stop edge="ab" endPos="150" duration="30"/></vehicle></routes>')
+    libsumo.start([sumo_binary(), "-n", net, "-r", str(tmp_path / "d.rou.xml"), "--no-step-log", "true"])
+    try:
+        while not libsumo.vehicle.isStopped("v"):
+            libsumo.simulationStep()
+        lane = libsumo.vehicle.getLaneID("v")
+    finally:
+        libsumo.close()
+    assert lane == "ab_1"
+    assert on_lane(stop, Network.load(net).sumo_net, "passenger") == {"lane": lane, "endPos": "150", "duration": "30"}
+
+
+def test_vehicles_at_their_stop_stand_on_its_lane(diagonal_net, tmp_path):
+    """Buses standing at a stop on the left lane of a 2-lane road at T are placed there, on that
+    lane, its first one's front at the stop's end (the least used lane would spread them over both)."""
+    from sumo_scendiff.fill.demand import DemandEstimate
+    from sumo_scendiff.fill.en_route import AT_STOP_M, place_en_route
+    from sumo_scendiff.map.network import Network
+    net = Network.load(diagonal_net)
+    (tmp_path / "stops.add.xml").write_text('<additional><busStop id="bs" lane="ab_1" startPos="150" endPos="250"/>'
+                                            '</additional>')
+    (tmp_path / "d.rou.xml").write_text('<routes><vType id="coach" vClass="bus"/><flow id="L" type="coach" begin="0" '
+                                        'end="600" period="15"><route edges="ab"/><stop busStop="bs" duration="60"/>'
+                                        '</flow></routes>')
+    est = DemandEstimate.at(net, [str(tmp_path / "d.rou.xml")], 300.0, additional=[str(tmp_path / "stops.add.xml")])
+    placed, _ = place_en_route(net, est)
+    standing = sorted((p for p in placed if p.vehicle.stopped is not None), key=lambda p: -p.pos)
+    assert len(standing) >= 2
+    assert {net.lanes[p.lane].id for p in standing} == {"ab_1"}
+    assert standing[0].pos == pytest.approx(250.0 - AT_STOP_M)

@@ -49,6 +49,7 @@ class EnRoute:
     to_stop: float = 0.0           # s after entering the edge it reaches that stop
     hold: float = 0.0              # s it stands there (its duration, or to its until)
     lot: float = 0.0               # m between the lots of the parking area that stop is at (0: none)
+    stop_lane: str | None = None   # the lane that stop is on
 
     @property
     def waiting(self) -> bool:
@@ -105,7 +106,7 @@ class DemandEstimate:
         SUMO's); ``junction_taz``, ``scale``: its ``junction-taz`` and ``scale`` options. Raises :class:`~.routing.RoutingError` when SUMO's router cannot read the demand."""
         from .queues import Trip, run_to
         from .routing import routed_departures
-        from ..sim.stops import place_ends
+        from ..sim.stops import place_ends, stop_lane, stopping_places
         from .vtypes import vtype_table
         from .travel import DEFAULT_DRIVER, TravelTimes, link_flows, vtype_drivers
         snet = net.sumo_net
@@ -124,6 +125,7 @@ class DemandEstimate:
         stopping = any(d.stops for d in departures)
         ends = place_ends(additional, net) if stopping else {}
         lots = parking_lots(additional) if stopping else {}
+        places = stopping_places(additional) if stopping else {}
         classes = vtype_table([*route_files, *additional], lambda el: el.get("vClass") or "passenger") \
             if stopping else {}
         for d in departures:
@@ -149,7 +151,8 @@ class DemandEstimate:
                                     ahead / pos.travel, edges[max(k - SPILL_EDGES, 0):k][::-1], pos.offset,
                                     own, here, pos.trip.stop_at[k] if here is not None else 0.0,
                                     pos.to_stop, pos.hold,
-                                    lots.get(own[here].get("parkingArea"), 0.0) if here is not None else 0.0))
+                                    lots.get(own[here].get("parkingArea"), 0.0) if here is not None else 0.0,
+                                    stop_lane(own[here], places) if here is not None else None))
         return cls(begin, on_edge, sum(on_edge.values()), unrouted, len(departures), en_route)
 
     def edge_density(self, net) -> dict[str, float]:

@@ -142,12 +142,14 @@ def place_en_route(net, est: DemandEstimate, bodies: dict[str, Body] | None = No
 
         def permitted(lanes: list[int]) -> list[int]:
             return lanes if vclass is None else [i for i in lanes if allows(net, i, vclass)]
-        want = None if v.waiting else v.front
-        if v.stopped is not None:        # at its stop's end; in a parking area at its next free lot
+        want, lanes = None if v.waiting else v.front, permitted(lanes_for(v.edges))
+        if v.stopped is not None:        # at its stop's end, on its lane; in a parking area at its next free lot
             lot = (v.edges[0], v.stop_at)
             want = v.stop_at - AT_STOP_M - parked[lot] * v.lot
             parked[lot] += v.lot > 0
-        best = _fit(permitted(lanes_for(v.edges)), v.id, want, body, room, used, net, shared, taken)
+            lanes = [i for i in permitted(list(by_edge.get(v.edges[0], {}).values()))
+                     if net.lanes[i].id == v.stop_lane] or lanes
+        best = _fit(lanes, v.id, want, body, room, used, net, shared, taken)
         for k in range(len(v.behind) if best is None else 0):
             # a queue longer than its edge stands back on the route's edges before it, as a queue
             # spills back in SUMO (a short edge before a light; a long red on a short block)
