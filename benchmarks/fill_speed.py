@@ -26,7 +26,8 @@ import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from fill import ROOT, _f, overlaps  # noqa: E402  (the quality benchmark's overlap count and cells)
+from fill import ROOT, overlaps  # noqa: E402  (the quality benchmark's overlap count)
+from fill_tables import _f  # noqa: E402  (and its table cells)
 
 SPEED_NETS = ("networks/grid4x4_2lane_tls.net.xml", "networks/city.net.xml")
 RT_INSERT_S = 60.0    # randomTrips inserts the fill's number of vehicles over this many seconds,

@@ -320,7 +320,7 @@ def user_errors() -> tuple[type, ...]:
     from ..map.network import NetworkError
     from ..model.checkpoint import CheckpointError
     from ..sim.sumo import SimError
-    from .seed import InflowError
+    from .inflow import InflowError
     return FillError, NetworkError, CheckpointError, SimError, OutputError, InflowError, EngineError, ExportError
 
 

@@ -18,15 +18,8 @@ from ..sim.stops import place_ends
 from ..sim.sumo import close
 from .en_route import write_vtypes
 from .picture import draw_fill, edge_density
-from .seed import (
-    admit_start,
-    inflow_sample,
-    probe_speed,
-    refuse_at_load,
-    seed_fill,
-    write_inflow,
-    write_start_routes,
-)
+from .inflow import inflow_sample, probe_speed, write_inflow
+from .seed import admit_start, refuse_at_load, seed_fill, write_start_routes
 from .tiles import scene_rows
 
 FORMAT, VERSION = "sumo-scendiff-fill", 1
@@ -176,7 +169,7 @@ def write_configurations(folder, cfg, routes, inflow: dict, state_time: float, s
     demand's files (its vehicles are of the vTypes those define, which SUMO must read first)."""
     onward = list(routes) + ([os.path.join(folder, inflow["file"])] if inflow.get("file") else [])
     options = cfg.options()
-    if inflow.get("max_num_vehicles"):   # the inflow's surplus waits to enter (seed.SUPPLY), a while
+    if inflow.get("max_num_vehicles"):   # the inflow's surplus waits to enter (inflow.SUPPLY), a while
         options["max-num-vehicles"] = str(inflow["max_num_vehicles"])
         options["max-depart-delay"] = f"{inflow['max_depart_delay_s']:g}"
     # SUMO starts a loaded state at the state's own time (one seeding step after --begin)
