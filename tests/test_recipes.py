@@ -49,6 +49,13 @@ def test_the_recipe_at_toy_scale_trains_a_model_that_generates(tmp_path, cross_n
     assert log["recipe"] == "configs/scendiff.json" and log["scale"] == "toy" and log["commit"]
     model = out / "scendiff.pt"
     assert log["model"]["sha256"] == file_sha256(str(model))
+    card = (out / "card.md").read_text()   # the weights card, from the run's own log
+    assert f"recipe configs/scendiff.json OUT --scale toy` at commit `{log['commit']}`" in card
+    assert log["model"]["sha256"] in card and all(f"| {name} |" in card for name in log["stages"])
+    assert "train: 8 windows of 1 networks" in card
+    printed = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "card", str(out)], capture_output=True,
+                             text=True)
+    assert printed.returncode == 0 and printed.stdout == card
     gen = ScenarioGenerator.load(str(model), GenerationConfig(steps=2))
     assert isinstance(gen.generate(Network.load(cross_net), [Window(0.0, 0.0, 0.0)], seed=0)[0].boxes.shape[0], int)
     # the defaults are the shipped architecture: the recipe states only training settings
@@ -146,6 +153,12 @@ def test_the_script_is_the_same_command(tmp_path):
                           str(tmp_path / "run"), "--print", "stages"], capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     assert res.stdout.split() == [s["name"] for s in rc.load(SCENDIFF)["stages"]]
+
+
+def test_a_card_of_no_finished_run_is_one_line(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "sumo_scendiff.train", "card", str(tmp_path)], capture_output=True,
+                         text=True)
+    assert res.returncode == 2 and "no finished recipe run" in res.stderr and "Traceback" not in res.stderr
 
 
 def test_a_running_stage_writes_its_time_as_it_goes():

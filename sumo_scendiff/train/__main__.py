@@ -10,6 +10,7 @@
     python -m sumo_scendiff.train export --autoencoder runs/ae/last.pt \\
         --diffusion runs/diffusion/last.pt -o runs/scendiff.pt --scene-guidance-sigma 1
     python -m sumo_scendiff.train calibrate --model runs/scendiff.pt --data data/val --turned
+    python -m sumo_scendiff.train card runs/scendiff    # the weights card of a finished recipe run
 
 Recipes (configs/): configs/scendiff.json trains the shipped model from nothing (record, autoencoder,
 decoder, diffusion, export, calibrate; OUT/recipe.json logs each stage's time), configs/nomap.json
@@ -40,7 +41,8 @@ HELP = {"autoencoder": "train the detection autoencoder (or its decoder alone)",
         "diffusion": "train the latent diffusion model in an autoencoder's latent space",
         "export": "write a trained autoencoder and diffusion model as one model file",
         "calibrate": "calibrate the global token's guidance weight and store it in a model file",
-        "recipe": "run a recipe file (configs/*.json) into OUT, or print its stages"}
+        "recipe": "run a recipe file (configs/*.json) into OUT, or print its stages",
+        "card": "print the weights card of a finished recipe run (OUT/card.md): recipe, commit, SHA-256, stages"}
 
 
 def _add_training_stage(sub, name: str) -> None:
@@ -152,6 +154,8 @@ def get_options(args=None):
     _add_export(sub)
     _add_calibrate(sub)
     _add_recipe(sub)
+    sub.add_parser("card", help=HELP["card"], description=HELP["card"]).add_argument(
+        "out", metavar="OUT", help="a recipe run's output directory")
     o = p.parse_args(args)
     if _problem(o):
         p.exit(2, f"{PROG}: error: {_problem(o)}\n")
@@ -259,8 +263,12 @@ def run_recipe(o, r: dict) -> int:
 
 
 def main(o) -> int:
-    if o.stage == "recipe":
+    if o.stage in ("recipe", "card"):
         try:
+            if o.stage == "card":
+                from .card import card
+                print(card(o.out), end="")
+                return 0
             return recipe(o)
         except rc.RecipeError as e:
             o.parser.exit(2, f"{PROG}: error: {e}\n")

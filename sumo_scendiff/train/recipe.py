@@ -32,6 +32,7 @@ FORMAT = "sumo-scendiff-recipe"
 VERSION = 1
 RUNS = ("data", "autoencoder", "diffusion", "export", "calibrate")
 TRAINING = ("autoencoder", "diffusion")
+LOG = "recipe.json"   # a run's log in its output directory (recipe_run.py writes it, card.py reads it)
 NETWORKS = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "networks")
 SPLITS = os.path.join(NETWORKS, "splits.json")
 

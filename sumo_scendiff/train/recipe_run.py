@@ -5,10 +5,11 @@
 Every stage is a program of its own (``python -m sumo_scendiff.data`` or a ``train`` subcommand; a
 training stage of a recipe with ``procs`` > 1 as that many one-thread DistributedDataParallel
 processes, ``torch.distributed.run``). ``OUT/recipe.json`` records the recipe, the commit, each
-stage's command line and wall time, and the model's SHA-256 at the end. Resumable: run the same
-command again and a finished stage with the same command line is skipped, a recording continues in
-``DIR.partial``, a training stage from its ``last.pt``; the wall times add up over the runs (a running
-stage's is written every minute, so a runner killed with its stage loses at most that).
+stage's command line and wall time, and the model's SHA-256 at the end; ``OUT/card.md`` is the
+model's weights card (:mod:`.card`). Resumable: run the same command again and a finished stage with
+the same command line is skipped, a recording continues in ``DIR.partial``, a training stage from its
+``last.pt``; the wall times add up over the runs (a running stage's is written every minute, so a
+runner killed with its stage loses at most that).
 """
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ import time
 from . import recipe as rc
 
 ROOT = os.path.dirname(rc.NETWORKS)
-LOG = "recipe.json"
+LOG = rc.LOG
 TICK = 60.0   # s between the log's updates of a running stage's wall time
 
 
@@ -124,5 +125,9 @@ def run(path: str, recipe: dict, out: str, data: str, procs: int, steps: dict, s
         log["model"] = {"path": os.path.relpath(model, out), "sha256": file_sha256(model)}
     log["seconds"] = round(sum(e["seconds"] for e in stages.values()), 1)
     _write(log_path, log)
+    if "model" in log:
+        from .card import CARD, card
+        with open(os.path.join(out, CARD), "w") as f:
+            f.write(card(out))
     print(f"recipe: done in {log['seconds'] / 60:.1f} min of stages; {log_path}")
     return 0
