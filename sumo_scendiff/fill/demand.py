@@ -11,11 +11,13 @@ from standing): a light with a fixed program (SUMO's ``static``) lets its vehicl
 SUMO's clock runs it, in the order they reach its stop line, in its green only, so the queues
 stand at ``begin`` on the approaches that are red then; an actuated light holds each vehicle its
 expected (Webster's) delay at the degree of saturation the demand's own flows give it; an edge
-holds what its lanes hold, and a queue that fills it spills back. Those not yet at their end at
+holds what its lanes hold, and a queue that fills it spills back; a stop holds its vehicle where
+it ends for its duration (or to its until), braking to it and starting again. Those not yet at their end at
 ``begin`` count on the edge they are on (a vehicle waiting at a light on the edge it waits on,
 one crossing a junction at the start of the edge it enters; one still waiting to be inserted
-not at all). No simulation of the cars, as the issue allows: it misses what :mod:`.travel` and
-:mod:`.queues` leave out (lane changes, the choice of lanes).
+not at all; one at its stop knows how long it has stood there: :attr:`EnRoute.stopped`). No
+simulation of the cars, as the issue allows: it misses what :mod:`.travel` and :mod:`.queues` leave
+out (lane changes, the choice of lanes).
 """
 from __future__ import annotations
 
@@ -106,8 +108,6 @@ class DemandEstimate:
         SUMO's); ``junction_taz``, ``scale``: its ``junction-taz`` and ``scale`` options. Raises :class:`~.routing.RoutingError` when SUMO's router cannot read the demand."""
         from .queues import Trip, run_to
         from .routing import routed_departures
-        from ..sim.stops import place_ends, stop_lane, stopping_places
-        from .vtypes import vtype_table
         from .travel import DEFAULT_DRIVER, TravelTimes, link_flows, vtype_drivers
         snet = net.sumo_net
         drivers = vtype_drivers([*route_files, *additional])
@@ -121,38 +121,26 @@ class DemandEstimate:
         span = min(FLOW_SPAN_S, begin - first)
         times = TravelTimes(net, additional, link_flows([(d.depart, list(d.edges)) for d in departures], begin, span))
         trips: list[Trip] = []
-        stops: dict[int, tuple] = {}               # id(trip) -> (its stops, per edge the one made there)
-        stopping = any(d.stops for d in departures)
-        ends = place_ends(additional, net) if stopping else {}
-        lots = parking_lots(additional) if stopping else {}
-        places = stopping_places(additional) if stopping else {}
-        classes = vtype_table([*route_files, *additional], lambda el: el.get("vClass") or "passenger") \
-            if stopping else {}
+        stops = _Stops(net, [*route_files, *additional], additional) if any(d.stops for d in departures) else None
+        made: dict[int, tuple] = {}                # id(trip) -> (its stops, per edge the one made there)
         for d in departures:
             if not all(snet.hasEdge(e) for e in d.edges):
                 continue
             driver = drivers.get(d.type, DEFAULT_DRIVER) if d.type else DEFAULT_DRIVER
-            own = tuple(on_lane(s, snet, classes.get(d.type, "passenger")) for s in d.stops)
-            dwell, until, at, which = _dwell(replace(d, stops=own), ends, snet)
+            own, which, clock = stops.resolve(d) if stops else ((), (), ())
             trips.append(Trip(d.id, d.type, d.edges, driver, d.depart,
                               times.start(driver, d.edges[0]) if d.standing else 0.0,
-                              _depart_offset(d.depart_pos, snet.getEdge(d.edges[0]).getLength()),
-                              dwell, until, at))
-            stops[id(trips[-1])] = (own, which)
+                              _depart_offset(d.depart_pos, snet.getEdge(d.edges[0]).getLength()), *clock))
+            made[id(trips[-1])] = (own, which)
         on_edge: dict[str, int] = {}
         en_route: list[EnRoute] = []
         for pos in run_to(trips, times, net, begin):
             edges, k = pos.trip.edges, pos.k
             on_edge[edges[k]] = on_edge.get(edges[k], 0) + 1
             ahead = snet.getEdge(edges[k]).getLength() - pos.offset
-            own, which = stops.get(id(pos.trip), ((), ()))
-            here = which[k] if which else None
             en_route.append(EnRoute(pos.trip.id, pos.trip.type, edges[k:], begin - pos.t_enter, pos.travel,
                                     ahead / pos.travel, edges[max(k - SPILL_EDGES, 0):k][::-1], pos.offset,
-                                    own, here, pos.trip.stop_at[k] if here is not None else 0.0,
-                                    pos.to_stop, pos.hold,
-                                    lots.get(own[here].get("parkingArea"), 0.0) if here is not None else 0.0,
-                                    stop_lane(own[here], places) if here is not None else None))
+                                    **(stops.here(pos, *made[id(pos.trip)]) if stops else {})))
         return cls(begin, on_edge, sum(on_edge.values()), unrouted, len(departures), en_route)
 
     def edge_density(self, net) -> dict[str, float]:
@@ -171,6 +159,38 @@ class DemandEstimate:
         is taken (round(D x car-lane km) holds the estimate's vehicles); None where it has no normal
         car lane."""
         return net.region_density(region, self.edge_density(net))
+
+
+class _Stops:
+    """The demand's stops as the clock and the placement take them: the additional files' stopping
+    places (their ends, lanes and parking lots) and the vTypes' classes (a stop of one edge is on
+    the first lane its vehicle's class may use)."""
+
+    def __init__(self, net, files, additional):
+        from ..sim.stops import place_ends, stopping_places
+        from .vtypes import vtype_table
+        self.snet = net.sumo_net
+        self.ends, self.places = place_ends(additional, net), stopping_places(additional)
+        self.lots = parking_lots(additional)
+        self.classes = vtype_table(files, lambda el: el.get("vClass") or "passenger")
+
+    def resolve(self, d) -> tuple[tuple, tuple, tuple]:
+        """(departure ``d``'s stops, each on its lane; per edge of its route the one it makes there;
+        the clock's dwell, until and stop ends per edge: :func:`_dwell`)."""
+        own = tuple(on_lane(s, self.snet, self.classes.get(d.type, "passenger")) for s in d.stops)
+        dwell, until, at, which = _dwell(replace(d, stops=own), self.ends, self.snet)
+        return own, which, (dwell, until, at)
+
+    def here(self, pos, own: tuple, which: tuple) -> dict:
+        """The :class:`EnRoute` fields of a trip at ``pos`` (queues.OnEdge) with stops ``own``: the
+        one it makes on its edge (``which``: per edge), where it ends, when it is reached and held."""
+        from ..sim.stops import stop_lane
+        k = which[pos.k] if which else None
+        if k is None:
+            return {"stops": own}
+        return {"stops": own, "stop": k, "stop_at": pos.trip.stop_at[pos.k], "to_stop": pos.to_stop,
+                "hold": pos.hold, "lot": self.lots.get(own[k].get("parkingArea"), 0.0),
+                "stop_lane": stop_lane(own[k], self.places)}
 
 
 def on_lane(stop: dict, snet, vclass: str) -> dict:

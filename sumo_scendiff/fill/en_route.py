@@ -98,6 +98,16 @@ def _fit(lanes: list[int], vid: str, want: float | None, body: Body, room: dict,
     return None
 
 
+def _at_stop(v: EnRoute, parked: Counter, lanes: list[int], edge_lanes: list[int], net) -> tuple[float, list[int]]:
+    """(front, lanes) of a vehicle standing at its stop: at the stop's end, on the stop's lane (of
+    ``edge_lanes``, its edge's it may use; else ``lanes``), in a parking area at the next free lot
+    back from its end (``parked``: per area the lots taken)."""
+    area = (v.edges[0], v.stop_at)
+    front = v.stop_at - AT_STOP_M - parked[area] * v.lot
+    parked[area] += v.lot > 0
+    return front, [i for i in edge_lanes if net.lanes[i].id == v.stop_lane] or lanes
+
+
 def allows(net, lane: int, vclass: str) -> bool:
     """Whether the lane (index into ``Network.lanes``) permits ``vclass``."""
     return net.sumo_net.getLane(net.lanes[lane].id).allows(vclass)
@@ -143,12 +153,8 @@ def place_en_route(net, est: DemandEstimate, bodies: dict[str, Body] | None = No
         def permitted(lanes: list[int]) -> list[int]:
             return lanes if vclass is None else [i for i in lanes if allows(net, i, vclass)]
         want, lanes = None if v.waiting else v.front, permitted(lanes_for(v.edges))
-        if v.stopped is not None:        # at its stop's end, on its lane; in a parking area at its next free lot
-            lot = (v.edges[0], v.stop_at)
-            want = v.stop_at - AT_STOP_M - parked[lot] * v.lot
-            parked[lot] += v.lot > 0
-            lanes = [i for i in permitted(list(by_edge.get(v.edges[0], {}).values()))
-                     if net.lanes[i].id == v.stop_lane] or lanes
+        if v.stopped is not None:
+            want, lanes = _at_stop(v, parked, lanes, permitted(list(by_edge.get(v.edges[0], {}).values())), net)
         best = _fit(lanes, v.id, want, body, room, used, net, shared, taken)
         for k in range(len(v.behind) if best is None else 0):
             # a queue longer than its edge stands back on the route's edges before it, as a queue
