@@ -113,6 +113,16 @@ TLCS_FILES = {f: (f, TLCS) for f in ["intersection/sumo_config.sumocfg", "inters
                                      "src/tlcs/__init__.py", "src/tlcs/constants.py", "src/tlcs/generator.py"]}
 TLCS_ROUTES = ("import sys; sys.path.insert(0, 'src'); from tlcs.generator import generate_routefile; "
                "generate_routefile(seed=10000, n_cars_generated=1000, max_steps=5400, turn_chance=0.25)")
+# LibSignal's SUMO versions of CityFlow's real-world datasets (Hangzhou's Gudang district, Atlanta's Peachtree
+# corridor), as its repository ships them
+LIBSIGNAL = "127af9f93902778e556de2eedb2b606c4c9447e6"
+
+
+def _libsignal(name: str, stem: str) -> dict:
+    return {f"{stem}.{ext}": (f"data/raw_data/{name}/{stem}.{ext}", LIBSIGNAL)
+            for ext in ("sumocfg", "net.xml", "rou.xml")}
+
+
 SUMO_EXPERIMENTS = ("sumo-experiments", "5.8.4")
 BOLOGNA = "sumo_experiments/preset_networks/bologna/acosta/"
 BOLOGNA_COVERS = ("city", "lights", "buses", "bus lanes", "stops", "detectors", "vTypes in additional files")
@@ -202,8 +212,7 @@ REGISTRY: list[Scenario] = [
             ("buses", "trams", "stops", "persons", "repeated route", "intermodal trips"), offset=300),
     _github("tutorial_output_parsing", SUMO_REPO, OUTPUT_PARSING, "output_file.sumocfg", "EPL-2.0",
             ("loop", "routes in additional files", "rerouters", "no internal links", "trucks", "fcd-output"),
-            steps=[["netconvert", "-c", "circular.netccfg"]], offset=300,
-            area=(-50.0, -50.0, 350.0, 350.0)),    # a corner: no lane about the loop's centre
+            steps=[["netconvert", "-c", "circular.netccfg"]], offset=300),
     _github("tutorial_traci_tls", SUMO_REPO, TRACI_TLS, "data/cross.sumocfg", "EPL-2.0",
             ("lights", "induction loop", "additional file without <additional> root", "old network version"),
             steps=[["generateRoutes.py"]], offset=300),
@@ -217,6 +226,11 @@ REGISTRY: list[Scenario] = [
             {"build_file.py": ("large_grid/data/build_file.py", MA2C)}, "exp_0.sumocfg", "MIT",
             ("grid", "lights", "two-lane avenues", "lane area detectors"),
             steps=[["build_file.py"], ["python", "-c", MA2C_GRID_ROUTES]], offset=600),
+    _github("libsignal_hangzhou_4x4", "DaRL-LibSignal/LibSignal",
+            _libsignal("hangzhou_4x4_gudang_18041610_1h", "hangzhou_4x4_gudang_18041610_1h"),
+            "hangzhou_4x4_gudang_18041610_1h.sumocfg", "none stated", ("city", "lights", "CityFlow data"), offset=600),
+    _github("libsignal_atlanta_1x5", "DaRL-LibSignal/LibSignal", _libsignal("atlanta_1x5", "atlanta_1x5"),
+            "atlanta_1x5.sumocfg", "none stated", ("arterial", "lights", "CityFlow data"), offset=600),
     _pypi("se_bologna_acosta", *SUMO_EXPERIMENTS, BOLOGNA + "run.sumocfg", "LGPL-2.1-or-later", BOLOGNA_COVERS,
           offset=600),
     _pypi("se_bologna_acosta_2704", *SUMO_EXPERIMENTS, BOLOGNA + "run_2704.sumocfg", "LGPL-2.1-or-later",

@@ -48,26 +48,38 @@ def net_boundary(net: Path) -> tuple:
     raise ValueError(f"{net}: no <location> element")
 
 
-def car_centre(net: Path) -> tuple:
-    """The median of the car edges' junction positions: inside the network's streets (a rail or
-    pedestrian fringe can move a bounding box's centre off every car lane)."""
+def car_centre(net: Path, half: float = AREA_SIDE / 2) -> tuple | None:
+    """The median of the car edges' junction positions (inside the network's streets: a rail or
+    pedestrian fringe can move a bounding box's centre off every car lane) and False; where the square of
+    half side ``half`` about it holds no car lane (a loop, a grid of long blocks), the car junction nearest
+    it and True."""
+    import math
     import statistics
+
     import sumolib
-    xs, ys = [], []
-    for e in sumolib.net.readNet(str(net)).getEdges(withInternal=False):
-        if e.allows("passenger"):
-            for node in (e.getFromNode(), e.getToNode()):
-                xs.append(node.getCoord()[0])
-                ys.append(node.getCoord()[1])
-    return (statistics.median(xs), statistics.median(ys)) if xs else None
+    from shapely.geometry import LineString, box
+    edges = [e for e in sumolib.net.readNet(str(net)).getEdges(withInternal=False) if e.allows("passenger")]
+    if not edges:
+        return None
+    nodes = [node.getCoord() for e in edges for node in (e.getFromNode(), e.getToNode())]
+    cx, cy = statistics.median(x for x, _ in nodes), statistics.median(y for _, y in nodes)
+    square = box(cx - half, cy - half, cx + half, cy + half)
+    if any(square.intersects(LineString(e.getShape())) for e in edges):
+        return (cx, cy), False
+    return min(nodes, key=lambda p: math.hypot(p[0] - cx, p[1] - cy)), True
 
 
 def fill_area(sc: Scenario, cfg: Path, side: float = AREA_SIDE) -> tuple:
+    """The registry's area, else a square of ``side`` about :func:`car_centre`, inside the network's
+    boundary unless it is about a junction (a corner's lanes lie beyond the boundary's line)."""
     if sc.area is not None:
         return sc.area
     net = cfg.parent / _config_value(cfg, "net-file")
     x0, y0, x1, y1 = net_boundary(net)
-    (cx, cy), h = car_centre(net) or ((x0 + x1) / 2, (y0 + y1) / 2), side / 2
+    h = side / 2
+    (cx, cy), at_junction = car_centre(net, h) or (((x0 + x1) / 2, (y0 + y1) / 2), False)
+    if at_junction:
+        return (cx - h, cy - h, cx + h, cy + h)
     return (max(x0, cx - h), max(y0, cy - h), min(x1, cx + h), min(y1, cy + h))
 
 

@@ -95,9 +95,25 @@ def test_a_github_source_runs_the_scripts_it_ships(corpus, tmp_path):
                                     ["gen.py"]]}, "data/s.sumocfg")
     cfg = corpus.build(sc, tmp_path)
     assert (cfg.parent / "r.rou.xml").is_file()
-    assert json.loads((tmp_path / "tut" / "source.json").read_text())["get"]["files"]["gen.py"] == ["tut/gen.py", commit]
+    record = json.loads((tmp_path / "tut" / "source.json").read_text())
+    assert record["get"]["files"]["gen.py"] == ["tut/gen.py", commit]
     ref = subprocess.run([corpus._sumo(), "-c", str(cfg), "--end", "30"], capture_output=True, text=True)
     assert ref.returncode == 0, ref.stderr
+
+
+def test_the_fill_area_holds_car_lanes_where_the_centre_has_none(corpus, tmp_path):
+    """As Hangzhou's 4x4 grid of 800 m blocks and SUMO's circular tutorial: the median of the junctions
+    lies inside a block, and a 400 m square about it holds no lane (the fill refused it: "no car lane
+    inside"); the square is then about the junction nearest that median."""
+    netgen = shutil.which("netgenerate") or str(corpus._sumo_home() / "bin" / "netgenerate")
+    subprocess.run([netgen, "--grid", "--grid.number", "2", "--grid.length", "1000", "-o", "net.net.xml"],
+                   cwd=tmp_path, check=True, capture_output=True)
+    (tmp_path / "s.sumocfg").write_text('<configuration><input><net-file value="net.net.xml"/></input>'
+                                        '</configuration>')
+    sc = corpus.Scenario("g", "generated", "-", {"kind": "generate"}, "s.sumocfg")
+    x0, y0, x1, y1 = corpus.fill_area(sc, tmp_path / "s.sumocfg")
+    assert (x1 - x0, y1 - y0) == (400.0, 400.0)     # the whole square: the corner's lanes lie beyond x0, y0
+    assert any((x0 + x1) / 2 == x and (y0 + y1) / 2 == y for x in (0, 1000) for y in (0, 1000)), (x0, y0, x1, y1)
 
 
 def test_one_line_takes_sumos_error_else_the_traceback_tail(corpus):
