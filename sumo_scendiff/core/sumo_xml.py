@@ -8,7 +8,10 @@ SUMO takes any root element (``<routes>``, ``<additional>``, ``<add>``, a ``<tlL
 are; a gzipped file whatever its name; and ``<include href="..."/>`` in place, the path relative
 to the including file's folder (``GenericSAXHandler::startElement``). Files are streamed
 (ElementTree iterparse) and each element is let go once it has been handed over, so a route file
-of a whole day costs its reading time, not its size in memory.
+of a whole day costs its reading time, not its size in memory. A file cut short (it ends inside
+its root element) is read up to the cut, as SUMO reads a route file in steps and loads what comes
+before (``MSRouteLoaderControl``): its whole elements are handed over, and the cut is told to who asks
+(:class:`Cut`); SUMO quits when its reading reaches it, and refuses an additional file so cut at load.
 """
 from __future__ import annotations
 
@@ -16,13 +19,30 @@ import gzip
 import math
 import os
 import xml.etree.ElementTree as ET
+from dataclasses import dataclass
 from typing import BinaryIO, Collection, Iterable, Iterator
+from xml.parsers import expat
 
 _GZIP = b"\x1f\x8b"
+# expat's errors at the end of input: the file ends inside an element, a tag or a character
+_AT_END = frozenset({expat.errors.codes[c] for c in (expat.errors.XML_ERROR_NO_ELEMENTS,
+                                                       expat.errors.XML_ERROR_UNCLOSED_TOKEN,
+                                                       expat.errors.XML_ERROR_PARTIAL_CHAR)})
+# the elements that repeat a vehicle, person or container (their begin defaults to the simulation's)
+FLOWS = ("flow", "personFlow", "containerFlow")
+# a calibrator's <flow>s are the vehicles it inserts to hold its edge's count, not demand of their own
+NOT_DEMAND_PARENTS = ("calibrator",)
 
 
 class XmlError(ValueError):
     """One line: the file and what is wrong with it."""
+
+
+@dataclass(frozen=True)
+class Cut:
+    """A file that ends inside its root element: where its reading stopped (line, 1-based)."""
+    path: str
+    line: int
 
 
 def open_xml(path: str) -> BinaryIO:
@@ -64,33 +84,43 @@ def include_path(including: str, href: str) -> str:
     return href if os.path.isabs(href) else os.path.normpath(os.path.join(os.path.dirname(including), href))
 
 
-def elements(paths: Iterable[str], tags: Collection[str]) -> Iterator[tuple[str, ET.Element]]:
+def elements(paths: Iterable[str], tags: Collection[str],
+             cuts: list[Cut] | None = None) -> Iterator[tuple[str, ET.Element]]:
     """(file, element) for every element of ``paths`` whose tag is in ``tags`` and which lies in
     no other such element, with all it holds, in file order, includes in place. The element is
     emptied once the caller asks for the next one: keep what you need, not the element.
+    A file cut short is read up to its cut (the module's doc), each such cut appended to ``cuts``.
     Raises :class:`XmlError` naming the file (and line) that cannot be read."""
     for path in paths:
-        yield from _walk(os.path.abspath(path), frozenset(tags), ())
+        yield from _walk(os.path.abspath(path), frozenset(tags), (), cuts)
 
 
-def _walk(path: str, tags: frozenset, chain: tuple[str, ...]) -> Iterator[tuple[str, ET.Element]]:
+def _walk(path: str, tags: frozenset, chain: tuple[str, ...],
+          cuts: list[Cut] | None) -> Iterator[tuple[str, ET.Element]]:
     if path in chain:
         raise XmlError(f"{chain[-1]}: includes {path}, which includes it back")
+    started: list = []
     with open_xml(path) as f:
         try:
-            yield from _events(path, f, tags, chain)
+            yield from _events(path, f, tags, chain, cuts, started)
         except ET.ParseError as e:
-            raise XmlError(f"{path}: not well-formed XML ({e})") from None
+            if not (started and e.code in _AT_END):
+                raise XmlError(f"{path}: not well-formed XML ({e})") from None
+            if cuts is not None:
+                cuts.append(Cut(path, e.position[0]))
         except (OSError, EOFError) as e:       # a gzip cut short or corrupt
             raise XmlError(f"{path}: cannot be read ({e})") from None
 
 
-def _events(path: str, f: BinaryIO, tags: frozenset, chain: tuple[str, ...]):
+def _events(path: str, f: BinaryIO, tags: frozenset, chain: tuple[str, ...], cuts, started: list):
+    """``started``: given the root element once it opens (a file cut before it is no XML at all)."""
     inside, depth, root = 0, 0, None
     for event, el in ET.iterparse(f, events=("start", "end")):
         if event == "start":
             depth += 1
-            root = el if root is None else root
+            if root is None:
+                root = el
+                started.append(el)
             if inside:
                 inside += 1
             elif el.tag in tags:
@@ -99,7 +129,7 @@ def _events(path: str, f: BinaryIO, tags: frozenset, chain: tuple[str, ...]):
                 target = include_path(path, el.get("href"))
                 if not os.path.isfile(target):
                     raise XmlError(f"{path}: include href=\"{el.get('href')}\": no such file {target}")
-                yield from _walk(target, tags, chain + (path,))
+                yield from _walk(target, tags, chain + (path,), cuts)
             continue
         depth -= 1
         if inside:
@@ -112,4 +142,4 @@ def _events(path: str, f: BinaryIO, tags: frozenset, chain: tuple[str, ...]):
                 root.clear()      # its children so far are done with: let them go
 
 
-__all__ = ["XmlError", "elements", "include_path", "open_xml", "seconds"]
+__all__ = ["FLOWS", "NOT_DEMAND_PARENTS", "Cut", "XmlError", "elements", "include_path", "open_xml", "seconds"]

@@ -14,7 +14,7 @@ import tempfile
 from dataclasses import dataclass
 from typing import Sequence
 
-from ..core.sumo_xml import XmlError, elements, seconds
+from ..core.sumo_xml import FLOWS, NOT_DEMAND_PARENTS, Cut, XmlError, elements, seconds
 from ..core.tools import sumo_tool
 
 # (id, vClass, guiShape, length, width, minGap, accel, decel, maxSpeed, probability)
@@ -86,7 +86,6 @@ def random_trips(net_path: str, out_path: str, spec: RandomDemand) -> str:
 
 
 DEMAND = ("vehicle", "trip", "flow", "person", "personFlow", "container", "containerFlow")
-FLOWS = ("flow", "personFlow", "containerFlow")
 _PER_HOUR = ("vehsPerHour", "personsPerHour", "containersPerHour", "perHour")
 _EDGE_ATTRS = ("edges", "from", "to", "via")
 DAY_S = 86400.0        # a flow with neither an end nor a simulation end departs for a day (SUMO's)
@@ -156,10 +155,6 @@ def check_demand(route_files: Sequence[str], edge_ids: set[str], additional: Seq
     return demand_span(route_files, edge_ids, additional, sample)[0]
 
 
-# a calibrator's <flow>s are the vehicles it inserts to hold its edge's count, not demand of their own
-NOT_DEMAND_PARENTS = ("calibrator",)
-
-
 def demand_files(route_files: Sequence[str], additional: Sequence[str] = ()) -> list[str]:
     """The files that hold a scenario's demand: its route files, and the additional files with
     vehicles, trips, flows, persons or containers in them (SUMO loads those as demand too: a game's
@@ -203,30 +198,62 @@ def write_without_demand(path: str, folder: str) -> str:
     return copy
 
 
+ROUTE_STEPS_S = 200.0  # SUMO's --route-steps: how far ahead of its clock it reads a route file
+
+
+@dataclass(frozen=True)
+class CutDemand:
+    """A route file cut short (core.sumo_xml.Cut) as SUMO runs it: it loads the file's departures up to
+    the cut and quits when its reading reaches the cut, ``route_steps`` ahead of its clock."""
+    path: str
+    line: int
+    read_to: float      # the last whole departure before the cut (s; a flow's: its begin)
+    stop: float         # SUMO's time when its reading reaches the cut (s)
+    ahead: float        # how far ahead of its clock SUMO reads (s; its --route-steps)
+
+    def warning(self) -> str:
+        from ..core.cli import clock
+        return (f"{self.path}: cut short at line {self.line} (no closing tag); SUMO reads it to its last whole "
+                f"departure, {self.read_to:g} s ({clock(self.read_to)}), and quits when its reading, "
+                f"{self.ahead:g} s ahead of its clock (--route-steps), reaches the cut: at about {self.stop:g} s "
+                f"({clock(self.stop)})")
+
+
+class Span(tuple):
+    """(first, last) departure of a demand; ``cut``: its earliest route file cut short, or None."""
+    cut: CutDemand | None = None
+
+
 def demand_span(route_files: Sequence[str], edge_ids: set[str], additional: Sequence[str] = (),
-                sample: int = 2000, begin: float | None = None, end: float | None = None) -> tuple[float, float]:
+                sample: int = 2000, begin: float | None = None, end: float | None = None,
+                route_steps: float = ROUTE_STEPS_S) -> Span:
     """:func:`check_demand`'s checks; returns the first and the last departure (s) of the set (a
     flow departs until its end, :func:`flow_span`; ``begin`` and ``end`` are the simulation's,
     a flow's defaults). A file with more than :data:`READ_LIMIT` demand elements leaves the last
-    departure open (``inf``)."""
-    first, last, found = float("inf"), float("-inf"), False
+    departure open (``inf``). A route file cut short is read up to its cut, as SUMO reads it
+    (``route_steps``: the scenario's --route-steps), and named in the span's ``cut``."""
+    first, last, found, cuts = float("inf"), float("-inf"), False, []
     for path in list(route_files) + list(additional):
-        span, n = _file_span(path, edge_ids, sample, begin, end)
+        span, n, cut = _file_span(path, edge_ids, sample, begin, end, route_steps)
         found |= n > 0
+        cuts += [cut] if cut else []
         if span:
             first, last = min(first, span[0]), max(last, span[1])
     if not found:
         raise DemandError(f"{', '.join(route_files) or ', '.join(additional)}: no vehicle routes or "
                           "trips found")
-    return (0.0, float("inf")) if first == float("inf") else (first, last)
+    out = Span((0.0, float("inf")) if first == float("inf") else (first, last))
+    out.cut = min(cuts, key=lambda c: c.stop) if cuts else None
+    return out
 
 
-def _file_span(path: str, edge_ids: set[str], sample: int, begin, end) -> tuple[tuple[float, float] | None, int]:
-    """One file's (first, last) departure (None: none with a time) and its number of demand
-    elements read; checks the first ``sample`` edges it names against the network."""
-    first, last, n, used, unknown = float("inf"), float("-inf"), 0, 0, []
+def _file_span(path: str, edge_ids: set[str], sample: int, begin, end,
+               route_steps: float = ROUTE_STEPS_S) -> tuple[tuple[float, float] | None, int, CutDemand | None]:
+    """One file's (first, last) departure (None: none with a time), its number of demand elements
+    read, and its cut (a file cut short); checks the first ``sample`` edges it names against the network."""
+    first, last, n, used, unknown, cuts, read_to = float("inf"), float("-inf"), 0, 0, [], [], begin or 0.0
     try:
-        for where, el in elements([path], DEMAND + ("route", "routeDistribution")):
+        for where, el in elements([path], DEMAND + ("route", "routeDistribution"), cuts):
             if used < sample:
                 names = list(_edges_used(el))
                 used += len(names)
@@ -236,7 +263,7 @@ def _file_span(path: str, edge_ids: set[str], sample: int, begin, end) -> tuple[
             n += 1
             span = departures(el, begin, end)
             if span:
-                first, last = min(first, span[0]), max(last, span[1])
+                first, last, read_to = min(first, span[0]), max(last, span[1]), max(read_to, span[0])
             if n >= READ_LIMIT:
                 last = float("inf")
                 break
@@ -245,7 +272,16 @@ def _file_span(path: str, edge_ids: set[str], sample: int, begin, end) -> tuple[
     if len(unknown) > 0.01 * used:
         raise DemandError(f"{unknown[0][1]}: does not match the network ({len(unknown)} of {used} "
                           f"edges referenced are unknown, e.g. '{unknown[0][0]}')")
-    return (None if first == float("inf") else (first, last)), n
+    return (None if first == float("inf") else (first, last)), n, _cut(cuts, read_to, begin, route_steps)
+
+
+def _cut(cuts: list[Cut], read_to: float, begin: float | None, route_steps: float) -> CutDemand | None:
+    """The first of ``cuts`` as SUMO meets it: SUMO reads ``route_steps`` ahead of its clock (at
+    once, at its begin, when it is not positive)."""
+    if not cuts:
+        return None
+    stop = read_to - route_steps if route_steps > 0 else (begin or 0.0)
+    return CutDemand(cuts[0].path, cuts[0].line, read_to, max(stop, begin or 0.0), route_steps)
 
 
 def seeding_time(begin: float | None, config_begin: float | None, span: tuple[float, float],
@@ -256,14 +292,21 @@ def seeding_time(begin: float | None, config_begin: float | None, span: tuple[fl
     Raises :class:`DemandError` when it lies before the demand's first departure (``span``, from
     :func:`demand_span`: the network is empty and would look like a filled network that is not),
     when the default start lies after its last, before the configuration's begin (SUMO cannot go
-    back) or after its end (SUMO stops before). A ``begin`` given after the last departure is
+    back), after its end (SUMO stops before) or after SUMO quits on a route file cut short
+    (``span.cut``, :func:`demand_span`; the default start moves before). A ``begin`` given after the last departure is
     SUMO's as any other: its vehicles may still drive (long trips, rerouters sending them round)."""
     from ..core.cli import clock
     first, last = span
     start = first if config_begin is None else config_begin
     # a demand shorter than the warm-up is seeded at its last departure, when it has all its traffic
     t = min(max(start, first) + WARM_UP_S, max(last, start)) if begin is None else begin
+    cut = getattr(span, "cut", None)
+    if cut is not None and begin is None:   # the default start before SUMO quits on a route file cut short
+        t = max(min(t, cut.stop), start)
     name = flag if begin is not None else f"the default start (first departure + {WARM_UP_S:g} s)"
+    if cut is not None and t > cut.stop:
+        raise DemandError(f"{name} {t:g} s ({clock(t)}) lies after SUMO quits: {cut.warning()}; give an "
+                          f"earlier {flag}")
     if config_end is not None and t > config_end:
         raise DemandError(f"{name} {t:g} s ({clock(t)}) lies after the configuration's end "
                           f"{config_end:g} s ({clock(config_end)}); give an earlier {flag}")

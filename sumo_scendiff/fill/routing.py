@@ -107,8 +107,9 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
 
 
 # additional elements that are no demand and that duarouter 1.28 cannot read: a calibrator's <flow>
-# (the vehicles it inserts to hold a count on its edge) ends duarouter without a word
-_NOT_FOR_ROUTER = frozenset({"calibrator"})
+# (the vehicles it inserts to hold a count on its edge) ends duarouter without a word, and it refuses a
+# rerouter's <interval> without begin (SUMO takes 0); routing the demand needs neither
+_NOT_FOR_ROUTER = frozenset({"calibrator", "rerouter"})
 
 
 def _for_router(additional, work: str) -> list[str]:

@@ -177,12 +177,32 @@ def _demand_times(o, scen, net, demand: list[str]) -> tuple[float | None, float 
         return (o.begin if o.begin is not None else scen.begin), None
     try:  # the route files as the set SUMO loads, against this network
         span = demand_span(scen.routes, {ln.edge for ln in net.lanes}, scen.additional,
-                           begin=scen.begin, end=scen.end)
+                           begin=scen.begin, end=scen.end, **_route_steps(scen))
         at = seeding_time(o.begin, scen.begin, span, demand, config_end=scen.end) if span and not o.ego else None
     except DemandError as e:
         raise RunError(str(e)) from None
+    if span.cut is not None:
+        _check_cut(o, span.cut, at)
     first = span[0] if span else None
     return (scen.begin if scen.begin is not None else first), at
+
+
+def _route_steps(scen) -> dict:
+    """The scenario's own --route-steps (how far ahead SUMO reads its route files), as demand_span takes it."""
+    from ..core.sumo_xml import seconds
+    given = seconds(dict(scen.options).get("route-steps"))
+    return {} if given is None else {"route_steps": given}
+
+
+def _check_cut(o, cut, at: float | None) -> None:
+    """A route file cut short: SUMO runs it up to the cut (a warning, once); a run whose rollout
+    ends after SUMO quits is refused (``at``: the seeding time; None: the ego decides)."""
+    from ..core.cli import clock
+    print(f"{PROG}: warning: {cut.warning()}", file=sys.stderr)
+    if at is not None and at + o.rollout > cut.stop:
+        end = at + o.rollout
+        raise RunError(f"--rollout {o.rollout:g}: the run ends at {end:g} s ({clock(end)}), after SUMO quits on "
+                       f"{cut.path} at about {cut.stop:g} s; give an earlier --begin or a shorter --rollout")
 
 
 def _session(o, scen, net, gen, sumo_settings: dict, times: tuple, progress: bool, demand: list[str]):

@@ -4,40 +4,82 @@ Each input (network, route and additional files) is stored gzip-compressed under
 folder (SUMO reads ``.gz`` inputs). A file is compressed once per process and hard-linked into every
 further folder on the same file system, so a run of many scenes costs the disk one copy. The files a
 route or additional file reads (``<include href>``, a rerouter's or variable speed sign's ``file``, relative
-to it) travel beside it as they are.
+to it) travel beside it as they are. A flow without ``begin`` departs from the simulation's begin (SUMO's
+``parseFlowAttributes``), which a scene's configuration moves to the scene's time: its copy writes the
+begin SUMO gave it when the demand was loaded, and nothing else of the file changes.
 """
 from __future__ import annotations
 
 import gzip
+import io
 import os
 import shutil
 import tempfile
+from xml.parsers import expat
 
-_cache: dict[tuple[str, float, int], str] = {}
+_cache: dict[tuple, str] = {}
 _hrefs: dict[tuple[str, float, int], list[str]] = {}
+_beginless_at: dict[tuple[str, float, int], list[int]] = {}
 _tmp: tempfile.TemporaryDirectory | None = None
 
 
-def _compressed(src: str) -> str:
-    """A gzip copy of ``src`` made once per process (``src`` itself when already compressed)."""
+def _compressed(src: str, flow_begin: float | None = None) -> str:
+    """A gzip copy of ``src`` made once per process (``src`` itself when already compressed and
+    nothing is to change); ``flow_begin``: written into its flows without begin (:func:`_beginless`)."""
     global _tmp
-    if src.endswith(".gz"):
+    inserts = _beginless(src) if flow_begin is not None else []
+    if src.endswith(".gz") and not inserts:
         return src
-    st = os.stat(src)
-    key = (os.path.abspath(src), st.st_mtime, st.st_size)
+    key = _key(src) + ((flow_begin,) if inserts else ())
     if key not in _cache or not os.path.exists(_cache[key]):
         if _tmp is None:
             _tmp = tempfile.TemporaryDirectory(prefix="scendiff-inputs-")
-        out = os.path.join(_tmp.name, f"{len(_cache)}-{os.path.basename(src)}.gz")
+        out = os.path.join(_tmp.name, f"{len(_cache)}-{os.path.basename(src).removesuffix('.gz')}.gz")
         # mtime 0: the same input gives the same bytes, whenever it is bundled
-        with open(src, "rb") as fi, open(out, "wb") as raw, \
-                gzip.GzipFile(fileobj=raw, mode="wb", compresslevel=6, mtime=0) as fo:
-            shutil.copyfileobj(fi, fo)
+        with open(out, "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb", compresslevel=6, mtime=0) as fo:
+            _copy(src, fo, inserts, flow_begin)
         _cache[key] = out
     return _cache[key]
 
 
-def _key(src: str) -> tuple[str, float, int]:
+def _beginless(src: str) -> list[int]:
+    """Where each flow (vehicles, persons, containers; not a calibrator's) of ``src`` without
+    ``begin`` ends its name: the byte offsets, in the file as read (gunzipped), to write one at;
+    read once per process."""
+    from ..core.sumo_xml import FLOWS, NOT_DEMAND_PARENTS, open_xml
+    key = _key(src)
+    if key in _beginless_at:
+        return _beginless_at[key]
+    parser, found, stack = expat.ParserCreate(), [], []
+
+    def start(name, attrs):
+        if name in FLOWS and "begin" not in attrs and not (stack and stack[-1] in NOT_DEMAND_PARENTS):
+            found.append(parser.CurrentByteIndex + 1 + len(name))
+        stack.append(name)
+    parser.StartElementHandler, parser.EndElementHandler = start, lambda name: stack.pop()
+    with open_xml(src) as f:
+        try:
+            parser.ParseFile(f)
+        except expat.ExpatError:
+            pass          # the flows up to a flaw: SUMO reads a route file cut short so far, and names any other
+    _beginless_at[key] = found
+    return found
+
+
+def _copy(src: str, out, inserts: list[int], flow_begin: float | None) -> None:
+    """``src`` (gunzipped) into the file object ``out``, `` begin="flow_begin"`` written at each of ``inserts``."""
+    from ..core.sumo_xml import open_xml
+    attr = f' begin="{flow_begin!r}"'.encode() if inserts else b""
+    done = 0
+    with open_xml(src) as f:
+        for at in inserts:
+            out.write(f.read(at - done))
+            out.write(attr)
+            done = at
+        shutil.copyfileobj(f, out)
+
+
+def _key(src: str) -> tuple:
     st = os.stat(src)
     return os.path.abspath(src), st.st_mtime, st.st_size
 
@@ -55,18 +97,21 @@ def _included(src: str) -> list[str]:
             data = f.read()
         refs = []
         if b"<include" in data or b" file=" in data:
-            for el in ET.fromstring(data).iter():
-                ref = el.get("href") if el.tag == "include" else \
-                    el.get("file") if OUTPUTS.get(el.tag) != "file" else None
-                refs += [ref] if ref else []
+            try:
+                for _, el in ET.iterparse(io.BytesIO(data)):
+                    ref = el.get("href") if el.tag == "include" else \
+                        el.get("file") if OUTPUTS.get(el.tag) != "file" else None
+                    refs += [ref] if ref else []
+            except ET.ParseError:
+                pass          # those up to a flaw: a route file cut short is SUMO's up to its cut
         _hrefs[key] = refs
     return _hrefs[key]
 
 
-def _bundle_includes(src: str, folder: str) -> None:
+def _bundle_includes(src: str, folder: str, flow_begin: float | None = None) -> None:
     """The files ``src`` reads (:func:`_included`), copied under ``folder`` where its relative hrefs point from there (an
     absolute href points where it did; one leading out of the folder is left, the folder would not
-    travel)."""
+    travel); ``flow_begin``: as :func:`bundle`'s."""
     from ..core.sumo_xml import include_path
     for href in _included(src):
         if os.path.isabs(href) or os.path.normpath(href).startswith(".."):
@@ -76,18 +121,25 @@ def _bundle_includes(src: str, folder: str) -> None:
             continue                  # SUMO names the missing file when it loads the folder
         if not os.path.exists(dest):
             os.makedirs(os.path.dirname(dest), exist_ok=True)
-            shutil.copyfile(target, dest)
-        _bundle_includes(target, os.path.dirname(dest))
+            inserts = _beginless(target) if flow_begin is not None else []
+            if inserts:
+                with open(dest, "wb") as out:
+                    _copy(target, out, inserts, flow_begin)
+            else:
+                shutil.copyfile(target, dest)
+        _bundle_includes(target, os.path.dirname(dest), flow_begin)
 
 
-def bundle(src: str, folder: str, includes: bool = False) -> str:
+def bundle(src: str, folder: str, includes: bool = False, flow_begin: float | None = None) -> str:
     """Put ``src`` (compressed) into ``folder``; returns its name there (a file already in the
-    folder stays as it is). ``includes``: and the files it includes (a route or additional file)."""
+    folder stays as it is). ``includes``: and the files it includes (a route or additional file).
+    ``flow_begin``: the begin SUMO gave the flows without one when the demand was loaded (the
+    simulation's), written into the copies' such flows (the module's doc)."""
     if includes:
-        _bundle_includes(src, folder)
+        _bundle_includes(src, folder, flow_begin)
     if os.path.dirname(os.path.abspath(src)) == os.path.abspath(folder):
         return os.path.basename(src)
-    packed = _compressed(src)
+    packed = _compressed(src, flow_begin)
     name = os.path.basename(src) + ("" if src.endswith(".gz") else ".gz")
     dest = os.path.join(folder, name)
     if not os.path.exists(dest):

@@ -268,13 +268,20 @@ INPUTS = ("net-file", "route-files", "additional-files")
 
 
 def write_sumocfg(path: str, options: dict[str, str], state: str | None,
-                  routes: list[str] | None = None) -> None:
+                  routes: list[str] | None = None, begin: float | None = None) -> None:
     """scenario.sumocfg that runs in stock SUMO from wherever the folder is copied: the network and
     the route and additional files travel in the folder (sim.bundle), with the subfolders their
     outputs write into (sim.additional); loads the saved state when given. ``routes``: the route
-    files instead of the options' own."""
+    files instead of the options' own. ``begin``: the configuration's begin instead of the options'
+    (the scene's time); a flow without begin keeps the options' (SUMO's when it loaded the demand),
+    written into the folder's copy."""
+    from ..core.sumo_xml import seconds
     here = os.path.dirname(os.path.abspath(path))
     options = {LONG_NAMES.get(k, k): v for k, v in options.items()}
+    loaded = seconds(options.get("begin")) or 0.0       # SUMO's default begin: 0
+    if begin is not None:
+        options["begin"] = f"{begin:g}"
+    flow_begin = loaded if begin is not None and begin != loaded else None
     if routes is not None:
         options.pop("route-files", None)
         options = {**options, **({"route-files": ",".join(routes)} if routes else {})}
@@ -284,7 +291,8 @@ def write_sumocfg(path: str, options: dict[str, str], state: str | None,
             if name == "additional-files":
                 for sub in {s for v in value.split(",") for s in output_folders(v)}:
                     os.makedirs(os.path.join(here, sub), exist_ok=True)
-            value = ",".join(bundle(v, here, includes=name != "net-file") for v in value.split(","))
+            value = ",".join(bundle(v, here, includes=name != "net-file",
+                                    flow_begin=None if name == "net-file" else flow_begin) for v in value.split(","))
         lines.append(f"    <{name} value={quoteattr(value)}/>")
     if state:
         lines.append(f"    <load-state value={quoteattr(state)}/>")
@@ -329,8 +337,7 @@ class ScenarioWriter:
         save_state(sim, self.path("state.xml.gz"))     # checked whole: SUMO does not fail where the disk is full
         exact = write_routes(self.path("scenario.rou.xml"), sim, list(seeding.agent_ids) + list(extra_vehicles), net)
         # begun where the state was saved (SUMO warns of a configuration that begins elsewhere)
-        write_sumocfg(self.path("scenario.sumocfg"), {**options, "b": f"{sim.simulation.getTime():g}"},
-                      "state.xml.gz")
+        write_sumocfg(self.path("scenario.sumocfg"), options, "state.xml.gz", begin=sim.simulation.getTime())
         doc = scene_document(seeding, net, sim, info)
         for a in doc["agents"]:
             a["replay_exact"] = exact.get(a["vehicle"]) if a["vehicle"] else None

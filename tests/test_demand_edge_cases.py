@@ -1,0 +1,99 @@
+"""Public scenarios' demand that stock SUMO runs (docs/corpus.md): a flow without ``begin`` in an
+exported scene, a rerouter interval without ``begin`` in the fill's routing, a route file cut short.
+Each on netgenerate's grid, with real SUMO and duarouter."""
+from __future__ import annotations
+
+import gzip
+import subprocess
+
+import pytest
+
+from sumo_scendiff.core.sumo_xml import elements
+from sumo_scendiff.data.demand import DemandError, demand_span, seeding_time
+
+
+def _edges(grid) -> set[str]:
+    return {ln.edge for ln in grid.lanes}
+
+
+def _sumo(*args) -> subprocess.CompletedProcess:
+    from sumo_scendiff.core.tools import sumo_binary
+    return subprocess.run([sumo_binary("sumo"), *args, "--no-step-log"], capture_output=True, text=True)
+
+
+@pytest.mark.parametrize("flow", ['end="50" number="5"',       # the tutorial's: ends before the scene
+                                  'number="5" period="10"', 'end="50" period="10"'])
+def test_a_flow_without_begin_keeps_the_begin_sumo_gave_it(tmp_path, grid, flow):
+    """SUMO gives a flow without begin the simulation's begin; the scene begins later, and its copy
+    of the demand writes the begin of the run it was saved from (the user's file stays as it is)."""
+    from sumo_scendiff.sim.export import write_sumocfg
+    user = tmp_path / "user.rou.xml"
+    text = f'<routes>\n    <flow id="f" {flow} from="A0B0" to="B0C0"/>\n</routes>\n'
+    user.write_text(text)
+    state = tmp_path / "state.xml"
+    done = _sumo("-n", grid.path, "-r", str(user), "--end", "101", "--save-state.times", "100",
+                 "--save-state.files", str(state))
+    assert done.returncode == 0, done.stderr
+    folder = tmp_path / "scene"
+    folder.mkdir()
+    cfg = folder / "scenario.sumocfg"
+    write_sumocfg(str(cfg), {"net-file": grid.path, "route-files": str(user), "b": "0"}, str(state), begin=100.0)
+    done = _sumo("-c", str(cfg), "--end", "110")
+    assert done.returncode == 0, done.stderr
+    assert gzip.open(folder / "user.rou.xml.gz").read().decode() == text.replace('<flow id', '<flow begin="0.0" id')
+    assert user.read_text() == text
+
+
+def test_a_rerouter_interval_without_begin_is_not_given_to_the_router(tmp_path, grid):
+    """SUMO takes 0 for it; duarouter refuses it, and needs no rerouter to route the demand."""
+    from sumo_scendiff.fill.routing import routed_departures
+    routes = tmp_path / "d.rou.xml"
+    routes.write_text('<routes><flow id="f" begin="0" end="60" period="10" from="A0B0" to="B0C0"/></routes>')
+    add = tmp_path / "r.add.xml"
+    add.write_text('<additional><rerouter id="rr" edges="A0B0"><interval end="1e3">'
+                   '<destProbReroute id="B0C0"/></interval></rerouter></additional>')
+    assert _sumo("-n", grid.path, "-r", str(routes), "-a", str(add), "--end", "10").returncode == 0
+    departures, unrouted = routed_departures(grid.path, [str(routes)], [str(add)], until=60.0)
+    assert [d.id for d in departures] == [f"f.{k}" for k in range(6)] and unrouted == 0
+    assert departures[0].edges == ("A0B0", "B0C0")
+
+
+def _cut_file(tmp_path) -> str:
+    """Vehicles every 100 s to 3000 s, the file cut in the middle of the last one (no </routes>)."""
+    path = tmp_path / "cut.rou.xml"
+    whole = "".join(f'    <vehicle id="v{t}" depart="{t}"><route edges="A0B0 B0C0"/></vehicle>\n'
+                    for t in range(0, 3001, 100))
+    path.write_text("<routes>\n" + whole + '    <vehicle id="v3100" depart="3100"><route edg')
+    return str(path)
+
+
+def test_a_route_file_cut_short_is_read_to_its_cut_as_sumo_reads_it(tmp_path, grid):
+    """Stock SUMO runs it until its reading (route-steps ahead of its clock) reaches the cut; the
+    demand reads the same departures, names the cut (file, line, time) and refuses a start after it."""
+    path = _cut_file(tmp_path)
+    assert _sumo("-n", grid.path, "-r", path, "--end", "600").returncode == 0
+    late = _sumo("-n", grid.path, "-r", path, "--end", "3000")
+    assert late.returncode != 0 and "cut.rou.xml" in late.stderr
+    assert [el.get("id") for _, el in elements([path], ("vehicle",))][-1] == "v3000"
+    span = demand_span([path], _edges(grid))
+    assert tuple(span) == (0.0, 3000.0)
+    assert (span.cut.line, span.cut.read_to, span.cut.stop) == (33, 3000.0, 2800.0)
+    assert all(s in span.cut.warning() for s in ("cut.rou.xml", "line 33", "3000 s", "2800 s"))
+    assert seeding_time(600.0, None, span, [path]) == 600.0
+    with pytest.raises(DemandError, match=r"^--begin 2900 s .* lies after SUMO quits: .*cut\.rou\.xml: cut short at "
+                                          r"line 33.*; give an earlier --begin$"):
+        seeding_time(2900.0, None, span, [path])
+    assert demand_span([path], _edges(grid), route_steps=0).cut.stop == 0.0   # read whole at once
+
+
+def test_a_route_file_cut_short_travels_with_its_vtypes_read(tmp_path, grid):
+    """The scene's readers of the demand (its vTypes) take what SUMO takes of a file cut short."""
+    from sumo_scendiff.sim.export import declared_vtypes
+    path = tmp_path / "cut.rou.xml"
+    path.write_text('<routes><vType id="slow" maxSpeed="5"/><vehicle id="a" depart="0" type="slow">'
+                    '<route edges="A0B0"/></vehicle>\n<vehicle id="b"')
+    assert list(declared_vtypes([str(path)])) == ["slow"]
+    with pytest.raises(DemandError, match="mismatched tag"):      # a flaw that is no cut stays one
+        bad = tmp_path / "bad.rou.xml"
+        bad.write_text('<routes><vehicle id="a" depart="0"><route edges="A0B0"/></routes>')
+        demand_span([str(bad)], _edges(grid))
