@@ -33,6 +33,7 @@ from ..data.shards import SceneStore
 from ..generation.config import GenerationConfig, SettingError
 from ..map.network import Network, NetworkError
 from .baselines import LaneUniform, RandomLogSelection
+from .delivered import scenario_fleet, with_fleet
 from .jsd import FEATURES, evaluate_jsd, vehicle_features
 from .metrics import evaluate_scenes
 
@@ -46,7 +47,8 @@ REAL_CITIES = ("resco_cologne1/cologne1.net.xml", "resco_cologne3/cologne3.net.x
                "ingolstadt_cutmap/Forschungskreuzung_cutmap.net.xml.gz")
 LATER = 120.0   # s: the reference row's delay (longer than a signal cycle: other vehicles, same traffic)
 REFERENCE = "SUMO 2 min later"
-FLOOR = "SUMO, other windows"   # the JSD set's floor: SUMO's traffic in the other half of the windows
+FLOOR = "SUMO, other windows"
+FLEET = ", the scenario's fleet"   # a JSD row of a model's scenes with the vTypes run seeds them as   # the JSD set's floor: SUMO's traffic in the other half of the windows
 JSD_COLUMNS = tuple((f"jsd_{k}", f"JSD {k.replace('_', ' ')}") for k in FEATURES) + (("collision", "collision"),)
 COLUMNS = (("mmd2_position", "MMD² pos"), ("mmd2_heading", "MMD² head"),
            ("mmd2_velocity", "MMD² vel"), ("mmd2_joint", "MMD² joint"),
@@ -190,6 +192,7 @@ def evaluate_net(net: Network, o, pool: SceneStore, models: dict) -> dict:
     tiles = {"Ground truth": [gts[i] for i in shown]}
     from tqdm import tqdm
     methods = [(REFERENCE, lambda gts: later)] + methods_for(net, pool, models, o.seed)
+    fleet = scenario_fleet(net, routes) if models else None
     bar = tqdm(methods, desc=f"evaluating {net.name}", unit="method")
     for name, fn in bar:
         bar.set_postfix_str(name)
@@ -201,6 +204,8 @@ def evaluate_net(net: Network, o, pool: SceneStore, models: dict) -> dict:
         first = first or res
         result["methods"][name] = _row(res)
         jsd[name] = evaluate_jsd(gen[0::2], other, net, reference)
+        if fleet is not None and name.split(" (")[0] in models:   # the sizes SUMO gets, as run seeds them
+            jsd[f"{name}{FLEET}"] = evaluate_jsd(with_fleet(gen[0::2], fleet, net, o.seed), other, net, reference)
         if o.verbose:
             print(f"{net.name}: {name} in {result['seconds'][name]:.1f} s", file=sys.stderr)
     gt = first["gt_only"]
