@@ -48,6 +48,23 @@ def train(*args, runner=(sys.executable, "-m")):
     return res
 
 
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory, cross_net):
+    """A one-scene dataset, a 2-step autoencoder on it and a 1-step diffusion model in its latent
+    space, trained once for the tests that start from them (each writes its own runs beside them in
+    its tmp_path): ``data``, ``common`` (the training flags shared by both), ``ae`` and ``diff`` (their
+    last.pt)."""
+    from types import SimpleNamespace
+    root = tmp_path_factory.mktemp("tiny_run")
+    data = str(root / "data")
+    one_scene_dataset(data, cross_net)
+    common = ["--data", data, "--batch-size", 1, "--no-rotate"]
+    train("autoencoder", *common, "-o", root / "ae", "--steps", 2, "--model-config", json.dumps(TINY_AE))
+    train("diffusion", *common, "--autoencoder", root / "ae" / "last.pt", "-o", root / "d", "--steps", 1,
+          "--model-config", json.dumps(TINY_DIFF))
+    return SimpleNamespace(data=data, common=common, ae=root / "ae" / "last.pt", diff=root / "d" / "last.pt")
+
+
 def test_train_then_sample_finds_the_trained_agent(tmp_path, cross_net):
     data = str(tmp_path / "data")
     scene = one_scene_dataset(data, cross_net)
@@ -118,17 +135,13 @@ def test_sigterm_saves_and_resume_continues(tmp_path, cross_net):
     assert f"resuming at step {step}" in res.stdout
 
 
-def test_fixed_lr_drop_and_weight_average_reach_the_export(tmp_path, cross_net, monkeypatch):
+def test_fixed_lr_drop_and_weight_average_reach_the_export(tmp_path, cross_net, tiny_run, monkeypatch):
     """--lr-drop-at divides the learning rate by ten at that step (and again after a resume); the
     diffusion run keeps an EMA of its weights, which the export ships."""
     import torch
 
     from sumo_scendiff.model import checkpoint as ckpt
-    data = str(tmp_path / "data")
-    one_scene_dataset(data, cross_net)
-    common = ["--data", data, "--batch-size", 1, "--no-rotate"]
-    train("autoencoder", *common, "-o", tmp_path / "ae", "--steps", 2, "--model-config", json.dumps(TINY_AE))
-    diff = [*common, "--autoencoder", tmp_path / "ae" / "last.pt", "-o", tmp_path / "d", "--lr", 1e-3,
+    diff = [*tiny_run.common, "--autoencoder", tiny_run.ae, "-o", tmp_path / "d", "--lr", 1e-3,
             "--lr-drop-at", 3, "--model-config", json.dumps(TINY_DIFF)]
     train("diffusion", *diff, "--steps", 2)
     ck = ckpt.load(str(tmp_path / "d" / "last.pt"), "diffusion-train")
@@ -139,16 +152,15 @@ def test_fixed_lr_drop_and_weight_average_reach_the_export(tmp_path, cross_net, 
     assert ck["ema"].keys() == ck["state"].keys()
     assert any(not torch.equal(ck["ema"][k], ck["state"][k]) for k in ck["state"])
     out = tmp_path / "model.pt"
-    train("export", "--autoencoder", tmp_path / "ae" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
-          "-o", out)
+    train("export", "--autoencoder", tiny_run.ae, "--diffusion", tmp_path / "d" / "last.pt", "-o", out)
     shipped = ckpt.load(str(out), "scenario-diffusion")
     assert shipped["trained"]["diffusion_ema"]
     assert all(torch.equal(shipped["diffusion"][k], ck["ema"][k]) for k in ck["ema"])
     # the calibrated scene guidance travels with the weights; a GenerationConfig value overrides it
     from sumo_scendiff.generation.generator import GenerationConfig, ScenarioGenerator
     assert ScenarioGenerator.load(str(out)).scene_guidance == 1.0
-    train("export", "--autoencoder", tmp_path / "ae" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
-          "-o", out, "--force", "--scene-guidance", 1.7, "--scene-guidance-sigma", 1.0)
+    train("export", "--autoencoder", tiny_run.ae, "--diffusion", tmp_path / "d" / "last.pt", "-o", out,
+          "--force", "--scene-guidance", 1.7, "--scene-guidance-sigma", 1.0)
     gen = ScenarioGenerator.load(str(out))
     assert gen.scene_guidance == pytest.approx(1.7) and gen.scene_guidance_sigma == pytest.approx(1.0)
     net = Network.load(cross_net)
@@ -167,39 +179,23 @@ def test_fixed_lr_drop_and_weight_average_reach_the_export(tmp_path, cross_net, 
     assert torch.equal(e, c)         # guiding no step at all is no guidance
 
 
-def autoencoder_and_diffusion(tmp_path, cross_net, **model) -> tuple[list, object]:
-    """A one-scene dataset, a 2-step autoencoder (tmp_path/ae) and a 1-step diffusion model on it
-    (tmp_path/d), both with ``model`` config fields on top: the training flags shared by both, and
-    the autoencoder's last.pt."""
-    data = str(tmp_path / "data")
-    one_scene_dataset(data, cross_net)
-    common = ["--data", data, "--batch-size", 1, "--no-rotate"]
-    train("autoencoder", *common, "-o", tmp_path / "ae", "--steps", 2,
-          "--model-config", json.dumps({**TINY_AE, **model}))
-    src = tmp_path / "ae" / "last.pt"
-    train("diffusion", *common, "--autoencoder", src, "-o", tmp_path / "d", "--steps", 1,
-          "--model-config", json.dumps({**TINY_DIFF, **model}))
-    return common, src
-
-
-def test_calibrate_writes_the_guidance_weight_into_the_model(tmp_path, cross_net):
+def test_calibrate_writes_the_guidance_weight_into_the_model(tmp_path, tiny_run):
     """train calibrate: map-only generation at each weight, the weight where the agents per window
     meet the ground truth's (to one decimal) rewritten into the exported file — for a model with the
     density condition (the default architecture) as the weight of windows given a density, the
     exported scene guidance kept; bad data: exit 2, the file untouched."""
     from sumo_scendiff.model import checkpoint as ckpt
     from sumo_scendiff.train.calibrate import calibrate
-    _, src = autoencoder_and_diffusion(tmp_path, cross_net)
     model = str(tmp_path / "model.pt")
-    train("export", "--autoencoder", src, "--diffusion", tmp_path / "d" / "last.pt", "-o", model,
+    train("export", "--autoencoder", tiny_run.ae, "--diffusion", tiny_run.diff, "-o", model,
           "--scene-guidance-sigma", 1)
     exported = ckpt.sha256(model)
     exported_guidance = ckpt.load(model, "scenario-diffusion")["scene_guidance"]
-    options = ["--data", tmp_path / "data", "--scenes", 2, "--weights", 1, 2, 3, "--steps", 2, "--turned"]
+    options = ["--data", tiny_run.data, "--scenes", 2, "--weights", 1, 2, 3, "--steps", 2, "--turned"]
     res = train("calibrate", "--model", model, *options)
     ck = ckpt.load(model, "scenario-diffusion")
     # the same calibration in-process (the sampling does not depend on the stored weight)
-    expected = calibrate(model, str(tmp_path / "data"), scenes=2, weights=(1, 2, 3), steps=2, turned=True)
+    expected = calibrate(model, tiny_run.data, scenes=2, weights=(1, 2, 3), steps=2, turned=True)
     assert ck["density_guidance"] == expected.weight == round(ck["density_guidance"], 1)
     assert 1 <= ck["density_guidance"] <= 3 and ck["scene_guidance_sigma"] == 1.0
     assert ck["scene_guidance"] == exported_guidance
@@ -214,14 +210,14 @@ def test_calibrate_writes_the_guidance_weight_into_the_model(tmp_path, cross_net
     assert ckpt.sha256(model) == before
 
 
-def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, cross_net):
+def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, tiny_run):
     """--init-from with --freeze-encoder: the encoder's weights stay bit-identical, the decoder
     trains, the run inherits its source's config (and keeps it when resumed), and a diffusion model
     trained on the source autoencoder exports with the fine-tuned one; without --init-from: exit 2."""
     import torch
 
     from sumo_scendiff.model import checkpoint as ckpt
-    common, src = autoencoder_and_diffusion(tmp_path, cross_net)
+    common, src = tiny_run.common, tiny_run.ae
     weights = json.dumps({"loss": {"category_weights": [1.0, 1.0, 4.0]}})
     fine = [*common, "-o", tmp_path / "dec", "--lr", 1e-2, "--model-config", weights]
     res = train("autoencoder", *fine, "--steps", 3, "--init-from", src, "--freeze-encoder")
@@ -234,7 +230,7 @@ def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, cross_net):
     enc = [k for k in a["state"] if k.startswith("E.")]
     assert enc and all(torch.equal(a["state"][k], b["state"][k]) for k in enc)
     assert any(not torch.equal(a["state"][k], b["state"][k]) for k in a["state"] if k.startswith("D_up."))
-    train("export", "--autoencoder", tmp_path / "dec" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
+    train("export", "--autoencoder", tmp_path / "dec" / "last.pt", "--diffusion", tiny_run.diff,
           "-o", tmp_path / "model.pt")
     assert ckpt.load(str(tmp_path / "model.pt"), "scenario-diffusion")["trained"]["autoencoder_steps"] == 2 + 5
     # the no-map ablation's decoder (configs/nomap.json): the source's config with use_map off
@@ -250,7 +246,7 @@ def test_decoder_only_fine_tune_keeps_the_latent_space(tmp_path, cross_net):
     assert "Traceback" not in bad.stderr and not (tmp_path / "x" / "last.pt").exists()
 
 
-def test_decoder_fine_tune_learns_to_read_the_tokens(tmp_path, cross_net):
+def test_decoder_fine_tune_learns_to_read_the_tokens(tmp_path, cross_net, tiny_run):
     """--freeze-encoder with --p-mislead and --p-counterfactual: the decoder (its token inputs and
     branch among it) is trained with the encoder bit-identical, the run resumes, the export with the
     diffusion model of the source's latent loads, and generation hands the decoder the tokens'
@@ -259,7 +255,7 @@ def test_decoder_fine_tune_learns_to_read_the_tokens(tmp_path, cross_net):
 
     from sumo_scendiff.generation.generator import GenerationConfig, ScenarioGenerator
     from sumo_scendiff.model import checkpoint as ckpt
-    common, src = autoencoder_and_diffusion(tmp_path, cross_net)
+    common, src = tiny_run.common, tiny_run.ae
     train("autoencoder", *common, "-o", tmp_path / "dec", "--steps", 3, "--init-from", src, "--freeze-encoder",
           "--p-keep-all-tokens", 1.0, "--p-mislead", 1.0, "--p-counterfactual", 0.5, "--lr", 0.01)
     a, b = (ckpt.load(str(p), "autoencoder-train") for p in (src, tmp_path / "dec" / "last.pt"))
@@ -269,7 +265,7 @@ def test_decoder_fine_tune_learns_to_read_the_tokens(tmp_path, cross_net):
     res = train("autoencoder", *common, "-o", tmp_path / "dec", "--steps", 4, "--init-from", src, "--freeze-encoder")
     assert "resuming at step 3" in res.stdout
     out = tmp_path / "model.pt"
-    train("export", "--autoencoder", tmp_path / "dec" / "last.pt", "--diffusion", tmp_path / "d" / "last.pt",
+    train("export", "--autoencoder", tmp_path / "dec" / "last.pt", "--diffusion", tiny_run.diff,
           "-o", out)
     gen = ScenarioGenerator.load(str(out), GenerationConfig(steps=2))
     seen = []
@@ -285,16 +281,16 @@ def test_decoder_fine_tune_learns_to_read_the_tokens(tmp_path, cross_net):
         assert not (tmp_path / "x" / "last.pt").exists()
 
 
-def test_fine_tune_the_exported_model(tmp_path, cross_net):
+def test_fine_tune_the_exported_model(tmp_path, tiny_run):
     """An exported model (the shipped weights) is a warm start: its autoencoder serves as --autoencoder,
     its weight average as --init-from, its latent scale carries over, and the fine-tuned run exports
     against it again (at learning rate 0 the weights come back unchanged, the steps add up)."""
     import torch
 
     from sumo_scendiff.model import checkpoint as ckpt
-    common, src = autoencoder_and_diffusion(tmp_path, cross_net)
+    common, src = tiny_run.common, tiny_run.ae
     model = tmp_path / "model.pt"
-    train("export", "--autoencoder", src, "--diffusion", tmp_path / "d" / "last.pt", "-o", model, "--fp16")
+    train("export", "--autoencoder", src, "--diffusion", tiny_run.diff, "-o", model, "--fp16")
     res = train("diffusion", *common, "--autoencoder", model, "--init-from", model, "-o", tmp_path / "ft",
                 "--steps", 2, "--lr", 0.0, "--weight-decay", 0.0, "--model-config", json.dumps(TINY_DIFF))
     assert "warm start from step 1" in res.stdout
