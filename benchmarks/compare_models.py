@@ -37,6 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sumo_scendiff.evaluate.__main__ import FLEET, FLOOR, REAL_CITIES, SHARED_NETS
+
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 PARTS = ("evaluate", "density", "tokens", "turns", "handoff", "fill")
 MODEL = "Scenario Diffusion"
@@ -62,7 +64,6 @@ class Part:
 
 
 def get_options(args=None):
-    from sumo_scendiff.evaluate.__main__ import REAL_CITIES, SHARED_NETS
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("models", nargs=2, metavar="MODEL.pt")
     p.add_argument("--names", nargs=2, default=None, help="column names (default: the files' names)")
@@ -209,8 +210,16 @@ def evaluate_rows(dist: list[dict]) -> dict[str, tuple[float, float | None]]:
                 rows[f"{key}, told the count: cities not below Lane-uniform told it"] = (float(misses), 0.0)
     jsd = [r["jsd"] for r in dist if "jsd" in r]
     for key in (jsd[0][MODEL] if jsd else {}):
-        rows[f"{key} (mean of networks)"] = (_mean(j[MODEL][key] for j in jsd),
-                                              _mean(j["SUMO, other windows"][key] for j in jsd))
+        floor = _mean(j[FLOOR][key] for j in jsd)
+        rows[f"{key} (mean of networks)"] = (_mean(j[MODEL][key] for j in jsd), floor)
+        fleet = [j[MODEL + FLEET][key] for j in jsd if MODEL + FLEET in j]
+        if fleet:   # the cities with a demand: the sizes SUMO's vehicles get from the scenario's vTypes
+            rows[f"{key}, the scenario's fleet (mean of {len(fleet)} networks with a demand)"] = (
+                _mean(fleet), _mean(j[FLOOR][key] for j in jsd if MODEL + FLEET in j))
+        if key != "collision":   # the target: every JSD within 2x SUMO's own floor (the fleet's where run gives it)
+            beyond = sum(j[MODEL + FLEET if MODEL + FLEET in j else MODEL][key] > 2.0 * j[FLOOR][key] + 1e-9
+                         for j in jsd)
+            rows[f"{key}: networks beyond 2× the floor (of {len(jsd)})"] = (float(beyond), 0.0)
     return rows
 
 
