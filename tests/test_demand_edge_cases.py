@@ -97,3 +97,36 @@ def test_a_route_file_cut_short_travels_with_its_vtypes_read(tmp_path, grid):
         bad = tmp_path / "bad.rou.xml"
         bad.write_text('<routes><vehicle id="a" depart="0"><route edges="A0B0"/></routes>')
         demand_span([str(bad)], _edges(grid))
+
+
+@pytest.mark.parametrize("how", [(), ("--demand-estimate",)])   # SUMO's own run to --begin; the estimate
+def test_a_fill_of_a_flow_without_begin_replays_in_stock_sumo(tmp_path, grid, how):
+    """The fill's two starts begin at the fill's time; a flow without begin in their copies keeps
+    the begin stock SUMO loads it with, the configuration's (0 here), whenever the fill's own SUMO
+    started (the tutorial's 'ends before its begin time' otherwise)."""
+    import sys
+    user = tmp_path / "user.rou.xml"
+    text = ('<routes>\n    <flow id="early" end="50" number="5" from="A0B0" to="B0C0"/>\n'
+            '    <flow id="f" number="60" period="4" from="A0B0" to="B0C0"/>\n</routes>\n')
+    user.write_text(text)
+    out = tmp_path / "filled"
+    done = subprocess.run([sys.executable, "-m", "sumo_scendiff.fill", "-n", grid.path, "-r", str(user),
+                           "--begin", "100", "-o", str(out), *how], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    for cfg in ("scenario.sumocfg", "start.sumocfg"):
+        replay = _sumo("-c", str(out / cfg), "--end", "110")
+        assert replay.returncode == 0, (cfg, replay.stderr[-1000:])
+    assert user.read_text() == text
+
+
+def test_the_fill_of_a_route_file_cut_short_warns_and_runs(tmp_path, grid):
+    import sys
+    out = tmp_path / "filled"
+    done = subprocess.run([sys.executable, "-m", "sumo_scendiff.fill", "-n", grid.path, "-r", _cut_file(tmp_path),
+                           "--begin", "300", "-o", str(out)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stderr.count("cut.rou.xml") == 1 and "warning" in done.stderr
+    late = subprocess.run([sys.executable, "-m", "sumo_scendiff.fill", "-n", grid.path, "-r", _cut_file(tmp_path),
+                           "--begin", "2900", "-o", str(tmp_path / "late")], capture_output=True, text=True)
+    assert late.returncode == 2 and "cut.rou.xml" in late.stderr and "Traceback" not in late.stderr
+    assert not (tmp_path / "late").exists()

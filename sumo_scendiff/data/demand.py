@@ -155,6 +155,14 @@ def check_demand(route_files: Sequence[str], edge_ids: set[str], additional: Seq
     return demand_span(route_files, edge_ids, additional, sample)[0]
 
 
+def route_steps_of(options) -> dict:
+    """A scenario's own --route-steps (how far ahead SUMO reads its route files; ``options``: its
+    (name, value) pairs) as :func:`demand_span` takes it: ``{}`` for SUMO's default."""
+    from ..core.sumo_xml import seconds
+    given = seconds(dict(options).get("route-steps"))
+    return {} if given is None else {"route_steps": given}
+
+
 def demand_files(route_files: Sequence[str], additional: Sequence[str] = ()) -> list[str]:
     """The files that hold a scenario's demand: its route files, and the additional files with
     vehicles, trips, flows, persons or containers in them (SUMO loads those as demand too: a game's

@@ -75,7 +75,7 @@ def write_outputs(folder, req, net, gen, scen, demand, cfg, sumo, result, source
                                                             progress)
     t += timing.get("seed", 0.0) + timing.get("inflow", 0.0)
     routes = list(scen.routes)
-    options = write_configurations(folder, cfg, routes, inflow, state_time)
+    options = write_configurations(folder, cfg, routes, inflow, state_time, demand_begin=scen.begin or 0.0)
     # the portable start's box centres where the state has them (a vehicle on a curve departs with
     # its lane's heading, which swings its box about its front)
     # and both starts load in SUMO: a vehicle it refuses is taken out alone (seed.admit_start)
@@ -163,21 +163,25 @@ def _seed_and_save(folder, req, net, demand, cfg, sumo, result, timing, progress
     return agents, ids, exact, state_time, inflow
 
 
-def write_configurations(folder, cfg, routes, inflow: dict, state_time: float, start_last: bool = False) -> dict:
+def write_configurations(folder, cfg, routes, inflow: dict, state_time: float, start_last: bool = False,
+                         demand_begin: float = 0.0) -> dict:
     """scenario.sumocfg (from the saved state) and start.sumocfg (the portable start), the demand
     or the inflow continuing; returns their SUMO options. ``start_last``: start.rou.xml after the
-    demand's files (its vehicles are of the vTypes those define, which SUMO must read first)."""
+    demand's files (its vehicles are of the vTypes those define, which SUMO must read first).
+    ``demand_begin``: the begin stock SUMO loads the user's demand with (their configuration's,
+    else 0), which a flow without begin keeps in the folder's copy."""
     onward = list(routes) + ([os.path.join(folder, inflow["file"])] if inflow.get("file") else [])
     options = cfg.options()
     if inflow.get("max_num_vehicles"):   # the inflow's surplus waits to enter (inflow.SUPPLY), a while
         options["max-num-vehicles"] = str(inflow["max_num_vehicles"])
         options["max-depart-delay"] = f"{inflow['max_depart_delay_s']:g}"
-    # SUMO starts a loaded state at the state's own time (one seeding step after --begin)
-    write_sumocfg(os.path.join(folder, "scenario.sumocfg"), {**options, "b": f"{state_time:g}"},
-                  "state.xml.gz", routes=onward)
+    # SUMO starts a loaded state at the state's own time (one seeding step after --begin); a flow
+    # without begin keeps the begin SUMO loaded the demand with (write_sumocfg's begin)
+    loaded = {**options, "b": f"{demand_begin:g}"}   # the fill's own SUMO may have started later
+    write_sumocfg(os.path.join(folder, "scenario.sumocfg"), loaded, "state.xml.gz", routes=onward, begin=state_time)
     start = [os.path.join(folder, "start.rou.xml")]
-    write_sumocfg(os.path.join(folder, "start.sumocfg"), {**options, "b": f"{state_time:g}"}, None,
-                  routes=onward + start if start_last else start + onward)
+    write_sumocfg(os.path.join(folder, "start.sumocfg"), loaded, None,
+                  routes=onward + start if start_last else start + onward, begin=state_time)
     return options
 
 

@@ -112,7 +112,7 @@ def sumo_start(req, net, scen, begin: float, start: float, folder: str, timing: 
     t = time.perf_counter()
     inflow = {"file": None, "reason": ONWARD}
     options = write_configurations(folder, replace(cfg, routes=()), list(scen.routes), inflow, state_time,
-                                   start_last=True)
+                                   start_last=True, demand_begin=scen.begin or 0.0)
     refitted, refused = admit_start(folder, {PORTABLE_PREFIX + a["vehicle"]: (a["x"], a["y"]) for a in agents},
                                     place_ends(cfg.additional, net))
     refused = {vid.removeprefix(PORTABLE_PREFIX): why for vid, why in refused.items()}
