@@ -13,10 +13,16 @@ pytestmark = pytest.mark.slow   # real runs of the CLIs: the fast tier is -m "no
 CLI = [sys.executable, "-m", "sumo_scendiff.evaluate"]
 
 
-def test_evaluate_prints_the_table_and_json(tmp_path, cross_net):
-    pool = tmp_path / "pool"
+@pytest.fixture(scope="module")
+def pool(tmp_path_factory, cross_net):
+    """Random Log's training pool: 30 scenes recorded on ``cross_net`` by the data CLI, once."""
+    pool = tmp_path_factory.mktemp("eval") / "pool"
     assert subprocess.run([sys.executable, "-m", "sumo_scendiff.data", "-n", cross_net, "-o", str(pool),
                            "--scenes", "30", "-s", "9"], capture_output=True).returncode == 0
+    return pool
+
+
+def test_evaluate_prints_the_table_and_json(tmp_path, cross_net, pool):
     out = tmp_path / "r.json"
     res = subprocess.run(CLI + ["-n", cross_net, "--scenes", "30", "--no-model", "--train-data", str(pool),
                                 "--cache", str(tmp_path / "cache"), "--json", str(out)],
@@ -60,12 +66,10 @@ def test_evaluate_bad_settings_exit_2(tmp_path):
         assert res.returncode == 2 and bad[0] in res.stderr and "Traceback" not in res.stderr
 
 
-def test_evaluate_tokens_prints_the_three_token_tables_with_progress(tmp_path, cross_net):
-    pool = tmp_path / "pool"
-    assert subprocess.run([sys.executable, "-m", "sumo_scendiff.data", "-n", cross_net, "-o", str(pool),
-                           "--scenes", "12", "-s", "9"], capture_output=True).returncode == 0
+def test_evaluate_tokens_prints_the_three_token_tables_with_progress(tmp_path, cross_net, pool):
     out = tmp_path / "r.json"
-    res = subprocess.run(CLI + ["-n", cross_net, "--scenes", "12", "--tokens", "--token-scenes", "4",
+    # the 14 generation runs over --token-scenes windows are the cost: two windows hold four tokens
+    res = subprocess.run(CLI + ["-n", cross_net, "--scenes", "4", "--tokens", "--token-scenes", "2",
                                 "--train-data", str(pool), "--cache", str(tmp_path / "cache"),
                                 "--json", str(out)], capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
