@@ -130,3 +130,28 @@ def test_the_fill_of_a_route_file_cut_short_warns_and_runs(tmp_path, grid):
                            "--begin", "2900", "-o", str(tmp_path / "late")], capture_output=True, text=True)
     assert late.returncode == 2 and "cut.rou.xml" in late.stderr and "Traceback" not in late.stderr
     assert not (tmp_path / "late").exists()
+
+
+def test_a_vehicle_departing_at_begin_does_not_depart_again_in_a_scene(tmp_path, grid):
+    """depart="begin" is the simulation's begin: the scene's copy writes the begin SUMO loaded the demand
+    with, so the vehicle (long arrived, or in the state) does not depart a second time at the scene's."""
+    from sumo_scendiff.sim.export import write_sumocfg
+    user = tmp_path / "user.rou.xml"
+    text = ('<routes>\n    <vehicle id="b" depart="begin"><route edges="A0B0 B0C0"/></vehicle>\n'
+            "    <trip id='t' depart='begin' from='A0B0' to='B0C0'/>\n"
+            '    <vehicle id="late" depart="150"><route edges="A0B0 B0C0"/></vehicle>\n</routes>\n')
+    user.write_text(text)
+    state = tmp_path / "state.xml"
+    assert _sumo("-n", grid.path, "-r", str(user), "--end", "101", "--save-state.times", "100",
+                 "--save-state.files", str(state)).returncode == 0
+    folder = tmp_path / "scene"
+    folder.mkdir()
+    cfg = folder / "scenario.sumocfg"
+    write_sumocfg(str(cfg), {"net-file": grid.path, "route-files": str(user), "b": "0"}, str(state), begin=100.0)
+    trips = tmp_path / "trips.xml"
+    done = _sumo("-c", str(cfg), "--end", "300", "--tripinfo-output", str(trips))
+    assert done.returncode == 0, done.stderr
+    assert [el.get("id") for _, el in elements([str(trips)], ("tripinfo",))] == ["late"]   # b and t drove before
+    copy = gzip.open(folder / "user.rou.xml.gz").read().decode()
+    assert copy == text.replace('depart="begin"', 'depart="0.0"').replace("depart='begin'", "depart='0.0'")
+    assert user.read_text() == text

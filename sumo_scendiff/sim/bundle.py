@@ -5,22 +5,26 @@ folder (SUMO reads ``.gz`` inputs). A file is compressed once per process and ha
 further folder on the same file system, so a run of many scenes costs the disk one copy. The files a
 route or additional file reads (``<include href>``, a rerouter's or variable speed sign's ``file``, relative
 to it) travel beside it as they are. A flow without ``begin`` departs from the simulation's begin (SUMO's
-``parseFlowAttributes``), which a scene's configuration moves to the scene's time: its copy writes the
-begin SUMO gave it when the demand was loaded, and nothing else of the file changes.
+``parseFlowAttributes``), and a vehicle's ``depart="begin"`` is the simulation's begin, which a
+scene's configuration moves to the scene's time: the copy writes the begin SUMO gave them when the
+demand was loaded, and nothing else of the file changes.
 """
 from __future__ import annotations
 
 import gzip
 import io
 import os
+import re
 import shutil
 import tempfile
 from xml.parsers import expat
 
 _cache: dict[tuple, str] = {}
 _hrefs: dict[tuple[str, float, int], list[str]] = {}
-_beginless_at: dict[tuple[str, float, int], list[int]] = {}
+_beginless_at: dict[tuple[str, float, int], list[tuple[int, str]]] = {}
 _tmp: tempfile.TemporaryDirectory | None = None
+DEPARTING = ("vehicle", "trip", "person", "container")   # what departs at its ``depart``
+_DEPART = re.compile(rb"""depart\s*=\s*(["'])begin\1""")
 
 
 def _compressed(src: str, flow_begin: float | None = None) -> str:
@@ -42,10 +46,12 @@ def _compressed(src: str, flow_begin: float | None = None) -> str:
     return _cache[key]
 
 
-def _beginless(src: str) -> list[int]:
-    """Where each flow (vehicles, persons, containers; not a calibrator's) of ``src`` without
-    ``begin`` ends its name: the byte offsets, in the file as read (gunzipped), to write one at;
-    read once per process."""
+def _beginless(src: str) -> list[tuple[int, str]]:
+    """What a copy of ``src`` gives the begin SUMO loaded it with: each flow (vehicles, persons,
+    containers; not a calibrator's) without ``begin`` (where its name ends, ``"begin"``: one is written
+    there) and each vehicle, trip, person or container departing at ``"begin"`` (where its tag starts,
+    ``"depart"``: the value is written in its place; a state loaded later would see it depart again at
+    the new begin). Byte offsets in the file as read (gunzipped), read once per process."""
     from ..core.sumo_xml import FLOWS, NOT_DEMAND_PARENTS, open_xml
     key = _key(src)
     if key in _beginless_at:
@@ -53,8 +59,11 @@ def _beginless(src: str) -> list[int]:
     parser, found, stack = expat.ParserCreate(), [], []
 
     def start(name, attrs):
-        if name in FLOWS and "begin" not in attrs and not (stack and stack[-1] in NOT_DEMAND_PARENTS):
-            found.append(parser.CurrentByteIndex + 1 + len(name))
+        if not (stack and stack[-1] in NOT_DEMAND_PARENTS):
+            if name in FLOWS and "begin" not in attrs:
+                found.append((parser.CurrentByteIndex + 1 + len(name), "begin"))
+            elif name in DEPARTING and attrs.get("depart") == "begin":
+                found.append((parser.CurrentByteIndex, "depart"))
         stack.append(name)
     parser.StartElementHandler, parser.EndElementHandler = start, lambda name: stack.pop()
     with open_xml(src) as f:
@@ -66,16 +75,27 @@ def _beginless(src: str) -> list[int]:
     return found
 
 
-def _copy(src: str, out, inserts: list[int], flow_begin: float | None) -> None:
-    """``src`` (gunzipped) into the file object ``out``, `` begin="flow_begin"`` written at each of ``inserts``."""
+def _copy(src: str, out, edits: list[tuple[int, str]], flow_begin: float | None) -> None:
+    """``src`` (gunzipped) into the file object ``out``, with :func:`_beginless`'s ``edits`` made:
+    `` begin="flow_begin"`` written into a flow, a ``depart="begin"`` given ``flow_begin``'s value."""
     from ..core.sumo_xml import open_xml
-    attr = f' begin="{flow_begin!r}"'.encode() if inserts else b""
+    value = repr(flow_begin).encode()
     done = 0
     with open_xml(src) as f:
-        for at in inserts:
+        for at, kind in edits:
             out.write(f.read(at - done))
-            out.write(attr)
             done = at
+            if kind == "begin":
+                out.write(b' begin="' + value + b'"')
+                continue
+            tag = b""
+            while not tag.endswith(b">"):   # the start tag (SUMO's files hold no ">" in a value)
+                c = f.read(1)
+                if not c:
+                    break
+                tag += c
+            done += len(tag)
+            out.write(_DEPART.sub(lambda m: b"depart=" + m.group(1) + value + m.group(1), tag, count=1))
         shutil.copyfileobj(f, out)
 
 
