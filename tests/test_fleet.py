@@ -159,6 +159,27 @@ def test_before_any_vehicle_departs_the_mix_is_the_route_files(cross_net, tmp_pa
     assert fleet.share == pytest.approx({"car": 50 / 75, "lorry": 25 / 75})
 
 
+def test_a_vehicle_with_its_own_copy_of_a_type_counts_as_that_type(cross_net, tmp_path):
+    """A host vehicle whose type parameters were set on it (SUMO's singular type ``car@v``, e.g. the
+    user's TraCI) is one of the demand's cars in the mix, not a type of its own that leaves with it."""
+    import libsumo as sim
+    (tmp_path / "d.rou.xml").write_text(
+        '<routes><vType id="car" length="4.3"/><vType id="lorry" vClass="truck" length="9"/>'
+        '<flow id="a" type="car" begin="0" end="100" period="2" from="wc" to="ce"/>'
+        '<flow id="b" type="lorry" begin="0" end="100" period="2" from="sc" to="cn"/></routes>')
+    sim.start(["sumo", "-n", cross_net, "-r", str(tmp_path / "d.rou.xml"), "--no-step-log", "--no-warnings"])
+    try:
+        for _ in range(10):
+            sim.simulationStep()
+        for v in sim.vehicle.getIDList():
+            sim.vehicle.setMaxSpeed(v, 10.0)   # a parameter of the type, set on each vehicle
+        assert all("@" in sim.vehicle.getTypeID(v) for v in sim.vehicle.getIDList())
+        fleet = Fleet.read(sim)
+    finally:
+        sim.close()
+    assert set(fleet.share) == {"car", "lorry"}
+
+
 @pytest.mark.slow
 def test_run_seeds_the_scenarios_vtypes_and_names_an_unknown_one(scenario, tmp_path, capsys):
     from sumo_scendiff import run as run_cli

@@ -168,7 +168,7 @@ class Fleet:
         routes, additional = _sim_files(sim) if files is None else (list(files), [])
         dists = vtype_distributions(routes + additional)
         if mix is None:
-            mix = Counter(sim.vehicle.getTypeID(v) for v in sim.vehicle.getIDList()
+            mix = Counter(scenario_type(sim.vehicle.getTypeID(v), v) for v in sim.vehicle.getIDList()
                           if not (exclude and v.startswith(exclude)))
         if not mix:
             mix = file_mix(routes, dists)
@@ -296,6 +296,13 @@ class Fleet:
         w = np.asarray(weight, np.float64)[near]
         w = w / w.sum() if w.sum() > 0 else np.full(len(near), 1.0 / len(near))
         return names[int(near[rng.choice(len(near), p=w)])]
+
+
+def scenario_type(type_id: str, vehicle: str) -> str:
+    """The scenario's vType a vehicle is of: its own copy's (``{type}@{vehicle}``, SUMO's singular type of
+    a vehicle whose type parameters were set on the vehicle, by the user's TraCI or the seeder) parent."""
+    suffix = f"@{vehicle}"
+    return type_id[: -len(suffix)] if type_id.endswith(suffix) else type_id
 
 
 def _expand(mix: Mapping[str, float], dists: Mapping[str, Mapping[str, float]]) -> Counter:
