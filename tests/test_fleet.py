@@ -123,6 +123,19 @@ def test_a_bare_network_keeps_the_drawn_boxes(scenario, cross_scene):
     assert got[2][:2] == pytest.approx(("passenger", 5.1)) and got[0][1] == pytest.approx(4.6)
 
 
+def _fleet_of(cross_net, tmp_path, routes: str, before=None, **read) -> Fleet:
+    """The fleet of SUMO on the crossing with ``routes`` (a route file's text), after ``before(sim)``."""
+    import libsumo as sim
+    (tmp_path / "d.rou.xml").write_text(routes)
+    sim.start(["sumo", "-n", cross_net, "-r", str(tmp_path / "d.rou.xml"), "--no-step-log", "--no-warnings"])
+    try:
+        if before is not None:
+            before(sim)
+        return Fleet.read(sim, **read)
+    finally:
+        sim.close()
+
+
 def test_a_distribution_is_shared_by_its_probabilities(cross_net, tmp_path):
     """A demand of one vTypeDistribution: the mix is its members', by their probabilities."""
     import libsumo as sim
@@ -143,40 +156,29 @@ def test_a_distribution_is_shared_by_its_probabilities(cross_net, tmp_path):
 def test_before_any_vehicle_departs_the_mix_is_the_route_files(cross_net, tmp_path):
     """No vehicle present yet: the mix is what the route files depart (flows by their number,
     period, rate), a distribution's by its probabilities; bicycles do not count."""
-    import libsumo as sim
-    (tmp_path / "d.rou.xml").write_text(
+    fleet = _fleet_of(cross_net, tmp_path,
         '<routes><vType id="car" length="4.3"/><vType id="lorry" vClass="truck" length="9"/>'
         '<vType id="bike" vClass="bicycle"/>'
         '<vTypeDistribution id="mix" vTypes="car lorry" probabilities="1 1"/>'
         '<flow id="a" type="car" begin="50" end="150" period="4" from="wc" to="ce"/>'
         '<flow id="b" type="mix" begin="50" end="3650" vehsPerHour="50" from="wc" to="ce"/>'
         '<flow id="c" type="bike" begin="50" end="150" period="1" from="wc" to="ce"/></routes>')
-    sim.start(["sumo", "-n", cross_net, "-r", str(tmp_path / "d.rou.xml"), "--no-step-log", "--no-warnings"])
-    try:
-        fleet = Fleet.read(sim)
-    finally:
-        sim.close()
     assert fleet.share == pytest.approx({"car": 50 / 75, "lorry": 25 / 75})
 
 
 def test_a_vehicle_with_its_own_copy_of_a_type_counts_as_that_type(cross_net, tmp_path):
     """A host vehicle whose type parameters were set on it (SUMO's singular type ``car@v``, e.g. the
     user's TraCI) is one of the demand's cars in the mix, not a type of its own that leaves with it."""
-    import libsumo as sim
-    (tmp_path / "d.rou.xml").write_text(
-        '<routes><vType id="car" length="4.3"/><vType id="lorry" vClass="truck" length="9"/>'
-        '<flow id="a" type="car" begin="0" end="100" period="2" from="wc" to="ce"/>'
-        '<flow id="b" type="lorry" begin="0" end="100" period="2" from="sc" to="cn"/></routes>')
-    sim.start(["sumo", "-n", cross_net, "-r", str(tmp_path / "d.rou.xml"), "--no-step-log", "--no-warnings"])
-    try:
+    def own_copies(sim):
         for _ in range(10):
             sim.simulationStep()
         for v in sim.vehicle.getIDList():
             sim.vehicle.setMaxSpeed(v, 10.0)   # a parameter of the type, set on each vehicle
         assert all("@" in sim.vehicle.getTypeID(v) for v in sim.vehicle.getIDList())
-        fleet = Fleet.read(sim)
-    finally:
-        sim.close()
+    fleet = _fleet_of(cross_net, tmp_path,
+        '<routes><vType id="car" length="4.3"/><vType id="lorry" vClass="truck" length="9"/>'
+        '<flow id="a" type="car" begin="0" end="100" period="2" from="wc" to="ce"/>'
+        '<flow id="b" type="lorry" begin="0" end="100" period="2" from="sc" to="cn"/></routes>', own_copies)
     assert set(fleet.share) == {"car", "lorry"}
 
 
