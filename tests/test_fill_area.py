@@ -40,14 +40,18 @@ def test_a_side_on_the_boundary_reaches_the_outer_lanes_and_an_inner_side_stays(
 
 
 @pytest.mark.slow
-def test_a_fill_of_the_boundary_drops_no_vehicle_of_the_outer_streets(grid):
+@pytest.mark.parametrize("start", [[], ["--demand-estimate"]], ids=["sumo", "estimate"])
+def test_a_fill_of_the_boundary_drops_no_vehicle_of_the_outer_streets(grid, start):
+    """Both starts: SUMO's own run (what it has in the area) and the estimate."""
     from sumo_scendiff.fill.__main__ import get_options, main
-    out = grid / "o"
+    out = grid / f"o{len(start)}"
     assert main(get_options(["-c", str(grid / "ring.sumocfg"), "--begin", "150", "--area", "0,0,200,200",
-                             "-o", str(out)])) == 0
+                             "-o", str(out), *start])) == 0
     doc = json.loads((out / "fill.json").read_text())
     vehicles = doc["density"]["vehicles"]
-    assert vehicles["outside"] == 0 and vehicles["placed"] > 10
+    kept = vehicles["in_area"] if not start else vehicles["placed"]
+    assert vehicles["outside"] == 0 and kept > 10
+    assert (doc["density"].get("start") == "sumo") == (not start)
     xy = [(a["x"], a["y"]) for a in doc["agents"]]
     # kept on the outer streets, centres beyond the boundary: the lanes at -1.6 and 201.6
     assert sum(min(x, y) < 0 or max(x, y) > 200 for x, y in xy) > 5

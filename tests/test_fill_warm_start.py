@@ -71,8 +71,93 @@ def test_the_estimate_is_kept_as_an_option():
     assert FillRequest(routes=("r.rou.xml",)).sumo_start
     assert not FillRequest(routes=("r.rou.xml",), demand_estimate=True).sumo_start
     # a level of its own, or the model placing the demand: the model's fill
-    for other in ({"density": 20.0}, {"edge_data": "e.xml"}, {"demand_level_only": True}, {"area": (0, 0, 9, 9)}):
+    for other in ({"density": 20.0}, {"edge_data": "e.xml"}, {"demand_level_only": True}):
         assert not FillRequest(routes=("r.rou.xml",), **other).sumo_start
+    # an area keeps what SUMO's own run has inside it; the estimate only when asked
+    assert FillRequest(routes=("r.rou.xml",), area=(0, 0, 9, 9)).sumo_start
+    assert not FillRequest(routes=("r.rou.xml",), area=(0, 0, 9, 9), demand_estimate=True).sumo_start
+
+
+# a part of the crossing: the centre, most of the west and south arms, the start of the north and east
+AREA = (-120.0, -120.0, 40.0, 40.0)
+# a person walking the west-east road: at 200 s the early one is past the area, the later one in it
+PERSONS = ('<routes><person id="p_early" depart="0"><walk edges="wc ce"/></person>'
+           '<person id="p_late" depart="120"><walk edges="wc ce"/></person></routes>')
+
+
+def _own_at(net: str, routes: tuple[str, ...], until: float) -> tuple[dict, dict, int]:
+    """Stock SUMO stepped to ``until``: per vehicle its box centre, per person its position, and the
+    vehicles departing in the step after it."""
+    from sumo_scendiff.core.geometry import sumo_to_pose
+    from sumo_scendiff.sim.sumo import SimConfig, close, start
+    sim = start(SimConfig(net=net, routes=routes, step_length=1.0, begin=0.0, seeding_options=False))
+    try:
+        while sim.simulation.getTime() < until - 1e-9:
+            sim.simulationStep()
+        v = sim.vehicle
+        cars = {vid: sumo_to_pose(*v.getPosition(vid), v.getAngle(vid), v.getLength(vid))[:2] for vid in v.getIDList()}
+        persons = {pid: sim.person.getPosition(pid) for pid in sim.person.getIDList()}
+        sim.simulationStep()
+        return cars, persons, len(sim.simulation.getDepartedIDList())
+    finally:
+        close(sim)
+
+
+def _first_step(folder: str, cfg: str, tmp_path) -> int:
+    """Stock sumo on the folder's ``cfg`` for a few steps: the vehicles running at its first step."""
+    import xml.etree.ElementTree as ET
+
+    from sumo_scendiff.core.tools import sumo_binary
+    summary = tmp_path / f"{cfg}.summary.xml"
+    run = subprocess.run([sumo_binary(), "-c", os.path.join(folder, cfg), "--end", "205", "--no-step-log", "true",
+                          "--summary-output", str(summary)], capture_output=True, text=True)
+    assert run.returncode == 0 and "rror" not in run.stderr, run.stderr[-400:]
+    return int(next(ET.parse(summary).getroot().iter("step")).get("running"))
+
+
+def _state_vehicles(folder: str, at: float) -> set[str]:
+    """The vehicles of the folder's state, loaded in SUMO."""
+    from sumo_scendiff.sim.sumo import SimConfig, close, start
+    with open(os.path.join(folder, "fill.json")) as f:
+        net = json.load(f)["network"]
+    sim = start(SimConfig(net=net, begin=at, step_length=1.0, seeding_options=False,
+                          extra=("--load-state", os.path.join(folder, "state.xml.gz"))))
+    try:
+        return set(sim.vehicle.getIDList())
+    finally:
+        close(sim)
+
+
+def test_an_area_keeps_sumos_own_vehicles_inside_it(scenario, tmp_path):
+    """--area with a demand: SUMO's own run to --begin, the vehicles whose box centre lies outside the
+    area (and the persons there) taken out; the rest exactly SUMO's, both starts replaying them."""
+    from sumo_scendiff.fill.api import fill
+    from sumo_scendiff.fill.tiles import in_area
+    net, routes = scenario
+    walks = tmp_path / "walks.rou.xml"
+    walks.write_text(PERSONS)
+    demand = (routes, str(walks))
+    done = fill(net, None, AREA, routes=demand, begin=200.0, out=str(tmp_path / "part"), step_length=1.0)
+    cars, persons, departing = _own_at(net, demand, 200.0)
+    inside = {vid for vid, xy in cars.items() if in_area([xy], AREA)[0]}
+    assert 2 < len(inside) < len(cars) - 2           # the area cuts the crossing's traffic
+    doc = done.doc
+    assert doc["density"]["start"] == "sumo" and doc["area"] == list(AREA)
+    assert {a["vehicle"] for a in doc["agents"]} == inside
+    for a in doc["agents"]:
+        assert (a["x"], a["y"]) == pytest.approx(cars[a["vehicle"]], abs=0.01)
+    counts = doc["density"]["vehicles"]
+    assert (counts["on_network"], counts["in_area"], counts["outside"]) == (len(cars), len(inside),
+                                                                           len(cars) - len(inside))
+    assert doc["summary"]["vehicles"] == doc["summary"]["kept"] == len(inside)
+    walking_in = sum(bool(in_area([xy], AREA)[0]) for xy in persons.values())
+    assert len(persons) == 2 and walking_in == 1
+    assert doc["density"]["vehicles"]["persons"] == {"on_network": 2, "in_area": 1, "outside": 1}
+    assert _state_vehicles(done.folder, doc["state_time"]) == inside
+    for cfg in ("scenario.sumocfg", "start.sumocfg"):    # both starts: the area's vehicles and the demand's next
+        assert _first_step(done.folder, cfg, tmp_path) == len(inside) + departing, cfg
+    with open(os.path.join(done.folder, "start.rou.xml")) as f:
+        assert f.read().count("<vehicle ") == len(inside)
 
 
 def test_the_cli_writes_it(scenario, tmp_path, capsys):

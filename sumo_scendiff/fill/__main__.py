@@ -42,7 +42,8 @@ def _parser():
                    help="the time of the filled start (s, or clock time HH:MM:SS as SUMO reads it); with "
                         "demand default: its first departure + 600, and it must lie within the demand's "
                         "departures")
-    p.add_argument("--area", metavar="X0,Y0,X1,Y1", help="fill only this rectangle (network coordinates)")
+    p.add_argument("--area", metavar="X0,Y0,X1,Y1", help="fill only this rectangle (network coordinates; with demand: "
+                   "the vehicles of SUMO's own run whose centre lies in it)")
     p.add_argument("--stride", type=float, default=75.0, help="metres between tile centres (default 75)")
     amount = p.add_mutually_exclusive_group()
     amount.add_argument("--density", metavar="D", help="vehicles per km of car lane (needs a model with "
@@ -185,6 +186,10 @@ def _report(o, doc: dict) -> None:
     workers = (doc.get("workers") or {}).get("count")
     print("timing (s): " + ", ".join(f"{k} {v:.1f}" for k, v in doc["timing_s"].items())
           + (f" ({workers} worker{'s' if workers > 1 else ''})" if workers else ""))
+    inside = doc["density"].get("vehicles", {}).get("in_area") if doc["density"].get("start") == "sumo" else None
+    if inside is not None:
+        print(f"--area: {inside} of the {doc['density']['en_route']} vehicles SUMO has on the network at "
+              f"{doc['begin']:g} s lie in it (box centre), the others taken out of the start")
     if doc["density"]["kind"] == "demand" and not doc["density"].get("en_route"):
         print(f"warning: no vehicle of the demand is en route at {doc['begin']:g} s (persons and containers "
               f"are not seeded; fill.json's density.departed counts what departed before)", file=sys.stderr)

@@ -66,9 +66,10 @@ class FillRequest:
 
     @property
     def sumo_start(self) -> bool:
-        """Whether the start is SUMO's own run of the demand (given one: fill/warm_start.py)."""
+        """Whether the start is SUMO's own run of the demand (given one: fill/warm_start.py); with an
+        area, what that run has inside it."""
         return not (self.demand_estimate or self.density is not None or self.edge_data
-                    or self.demand_level_only or self.area is not None)
+                    or self.demand_level_only)
 
 
 @dataclass
@@ -163,13 +164,13 @@ def fill_into(req: FillRequest, folder: str) -> dict:
     if isinstance(prep, dict):          # nothing to fill: fill.json says why
         return prep
     net, gen, scen, tiles, begin, demand = prep
+    from dataclasses import replace
+    from .tiles import whole_area
+    req = replace(req, area=whole_area(net, req.area))    # as the tiles were laid (tiles.whole_area)
     if gen is None:     # SUMO's own start: no model
         from .warm_start import sumo_start
         return sumo_start(req, net, scen, begin[0], begin[1], folder, {"load": time.perf_counter() - t})
     begin = begin[0]
-    from dataclasses import replace
-    from .tiles import whole_area
-    req = replace(req, area=whole_area(net, req.area))    # as the tiles were laid (tiles.whole_area)
     workers = req.workers or default_workers()
     cfg = _sim_config(req, scen, begin)
     from .output import seeding_sumo, write_outputs
@@ -224,6 +225,7 @@ def prepare(req: FillRequest, folder: str):
                         "additional files holding vehicles)")
     begin = _begin(req, net, scen, demand)
     if demand and req.sumo_start:
+        _area_has_road(req, net)
         return net, None, scen, None, begin, demand       # SUMO's own run: no model, no torch
     tiles = _tiles(req, net)
     from ..core.threads import GENERATION_THREADS, share_cpu
@@ -265,9 +267,22 @@ def _tiles(req: FillRequest, net) -> list:
     except TileError as e:
         raise FillError(str(e)) from None
     if not tiles:
-        raise FillError(f"--area: no car lane inside {','.join(f'{v:g}' for v in req.area)} (the network's "
-                        f"car lanes span {','.join(f'{v:.0f}' for v in net.bounds)})")
+        _no_road(req, net)
     return tiles
+
+
+def _area_has_road(req: FillRequest, net) -> None:
+    """Raises FillError where ``req.area`` holds no car lane (SUMO's own start keeps nothing there)."""
+    import shapely
+
+    from .tiles import whole_area
+    if req.area is not None and net.car_lane_km_in(shapely.box(*whole_area(net, req.area))) <= 0:
+        _no_road(req, net)
+
+
+def _no_road(req: FillRequest, net):
+    raise FillError(f"--area: no car lane inside {','.join(f'{v:g}' for v in req.area)} (the network's "
+                    f"car lanes span {','.join(f'{v:.0f}' for v in net.bounds)})")
 
 
 def _sim_config(req: FillRequest, scen, begin: float):

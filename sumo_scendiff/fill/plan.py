@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .tiles import Accepted, Tile, colours, keep_core, known_share, pins_for, scene_rows
+from .tiles import Accepted, Tile, colours, in_area, keep_core, known_share, pins_for, scene_rows
 
 TILES_PER_TASK = 16  # tiles per model call at most: a worker's share of a colour, and the bar's step
 TASKS_PER_COLOUR = 4  # a colour's model calls at least (where it has the tiles): two workers share them
@@ -150,10 +150,7 @@ def demand_tiles(tiles: list[Tile], placed: list, area: tuple | None = None) -> 
     if not placed:
         return out
     xy = np.array([[p.x, p.y] for p in placed])
-    inside = np.ones(len(placed), bool)
-    if area is not None:
-        x0, y0, x1, y1 = area
-        inside = (xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)
+    inside = in_area(xy, area)
     for t in tiles:
         for k in np.flatnonzero(t.in_core(xy) & inside):
             if out[k] is None:

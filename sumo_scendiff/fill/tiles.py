@@ -83,6 +83,16 @@ def whole_area(net, area: tuple | None) -> tuple | None:
             max(x1, lx1) if x1 >= bx1 - AT_BOUNDARY else x1, max(y1, ly1) if y1 >= by1 - AT_BOUNDARY else y1)
 
 
+def in_area(xy: np.ndarray, area: tuple | None) -> np.ndarray:
+    """Per point (x, y: a vehicle's box centre) whether it lies in ``area`` (X0, Y0, X1, Y1, its sides
+    included; None: everywhere): the one rule of the fill's "in the area"."""
+    xy = np.asarray(xy, np.float64).reshape(-1, 2)
+    if area is None:
+        return np.ones(len(xy), bool)
+    x0, y0, x1, y1 = area
+    return (xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)
+
+
 def tile_grid(net, area: tuple | None = None, stride: float = 75.0, size: float = 100.0) -> list[Tile]:
     """The tiles whose core holds car lane (inside ``area`` when given), in row-major order."""
     if not (0 < stride <= size and 2 * stride >= size):
@@ -185,10 +195,7 @@ def keep_core(tile: Tile, scene, accepted: Accepted, area: tuple | None = None) 
     overlapping no vehicle kept before. Pinned neighbours the model redrew lie in their owners'
     cores, so they are never kept twice."""
     rows = scene_rows(scene)
-    ok = tile.in_core(rows[:, :2]) if len(rows) else np.zeros(0, bool)
-    if area is not None and len(rows):
-        x0, y0, x1, y1 = area
-        ok &= (rows[:, 0] >= x0) & (rows[:, 0] <= x1) & (rows[:, 1] >= y0) & (rows[:, 1] <= y1)
+    ok = tile.in_core(rows[:, :2]) & in_area(rows[:, :2], area) if len(rows) else np.zeros(0, bool)
     idx = np.flatnonzero(ok)
     return idx[~accepted.overlapping(rows[idx])]
 
@@ -199,6 +206,7 @@ __all__ = [
     "TileError",
     "car_bounds",
     "colours",
+    "in_area",
     "keep_core",
     "known_share",
     "parse_area",

@@ -18,10 +18,14 @@ import time
 from dataclasses import replace
 
 import numpy as np
+import shapely
 
 METHOD = ("the scenario run by SUMO from its start to --begin (sim/warmup.py: its own step length and options, "
           "one simulationStep; the state kept under ~/.cache/sumo-scendiff/states for the next time), every "
           "vehicle on the network at --begin")
+AREA_METHOD = ("with --area, SUMO's vehicles whose box centre lies in the rectangle (its sides included), the "
+               "rest and the persons outside it (a rider with its vehicle) taken out of SUMO before the state "
+               "and the portable start are written; the vehicles waiting to enter stay (the demand goes on)")
 
 
 def _agents(sim, ids: list[str]) -> list[dict]:
@@ -39,9 +43,35 @@ def _agents(sim, ids: list[str]) -> list[dict]:
     return out
 
 
+def _keep_area(sim, agents: list[dict], area: tuple | None) -> tuple[list[dict], dict | None]:
+    """The agents whose box centre lies in ``area`` (tiles.in_area, the estimate's rule too); every
+    other vehicle, and every person outside it, taken out of ``sim`` before its state is saved (TraCI
+    has no container domain: a container leaves only with its vehicle). Returns (the agents kept,
+    fill.json's record of what SUMO had and what was kept; None without an area)."""
+    if area is None:
+        return agents, None
+    from .tiles import in_area
+    inside = in_area([(a["x"], a["y"]) for a in agents], area)
+    persons = list(sim.person.getIDList())
+    # a rider goes with its vehicle (SUMO takes it out with it); one walking or waiting by its position
+    for pid in persons:
+        if not sim.person.getVehicle(pid) and not in_area([sim.person.getPosition(pid)], area)[0]:
+            sim.person.remove(pid)
+    for a, keep in zip(agents, inside):
+        if not keep:
+            sim.vehicle.remove(a["vehicle"])
+    kept = [a for a, keep in zip(agents, inside) if keep]
+    record = {"on_network": len(agents), "in_area": len(kept), "outside": len(agents) - len(kept),
+              "method": AREA_METHOD}
+    if persons:
+        after = len(sim.person.getIDList())
+        record["persons"] = {"on_network": len(persons), "in_area": after, "outside": len(persons) - after}
+    return kept, record
+
+
 def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
-    """SUMO at ``begin``; its state, the portable start's routes. Returns (cfg, agents, exact, state time,
-    vehicles waiting to enter)."""
+    """SUMO at ``begin``, only what lies in ``req.area`` kept; its state, the portable start's routes.
+    Returns (cfg, agents, exact, state time, vehicles waiting to enter, the area's record)."""
     from ..sim.state import save_state
     from ..sim.sumo import SimConfig, close, settings
     from ..sim.warmup import start_warm
@@ -52,8 +82,8 @@ def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
     sim = start_warm(cfg, begin, quiet=not req.verbose)
     try:
         timing["warm_up"] = time.perf_counter() - t
-        ids = list(sim.vehicle.getIDList())
-        agents = _agents(sim, ids)
+        agents, area = _keep_area(sim, _agents(sim, list(sim.vehicle.getIDList())), req.area)
+        ids = [a["vehicle"] for a in agents]
         state = os.path.join(folder, "state.xml.gz")
         save_state(sim, state)
         state_time = float(sim.simulation.getTime())
@@ -65,7 +95,7 @@ def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
         waiting = len(sim.simulation.getPendingVehicles())
     finally:
         close(sim)
-    return cfg, agents, exact, state_time, waiting
+    return cfg, agents, exact, state_time, waiting, area
 
 
 # the portable start's vehicles are named so: SUMO numbers a flow's vehicles from 0 again when it
@@ -108,7 +138,7 @@ def sumo_start(req, net, scen, begin: float, start: float, folder: str, timing: 
     from .output import FORMAT, ONWARD, VERSION, summary, write_configurations
     from .picture import draw_fill
     from .seed import admit_start, refuse_at_load
-    cfg, agents, exact, state_time, waiting = _run(req, net, scen, begin, start, folder, timing)
+    cfg, agents, exact, state_time, waiting, area = _run(req, net, scen, begin, start, folder, timing)
     t = time.perf_counter()
     inflow = {"file": None, "reason": ONWARD}
     options = write_configurations(folder, replace(cfg, routes=()), list(scen.routes), inflow, state_time,
@@ -120,15 +150,20 @@ def sumo_start(req, net, scen, begin: float, start: float, folder: str, timing: 
     seeded = [a for a in agents if a["vehicle"] is not None]
     rows = np.array([[a[k] for k in ("x", "y", "heading", "length", "width", "speed")] for a in seeded]
                     ).reshape(-1, 6)
-    km = net.car_lane_km_in(_bounds_box(net))
+    km = net.car_lane_km_in(_bounds_box(net) if req.area is None else shapely.box(*req.area))
     draw_fill(os.path.join(folder, "fill.png"), net, rows, [],
-              f"{net.name}: {len(seeded)} vehicles, SUMO's own run to {state_time:g} s")
+              f"{net.name}: {len(seeded)} vehicles, SUMO's own run to {state_time:g} s"
+              + ("" if req.area is None else " (in the area)"))
     timing["export"] = time.perf_counter() - t
-    source = {"kind": "demand", "start": "sumo", "time": begin, "en_route": len(agents),
+    source = {"kind": "demand", "start": "sumo", "time": begin,
+              "en_route": len(agents) if area is None else area["on_network"],
               "waiting_to_enter": waiting, "applied": True, "method": METHOD}
+    if area is not None:
+        source["vehicles"] = area
     doc = {"format": FORMAT, "version": VERSION, "network": os.path.abspath(scen.net),
            "configuration": scen.config, "routes": [os.path.abspath(r) for r in scen.routes],
-           "begin": begin, "state_time": state_time, "seed": req.seed, "area": None, "stride": None,
+           "begin": begin, "state_time": state_time, "seed": req.seed,
+           "area": None if req.area is None else [float(v) for v in req.area], "stride": None,
            "portable_ids": f"{PORTABLE_PREFIX}<vehicle> in start.rou.xml",
            "density": source, "sumo_options": options, "inflow": inflow, "fleet": "scenario",
            "summary": summary(net, agents, seeded, rows, km, 0, exact, refused, refitted),
@@ -141,7 +176,6 @@ def sumo_start(req, net, scen, begin: float, start: float, folder: str, timing: 
 
 
 def _bounds_box(net):
-    import shapely
     from .tiles import car_bounds
     x0, y0, x1, y1 = car_bounds(net)
     return shapely.box(x0 - 1.0, y0 - 1.0, x1 + 1.0, y1 + 1.0)
