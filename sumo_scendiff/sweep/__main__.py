@@ -87,14 +87,17 @@ def prepare_out(o, spec, scenarios) -> list:
 
 
 def check_networks(source: str, spec, scenarios) -> None:
-    """Each network entry a scenario uses, loaded once by stock SUMO with its demand (sim/preflight.py)
-    before any work: a scenario SUMO refuses stops the sweep in one line, not every worker."""
+    """Each network entry a scenario uses, read as run reads its inputs (``Spec.scenario_of``) and
+    loaded once by stock SUMO with its demand (sim/preflight.py) before any work: a scenario SUMO
+    refuses stops the sweep in one line, not every worker."""
     from ..sim.preflight import preflight
-    from ..sim.scenario import ScenarioError, scenario_from_files
+    from ..sim.scenario import ScenarioError, meso_notice
     for name in dict.fromkeys(s.network for s in scenarios):
-        entry = spec.networks[name]
+        scen = spec.scenario_of(name)
+        if meso_notice(scen.config):
+            print(f"{PROG}: warning: {meso_notice(scen.config)}", file=sys.stderr)
         try:
-            preflight(scenario_from_files(None, entry.net, [entry.routes] if entry.routes else []))
+            preflight(scen)
         except ScenarioError as e:
             raise SweepError(f"{source}: network {name!r}: {e}") from None
 

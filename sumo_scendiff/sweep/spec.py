@@ -27,7 +27,8 @@ KEYS = {"name": str, "networks": list, "locations": list, "token_sets": list, "p
         "seeds": (list, int), "rollout": float, "step_length": float, "replay": float, "scenarios": list,
         "density": list, "vehicles": list}
 SWEEP_DEFAULTS = {"rollout": 60.0, "replay": 0.0}   # step_length: per network, sim.sumo.default_step_length
-NET_KEYS = {"net": str, "routes": str, "begin": (int, float, str)}
+NET_KEYS = {"net": str, "config": str, "routes": (str, list), "additional": (str, list),
+            "begin": (int, float, str)}
 LOC_KEYS = {"auto": int, "center": list, "yaw": float}
 SET_KEYS = {"name": str, "frame": str, "p_mask": float, "agents": list, "vary": dict}
 SCENARIO_KEYS = {"network": str, "location": str, "token_set": str, "p_mask": float, "seed": int,
@@ -45,10 +46,16 @@ class SpecError(ValueError):
 
 @dataclass(frozen=True)
 class NetworkEntry:
-    name: str                    # file name without .net.xml (unique within the sweep)
-    net: str                     # absolute path
-    routes: str | None = None
+    """A network entry as the spec gives it (absolute paths, no file read yet): a network, or a
+    user's ``.sumocfg`` whose inputs ``net``/``routes``/``additional`` replace, as run's -n/-r/-a do
+    with -c. :meth:`Spec.scenario_of` reads it as run reads its inputs."""
+    name: str                    # file name without .net.xml (or .sumocfg); unique within the sweep
+    net: str | None              # absolute path; None: the configuration's
+    routes: tuple[str, ...] = ()
     begin: float | None = None   # the seeding time on SUMO's clock (default: first departure + 600 s)
+    config: str | None = None
+    additional: tuple[str, ...] = ()
+    where: str = "networks[0]"   # the entry in the spec, for its errors
 
 
 @dataclass(frozen=True)
@@ -97,6 +104,25 @@ class Spec:
     explicit: list[dict] | None = None
     digest: str = ""
     levels: list[tuple] = field(default_factory=lambda: [(None, None)])   # (density, vehicles) axis
+    _scenarios: dict = field(default_factory=dict, repr=False, compare=False)   # scenario_of's, read once
+
+    def scenario_of(self, network: str):
+        """The network entry ``network`` as run reads -c/-n/-r/-a (``sim.scenario.scenario_from_files``:
+        the configuration's inputs, time window, step length and options); a file it names that does
+        not exist, or a configuration SUMO's reader refuses, is a :class:`SpecError` naming the entry."""
+        if network not in self._scenarios:
+            self._scenarios[network] = _read_entry(self.source, self.networks[network])
+        return self._scenarios[network]
+
+    def step_length_of(self, network: str) -> float:
+        """The step a network entry runs at without the spec's ``step_length``: its configuration's,
+        else SUMO's default with a demand or a configuration, the product's for a bare network
+        (``sim.sumo.step_length_for``, as run takes it); a bare entry's files are not read here."""
+        from ..sim.sumo import default_step_length, step_length_for
+        entry = self.networks[network]
+        if entry.config is None:
+            return default_step_length(bool(entry.routes))
+        return step_length_for(self.scenario_of(network))
 
     def auto_count(self) -> int:
         """How many automatic locations the sweep uses per network."""
@@ -118,10 +144,9 @@ class Spec:
         if not combos:
             raise SpecError(f"{self.source}: the sweep is empty (a list in the cross product is empty)")
         from ..sim.request import counted_as_asked
-        from ..sim.sumo import default_step_length
+        steps = {net: self.settings.get("step_length") or self.step_length_of(net) for net in {c[0] for c in combos}}
         return [Scenario(f"s{k:04d}", net, loc, ts, pm, seed,
-                         **{**SWEEP_DEFAULTS, "step_length": default_step_length(bool(self.networks[net].routes)),
-                            **self.settings},
+                         **{**SWEEP_DEFAULTS, "step_length": steps[net], **self.settings},
                          generation=counted_as_asked(self.generation, level[1]), density=level[0], vehicles=level[1])
                 for k, (net, loc, ts, pm, level, seed) in enumerate(combos)]
 
@@ -151,29 +176,69 @@ def _check_keys(source: str, where: str, table: Any, allowed: dict) -> dict:
     return table
 
 
+def _paths(source: str, key: str, value, here: str) -> tuple[str, ...]:
+    """A file or a list of files of a network entry, relative to the spec's folder."""
+    value = [value] if isinstance(value, str) else value
+    if not value or not all(isinstance(v, str) and v for v in value):
+        raise _err(source, key, f"must be a path or a non-empty list of paths, got {value!r}")
+    return tuple(os.path.normpath(os.path.join(here, v)) for v in value)
+
+
+def _entry_name(net: str | None, config: str | None) -> str:
+    """An entry's name: its network's file name without .net.xml, else its configuration's without
+    .sumocfg (the name explicit scenarios give as ``network``)."""
+    return os.path.basename(net).split(".net.xml")[0] if net else os.path.basename(config).split(".sumocfg")[0]
+
+
 def _networks(source: str, raw: list, here: str) -> dict[str, NetworkEntry]:
     out: dict[str, NetworkEntry] = {}
     for i, item in enumerate(raw):
         item = {"net": item} if isinstance(item, str) else item
-        e = _check_keys(source, f"networks[{i}]", item, NET_KEYS)
-        if "net" not in e:
-            raise _err(source, f"networks[{i}]", "needs 'net'")
-        path = os.path.normpath(os.path.join(here, e["net"]))
-        routes = os.path.normpath(os.path.join(here, e["routes"])) if "routes" in e else None
-        name = os.path.basename(path).split(".net.xml")[0]
+        where = f"networks[{i}]"
+        e = _check_keys(source, where, item, NET_KEYS)
+        if "net" not in e and "config" not in e:
+            raise _err(source, where, "needs 'net' or 'config'")
+        files = {k: _paths(source, f"{where}.{k}", e[k], here) for k in NET_KEYS if k in e and k != "begin"}
+        net, config = files.get("net", (None,))[0], files.get("config", (None,))[0]
+        # each in its own key, as run's -n/-c (sim.scenario.input_flags_problem)
+        if net and net.endswith(".sumocfg"):
+            raise _err(source, f"{where}.net", f"{e['net']}: a SUMO configuration, not a network (give it as config)")
+        if config and not config.endswith(".sumocfg"):
+            raise _err(source, f"{where}.config", f"{e['config']}: not a .sumocfg (a network goes to net)")
+        name = _entry_name(net, config)
         if name in out:
             name = f"{name}_{i}"
-        begin = e.get("begin")
-        if begin is not None:
-            from argparse import ArgumentTypeError
-
-            from ..core.cli import sumo_time
-            try:   # read as the CLIs' --begin
-                begin = sumo_time(str(begin))
-            except ArgumentTypeError:
-                raise _err(source, f"networks[{i}].begin", f"must be a time >= 0 (s or H:MM:SS), got {e['begin']!r}") from None
-        out[name] = NetworkEntry(name, path, routes, begin)
+        out[name] = NetworkEntry(name, net, files.get("routes", ()), _begin(source, where, e.get("begin")), config,
+                                 files.get("additional", ()), where)
     return out
+
+
+def _begin(source: str, where: str, begin):
+    """An entry's ``begin``, read as the CLIs' --begin (None: not given)."""
+    if begin is None:
+        return None
+    from argparse import ArgumentTypeError
+
+    from ..core.cli import sumo_time
+    try:
+        return sumo_time(str(begin))
+    except ArgumentTypeError:
+        raise _err(source, f"{where}.begin", f"must be a time >= 0 (s or H:MM:SS), got {begin!r}") from None
+
+
+def _read_entry(source: str, entry: NetworkEntry):
+    """Spec.scenario_of's reading: each file the entry names first (one line naming the entry and
+    its key), then the configuration through run's reader."""
+    from ..sim.scenario import ScenarioError, scenario_from_files
+    for key, paths in (("config", [entry.config]), ("net", [entry.net]), ("routes", entry.routes),
+                       ("additional", entry.additional)):
+        for path in (p for p in paths if p):
+            if not os.path.isfile(path):
+                raise _err(source, f"{entry.where}.{key}", f"{path}: no such file")
+    try:
+        return scenario_from_files(entry.config, entry.net, entry.routes, entry.additional)
+    except ScenarioError as e:
+        raise _err(source, f"{entry.where}.config" if entry.config else entry.where, str(e)) from None
 
 
 def _locations(source: str, raw: list) -> list[str]:

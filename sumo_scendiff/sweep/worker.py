@@ -63,16 +63,38 @@ class Worker:
         self._nets: dict[str, object] = {}
         self._sessions: dict[tuple, object] = {}
         self._auto: dict[str, list] = {}
+        self._demand: dict[str, list[str]] = {}
 
     # ---- cached per network -------------------------------------------------------------------
     def network(self, entry: NetworkEntry):
         from ..map.network import Network
         if entry.name not in self._nets:
-            self._nets[entry.name] = Network.load(entry.net)
+            self._nets[entry.name] = Network.load(self.spec.scenario_of(entry.name).net)
         return self._nets[entry.name]
 
+    def demand(self, entry: NetworkEntry) -> list[str]:
+        """The files holding the entry's demand (``data.demand.demand_files``: its route files, and
+        additional files with vehicles in them, as run reads them)."""
+        from ..data.demand import demand_files
+        if entry.name not in self._demand:
+            scen = self.spec.scenario_of(entry.name)
+            self._demand[entry.name] = demand_files(scen.routes, scen.additional)
+        return self._demand[entry.name]
+
+    def _times(self, entry: NetworkEntry, scen, net) -> tuple[float | None, float | None]:
+        """(the time SUMO starts at, the seeding time it runs the demand up to; None: no demand), as
+        run takes them: SUMO starts at the configuration's begin, else the demand's first departure,
+        and runs it to the entry's ``begin`` (default: that start + the warm-up)."""
+        from ..data.demand import demand_span, route_steps_of, seeding_time
+        demand = self.demand(entry)
+        if not demand:
+            return (entry.begin if entry.begin is not None else scen.begin), None
+        span = demand_span(scen.routes, {ln.edge for ln in net.lanes}, scen.additional,
+                           begin=scen.begin, end=scen.end, **route_steps_of(scen.options))
+        at = seeding_time(entry.begin, scen.begin, span, demand, flag="begin", config_end=scen.end)
+        return (scen.begin if scen.begin is not None else span[0]), at
+
     def session(self, entry: NetworkEntry, step_length: float):
-        from ..data.demand import demand_span, seeding_time
         from ..sim.session import Session
         from ..sim.sumo import SimConfig
         key = (entry.name, step_length)
@@ -80,16 +102,15 @@ class Worker:
             for old in self._sessions.values():   # one simulation per process: close the last one
                 old.close()
             self._sessions.clear()
-            routes = (entry.routes,) if entry.routes else ()
-            net = self.network(entry)
-            span = demand_span(routes, {ln.edge for ln in net.lanes}) if routes else None
-            # SUMO starts at the first departure and runs the demand up to the seeding time
-            at = seeding_time(entry.begin, None, span, routes, flag="begin") if span else None
-            cfg = SimConfig(net=entry.net, routes=routes, step_length=step_length,
-                            begin=span[0] if span else entry.begin)
+            scen, net = self.spec.scenario_of(entry.name), self.network(entry)
+            begin, at = self._times(entry, scen, net)
+            # the user's scenario as run starts it: its additional files (vTypes, programs, stops),
+            # its options; the step is the scenario's (spec.Spec.step_length_of) unless the spec's
+            cfg = SimConfig(net=scen.net, routes=scen.routes, additional=scen.additional,
+                            step_length=step_length, begin=begin, scenario_options=scen.options)
             session = Session(cfg, net, self.generator)
             # the demand run to the seeding time as stock SUMO runs it, its state kept (sim/warmup.py)
-            self._sessions[key] = session.prepare_at(at) if routes else session.prepare()
+            self._sessions[key] = session.prepare_at(at) if at is not None else session.prepare()
         return self._sessions[key]
 
     def window(self, entry: NetworkEntry, location: str):
@@ -151,7 +172,7 @@ class Worker:
                 req = window_request(session.net, session.sim, window, session.existing(window),
                                      token_set.for_window(window), source=token_set.source, fleet=fleet,
                                      p_mask=s.p_mask if s.p_mask is not None else token_set.asked_p_mask(),
-                                     density=s.density, vehicles=s.vehicles, host=bool(entry.routes),
+                                     density=s.density, vehicles=s.vehicles, host=bool(self.demand(entry)),
                                      has_density=self.generator.has_density, signals=s.generation.signals)
                 out.append((s, kind, req))
             except DensityUnsupported as e:
