@@ -219,7 +219,8 @@ def _seeded(doc: dict) -> int:
 def expected_vehicles(name: str, out: Path) -> tuple[int | None, str]:
     """What a replay must hold at its first step and the words naming where that count comes from:
     for the run's scene, stock SUMO's vehicles at the scene's time plus the scene's seeded agents; for
-    the fill's state and portable start, fill.json's seeded agents (the demand's own among them)."""
+    the fill's state and portable start, fill.json's seeded agents (the demand's own among them), and
+    for the state the vehicles it holds waiting to enter (fill.json's ``waiting_to_enter``)."""
     if name == "run_replay":
         doc_path = out / "run" / "scene_000" / "scene.json"
         if not doc_path.is_file():
@@ -235,7 +236,10 @@ def expected_vehicles(name: str, out: Path) -> tuple[int | None, str]:
         return None, ""
     doc = json.loads(doc_path.read_text())
     seeded, due = _seeded(doc), _demand_due(name, out, doc)
-    return seeded + due, f"fill.json placed {seeded}" + (f" + {due} the demand departs then" if due else "")
+    # the state keeps SUMO's queue of vehicles due but not yet in (a full network's), the portable start not
+    queued = int((doc.get("density") or {}).get("waiting_to_enter") or 0) if name == "fill_replay" else 0
+    return seeded + due + queued, (f"fill.json placed {seeded}" + (f" + {due} the demand departs then" if due else "")
+                                   + (f" + {queued} waiting to enter in its state" if queued else ""))
 
 
 def _demand_due(name: str, out: Path, doc: dict) -> int:

@@ -72,7 +72,7 @@ def _keep_area(sim, agents: list[dict], area: tuple | None) -> tuple[list[dict],
 def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
     """SUMO at ``begin``, only what lies in ``req.area`` kept; its state, the portable start's routes.
     Returns (cfg, agents, exact, state time, vehicles waiting to enter, the area's record)."""
-    from ..sim.state import save_state
+    from ..sim.state import save_state, waiting_in_state
     from ..sim.sumo import SimConfig, close, settings
     from ..sim.warmup import start_warm
     from .seed import write_start_routes
@@ -92,7 +92,7 @@ def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
                                    vtype_files=list(scen.routes) + list(scen.additional))
         _drop_their_vtypes(routes, [*scen.routes, *scen.additional])
         _rename(routes)
-        waiting = len(sim.simulation.getPendingVehicles())
+        waiting = waiting_in_state(state, sim.vehicle.getIDList(), state_time)
     finally:
         close(sim)
     return cfg, agents, exact, state_time, waiting, area

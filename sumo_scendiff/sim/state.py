@@ -1,6 +1,7 @@
 """A SUMO state saved so that SUMO loads it again.
 
     save_state(sim, "state.xml.gz")     # saveState, the routes it left out added, checked whole
+    waiting_in_state("state.xml.gz", sim.vehicle.getIDList(), t)   # loaded, due, not yet on the road
 
 SUMO 1.28 writes a route into a state with the vehicle it was made for: a vehicle that shares that
 route and is still driving after its owner arrived -- the copies ``--scale`` makes of a vehicle (ids
@@ -17,6 +18,7 @@ from ..core.files import check_whole
 
 _ROUTE = re.compile(rb'<route id="([^"]*)"')
 _VEHICLE_ROUTE = re.compile(rb'<vehicle id="([^"]*)"[^>]*? route="([^"]*)"')
+_VEHICLE_DEPART = re.compile(rb'<vehicle id="([^"]*)" depart="([^"]*)"')
 
 
 def save_state(sim, path: str) -> str:
@@ -40,4 +42,17 @@ def save_state(sim, path: str) -> str:
     return path
 
 
-__all__ = ["save_state"]
+def waiting_in_state(path: str, on_network, time: float) -> int:
+    """The vehicles a saved state holds that were due by ``time`` and are not among ``on_network``
+    (the vehicles in the network when it was saved): those waiting to enter. SUMO loads them into its
+    insertion queue only at the next step (``getPendingVehicles`` is empty right after a state is
+    loaded), so a simulation started from a state cannot count them itself."""
+    opener = gzip.open if path.endswith(".gz") else open
+    with opener(path, "rb") as f:
+        text = f.read()
+    there = set(on_network)
+    return sum(1 for v, depart in _VEHICLE_DEPART.findall(text)
+               if v.decode() not in there and float(depart) <= time + 1e-9)
+
+
+__all__ = ["save_state", "waiting_in_state"]
