@@ -292,6 +292,19 @@ def _cut(cuts: list[Cut], read_to: float, begin: float | None, route_steps: floa
     return CutDemand(cuts[0].path, cuts[0].line, read_to, max(stop, begin or 0.0), route_steps)
 
 
+def start_times(scen, edge_ids: set[str], begin: float | None, demand: Sequence[str], flag: str = "--begin",
+                seed: bool = True) -> tuple[float, float | None, Span]:
+    """How the product runs a scenario's demand (``scen``: a sim.scenario.SumoScenario; ``demand``: the
+    files holding it, :func:`demand_files`), as run, the fill and sweeps take it: (the time SUMO starts
+    at: the configuration's begin, else the demand's first departure; the seeding time the demand is run
+    to, :func:`seeding_time` of ``begin`` (None when ``seed`` is False: the caller decides); the demand's
+    span, with a route file cut short in ``span.cut``). Raises :class:`DemandError`."""
+    span = demand_span(list(scen.routes), edge_ids, scen.additional, begin=scen.begin, end=scen.end,
+                       **route_steps_of(scen.options))
+    at = seeding_time(begin, scen.begin, span, list(demand), flag=flag, config_end=scen.end) if seed else None
+    return (scen.begin if scen.begin is not None else span[0]), at, span
+
+
 def seeding_time(begin: float | None, config_begin: float | None, span: tuple[float, float],
                  route_files: Sequence[str], flag: str = "--begin", config_end: float | None = None) -> float:
     """The time to seed a demand's network at, on SUMO's clock: ``begin`` when given, else

@@ -245,18 +245,16 @@ def _begin(req: FillRequest, net, scen, demand: tuple[str, ...]) -> tuple[float,
     """The fill's time and SUMO's start: ``req.begin``, with a demand (``demand``: the files holding
     it) checked against its departures (its default: the first departure + the seeding's warm-up),
     SUMO starting at the configuration's begin, else the first departure."""
-    from ..data.demand import DemandError, demand_span, route_steps_of, seeding_time
+    from ..data.demand import DemandError, start_times
     if not demand:
         return (req.begin if req.begin is not None else 0.0), None
     try:
-        span = demand_span(list(scen.routes), {ln.edge for ln in net.lanes}, scen.additional,
-                           begin=scen.begin, end=scen.end, **route_steps_of(scen.options))
-        begin = seeding_time(req.begin, scen.begin, span, list(demand), config_end=scen.end)
+        start, begin, span = start_times(scen, {ln.edge for ln in net.lanes}, req.begin, demand)
     except DemandError as e:
         raise FillError(str(e)) from None
     if span.cut is not None:   # SUMO runs such a file up to the cut, as the fill's start does
         print(f"python -m sumo_scendiff.fill: warning: {span.cut.warning()}", file=sys.stderr)
-    return begin, span[0] if scen.begin is None else scen.begin
+    return begin, start
 
 
 def _tiles(req: FillRequest, net) -> list:

@@ -172,19 +172,16 @@ def _demand_times(o, scen, net, demand: list[str]) -> tuple[float | None, float 
     """(the time SUMO starts at, the seeding time it runs the demand up to; None: the ego decides,
     or there is no demand), as :func:`_session` says. ``demand``: the files holding it
     (``data.demand.demand_files``: route files, and additional files with vehicles in them)."""
-    from ..data.demand import DemandError, demand_span, route_steps_of, seeding_time
+    from ..data.demand import DemandError, start_times
     if not demand:
         return (o.begin if o.begin is not None else scen.begin), None
     try:  # the route files as the set SUMO loads, against this network
-        span = demand_span(scen.routes, {ln.edge for ln in net.lanes}, scen.additional,
-                           begin=scen.begin, end=scen.end, **route_steps_of(scen.options))
-        at = seeding_time(o.begin, scen.begin, span, demand, config_end=scen.end) if span and not o.ego else None
+        start, at, span = start_times(scen, {ln.edge for ln in net.lanes}, o.begin, demand, seed=not o.ego)
     except DemandError as e:
         raise RunError(str(e)) from None
     if span.cut is not None:
         _check_cut(o, span.cut, at)
-    first = span[0] if span else None
-    return (scen.begin if scen.begin is not None else first), at
+    return start, at
 
 
 def _check_cut(o, cut, at: float | None) -> None:

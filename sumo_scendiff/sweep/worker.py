@@ -85,14 +85,12 @@ class Worker:
         """(the time SUMO starts at, the seeding time it runs the demand up to; None: no demand), as
         run takes them: SUMO starts at the configuration's begin, else the demand's first departure,
         and runs it to the entry's ``begin`` (default: that start + the warm-up)."""
-        from ..data.demand import demand_span, route_steps_of, seeding_time
+        from ..data.demand import start_times
         demand = self.demand(entry)
         if not demand:
             return (entry.begin if entry.begin is not None else scen.begin), None
-        span = demand_span(scen.routes, {ln.edge for ln in net.lanes}, scen.additional,
-                           begin=scen.begin, end=scen.end, **route_steps_of(scen.options))
-        at = seeding_time(entry.begin, scen.begin, span, demand, flag="begin", config_end=scen.end)
-        return (scen.begin if scen.begin is not None else span[0]), at
+        start, at, _ = start_times(scen, {ln.edge for ln in net.lanes}, entry.begin, demand, flag="begin")
+        return start, at
 
     def session(self, entry: NetworkEntry, step_length: float):
         from ..sim.session import Session
