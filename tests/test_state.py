@@ -9,7 +9,9 @@ def test_the_vehicles_waiting_to_enter_are_counted_from_the_state(tmp_path, grid
 
     from sumo_scendiff.sim.state import save_state, waiting_in_state
     routes = tmp_path / "r.rou.xml"
-    routes.write_text('<routes><flow id="f" begin="0" end="200" period="0.2" from="A0B0" to="B0C0"/>'
+    routes.write_text('<routes><vType id="car" length="4.5"/>'   # a type: SUMO writes it before depart
+                      '<flow id="f" type="car" begin="0" end="200" period="0.2" from="A0B0" to="B0C0"/>'
+                      '<flow id="g" begin="0" end="200" period="0.4" from="A0B0" to="B0C0"/>'
                       '<vehicle id="later" depart="100"><route edges="A0B0 B0C0"/></vehicle></routes>')
     state = str(tmp_path / "state.xml.gz")
     sim.start(["sumo", "-n", grid.path, "-r", str(routes), "--no-step-log", "--no-warnings"])
@@ -26,6 +28,6 @@ def test_the_vehicles_waiting_to_enter_are_counted_from_the_state(tmp_path, grid
     try:
         assert len(sim.simulation.getPendingVehicles()) == 0   # why the file is read: not yet queued again
         sim.simulationStep()
-        assert abs(len(sim.simulation.getPendingVehicles()) - queued) <= 6   # the queue, less those in at once
+        assert len(sim.simulation.getPendingVehicles()) >= queued - 3   # the queue again (a few got in, new ones due)
     finally:
         sim.close()

@@ -18,7 +18,7 @@ from ..core.files import check_whole
 
 _ROUTE = re.compile(rb'<route id="([^"]*)"')
 _VEHICLE_ROUTE = re.compile(rb'<vehicle id="([^"]*)"[^>]*? route="([^"]*)"')
-_VEHICLE_DEPART = re.compile(rb'<vehicle id="([^"]*)" depart="([^"]*)"')
+_VEHICLE_DEPART = re.compile(rb'<vehicle id="([^"]*)"[^>]*? depart="([^"]*)"')
 
 
 def save_state(sim, path: str) -> str:
