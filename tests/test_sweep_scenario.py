@@ -131,3 +131,21 @@ def test_a_sweep_over_a_users_scenario_keeps_it(scenario, tmp_path, capsys):
         added = opts["additional-files"].split(",")
         assert any(os.path.basename(a).startswith("types.add.xml") for a in added)   # (bundled: .gz)
         assert all(os.path.isfile(os.path.join(folder, a)) for a in added)   # they travel in the folder
+
+
+def test_a_route_file_cut_short_is_warned_and_a_begin_after_it_refused(scenario, capsys):
+    """As run: SUMO reads such a file up to its cut and quits there; the sweep says so once, before
+    any work, and a begin after it is one line, exit 2."""
+    cut = scenario / "cut.rou.xml"
+    whole = "".join(f'<vehicle id="v{t}" depart="{t}"><route edges="wc ce"/></vehicle>\n' for t in range(0, 1001, 20))
+    cut.write_text("<routes>\n" + whole + '<vehicle id="v1020" depart="1020"><route edg')
+    from sumo_scendiff.sweep.__main__ import check_demand_times
+    spec = load_spec(_spec(scenario, '{config = "../scen/routed.sumocfg", routes = "../scen/cut.rou.xml", begin = 60}'))
+    name = next(iter(spec.networks))
+    check_demand_times("s.toml", name, spec.networks[name], spec.scenario_of(name))
+    err = capsys.readouterr().err
+    assert err.count("warning") == 1 and "cut.rou.xml" in err
+    late = _spec(scenario, '{config = "../scen/routed.sumocfg", routes = "../scen/cut.rou.xml", begin = 990}')
+    out = scenario.parent / "late"
+    code, _, err = _main(["--spec", late, "--out", str(out)], capsys)
+    assert code == 2 and "cut.rou.xml" in err and "Traceback" not in err and not out.exists(), err

@@ -100,6 +100,24 @@ def check_networks(source: str, spec, scenarios) -> None:
             preflight(scen)
         except ScenarioError as e:
             raise SweepError(f"{source}: network {name!r}: {e}") from None
+        check_demand_times(source, name, spec.networks[name], scen)
+
+
+def check_demand_times(source: str, name: str, entry, scen) -> None:
+    """The entry's ``begin`` against its demand, as run checks ``--begin`` (data.demand.start_times),
+    before any work; a route file cut short is warned about once (SUMO quits when its reading reaches the cut)."""
+    from ..data.demand import DemandError, demand_files, start_times
+    from ..map.network import Network, NetworkError
+    demand = demand_files(scen.routes, scen.additional)
+    if not demand:
+        return
+    try:
+        net = Network.load(scen.net)
+        _, _, span = start_times(scen, {ln.edge for ln in net.lanes}, entry.begin, demand, flag="begin")
+    except (DemandError, NetworkError) as e:
+        raise SweepError(f"{source}: network {name!r}: {e}") from None
+    if span.cut is not None:
+        print(f"{PROG}: warning: {span.cut.warning()}", file=sys.stderr)
 
 
 def main(o) -> int:
