@@ -98,11 +98,20 @@ class Result:
     def markers(self) -> tuple[str, str]:
         return (self.begin or f"<!-- results:{self.name} -->", self.end or f"<!-- /results:{self.name} -->")
 
+    def recorded(self):
+        """The command as the results file records it (a string, an argument list) or None."""
+        return json.loads(self.path.read_text()).get("command") if self.path.is_file() else None
+
     def run_command(self) -> list[str] | None:
+        """The command to run (None: none recorded, or one given with words beside it that is not a
+        command line: ``--list`` shows it, ``--run`` cannot run it)."""
         if self.command:
             return self.command
-        cmd = json.loads(self.path.read_text()).get("command") if self.path.is_file() else None
-        return shlex.split(cmd) if isinstance(cmd, str) else cmd
+        cmd = self.recorded()
+        try:
+            return shlex.split(cmd) if isinstance(cmd, str) else cmd
+        except ValueError:
+            return None
 
 
 KNOWN = {
@@ -162,8 +171,9 @@ def main(argv=None) -> int:
     if o.list:
         for r in known.values():
             cmd = r.run_command()
+            text = shlex.join(cmd) if cmd else r.recorded() if isinstance(r.recorded(), str) else None
             print(f"{r.name}: {r.path.relative_to(ROOT)} ({'present' if r.path.is_file() else 'missing'}); "
-                  f"{shlex.join(cmd) if cmd else 'no command recorded'}")
+                  f"{text or 'no command recorded'}")
         return 0
     for name in o.run:
         cmd = known[name].run_command() if name in known else None
