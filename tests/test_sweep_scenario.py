@@ -149,3 +149,12 @@ def test_a_route_file_cut_short_is_warned_and_a_begin_after_it_refused(scenario,
     out = scenario.parent / "late"
     code, _, err = _main(["--spec", late, "--out", str(out)], capsys)
     assert code == 2 and "cut.rou.xml" in err and "Traceback" not in err and not out.exists(), err
+
+
+def test_a_config_naming_a_missing_file_says_how_the_spec_replaces_it(scenario, capsys):
+    (scenario / "lost.sumocfg").write_text(CONFIG.format(routes='<route-files value="gone.rou.xml"/>',
+                                                         additional="types.add.xml"))
+    path = _spec(scenario, '{config = "../scen/lost.sumocfg"}')
+    code, _, err = _main(["--spec", path, "--out", str(scenario.parent / "lost-out")], capsys)
+    assert code == 2 and "gone.rou.xml: no such file" in err and "the entry's net/routes/additional" in err
+    assert "-n/-r/-a" not in err and err.count("\n") == 1, err

@@ -85,10 +85,13 @@ def input_flags_problem(net: str | None, config: str | None) -> str | None:
     return None
 
 
-def read_sumocfg(path: str, skip: frozenset[str] = frozenset()) -> dict:
+RUN_FLAGS = "-n/-r/-a"   # what replaces a configuration's files on run's and the fill's command line
+
+
+def read_sumocfg(path: str, skip: frozenset[str] = frozenset(), replace_with: str = RUN_FLAGS) -> dict:
     """The inputs and time window of a ``.sumocfg`` as a dict of SumoScenario fields, paths resolved
-    against its folder; a file it names that does not exist is an error naming both. Options named
-    in ``skip`` (those a flag replaces) are not read."""
+    against its folder; a file it names that does not exist is an error naming both and how to give
+    another (``replace_with``). Options named in ``skip`` (those a flag replaces) are not read."""
     import xml.sax
 
     from sumolib.options import readOptions
@@ -108,7 +111,7 @@ def read_sumocfg(path: str, skip: frozenset[str] = frozenset()) -> dict:
             files = [os.path.normpath(os.path.join(here, f)) for f in given]
             for f, g in zip(files, given):
                 if not os.path.exists(f):
-                    raise ScenarioError(f"{path}: {opt.name}: {g}: no such file (give -n/-r/-a to use "
+                    raise ScenarioError(f"{path}: {opt.name}: {g}: no such file (give {replace_with} to use "
                                         "other files)")
             if opt.name in _FILES:
                 if not files:
@@ -175,12 +178,14 @@ def meso_notice(config: str | None) -> str | None:
 
 
 def scenario_from_files(config: str | None = None, net: str | None = None,
-                        routes: Sequence[str] = (), additional: Sequence[str] = ()) -> SumoScenario:
+                        routes: Sequence[str] = (), additional: Sequence[str] = (),
+                        replace_with: str = RUN_FLAGS) -> SumoScenario:
     """The scenario of a ``.sumocfg`` with ``-n``/``-r``/``-a`` replacing what it names, so a
-    configuration naming a file that was not shipped is usable with the flag that replaces it."""
+    configuration naming a file that was not shipped is usable with the flag that replaces it
+    (``replace_with``: how the caller's user gives them, for the error)."""
     skip = {name for name, flag in (("net-file", net), ("n", net), ("route-files", routes), ("r", routes),
                                     ("additional-files", additional), ("a", additional)) if flag}
-    fields = read_sumocfg(config, frozenset(skip)) if config else {}
+    fields = read_sumocfg(config, frozenset(skip), replace_with) if config else {}
     if net:
         fields["net"] = os.path.abspath(net)
     if routes:

@@ -236,7 +236,8 @@ def _read_entry(source: str, entry: NetworkEntry):
             if not os.path.isfile(path):
                 raise _err(source, f"{entry.where}.{key}", f"{path}: no such file")
     try:
-        return scenario_from_files(entry.config, entry.net, entry.routes, entry.additional)
+        return scenario_from_files(entry.config, entry.net, entry.routes, entry.additional,
+                                   replace_with="the entry's net/routes/additional")
     except ScenarioError as e:
         raise _err(source, f"{entry.where}.config" if entry.config else entry.where, str(e)) from None
 
