@@ -28,6 +28,7 @@ Then one table: a row per measure, a column per model, and the reference where t
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import subprocess
@@ -110,9 +111,12 @@ def city(net: str) -> str:
     return os.path.basename(os.path.dirname(os.path.abspath(net)))
 
 
+@functools.lru_cache(maxsize=None)   # parts() is listed again for every table drawn
 def _has_demand(net: str) -> bool:
-    folder = os.path.dirname(os.path.abspath(net))
-    return any(f.endswith(".rou.xml") for f in os.listdir(folder))
+    """A demand of its own beside the network, as evaluate and user_tokens find it (data.demand.find_demand)."""
+    from sumo_scendiff.data.demand import find_demand
+    from sumo_scendiff.map.network import Network
+    return find_demand(Network.load(net)) is not None
 
 
 def parts(o, name: str, model: str) -> list[Part]:
