@@ -87,6 +87,16 @@ def test_a_configuration_given_as_network_is_named(scenario):
         scenario_from_files(net=str(scenario / "run.sumocfg"))
 
 
+def test_a_configuration_is_read_whatever_its_name(scenario):
+    # stock SUMO reads -c by content: Veins ships its configurations as .sumo.cfg (corpus: veins_erlangen)
+    from sumo_scendiff.sim.scenario import input_flags_problem
+    cfg = scenario / "erlangen.sumo.cfg"
+    shutil.copy(scenario / "run.sumocfg", cfg)
+    assert input_flags_problem(None, str(cfg)) is None
+    assert scenario_from_files(str(cfg)).net == str(scenario / "cross.net.xml")
+    assert "a SUMO network, not a configuration" in input_flags_problem(None, str(scenario / "cross.net.xml"))
+
+
 def test_route_files_are_checked_as_a_set(scenario, cross_net):
     from sumo_scendiff.map.network import Network
     edges = {ln.edge for ln in Network.load(cross_net).lanes}

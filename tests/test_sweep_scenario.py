@@ -80,7 +80,8 @@ def test_an_entry_is_read_as_run_reads_c_n_r_a(scenario):
      "networks[0].routes: {d}/gone.rou.xml: no such file"),
     ('{config = "../scen/routed.sumocfg", vtypes = "x"}', "networks[0].vtypes: unknown key"),
     ('{net = "../scen/routed.sumocfg"}', "networks[0].net: ../scen/routed.sumocfg: a SUMO configuration"),
-    ('{config = "../scen/cross.net.xml"}', "networks[0].config: ../scen/cross.net.xml: not a .sumocfg"),
+    ('{config = "../scen/cross.net.xml"}',
+     "networks[0].config: ../scen/cross.net.xml: a SUMO network, not a configuration"),
     ('{config = "../scen/routed.sumocfg", additional = []}', "networks[0].additional: must be a path"),
     ('{routes = "../scen/demand.rou.xml"}', "networks[0]: needs 'net' or 'config'"),
 ])

@@ -74,14 +74,21 @@ def add_input_arguments(p, config: str, routes: str, additional: str) -> None:
     p.add_argument("-a", "--additional-files", dest="additional", default=None, help=additional)
 
 
+def is_network_name(path: str) -> bool:
+    """Whether a file's name is a SUMO network's (``.net.xml``, gzipped or not). A configuration may have
+    any name (stock SUMO reads ``-c erlangen.sumo.cfg`` as Veins ships it), so a -c is refused only
+    where its name says it is a network."""
+    return path.endswith((".net.xml", ".net.xml.gz"))
+
+
 def input_flags_problem(net: str | None, config: str | None) -> str | None:
     """What is wrong with a CLI's -n/-c pair before any file is read (one line), or None."""
     if not (net or config):
         return "one of -n/--net-file or -c/--configuration-file is required"
-    for flag, path in (("-n", net), ("-c", config)):
-        if path and path.endswith(".sumocfg") != (flag == "-c"):
-            return f"{flag}: {path}: " + ("a SUMO configuration, not a network (give it with -c)"
-                                          if flag == "-n" else "not a .sumocfg (a network goes to -n)")
+    if net and net.endswith(".sumocfg"):
+        return f"-n: {net}: a SUMO configuration, not a network (give it with -c)"
+    if config and is_network_name(config):
+        return f"-c: {config}: a SUMO network, not a configuration (a network goes to -n)"
     return None
 
 

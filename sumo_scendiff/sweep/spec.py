@@ -191,6 +191,7 @@ def _entry_name(net: str | None, config: str | None) -> str:
 
 
 def _networks(source: str, raw: list, here: str) -> dict[str, NetworkEntry]:
+    from ..sim.scenario import is_network_name
     out: dict[str, NetworkEntry] = {}
     for i, item in enumerate(raw):
         item = {"net": item} if isinstance(item, str) else item
@@ -203,8 +204,9 @@ def _networks(source: str, raw: list, here: str) -> dict[str, NetworkEntry]:
         # each in its own key, as run's -n/-c (sim.scenario.input_flags_problem)
         if net and net.endswith(".sumocfg"):
             raise _err(source, f"{where}.net", f"{e['net']}: a SUMO configuration, not a network (give it as config)")
-        if config and not config.endswith(".sumocfg"):
-            raise _err(source, f"{where}.config", f"{e['config']}: not a .sumocfg (a network goes to net)")
+        if config and is_network_name(config):
+            raise _err(source, f"{where}.config", f"{e['config']}: a SUMO network, not a configuration "
+                       "(give it as net)")
         name = _entry_name(net, config)
         if name in out:
             name = f"{name}_{i}"
