@@ -167,8 +167,9 @@ def test_the_fills_portable_start_is_not_scaled_twice(features, tmp_path):
 
 
 def test_a_mesoscopic_scenario_is_said_to_run_microscopically(features, tmp_path):
-    """``<mesosim value="true"/>``: the product seeds lanes, which only SUMO's microscopic model has, so
-    it runs the scenario microscopically; it did so without a word."""
+    """``<mesosim value="true"/>``: the fill builds its start from lane positions, which only SUMO's
+    microscopic model has, so it runs the scenario microscopically; it did so without a word (run carries
+    the model: tests/test_meso.py)."""
     import subprocess
     cfg = variant(features, "feat_meso", tmp_path / "s")
     done = subprocess.run([sys.executable, "-m", "sumo_scendiff.fill", "-c", str(cfg), "--begin", "120",

@@ -170,8 +170,8 @@ def _report(o, doc: dict) -> None:
     """What the fill did, on stdout (warnings on stderr)."""
     import os
     from ..sim.scenario import meso_notice
-    if meso_notice(o.config):
-        print(f"{PROG}: warning: {meso_notice(o.config)}", file=sys.stderr)
+    if meso_notice(o.config, fill=True):
+        print(f"{PROG}: warning: {meso_notice(o.config, fill=True)}", file=sys.stderr)
     if doc.get("nothing_to_generate"):
         print(f"{PROG}: nothing to generate: {doc['nothing_to_generate']}; wrote "
               f"{os.path.join(o.out, 'fill.json')} (no state: the scenario itself is the start)")

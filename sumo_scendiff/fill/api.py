@@ -285,9 +285,11 @@ def _no_road(req: FillRequest, net):
 
 def _sim_config(req: FillRequest, scen, begin: float):
     """SUMO's configuration of the fill: the network and additional files (the demand goes into the
-    folder's configurations), the scenario's step and options, starting at ``begin``."""
+    folder's configurations), the scenario's step and options but its mesoscopic model (the fill is
+    microscopic: sim.scenario.meso_notice), starting at ``begin``."""
     from ..sim.sumo import SimConfig, settings
-    return SimConfig(net=scen.net, additional=scen.additional, seed=req.seed, begin=begin, **settings(req, scen))
+    return SimConfig(net=scen.net, additional=scen.additional, seed=req.seed, begin=begin,
+                     **settings(req, scen, mesoscopic=False))
 
 
 def _nothing_to_fill(folder: str, req: FillRequest, scen, why: str) -> dict:

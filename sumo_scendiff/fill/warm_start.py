@@ -77,7 +77,7 @@ def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
     from ..sim.warmup import start_warm
     from .seed import write_start_routes
     cfg = SimConfig(net=scen.net, routes=tuple(scen.routes), additional=tuple(scen.additional), seed=req.seed,
-                    begin=start, **settings(req, scen))
+                    begin=start, **settings(req, scen, mesoscopic=False))   # as _sim_config (fill/api.py)
     t = time.perf_counter()
     sim = start_warm(cfg, begin, quiet=not req.verbose)
     try:

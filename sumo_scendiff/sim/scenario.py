@@ -25,10 +25,9 @@ _LISTS = {"route-files": "routes", "r": "routes", "additional-files": "additiona
 _FILES = {"net-file": "net", "n": "net"}
 _TIMES = {"begin": "begin", "b": "begin", "end": "end", "e": "end"}
 # sections of a .sumocfg whose options are not carried (see the module's doc); an option outside any
-# section is carried unless it names a file or an output. The mesoscopic model is not carried: the
-# seeding places vehicles on lanes, which only the microscopic model has
-_NOT_CARRIED = frozenset({"input", "output", "time", "report", "gui_only", "traci_server", "random_number",
-                          "mesoscopic"})
+# section is carried unless it names a file or an output. The mesoscopic model (its section's options:
+# mesosim, meso-edgelength, ...) is carried; the fill alone leaves it out (sim.sumo.settings, meso_notice)
+_NOT_CARRIED = frozenset({"input", "output", "time", "report", "gui_only", "traci_server", "random_number"})
 # the sections an option given outside any section is left out by (an input option such as
 # junction-taz, which names no file, is carried wherever it is given)
 _NOT_CARRIED_LOOSE = _NOT_CARRIED - {"input", "output"}
@@ -167,10 +166,10 @@ def run_options(path: str) -> tuple[tuple[str, str], ...]:
     return tuple(out)
 
 
-def meso_notice(config: str | None) -> str | None:
-    """The warning for a configuration that runs SUMO's mesoscopic model (``mesosim``), which the product
-    does not carry (the seeding places vehicles on lanes, which only the microscopic model has): its
-    warm-up, scenes and fills are microscopic. None for any other configuration."""
+def meso_notice(config: str | None, fill: bool = False) -> str | None:
+    """The warning for a configuration that runs SUMO's mesoscopic model (``mesosim``; None for any
+    other): ``run`` and ``sweep`` carry it, and a mesoscopic vehicle stands in a segment of its edge, not
+    at a pose; the fill (``fill``) runs microscopically (docs/sumo-options.md says why)."""
     import xml.etree.ElementTree as ET
 
     from ..core.sumo_xml import boolean
@@ -180,8 +179,14 @@ def meso_notice(config: str | None) -> str | None:
         meso = any(boolean(el.get("value")) for el in ET.parse(config).getroot().iter("mesosim"))
     except (ET.ParseError, ValueError):
         return None                   # read_sumocfg names what is wrong with it
-    return (f"{config}: mesosim: the mesoscopic model is not carried, the simulation here is microscopic "
-            "(the seeding places vehicles on lanes, which only the microscopic model has)") if meso else None
+    if not meso:
+        return None
+    if fill:
+        return (f"{config}: mesosim: the fill runs and exports the scenario microscopically (its start places "
+                "vehicles at lane positions, which SUMO's mesoscopic model does not have, and SUMO loads no "
+                "microscopic state into it)")
+    return (f"{config}: mesosim: the scenes run in SUMO's mesoscopic model, as configured: a vehicle there "
+            "stands in a segment of its edge, not at its pose (scene.json: placed = in its pose's edge)")
 
 
 def scenario_from_files(config: str | None = None, net: str | None = None,

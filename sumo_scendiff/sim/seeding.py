@@ -50,6 +50,7 @@ from .pose_routes import PoseRoutes
 from .routes import RouteChooser
 from .settle import MIN_GAP_MARGIN, Settling, krauss_safe_speed
 from .stop_lines import StopLines
+from .sumo import mesoscopic
 
 POS_TOLERANCE, YAW_TOLERANCE = 0.5, 0.1   # m, rad: "present where it was generated"
 CLAMPED = 0.01         # m: a position on an internal lane this near its start is SUMO's clamp, not a pose
@@ -120,6 +121,9 @@ class Seeder(Settling, StopLines, PoseRoutes, Drops):
         self._via = self._internal_links()
         self.moved_from: dict[int, str] = {}     # fit_red_junctions: agent -> internal lane it was generated on
         self.keep_route = 1 if sublane(sim) else 2
+        # SUMO's mesoscopic model: a vehicle stands in a segment of its edge (the one holding its
+        # departPos), on no lane and at no pose (moveToXY does nothing there); docs/sumo-options.md
+        self.meso = mesoscopic(sim)
         self.routes = RouteChooser(sim, net, exclude_prefix=prefix.split(".")[0])
         self.junctions = JunctionConflicts(net)
         self.resolve_junctions = True
@@ -344,10 +348,11 @@ class Seeder(Settling, StopLines, PoseRoutes, Drops):
                 slowed, speed = (speed, cap), cap
             self.add_on_route(vid, full, typeID=tid, depart="now",
                               departLane=str(lane_index) if not lane.internal else "best",
-                              departPos="base", departSpeed=f"{speed:.3f}")
+                              departPos=self._depart_pos(lane, full, fx, fy), departSpeed=f"{speed:.3f}")
             self.fit_type(vid, scene.boxes[i, 3], width, gap, vtype if tid == vtype else None)
-            sim.vehicle.moveToXY(vid, "" if lane.internal else lane.edge, lane.index,
-                                 float(fx), float(fy), float(angle), keepRoute=self.keep_route)
+            if not self.meso:
+                sim.vehicle.moveToXY(vid, "" if lane.internal else lane.edge, lane.index,
+                                     float(fx), float(fy), float(angle), keepRoute=self.keep_route)
         except Exception as e:  # libsumo.TraCIException / traci.TraCIException
             if type(e).__name__ == "FatalTraCIError":    # SUMO itself gone, not a refusal
                 raise
@@ -393,6 +398,15 @@ class Seeder(Settling, StopLines, PoseRoutes, Drops):
             settle(i, frozenset())
         return out
 
+    def _depart_pos(self, lane, edges: list[str], fx: float, fy: float) -> str:
+        """``vehicle.add``'s departPos: the lane's start where ``moveToXY`` then puts the vehicle at its
+        pose; in the mesoscopic model its front's place along its edge (SUMO inserts it into the segment
+        holding it), or the end of the edge it leaves where it stands inside a junction (no segment)."""
+        if not self.meso:
+            return "base"
+        length = self.net.sumo_net.getEdge(edges[0]).getLength()
+        return f"{min(self._front_pos(lane, fx, fy), length) if not lane.internal else length:.3f}"
+
     def _front_pos(self, lane, fx: float, fy: float) -> float:
         """m along ``lane`` (a :class:`~sumo_scendiff.map.network.Lane`) of the front point (fx, fy)."""
         return float(shapely.LineString(lane.shape).project(shapely.Point(fx, fy)))
@@ -434,13 +448,19 @@ class Seeder(Settling, StopLines, PoseRoutes, Drops):
             fx, fy, angle = report.targets[i]
             if vid not in present:
                 report.refused[i] = ("removed by SUMO after a collision in the seeding step" if vid in collided
-                                     else "not in the simulation after the seeding step (SUMO did not insert it)")
+                                     else "not in the simulation after the seeding step (SUMO did not insert it"
+                                     + (" into its segment, in its mesoscopic model)" if self.meso else ")"))
                 self._withdraw(vid)
                 for d in (report.ids, report.targets, report.lanes, report.slowed):
                     d.pop(i, None)
                 continue
             x, y = self.sim.vehicle.getPosition(vid)
             err = float(np.hypot(x - fx, y - fy))
+            if self.meso:     # its pose is its segment's start: placed where SUMO has it on its pose's edge
+                edge = self.sim.lane.getEdgeID(report.lanes[i][0]) if i in report.lanes else None
+                if self.sim.vehicle.getRoadID(vid) != edge:
+                    report.misplaced[i] = err
+                continue
             dyaw = abs(float(wrap_angle(np.radians(angle - self.sim.vehicle.getAngle(vid)))))
             if err > POS_TOLERANCE or dyaw > YAW_TOLERANCE:
                 report.misplaced[i] = err

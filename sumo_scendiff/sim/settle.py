@@ -33,6 +33,7 @@ def krauss_safe_speed(gap: float, v_leader: float, decel: float, tau: float) -> 
 
 class Settling:
     junction_leaders_on = True     # settle: foes inside the junction as leaders (junction_leaders)
+    meso = False                   # SUMO's mesoscopic model (the Seeder's host): nothing to settle
 
     def fit_min_gap(self, i: int, vid: str, gap: float, report) -> None:
         """SUMO sees a leader ``gap`` < 0 m beyond this vehicle's minGap (``getLeader``'s distance
@@ -213,6 +214,8 @@ class Settling:
         that fits (:meth:`fit_min_gap`); one faster than the Krauss safe speed behind it is slowed to
         that speed (``setPreviousSpeed``: the speed it ends the seeding step with). Repeats until no
         vehicle changes, since slowing a leader can make its follower too fast."""
+        if self.meso:     # SUMO's mesoscopic model: no leader, no gap, no speed of a vehicle's own to set
+            return report
         sim, present = self.sim, set(self.sim.vehicle.getIDList())
         vids = [(i, v) for i, v in report.ids.items() if v in present]
         inside: dict[str, list] = {}

@@ -46,10 +46,9 @@ STATE_OPTIONS = {"save-state.transportables": "true"}
 QUIET_OPTIONS = {"no-step-log": "true", "duration-log.disable": "true"}
 # and its warnings too, for a SUMO that only loads, checks or replays what was already reported
 SILENT_OPTIONS = {**QUIET_OPTIONS, "no-warnings": "true"}
-# the product's own, never a scenario's: the inputs and time window it builds, the seed of its -s,
-# and the mesoscopic model (the seeding places vehicles on lanes, which only the microscopic has)
+# the product's own, never a scenario's: the inputs and time window it builds and the seed of its -s
 OWN_OPTIONS = frozenset({"step-length", "seed", "begin", "end", "net-file", "route-files", "additional-files",
-                         "load-state", "no-warnings", "start", "quit-on-end", "mesosim"})
+                         "load-state", "no-warnings", "start", "quit-on-end"})
 
 
 def as_args(options: dict[str, str]) -> list[str]:
@@ -154,11 +153,30 @@ def settings_problem(o) -> str | None:
     return None
 
 
-def settings(o, scen) -> dict:
+def settings(o, scen, mesoscopic: bool = True) -> dict:
     """SimConfig's keyword arguments on how SUMO runs, from the flags of :func:`add_arguments` and
-    the user's scenario (its step length, its options)."""
-    return {"step_length": step_length_for(scen, o.step_length), "scenario_options": scen.options,
+    the user's scenario (its step length, its options); without ``mesoscopic`` (the fill's) its
+    mesoscopic model is left out (:func:`microscopic`)."""
+    options = scen.options if mesoscopic else microscopic(scen.options)
+    return {"step_length": step_length_for(scen, o.step_length), "scenario_options": options,
             "lateral_resolution": o.lateral_resolution, "seeding_options": o.seeding_options}
+
+
+def microscopic(options: tuple[tuple[str, str], ...]) -> tuple[tuple[str, str], ...]:
+    """A scenario's options (name, value) without those of SUMO's mesoscopic model (its configuration
+    section ``mesoscopic``: mesosim, meso-edgelength, ...), however the configuration filed them."""
+    from ..core.tools import sumo_option_sections
+    sections = sumo_option_sections()
+    return tuple((n, v) for n, v in options if sections.get(n) != "mesoscopic")
+
+
+def mesoscopic(sim) -> bool:
+    """Whether simulation ``sim`` runs SUMO's mesoscopic model (``--mesosim``)."""
+    from ..core.sumo_xml import boolean
+    try:
+        return bool(boolean(sim.simulation.getOption("mesosim")))
+    except Exception:  # SUMO < 1.19 has no getOption
+        return False
 
 
 def has_display() -> bool:
