@@ -168,3 +168,30 @@ def test_the_cli_writes_it(scenario, tmp_path, capsys):
     assert "SUMO's own run" in capsys.readouterr().out
     with open(out / "fill.json") as f:
         assert json.load(f)["density"]["start"] == "sumo"
+
+
+# a taxi (SUMO's device.taxi) that picks its rider up on ce at 60 s and carries it along ec at 80 s, outside AREA
+TAXI = ('<routes><vType id="taxi" vClass="taxi"><param key="has.taxi.device" value="true"/></vType>'
+        '<trip id="taxi0" type="taxi" depart="0" from="wc" to="ce" line="taxi"/>'
+        '<person id="rider" depart="0"><ride from="ce" to="cn" lines="taxi"/></person></routes>')
+
+
+def test_an_area_takes_a_taxi_out_with_its_rider(tmp_path):
+    """SUMO 1.28 crashed saving the state once TraCI removed a taxi carrying a person (the person still
+    pointed at it): the rider is taken out first. In a subprocess, as SUMO's crash ends the process."""
+    import sys
+
+    from .conftest import crossing
+    net = crossing(str(tmp_path / "cross_u.net.xml"), 1, turnarounds=True)
+    (tmp_path / "taxi.rou.xml").write_text(TAXI)
+    code = ("import json, sys\nfrom sumo_scendiff.fill.api import fill\n"
+            f"done = fill({net!r}, None, {AREA!r}, routes=({str(tmp_path / 'taxi.rou.xml')!r},), begin=80.0, "
+            f"out={str(tmp_path / 'out')!r}, step_length=1.0)\n"
+            "print(json.dumps(done.doc['density']['vehicles']))\n")
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))     # the package, as installed or not
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=root, timeout=600)
+    assert run.returncode == 0, run.stderr[-800:]
+    counts = json.loads(run.stdout.strip().splitlines()[-1])
+    assert (counts["on_network"], counts["in_area"]) == (1, 0)
+    assert counts["persons"] == {"on_network": 1, "in_area": 0, "outside": 1}

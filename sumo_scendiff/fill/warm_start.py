@@ -53,12 +53,16 @@ def _keep_area(sim, agents: list[dict], area: tuple | None) -> tuple[list[dict],
     from .tiles import in_area
     inside = in_area([(a["x"], a["y"]) for a in agents], area)
     persons = list(sim.person.getIDList())
-    # a rider goes with its vehicle (SUMO takes it out with it); one walking or waiting by its position
+    # one walking or waiting goes by its position, a rider with its vehicle
     for pid in persons:
         if not sim.person.getVehicle(pid) and not in_area([sim.person.getPosition(pid)], area)[0]:
             sim.person.remove(pid)
     for a, keep in zip(agents, inside):
         if not keep:
+            # its riders first: SUMO 1.28 leaves a taxi's passenger (device.taxi) pointing at the vehicle
+            # TraCI removed, and its next saveState crashes (corpus: sumotest_taxi_2taxis_10persons)
+            for pid in sim.vehicle.getPersonIDList(a["vehicle"]):
+                sim.person.remove(pid)
             sim.vehicle.remove(a["vehicle"])
     kept = [a for a, keep in zip(agents, inside) if keep]
     record = {"on_network": len(agents), "in_area": len(kept), "outside": len(agents) - len(kept),
