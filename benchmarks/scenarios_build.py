@@ -87,8 +87,26 @@ def _from_github(sc: Scenario, dest: Path, cache: Path, mirror: Path | None) -> 
         (dest / rel).parent.mkdir(parents=True, exist_ok=True)
         (dest / rel).write_bytes(_github_file(g["repo"], commit, path, cache, mirror))
     for cmd in g["steps"]:
+        if cmd[0] == TEST_CONFIG:
+            _test_config(dest, cmd[1], cmd[2:])
+            continue
         subprocess.run(_program(cmd[0], dest) + cmd[1:], cwd=dest, check=True, capture_output=True, timeout=1800)
     return {}
+
+
+# a build step writing a SUMO test's configuration: ["sumo-test-config", CFG, OPTIONS_FILE, ...]
+TEST_CONFIG = "sumo-test-config"
+
+
+def _test_config(dest: Path, cfg: str, option_files: list) -> None:
+    """The configuration of a test of SUMO's own suite (``tests/sumo``), as its test runner runs it.
+    TextTest runs ``sumo`` in a copy of the test's files with the options of every ``options.sumo`` from
+    ``tests/sumo`` down to the test's folder (outermost first); SUMO's ``--save-configuration`` writes
+    those options as the configuration ``sumo -c CFG`` runs (it loads nothing)."""
+    import shlex
+    options = [tok for f in option_files for tok in shlex.split((dest / f).read_text())]
+    subprocess.run([_binary("sumo"), *options, "--save-configuration", cfg], cwd=dest, check=True,
+                   capture_output=True, timeout=120)
 
 
 def _program(name: str, dest: Path) -> list:

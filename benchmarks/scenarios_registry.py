@@ -123,6 +123,44 @@ def _libsignal(name: str, stem: str) -> dict:
             for ext in ("sumocfg", "net.xml", "rou.xml")}
 
 
+# co-simulation frameworks' own SUMO scenarios, as their repositories ship them: Veins (its Erlangen example, a
+# configuration named .sumo.cfg beside OSM polygons; its TraCI test net with a traffic-light file and unknown
+# route attributes) and Eclipse MOSAIC (Hamburg's Sievekingplatz, its SUMO federate's test scenarios)
+VEINS = "6571085f9879003d03e804f8cee074843a9a3953"
+VEINS_TRACI = "subprojects/veins_testsims/sim/veins_testsims/traci/"
+MOSAIC = "0328cfb7d03382a4cf316871679066a983028b93"
+MOSAIC_FED = "fed/mosaic-sumo/src/test/resources/"
+
+
+def _at(commit: str, folder: str, names: list) -> dict:
+    """Files of one repository folder, each at ``commit``, as ``_github`` takes them."""
+    return {n: (folder + n, commit) for n in names}
+
+
+# users' own scenarios from SUMO's osmWebWizard, as they pushed them: Chiang Mai (left-hand traffic, motorcycles)
+# and Chicago's Kennedy Expressway (its configuration names a file by a Windows path on its author's machine)
+CHIANGMAI = "78bf6dd0dcc58b1ad32dd030bb30bc90cc801c1f"
+KENNEDY = "18f6af397c80672141c0ba1c77b9672e52d44f78"
+
+
+# tests of SUMO's own suite (tests/sumo): each test's files and the options.sumo files its runner joins (from
+# tests/sumo down to the test's folder, outermost first), written as test.sumocfg by SUMO itself
+# (scenarios_build._test_config); a file the code index holds once for several tests (it keeps one copy of
+# identical files) is taken from where it is held
+SUMO_TESTS = "tests/sumo/"
+TEST_OPTIONS = ("tests/sumo/options.sumo", "43dfea9b48cb87f76cd1219f53cd1532a150af6d")
+TAXI_TEST = SUMO_TESTS + "devices/taxi/2taxis_10persons/"
+CONTAINER_TEST = SUMO_TESTS + "devices/taxi/containers/10containers_sameEdge"
+
+
+def _sumo_test(name: str, files: dict, options: list, covers: tuple, steps=(), **kw) -> Scenario:
+    """A test of SUMO's suite: ``files`` as ``_github`` takes them, ``options`` its options.sumo files
+    (path, commit) below tests/sumo's own, outermost first."""
+    opts = {f"options/{i}.sumo": o for i, o in enumerate([TEST_OPTIONS, *options])}
+    return _github(name, SUMO_REPO, {**files, **opts}, "test.sumocfg", "EPL-2.0", covers,
+                   steps=[*steps, ["sumo-test-config", "test.sumocfg", *opts]], **kw)
+
+
 SUMO_EXPERIMENTS = ("sumo-experiments", "5.8.4")
 BOLOGNA = "sumo_experiments/preset_networks/bologna/acosta/"
 BOLOGNA_COVERS = ("city", "lights", "buses", "bus lanes", "stops", "detectors", "vTypes in additional files")
@@ -238,6 +276,62 @@ REGISTRY: list[Scenario] = [
     _pypi("se_champs_elysees", *SUMO_EXPERIMENTS,
           "sumo_experiments/preset_networks/champs_elysees/run_11112.sumocfg", "LGPL-2.1-or-later",
           ("city", "lights", "OSM", "flows", "detectors"), offset=600),
+    _github("veins_erlangen", "sommer/veins",
+            _at(VEINS, "examples/veins/", ["erlangen.sumo.cfg", "erlangen.net.xml", "erlangen.rou.xml",
+                                           "erlangen.poly.xml"]),
+            "erlangen.sumo.cfg", "GPL-2.0-or-later OR CC-BY-SA-4.0",
+            ("city", "OSM", "polygons", "step length 0.1", "configuration named .sumo.cfg")),
+    _github("veins_testsims_traci", "sommer/veins",
+            _at(VEINS, VEINS_TRACI, ["sumo.sumo.cfg", "net.net.xml", "routes.rou.xml", "polys.poly.xml",
+                                     "tls.tls.xml", "additional.xml"]),
+            "sumo.sumo.cfg", "GPL-2.0-or-later OR CC-BY-SA-4.0",
+            ("TLS program file", "polygons", "unknown route attributes", "departSpeed max"), offset=30),
+    _github("mosaic_sievekingplatz", "eclipse/mosaic",
+            _at(MOSAIC, "bundle/src/assembly/resources/scenarios/Sievekingplatz/sumo/",
+                ["sievekingplatz.sumocfg", "sievekingplatz.net.xml", "sievekingplatz.rou.xml",
+                 "sievekingplatz.bus.add.xml"]),
+            "sievekingplatz.sumocfg", "EPL-2.0",
+            ("city", "buses", "stops", "bicycles", "junction model parameters", "step length 0.1"), offset=20),
+    _github("mosaic_density_flow", "eclipse/mosaic",
+            _at(MOSAIC, MOSAIC_FED + "density-flow-scenario/",
+                ["density_flow.sumocfg", "density_flow.net.xml", "density_flow.rou.xml",
+                 "density_flow.detector.xml"]),
+            "density_flow.sumocfg", "EPL-2.0", ("IDMM car-following", "departLane best", "speedDev", "detectors")),
+    _github("mosaic_sumo_test", "eclipse/mosaic",
+            _at(MOSAIC, MOSAIC_FED + "sumo-test-scenario/",
+                ["scenario.sumocfg", "scenario.net.xml", "scenario.rou.xml", "scenario.detector.xml",
+                 "parking.add.xml"]),
+            "scenario.sumocfg", "EPL-2.0", ("buses", "lines", "stops", "parkingAreas", "speedFactor distribution"),
+            offset=15),
+    _github("mosaic_tiergarten_jump", "eclipse/mosaic",
+            _at(MOSAIC, "test/scenarios/sumo-predefined-scenario-integration/sumo/",
+                ["teleport_tiergarten.sumocfg", "tiergarten.net.xml", "teleport_tiergarten.rou.xml"]),
+            "teleport_tiergarten.sumocfg", "EPL-2.0", ("city", "OSM", "stop with jump"), offset=15),
+    # its network as the test's net.net.xml header says netgenerate built it (the index holds it at SUMO 1.4)
+    _sumo_test("sumotest_taxi_2taxis_10persons",
+               _at("11e14c76e0221f3bdab6440c5886816da4cc2a42", TAXI_TEST,
+                   ["input_routes.rou.xml", "input_routes2.rou.xml"]),
+               [(TAXI_TEST + "options.sumo", "519e7f1ba3c06a925161729bdb6e8f351ef74fba")],
+               ("taxis", "persons", "rides", "triggered stops", "sidewalks"),
+               steps=[["netgenerate", "--grid", "--grid.length", "300", "--grid.x-number", "6", "--grid.y-number",
+                       "3", "--sidewalks.guess", "--walkingareas", "-o", "net.net.xml"]], offset=60),
+    _sumo_test("sumotest_containers_bidi",
+               {"net.net.xml": (CONTAINER_TEST + "_bidi/net.net.xml", "bcdbb70c15f6a85a91c5667369e2f3f9e153bc21"),
+                "input_routes.rou.xml": (CONTAINER_TEST + "_bidi/input_routes.rou.xml",
+                                         "65c567e7aa02b7bd6f23ae88b1a1b1b41642ae0f"),
+                "input_additional.add.xml": (CONTAINER_TEST + "/input_additional.add.xml",
+                                             "bcdbb70c15f6a85a91c5667369e2f3f9e153bc21")},
+               [(CONTAINER_TEST + "_bidi/options.sumo", "c2b6a0b9e460e5c7128ae422e134d2ad33835494")],
+               ("bidirectional edge", "containers", "containerFlow", "taxi device", "trucks"), offset=30),
+    _github("osm_chiangmai", "greede14/OSM-SUMO-ChiangMai-Research",
+            _at(CHIANGMAI, "", ["osm.sumocfg", "osm.net.xml.gz", "osm.motorcycle.trips.xml",
+                                "osm.passenger.trips.xml", "osm.poly.xml.gz", "osm.view.xml"]),
+            "osm.sumocfg", "none stated (OSM: ODbL)",
+            ("city", "OSM", "left-hand", "motorcycles", "trips", "route errors ignored"), offset=300),
+    _github("osm_kennedy_expressway", "aryan-SVG/traffic_simulation_Kennedy_Expressway",
+            _at(KENNEDY, "", ["osm.sumocfg", "osm.net.xml.gz", "osm.passenger.trips.xml", "osm.view.xml"]),
+            "osm.sumocfg", "none stated (OSM: ODbL)",
+            ("highway", "OSM", "trips", "junction-taz", "a Windows path in route-files"), offset=300),
 ]
 
 def _feature(name: str) -> Scenario:

@@ -39,7 +39,7 @@ def _copy(name: str, tmp_path: Path, corpus) -> Path:
 def test_registry_is_public_and_covers_the_kinds_of_traffic(corpus):
     names = [s.name for s in corpus.REGISTRY]
     assert len(names) >= 25 and len(set(names)) == len(names)
-    assert all(s.licence and s.source and s.config.endswith(".sumocfg") for s in corpus.REGISTRY)
+    assert all(s.licence and s.source and s.config for s in corpus.REGISTRY)
     assert not any("DLR-TS/sumo-scenarios" in json.dumps(s.get) for s in corpus.REGISTRY)
     covered = {c for s in corpus.REGISTRY for c in s.covers}
     assert {"left-hand", "bicycles", "pedestrians", "buses", "actuated lights", "roundabouts",
@@ -116,6 +116,40 @@ def test_the_fill_area_holds_car_lanes_where_the_centre_has_none(corpus, tmp_pat
     assert any((x0 + x1) / 2 == x and (y0 + y1) / 2 == y for x in (0, 1000) for y in (0, 1000)), (x0, y0, x1, y1)
 
 
+def test_the_fill_area_of_a_straight_road_has_a_width(corpus, tmp_path):
+    """As SUMO's container test on one bidirectional edge: the network's boundary is a line (y0 == y1),
+    and the square clipped to it had no height (the fill refused "--area: needs ... Y1 > Y0")."""
+    netgen = shutil.which("netgenerate") or str(corpus._sumo_home() / "bin" / "netgenerate")
+    subprocess.run([netgen, "--grid", "--grid.x-number", "3", "--grid.y-number", "1", "--grid.length", "500",
+                    "-o", "net.net.xml"], cwd=tmp_path, check=True, capture_output=True)
+    (tmp_path / "s.sumocfg").write_text('<configuration><input><net-file value="net.net.xml"/></input>'
+                                        '</configuration>')
+    sc = corpus.Scenario("g", "generated", "-", {"kind": "generate"}, "s.sumocfg")
+    x0, y0, x1, y1 = corpus.fill_area(sc, tmp_path / "s.sumocfg")
+    assert x1 - x0 == 400.0 and y1 - y0 == 400.0 and y0 < 0 < y1, (x0, y0, x1, y1)
+
+
+def test_a_sumo_test_is_run_as_its_test_runner_joins_its_options(corpus, tmp_path):
+    """A test of SUMO's suite has no configuration: its options.sumo files (tests/sumo's, then the test
+    folder's) are its command line, which SUMO writes as the configuration stock sumo -c runs."""
+    netgen = shutil.which("netgenerate") or str(corpus._sumo_home() / "bin" / "netgenerate")
+    subprocess.run([netgen, "--grid", "--grid.number", "2", "-o", "net.net.xml"], cwd=tmp_path, check=True,
+                   capture_output=True)
+    (tmp_path / "input_routes.rou.xml").write_text('<routes><flow id="f" begin="0" end="60" number="5" '
+                                                   'from="A0A1" to="A1B1"/></routes>')
+    (tmp_path / "outer.sumo").write_text("--xml-validation never\n--default.speeddev 0\n")
+    (tmp_path / "inner.sumo").write_text("--no-step-log --net-file=net.net.xml\n-r input_routes.rou.xml\n-t\n")
+    import scenarios_build
+    scenarios_build._test_config(tmp_path, "test.sumocfg", ["outer.sumo", "inner.sumo"])
+    text = (tmp_path / "test.sumocfg").read_text()
+    for option in ('<default.speeddev value="0"/>', '<net-file value="net.net.xml"/>',
+                   '<route-files value="input_routes.rou.xml"/>', '<duration-log.statistics value="true"/>'):
+        assert option in text
+    ref = subprocess.run([corpus._sumo(), "-c", str(tmp_path / "test.sumocfg"), "--end", "30"],
+                         capture_output=True, text=True)
+    assert ref.returncode == 0, ref.stderr
+
+
 def test_one_line_takes_sumos_error_else_the_traceback_tail(corpus):
     sumo = "Warning: x\nError: No option with the name 'osg-view' exists.\nQuitting (on error).\n"
     assert corpus._one_line(sumo) == "Error: No option with the name 'osg-view' exists."
@@ -181,6 +215,36 @@ def test_a_replay_counts_the_demands_departures_due_in_its_first_step(corpus, tm
     res = corpus.check_count("fill_start", corpus.step(cmd, 60, tmp_path / "log", tmp_path), tmp_path)
     assert res["ok"] and res["vehicles"] == {"sumo": 11, "expected": 11}, res
     assert not list(fill.glob("_*.sumocfg"))
+
+
+def test_a_state_replay_counts_the_departures_its_queue_holds_once(corpus, tmp_path):
+    """As sumo-rl's Nguyen: the state saved at T holds SUMO's queue of vehicles due by T and not yet in;
+    the demand's departures due in the replay's first step are among them (they were counted twice)."""
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.sim.state import waiting_in_state
+    fill = tmp_path / "fill"
+    fill.mkdir()
+    subprocess.run([sumo_binary("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "200",
+                    "-o", str(fill / "g.net.xml")], check=True, capture_output=True)
+    # six vehicles due at one spot at T = 10: one enters a second, the rest wait in SUMO's queue
+    (fill / "d.rou.xml").write_text("<routes>" + "".join(
+        f'<vehicle id="d{k}" depart="{5 if k < 2 else 10}"><route edges="A0A1 A1A2"/></vehicle>'
+        for k in range(8)) + "</routes>")
+    subprocess.run([corpus._sumo(), "-n", fill / "g.net.xml", "-r", fill / "d.rou.xml", "--end", "12",
+                    "--save-state.times", "10", "--save-state.files", fill / "state.xml", "--no-step-log", "true"],
+                   check=True, capture_output=True)
+    on_road = ["d0", "d1"]
+    queued = waiting_in_state(str(fill / "state.xml"), on_road, 10.0)
+    (fill / "scenario.sumocfg").write_text('<configuration><net-file value="g.net.xml"/><begin value="10"/>'
+                                           '<route-files value="d.rou.xml"/><load-state value="state.xml"/>'
+                                           '</configuration>')
+    (fill / "fill.json").write_text(json.dumps({"agents": [{"status": "placed"}] * len(on_road),
+                                                "routes": [str(tmp_path / "user" / "d.rou.xml")],
+                                                "density": {"waiting_to_enter": queued}}))
+    cmd = [corpus._sumo(), "-c", fill / "scenario.sumocfg", "--end", "20", "--no-step-log", "true",
+           "--summary-output", tmp_path / "fill_replay_summary.xml"]
+    res = corpus.check_count("fill_replay", corpus.step(cmd, 60, tmp_path / "log", tmp_path), tmp_path)
+    assert queued == 6 and res["ok"] and res["vehicles"] == {"sumo": 8, "expected": 8}, res
 
 
 def test_table_names_the_first_failing_step(corpus):
