@@ -109,3 +109,17 @@ def _held(cfg: str, args: list[str], summary, t: float) -> int:
     assert ran.returncode == 0, ran.stderr[-300:]
     step = next(el for el in ET.parse(summary).getroot() if abs(float(el.get("time")) - t) < 1e-6)
     return int(step.get("running")) + int(step.get("waiting"))
+
+
+def test_replay_future_is_refused_in_the_mesoscopic_model(cross_net, tmp_path, capsys):
+    """``--replay-future`` holds the agents on their generated poses (moveToXY), which SUMO's mesoscopic
+    model does not do: one line, exit 2, rather than a rollout.json saying they were held."""
+    from sumo_scendiff import run as run_cli
+    try:
+        code = run_cli.main(run_cli.get_options(["-c", _config(tmp_path, cross_net), "--replay-future", "1",
+                                                 "-o", str(tmp_path / "out")]))
+    except SystemExit as e:
+        code = e.code
+    err = capsys.readouterr().err
+    assert code == 2 and "--replay-future" in err and "mesosim" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "out").exists()

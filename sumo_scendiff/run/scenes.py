@@ -152,6 +152,9 @@ def _scenario(o):
     except ScenarioError as e:
         raise RunError(str(e)) from None
     if meso_notice(o.config):
+        if o.replay_future > 0:    # the agents' futures are poses, which the mesoscopic model has not
+            raise RunError(f"--replay-future: {o.config}: mesosim: SUMO's mesoscopic model holds no vehicle "
+                           "at a pose (moveToXY does nothing there); leave --replay-future out")
         print(f"{PROG}: warning: {meso_notice(o.config)}", file=sys.stderr)
     pool = ThreadPoolExecutor(max_workers=1)   # its thread mostly waits for SUMO's process
     judged = pool.submit(preflight, scen)

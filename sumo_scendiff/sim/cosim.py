@@ -350,7 +350,10 @@ class CoSimulation:
     def follow(self, seeding: Seeding, tau: float) -> int:
         """Hold every seeded agent on its generated future: place it at its interpolated pose and
         speed for ``tau`` seconds after seeding (0 < tau <= 2); the caller then steps. Returns how
-        many agents were moved (agents without an observed future are left to SUMO)."""
+        many agents were moved (agents without an observed future are left to SUMO; none in SUMO's
+        mesoscopic model, which has no pose to hold a vehicle at: moveToXY does nothing there)."""
+        if self.seeder.meso:
+            return 0
         sc, w, sim = seeding.scene, seeding.scene.window, self.sim
         k = min(int(np.floor(tau)), len(TIMES) - T0 - 2)          # segment [T0 + k, T0 + k + 1]
         a = tau - k
