@@ -264,6 +264,7 @@ SUBSET = [
     pytest.param("game_square", id="square"),
     pytest.param("game_cross", id="cross-add-root"),
     pytest.param("game_ramp", id="ramp-highway-add-root"),
+    pytest.param("sumotest_containers_bidi", id="sumo-test-containers-bidi-straight-road"),
 ]
 
 
