@@ -92,17 +92,21 @@ class _Tracker:
             self.types[tid] = (v.getLength(vid), v.getWidth(vid), _VCLASS.get(vcls, -1))
         return self.types[tid]
 
-    def step(self) -> None:
+    def step(self, poses: bool = True) -> None:
+        """Take the states of this step. ``poses`` False (a warm-up step no scene will read) keeps
+        the subscriptions only: no state is converted or kept."""
         t = self.traci
         for vid in t.simulation.getDepartedIDList():
             t.vehicle.subscribe(vid, (t.constants.VAR_POSITION, t.constants.VAR_ANGLE,
                                       t.constants.VAR_SPEED))
         for vid in t.simulation.getArrivedIDList():
             self.vtype_of.pop(vid, None)
+        if not poses:
+            return
         res = t.vehicle.getAllSubscriptionResults()
         pos = t.constants.VAR_POSITION
         ang, spd = t.constants.VAR_ANGLE, t.constants.VAR_SPEED
-        state = {}
+        ids, rows = [], []
         for vid, r in res.items():
             length, width, vcls = self._static(vid)
             if vcls < 0:
@@ -110,9 +114,13 @@ class _Tracker:
             x, y = r[pos]
             if INVALID in (x, y, r[spd]):
                 continue  # off the road: teleporting (SUMO reports no position or speed then)
-            cx, cy, yaw = sumo_to_pose(x, y, r[ang], length)
-            state[vid] = (float(cx), float(cy), float(yaw), float(r[spd]), length, width, vcls)
-        self.steps.append(state)
+            ids.append(vid)
+            rows.append((x, y, r[ang], length, r[spd], width, vcls))
+        # every vehicle's pose converted at once: sumo_to_pose's per-vehicle arithmetic, on arrays
+        a = np.array([r[:4] for r in rows], np.float64).reshape(-1, 4)
+        cx, cy, yaw = (v.tolist() for v in sumo_to_pose(a[:, 0], a[:, 1], a[:, 2], a[:, 3]))
+        self.steps.append({vid: (cx[k], cy[k], yaw[k], float(r[4]), r[3], r[5], r[6])
+                           for k, (vid, r) in enumerate(zip(ids, rows))})
         self.lights.append({i: t.trafficlight.getRedYellowGreenState(i) for i in self.light_ids})
 
     def signals(self, window: Window) -> dict[str, str]:
@@ -144,13 +152,15 @@ class _Tracker:
         traj = np.zeros((n, len(TIMES), 3))
         mask = np.zeros((n, len(TIMES)), bool)
         speed = np.zeros((n, len(TIMES)))
-        for a, vid in enumerate(ids):
-            for k, st in enumerate(self.steps):
-                s = st.get(vid)
-                if s is not None:
-                    traj[a, k] = (*window.world_to_scene(s[:2]), window.yaw_to_scene(s[2]))
-                    speed[a, k] = s[3]
-                    mask[a, k] = True
+        for k, st in enumerate(self.steps):   # each step's agents converted at once
+            seen = [a for a, vid in enumerate(ids) if vid in st]
+            if not seen:
+                continue
+            s = np.array([st[ids[a]][:4] for a in seen], np.float64)
+            traj[seen, k, :2] = window.world_to_scene(s[:, :2])
+            traj[seen, k, 2] = window.yaw_to_scene(s[:, 2])
+            speed[seen, k] = s[:, 3]
+            mask[seen, k] = True
         sizes = np.array([now[v][4:6] for v in ids]).reshape(n, 2)
         vclass = np.array([now[v][6] for v in ids], dtype=np.int8)
         boxes = np.concatenate([traj[:, T0], sizes], axis=1)
@@ -200,7 +210,8 @@ def record_episode(net: Network, spec: EpisodeSpec, progress=None) -> list[Scene
         while len(scenes) < spec.scenes:
             traci.simulationStep()
             now = traci.simulation.getTime()
-            tracker.step()
+            # no pose is read before the first sample's five steps (warm-up): subscriptions only
+            tracker.step(poses=now + 2.0 + len(TIMES) >= next_sample)
             if now >= t_end or traci.simulation.getMinExpectedNumber() == 0:
                 break
             t0 = now - 2.0  # the middle of the ring buffer
