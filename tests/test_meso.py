@@ -1,5 +1,6 @@
 """SUMO's mesoscopic model (``<mesosim value="true"/>``) as a user's configuration runs it: carried by
-run (warm-up, seeding, exported folder), left out by the fill, which says so (real SUMO, tiny networks)."""
+run (warm-up, seeding, exported folder) and the fill's portable start; the fill's seeding and state are
+microscopic, which it says (real SUMO, tiny networks)."""
 from __future__ import annotations
 
 import gzip
@@ -100,6 +101,31 @@ def test_a_mesoscopic_run_replays_in_stock_sumo_as_the_scene_says(cross_net, tmp
     stock = _held(cfg, ["--end", f"{t + 1:g}", "--seed", "0"], tmp_path / "stock.xml", t)
     replay = _held(str(scene / "scenario.sumocfg"), ["--end", f"{t + 1:g}"], tmp_path / "replay.xml", t)
     assert replay == stock + seeded, (replay, stock, seeded)
+
+
+@pytest.mark.slow
+def test_the_fills_portable_start_runs_the_mesoscopic_model(cross_net, tmp_path):
+    """The fill seeds and saves its state microscopically (SUMO loads no microscopic state into its
+    mesoscopic model): its scenario.sumocfg is microscopic, said once; its portable start, which holds no
+    state, runs the configuration's model and holds what fill.json seeded (the demand departed by then)."""
+    routes = tmp_path / "demand.rou.xml"
+    routes.write_text("<routes>" + "".join(f'<vehicle id="v{k}" depart="{k}"><route edges="wc ce"/></vehicle>'
+                                           for k in range(30)) + "</routes>")
+    cfg = _config(tmp_path, cross_net, str(routes))
+    out = tmp_path / "fill"
+    done = subprocess.run([sys.executable, "-m", "sumo_scendiff.fill", "-c", cfg, "--begin", "35", "-o", str(out)],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-500:]
+    assert sum("mesosim" in ln for ln in done.stderr.splitlines()) == 1
+    state = {el.tag for el in ET.parse(out / "scenario.sumocfg").getroot()}
+    start = {el.tag: el.get("value") for el in ET.parse(out / "start.sumocfg").getroot()}
+    assert not {"mesosim", "meso-edgelength"} & state
+    assert start["mesosim"] == "true" and start["meso-edgelength"] == "50"
+    doc = json.loads((out / "fill.json").read_text())
+    seeded = sum(a["status"] in ("placed", "misplaced") for a in doc["agents"])
+    assert doc["start_model"] == {"model": "mesoscopic"} and seeded > 0
+    t = doc["state_time"]
+    assert _held(str(out / "start.sumocfg"), ["--end", f"{t + 1:g}"], tmp_path / "start.xml", t) == seeded
 
 
 def _held(cfg: str, args: list[str], summary, t: float) -> int:

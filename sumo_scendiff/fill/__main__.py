@@ -172,6 +172,9 @@ def _report(o, doc: dict) -> None:
     from ..sim.scenario import meso_notice
     if meso_notice(o.config, fill=True):
         print(f"{PROG}: warning: {meso_notice(o.config, fill=True)}", file=sys.stderr)
+    if (doc.get("start_model") or {}).get("reason"):    # SUMO refused the start in its mesoscopic model
+        print(f"{PROG}: warning: {os.path.join(o.out, 'start.sumocfg')}: microscopic too: SUMO's mesoscopic "
+              f"model refused it: {doc['start_model']['reason']}", file=sys.stderr)
     if doc.get("nothing_to_generate"):
         print(f"{PROG}: nothing to generate: {doc['nothing_to_generate']}; wrote "
               f"{os.path.join(o.out, 'fill.json')} (no state: the scenario itself is the start)")

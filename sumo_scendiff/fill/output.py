@@ -82,6 +82,7 @@ def write_outputs(folder, req, net, gen, scen, demand, cfg, sumo, result, source
     refitted, refused = admit_start(folder, {a["vehicle"]: (a["x"], a["y"]) for a in agents if a["vehicle"] in set(ids)},
                                     place_ends(cfg.additional, net))
     refuse_at_load(agents, refused)
+    start_model = mesoscopic_start(folder, scen)
     seeded = [a for a in agents if a["vehicle"] is not None]
     rows = np.array([[a[k] for k in ("x", "y", "heading", "length", "width", "speed")] for a in seeded]
                     ).reshape(-1, 6)
@@ -98,6 +99,7 @@ def write_outputs(folder, req, net, gen, scen, demand, cfg, sumo, result, source
            "tile_size": result.tiles[0].window.size, "density": source, "p_mask": req.p_mask,
            "model_sha256": gen.sha256, "model": gen.config.record(gen), "sumo_options": options,
            "inflow": inflow, "fleet": "model" if req.model_fleet else "scenario", "summary": counts,
+           **({"start_model": start_model} if start_model else {}),
            "tiles": _tile_rows(result, seeded), "agents": agents,
            "files": sorted(f for f in os.listdir(folder) if not f.startswith(".")) + ["fill.json"],
            "workers": workers, "timing_s": {k: round(v, 2) for k, v in timing.items()}}
@@ -185,6 +187,42 @@ def write_configurations(folder, cfg, routes, inflow: dict, state_time: float, s
     return options
 
 
+def mesoscopic_start(folder: str, scen) -> dict | None:
+    """start.sumocfg in the scenario's mesoscopic model (its ``mesosim`` and ``meso-*`` options), where
+    it runs one: the portable start holds no state, and SUMO inserts each departure into the segment of
+    its place; scenario.sumocfg loads a microscopic state, which that model does not (docs/sumo-options.md).
+    Called once the start loads microscopically (seed.admit_start); where SUMO refuses it in the
+    mesoscopic model, it stays microscopic. Returns fill.json's ``start_model`` (None: no such model)."""
+    from xml.sax.saxutils import quoteattr
+
+    from ..core.sumo_xml import boolean
+    from ..sim.sumo import SimError, mesoscopic_options, start_config
+    from .seed import _caught
+    meso = mesoscopic_options(scen.options)
+    if not boolean(dict(meso).get("mesosim")):
+        return None
+    path = os.path.join(folder, "start.sumocfg")
+    with open(path) as f:
+        micro = f.read()
+    with open(path, "w") as f:
+        f.write(micro.replace("</configuration>", "".join(f"    <{n} value={quoteattr(v)}/>\n" for n, v in meso)
+                              + "</configuration>"))
+
+    def first_step():
+        sim = start_config(path)
+        try:
+            sim.simulationStep()
+        finally:
+            close(sim)
+    try:
+        _caught(first_step)
+    except SimError as e:
+        with open(path, "w") as f:
+            f.write(micro)
+        return {"model": "microscopic", "reason": str(e)}
+    return {"model": "mesoscopic"}
+
+
 def summary(net, agents, seeded, rows, area_km, tiles, exact, refused, refitted) -> dict:
     """fill.json's summary: the agents by status, the portable start, the density as edgeData counts it."""
     # SUMO's edgeData counts a vehicle on the lane of its front bumper: one nosing into a junction is
@@ -221,4 +259,5 @@ def _tile_rows(result, seeded) -> list[dict]:
     return tiles
 
 
-__all__ = ["FORMAT", "ONWARD", "VERSION", "seeding_sumo", "summary", "write_configurations", "write_outputs"]
+__all__ = ["FORMAT", "ONWARD", "VERSION", "mesoscopic_start", "seeding_sumo", "summary", "write_configurations",
+           "write_outputs"]

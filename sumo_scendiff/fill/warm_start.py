@@ -139,7 +139,7 @@ def _drop_their_vtypes(path: str, files: list[str]) -> None:
 def sumo_start(req, net, scen, begin: float, start: float, folder: str, timing: dict) -> dict:
     """The fill's folder from SUMO's own run of ``scen`` from ``start`` to ``begin``; returns fill.json."""
     from ..sim.stops import place_ends
-    from .output import FORMAT, ONWARD, VERSION, summary, write_configurations
+    from .output import FORMAT, ONWARD, VERSION, mesoscopic_start, summary, write_configurations
     from .picture import draw_fill
     from .seed import admit_start, refuse_at_load
     cfg, agents, exact, state_time, waiting, area = _run(req, net, scen, begin, start, folder, timing)
@@ -151,6 +151,7 @@ def sumo_start(req, net, scen, begin: float, start: float, folder: str, timing: 
                                     place_ends(cfg.additional, net))
     refused = {vid.removeprefix(PORTABLE_PREFIX): why for vid, why in refused.items()}
     refuse_at_load(agents, refused)
+    start_model = mesoscopic_start(folder, scen)
     seeded = [a for a in agents if a["vehicle"] is not None]
     rows = np.array([[a[k] for k in ("x", "y", "heading", "length", "width", "speed")] for a in seeded]
                     ).reshape(-1, 6)
@@ -170,6 +171,7 @@ def sumo_start(req, net, scen, begin: float, start: float, folder: str, timing: 
            "area": None if req.area is None else [float(v) for v in req.area], "stride": None,
            "portable_ids": f"{PORTABLE_PREFIX}<vehicle> in start.rou.xml",
            "density": source, "sumo_options": options, "inflow": inflow, "fleet": "scenario",
+           **({"start_model": start_model} if start_model else {}),
            "summary": summary(net, agents, seeded, rows, km, 0, exact, refused, refitted),
            "tiles": [], "agents": agents,
            "files": sorted(f for f in os.listdir(folder) if not f.startswith(".")) + ["fill.json"],

@@ -169,7 +169,7 @@ def run_options(path: str) -> tuple[tuple[str, str], ...]:
 def meso_notice(config: str | None, fill: bool = False) -> str | None:
     """The warning for a configuration that runs SUMO's mesoscopic model (``mesosim``; None for any
     other): ``run`` and ``sweep`` carry it, and a mesoscopic vehicle stands in a segment of its edge, not
-    at a pose; the fill (``fill``) runs microscopically (docs/sumo-options.md says why)."""
+    at a pose; the fill (``fill``) seeds microscopically, its portable start runs the model (docs/sumo-options.md)."""
     import xml.etree.ElementTree as ET
 
     from ..core.sumo_xml import boolean
@@ -182,9 +182,9 @@ def meso_notice(config: str | None, fill: bool = False) -> str | None:
     if not meso:
         return None
     if fill:
-        return (f"{config}: mesosim: the fill runs and exports the scenario microscopically (its start places "
-                "vehicles at lane positions, which SUMO's mesoscopic model does not have, and SUMO loads no "
-                "microscopic state into it)")
+        return (f"{config}: mesosim: the fill seeds and saves its state microscopically (it places vehicles at "
+                "lane positions, which SUMO's mesoscopic model does not have, and that model loads no "
+                "microscopic state): scenario.sumocfg is microscopic, start.sumocfg runs the mesoscopic model")
     return (f"{config}: mesosim: the scenes run in SUMO's mesoscopic model, as configured: a vehicle there "
             "stands in a segment of its edge, not at its pose (scene.json: placed = in its pose's edge)")
 

@@ -162,12 +162,18 @@ def settings(o, scen, mesoscopic: bool = True) -> dict:
             "lateral_resolution": o.lateral_resolution, "seeding_options": o.seeding_options}
 
 
-def microscopic(options: tuple[tuple[str, str], ...]) -> tuple[tuple[str, str], ...]:
-    """A scenario's options (name, value) without those of SUMO's mesoscopic model (its configuration
+def mesoscopic_options(options: tuple[tuple[str, str], ...]) -> tuple[tuple[str, str], ...]:
+    """Those of a scenario's options (name, value) that set SUMO's mesoscopic model (its configuration
     section ``mesoscopic``: mesosim, meso-edgelength, ...), however the configuration filed them."""
     from ..core.tools import sumo_option_sections
     sections = sumo_option_sections()
-    return tuple((n, v) for n, v in options if sections.get(n) != "mesoscopic")
+    return tuple((n, v) for n, v in options if sections.get(n) == "mesoscopic")
+
+
+def microscopic(options: tuple[tuple[str, str], ...]) -> tuple[tuple[str, str], ...]:
+    """A scenario's options without those of its mesoscopic model (:func:`mesoscopic_options`)."""
+    meso = set(mesoscopic_options(options))
+    return tuple(o for o in options if o not in meso)
 
 
 def mesoscopic(sim) -> bool:
