@@ -288,11 +288,13 @@ def _demand_due(name: str, out: Path, doc: dict) -> int:
 def _stock_summary(out: Path, t: float, seed) -> Path:
     """Stock SUMO's summary-output of the run's configuration up to ``t`` with the product's SUMO seed:
     the vehicles the scene kept from the simulation are those of a run with that seed (the corpus's own
-    stock step keeps the configuration's, SUMO's default where it names none)."""
+    stock step keeps the configuration's, SUMO's default where it names none). Without a TraCI server
+    (``remote-port 0``), as the product's own SUMO: one the configuration asks for waits for a client
+    until the time limit (sumorl_ow), and its binary outlived the killed wrapper, holding the port."""
     cfg = json.loads((out / "run" / "run.json").read_text())["configuration"]
     path = out / "run_reference_summary.xml"
     subprocess.run([_sumo(), "-c", cfg, "--end", f"{t:g}", "--no-step-log", "true", "--summary-output", path,
-                    *(["--seed", str(seed)] if seed is not None else [])],
+                    "--remote-port", "0", *(["--seed", str(seed)] if seed is not None else [])],
                    capture_output=True, cwd=out, timeout=TIMEOUT["sumo"], check=False)
     return path
 
