@@ -3,7 +3,7 @@
 * no work log: no "round N", no numbered work-log headings, no `runs/` paths (one machine's folders);
 * every ``results/...`` file they name is in git, and every relative link resolves;
 * the tables ``benchmarks/report.py`` draws from ``results/*.json`` are as the JSON says.
-CHANGELOG.md and the weights card (sumo_scendiff/weights/README.md) may name rounds: they are history.
+The weights card (sumo_scendiff/weights/README.md) is held to the same; CHANGELOG.md may name rounds: it is history.
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "sumo_scendiff" / "weights" / "README.md"]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 sys.path.insert(0, str(ROOT / "tests"))
 import report  # noqa: E402
