@@ -219,7 +219,8 @@ def test_a_replay_counts_the_demands_departures_due_in_its_first_step(corpus, tm
 
 def test_a_state_replay_counts_the_departures_its_queue_holds_once(corpus, tmp_path):
     """As sumo-rl's Nguyen: the state saved at T holds SUMO's queue of vehicles due by T and not yet in;
-    the demand's departures due in the replay's first step are among them (they were counted twice)."""
+    a route file's departures due in the replay's first step are among them (they were counted twice), a
+    flow's are not (ma2c_real_net: they are due then)."""
     from sumo_scendiff.core.tools import sumo_binary
     from sumo_scendiff.sim.state import waiting_in_state
     fill = tmp_path / "fill"
@@ -229,22 +230,23 @@ def test_a_state_replay_counts_the_departures_its_queue_holds_once(corpus, tmp_p
     # six vehicles due at one spot at T = 10: one enters a second, the rest wait in SUMO's queue
     (fill / "d.rou.xml").write_text("<routes>" + "".join(
         f'<vehicle id="d{k}" depart="{5 if k < 2 else 10}"><route edges="A0A1 A1A2"/></vehicle>'
-        for k in range(8)) + "</routes>")
+        for k in range(8)) + '<flow id="f" begin="10" end="11" number="1" from="C0C1" to="C1C2"/></routes>')
     subprocess.run([corpus._sumo(), "-n", fill / "g.net.xml", "-r", fill / "d.rou.xml", "--end", "12",
-                    "--save-state.times", "10", "--save-state.files", fill / "state.xml", "--no-step-log", "true"],
+                    "--save-state.times", "10", "--save-state.files", fill / "state.xml.gz", "--no-step-log", "true"],
                    check=True, capture_output=True)
     on_road = ["d0", "d1"]
-    queued = waiting_in_state(str(fill / "state.xml"), on_road, 10.0)
+    queued = waiting_in_state(str(fill / "state.xml.gz"), on_road, 10.0)
     (fill / "scenario.sumocfg").write_text('<configuration><net-file value="g.net.xml"/><begin value="10"/>'
-                                           '<route-files value="d.rou.xml"/><load-state value="state.xml"/>'
+                                           '<route-files value="d.rou.xml"/><load-state value="state.xml.gz"/>'
                                            '</configuration>')
     (fill / "fill.json").write_text(json.dumps({"agents": [{"status": "placed"}] * len(on_road),
                                                 "routes": [str(tmp_path / "user" / "d.rou.xml")],
-                                                "density": {"waiting_to_enter": queued}}))
+                                                "density": {"waiting_to_enter": queued}, "state_time": 10.0}))
     cmd = [corpus._sumo(), "-c", fill / "scenario.sumocfg", "--end", "20", "--no-step-log", "true",
            "--summary-output", tmp_path / "fill_replay_summary.xml"]
     res = corpus.check_count("fill_replay", corpus.step(cmd, 60, tmp_path / "log", tmp_path), tmp_path)
-    assert queued == 6 and res["ok"] and res["vehicles"] == {"sumo": 8, "expected": 8}, res
+    # the flow's vehicle due at T is made then, not held in the state: due in the replay's first step
+    assert queued == 6 and res["ok"] and res["vehicles"] == {"sumo": 9, "expected": 9}, res
 
 
 def test_the_run_replays_reference_takes_no_traci_client(corpus, tmp_path, monkeypatch):
