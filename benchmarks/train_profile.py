@@ -240,8 +240,8 @@ def child_stage(o) -> dict:
     import torch
     torch.set_num_threads(1)
     import sumo_scendiff.train.__main__  # noqa: F401  (every module the stage patches below)
+    import sumo_scendiff.map.network  # noqa: F401
     import sumo_scendiff.train.stages as stages
-    from sumo_scendiff.map import network
     from sumo_scendiff.model import autoencoder, detection, diffusion, edm  # noqa: F401
     prof = Profile()
     for phase, targets in TRAIN_PHASES:
@@ -250,22 +250,18 @@ def child_stage(o) -> dict:
     result = {}
 
     class Profiled(stages.Loop):
+        def __init__(self, *a, frozen=(), **kw):
+            super().__init__(*a, frozen=frozen, **kw)
+            self.frozen = list(frozen)   # the diffusion stage's autoencoder: its encoder is timed too
+
         def run(self):
             groups = block_groups(self.model) + [g for ae in self.frozen for g in block_groups(ae.E, "ae.E.")]
             blocks = Blocks(prof, groups)
-            out = profiled_run(self, o, prof, blocks)
-            result.update(out, blocks=blocks)
+            result.update(profiled_run(self, o, prof, blocks), blocks=blocks)
 
-    orig_init = stages.Loop.__init__
-
-    def init(self, *a, frozen=(), **kw):
-        orig_init(self, *a, frozen=frozen, **kw)
-        self.frozen = list(frozen)
-    Profiled.__init__ = init
     stages.Loop, stages.estimate_latent_scale = Profiled, lambda ae, loop: 1.0
     opts = stage_options(o.child, o)
     (stages.train_diffusion if o.child == "diffusion" else stages.train_autoencoder)(opts)
-    _ = network
     return stage_rows(o, result, opts)
 
 
@@ -276,6 +272,7 @@ def stage_rows(o, result: dict, opts) -> dict:
     rows = []
     for phase, cpu in sorted(result["cpu"].items(), key=lambda kv: -kv[1]):
         name = phase.split(": ", 1)[1] if phase.startswith("forward: ") else None
+        name = name if name in params else None   # a block (the glue is no block)
         rows.append({"phase": phase, "cpu_s": cpu / n, "res": blocks.res.get(name),
                      "gflop": result["flops"].get(name, 0.0) / 1e9 if name else None,
                      "params": params.get(name), "backward_s": result["bwd"].get(name, 0.0) / n if name else None})
@@ -351,32 +348,32 @@ def child_record(o) -> dict:
 
 # ---- the tables (in the parent) -----------------------------------------------------------------
 def part(phase: str) -> str:
-    """The summary's row of a phase: a block's part of the model, else the phase itself."""
+    """The summary's row of a phase: a block's part of the model ("model: ..."), else the phase itself."""
     if not phase.startswith("forward: ") or phase.startswith("forward: glue"):
         return phase
     name = phase.split(": ", 1)[1]
     if name.startswith("denoiser.net."):
         rest = name[len("denoiser.net."):]
         if ".attn" in rest:
-            return "forward: UNet cross-attention"
+            return "model: UNet cross-attention"
         for key, label in (("downsample", "down"), ("down", "down"), ("mid", "mid"), ("upsample", "up"), ("up", "up")):
             if rest.startswith(key):
-                return f"forward: UNet {label} blocks"
-        return "forward: UNet in/out, embeddings, token MLPs, splat"
+                return f"model: UNet {label} blocks"
+        return "model: UNet in/out, embeddings, token MLPs, splat"
     for key, label in (("ae.E.", "frozen agent encoder E (no grad)"), ("D_up.skips", "D_up map skips"),
                        ("D_up.tokens", "D_up token inputs"), ("D_up.branch", "D_up token branch")):
         if name.startswith(key):
-            return f"forward: {label}"
-    return "forward: " + {"E": "E (agent encoder)", "D_down": "D_down (map encoder)", "E_m": "E_m (map encoder)",
+            return f"model: {label}"
+    return "model: " + {"E": "E (agent encoder)", "D_down": "D_down (map encoder)", "E_m": "E_m (map encoder)",
                           "D_up": "D_up (decoder body, head)"}.get(name.split(".")[0], name.split(".")[0])
 
 
 def summary(stage: dict) -> dict[str, float]:
-    """CPU s/step by part, the blocks' backward as one row, the 128 px blocks (forward + backward) too."""
+    """CPU s/step by part: a part of the model its blocks' forward and backward, every other phase itself."""
     out: dict[str, float] = {}
     for r in stage["rows"]:
-        out[part(r["phase"])] = out.get(part(r["phase"]), 0.0) + r["cpu_s"]
-    out["backward: the blocks"] = stage["backward_blocks_s"]
+        key = part(r["phase"])
+        out[key] = out.get(key, 0.0) + r["cpu_s"] + (r["backward_s"] or 0.0)
     return out
 
 
@@ -473,7 +470,8 @@ def main(o) -> None:
             else:
                 results["stages"].append(r)
     lines = [f"CPU seconds per step of one process with one thread (batch per DDP process), "
-             f"{o.steps} steps after {o.warmup}", ""] + stage_table(results["stages"])
+             f"{o.steps} steps after {o.warmup}; \"model:\" rows are their blocks' forward and backward", ""] \
+        + stage_table(results["stages"])
     for st in results["stages"]:
         lines += [""] + block_table(st)
     if results["recording"]:
