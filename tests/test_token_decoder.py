@@ -9,7 +9,8 @@ import torch
 from sumo_scendiff.core.geometry import T0, metres_to_pixels
 from sumo_scendiff.core.scene import speeds_from_traj
 from sumo_scendiff.map.raster import render_agents
-from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
+from sumo_scendiff.model.autoencoder import AutoencoderConfig, ScenarioAutoencoder, TokenBranch
+from sumo_scendiff.model.detection import C_Y
 from sumo_scendiff.tokens.encoding import (
     agent_tokens_from_dicts,
     features_from_scene,
@@ -190,3 +191,29 @@ def test_misled_and_counterfactual_examples():
     drawn = channel(t[0], "speed")[row, col].numpy() * 10.0
     assert np.allclose(drawn, np.clip(told, 0, 20.0), atol=1e-3)
     assert (np.abs(told - 10.0) > 1.0).any()
+
+
+def test_a_batch_without_tokens_skips_the_branch_with_the_full_paths_gradients():
+    """In training, a batch whose token raster is empty leaves the token branch out: its output and
+    every gradient are those of the branch's full path (whose where() keeps y and passes the branch
+    nothing), and each branch weight still gets a (zero) gradient, as DDP wants."""
+    torch.manual_seed(0)
+    branch = TokenBranch(feat_ch=8, c_t=C_T, ch=8, out_ch=C_Y + 4, mix_scale=1.0).train()
+    for p in branch.parameters():        # a branch that corrects: its zero-initialised heads would hide it
+        torch.nn.init.normal_(p, std=0.1)
+    y0, h0 = torch.randn(2, C_Y + 4, 16, 16), torch.randn(2, 8, 16, 16)
+    empty = torch.zeros(2, C_T, 16, 16)
+    weight = torch.randn_like(y0)
+
+    def run(forward):
+        branch.zero_grad(set_to_none=True)
+        y, h = y0.clone().requires_grad_(), h0.clone().requires_grad_()
+        out = forward(y, h)
+        (out * weight).sum().backward()
+        return out.detach(), y.grad, h.grad, [p.grad for p in branch.parameters()]
+
+    skip = run(lambda y, h: branch(y, h, empty))
+    full = run(lambda y, h: branch._corrected(y, h, empty, empty[:, :1] > 0))
+    assert torch.equal(skip[0], full[0]) and torch.equal(skip[1], full[1])
+    assert skip[2] is None and not full[2].any()         # the features get nothing either way
+    assert all(g is not None and not g.any() for g in skip[3] + full[3])

@@ -29,7 +29,7 @@ from torch import nn
 
 from ..map.raster import MAP_CHANNELS
 from ..tokens.raster import C_T, SPEED_SCALE, TOKEN_CHANNELS, token_raster
-from .blocks import Downsample, ResnetBlock, Upsample, group_norm
+from .blocks import Downsample, ResnetBlock, Upsample, group_norm, unused
 from .detection import C_Y, DetectionLossConfig, detection_loss
 from .heading import bin_width
 
@@ -204,8 +204,11 @@ class TokenBranch(nn.Module):
 
     def forward(self, y: torch.Tensor, h: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         gate = t[:, :1] > 0          # tokens.raster: channel 0 is 1 in the cells around each token
-        if not self.training and not bool(gate.any()):   # (in training always run: DDP wants every weight used)
-            return y
+        if not bool(gate.any()):     # no token in the batch: y itself, with the gradients the full path
+            return y + unused(self)  # gives (a map-only stage skips a fifth of its step)
+        return self._corrected(y, h, t, gate)
+
+    def _corrected(self, y: torch.Tensor, h: torch.Tensor, t: torch.Tensor, gate: torch.Tensor) -> torch.Tensor:
         f = F.silu(self.norm_out(self.blocks(self.conv_in(torch.cat([h, t], dim=1)))))
         out = self._mixed(y + self.conv_out(f), t, torch.sigmoid(MIX_GAIN * self.mix(f)))
         return torch.where(gate, out, y)     # exactly y away from the tokens

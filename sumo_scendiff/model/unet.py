@@ -40,7 +40,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ..tokens.encoding import AGENT_TOKEN_DIM, GLOBAL_TOKEN_DIM, token_cells
-from .blocks import Downsample, ResnetBlock, Upsample, group_norm
+from .blocks import Downsample, ResnetBlock, Upsample, group_norm, unused
 
 
 @dataclass(frozen=True)
@@ -97,15 +97,6 @@ class FourierEmbedding(nn.Module):
 def token_mlp(in_dim: int, d: int) -> nn.Sequential:
     """The per-token-type embedding MLP (paper sec. 3.3 "Processing")."""
     return nn.Sequential(nn.Linear(in_dim, d), nn.SiLU(), nn.Linear(d, d), nn.LayerNorm(d))
-
-
-def unused(module: nn.Module) -> Tensor | float:
-    """0, depending on every weight of ``module`` while gradients are on: a batch without agent
-    tokens leaves the token layers out, and DistributedDataParallel waits for a gradient of every
-    weight on every process (a process whose share of a batch had no token stopped a run)."""
-    if not torch.is_grad_enabled():
-        return 0.0
-    return sum(p.sum() for p in module.parameters()) * 0.0
 
 
 class TokenSplat(nn.Module):
