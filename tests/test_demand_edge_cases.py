@@ -132,6 +132,45 @@ def test_the_fill_of_a_route_file_cut_short_warns_and_runs(tmp_path, grid):
     assert not (tmp_path / "late").exists()
 
 
+def _including_cut_file(tmp_path) -> str:
+    """A route file whose <include> pulls in :func:`_cut_file`, with vehicles of its own after it."""
+    path = tmp_path / "main.rou.xml"
+    own = "".join(f'    <vehicle id="w{t}" depart="{t}"><route edges="A0B0 B0C0"/></vehicle>\n' for t in (3200, 3300))
+    _cut_file(tmp_path)
+    path.write_text('<routes>\n    <include href="cut.rou.xml"/>\n' + own + "</routes>\n")
+    return str(path)
+
+
+def test_an_included_file_cut_short_is_reported_and_read_past_as_sumo_reads_it(tmp_path, grid):
+    """SUMO's reader of an <include> reports the included file's cut as an error and hands back: the
+    including file is read on (its later vehicles depart, SUMO does not quit). The demand reads the same
+    departures, names the included file and line, and takes a start after the cut."""
+    import xml.etree.ElementTree as ET
+    path, trips = _including_cut_file(tmp_path), tmp_path / "trips.xml"
+    done = _sumo("-n", grid.path, "-r", path, "--end", "3400", "--tripinfo-output", str(trips))
+    assert done.returncode == 0 and "cut.rou.xml" in done.stderr, done.stderr
+    departed = [t.get("id") for t in ET.parse(trips).getroot().iter("tripinfo")]
+    assert departed == [el.get("id") for _, el in elements([path], ("vehicle",))]
+    assert departed[-3:] == ["v3000", "w3200", "w3300"]
+    span = demand_span([path], _edges(grid))
+    assert tuple(span) == (0.0, 3300.0)
+    assert (span.cut.line, span.cut.read_to, span.cut.stop) == (33, 3000.0, float("inf"))
+    assert span.cut.path.endswith("cut.rou.xml") and span.cut.included_from.endswith("main.rou.xml")
+    assert all(s in span.cut.warning() for s in ("cut.rou.xml", "line 33", "included from", "main.rou.xml"))
+    assert seeding_time(3250.0, None, span, [path]) == 3250.0
+
+
+def test_the_fill_of_an_included_file_cut_short_warns_once_and_runs_past_it(tmp_path, grid):
+    """A start after the cut's time (where SUMO would quit, were the cut in the file it was given) runs."""
+    import sys
+    out = tmp_path / "filled"
+    done = subprocess.run([sys.executable, "-m", "sumo_scendiff.fill", "-n", grid.path, "-r",
+                           _including_cut_file(tmp_path), "--begin", "3250", "-o", str(out)],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stderr.count("cut.rou.xml: cut short at line 33") == 1 and "included from" in done.stderr
+
+
 def test_a_vehicle_departing_at_begin_does_not_depart_again_in_a_scene(tmp_path, grid):
     """depart="begin" is the simulation's begin: the scene's copy writes the begin SUMO loaded the demand
     with, so the vehicle (long arrived, or in the state) does not depart a second time at the scene's."""

@@ -12,6 +12,9 @@ of a whole day costs its reading time, not its size in memory. A file cut short 
 its root element) is read up to the cut, as SUMO reads a route file in steps and loads what comes
 before (``MSRouteLoaderControl``): its whole elements are handed over, and the cut is told to who asks
 (:class:`Cut`); SUMO quits when its reading reaches it, and refuses an additional file so cut at load.
+A file pulled in by ``<include>`` and cut short is another matter for a route file: SUMO's reader of the
+include reports the flaw as an error and hands back (``XMLSubSys::runParser``), so the including file
+is read on past it and only the included file's rest is lost (``Cut.included_from``).
 """
 from __future__ import annotations
 
@@ -40,9 +43,11 @@ class XmlError(ValueError):
 
 @dataclass(frozen=True)
 class Cut:
-    """A file that ends inside its root element: where its reading stopped (line, 1-based)."""
+    """A file that ends inside its root element: where its reading stopped (line, 1-based);
+    ``included_from``: the file whose ``<include>`` pulled it in (None: a file given to SUMO)."""
     path: str
     line: int
+    included_from: str | None = None
 
 
 def open_xml(path: str) -> BinaryIO:
@@ -107,7 +112,7 @@ def _walk(path: str, tags: frozenset, chain: tuple[str, ...],
             if not (started and e.code in _AT_END):
                 raise XmlError(f"{path}: not well-formed XML ({e})") from None
             if cuts is not None:
-                cuts.append(Cut(path, e.position[0]))
+                cuts.append(Cut(path, e.position[0], chain[-1] if chain else None))
         except (OSError, EOFError) as e:       # a gzip cut short or corrupt
             raise XmlError(f"{path}: cannot be read ({e})") from None
 

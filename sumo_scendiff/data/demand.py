@@ -212,15 +212,22 @@ ROUTE_STEPS_S = 200.0  # SUMO's --route-steps: how far ahead of its clock it rea
 @dataclass(frozen=True)
 class CutDemand:
     """A route file cut short (core.sumo_xml.Cut) as SUMO runs it: it loads the file's departures up to
-    the cut and quits when its reading reaches the cut, ``route_steps`` ahead of its clock."""
+    the cut and quits when its reading reaches the cut, ``route_steps`` ahead of its clock. A file cut short
+    that another one includes (``included_from``) is reported and read past: SUMO does not quit (``stop``
+    is infinite), it leaves out the included file's rest."""
     path: str
     line: int
     read_to: float      # the last whole departure before the cut (s; a flow's: its begin)
-    stop: float         # SUMO's time when its reading reaches the cut (s)
+    stop: float         # SUMO's time when its reading reaches the cut (s; inf: it reads on)
     ahead: float        # how far ahead of its clock SUMO reads (s; its --route-steps)
+    included_from: str | None = None
 
     def warning(self) -> str:
         from ..core.cli import clock
+        if self.included_from is not None:
+            return (f"{self.path}: cut short at line {self.line} (no closing tag), included from "
+                    f"{self.included_from}; SUMO reports an error, reads it to its last whole departure, "
+                    f"{self.read_to:g} s ({clock(self.read_to)}), and reads on past its include")
         return (f"{self.path}: cut short at line {self.line} (no closing tag); SUMO reads it to its last whole "
                 f"departure, {self.read_to:g} s ({clock(self.read_to)}), and quits when its reading, "
                 f"{self.ahead:g} s ahead of its clock (--route-steps), reaches the cut: at about {self.stop:g} s "
@@ -259,7 +266,7 @@ def _file_span(path: str, edge_ids: set[str], sample: int, begin, end,
                route_steps: float = ROUTE_STEPS_S) -> tuple[tuple[float, float] | None, int, CutDemand | None]:
     """One file's (first, last) departure (None: none with a time), its number of demand elements
     read, and its cut (a file cut short); checks the first ``sample`` edges it names against the network."""
-    first, last, n, used, unknown, cuts, read_to = float("inf"), float("-inf"), 0, 0, [], [], begin or 0.0
+    first, last, n, used, unknown, cuts, read_to = float("inf"), float("-inf"), 0, 0, [], [], {}
     try:
         for where, el in elements([path], DEMAND + ("route", "routeDistribution"), cuts):
             if used < sample:
@@ -271,7 +278,8 @@ def _file_span(path: str, edge_ids: set[str], sample: int, begin, end,
             n += 1
             span = departures(el, begin, end)
             if span:
-                first, last, read_to = min(first, span[0]), max(last, span[1]), max(read_to, span[0])
+                first, last = min(first, span[0]), max(last, span[1])
+                read_to[where] = max(read_to.get(where, span[0]), span[0])   # per file: an included one's cut
             if n >= READ_LIMIT:
                 last = float("inf")
                 break
@@ -283,13 +291,19 @@ def _file_span(path: str, edge_ids: set[str], sample: int, begin, end,
     return (None if first == float("inf") else (first, last)), n, _cut(cuts, read_to, begin, route_steps)
 
 
-def _cut(cuts: list[Cut], read_to: float, begin: float | None, route_steps: float) -> CutDemand | None:
-    """The first of ``cuts`` as SUMO meets it: SUMO reads ``route_steps`` ahead of its clock (at
-    once, at its begin, when it is not positive)."""
+def _cut(cuts: list[Cut], read_to: dict[str, float], begin: float | None, route_steps: float) -> CutDemand | None:
+    """The cut SUMO quits on, as SUMO meets it: SUMO reads ``route_steps`` ahead of its clock (at
+    once, at its begin, when it is not positive); else the first cut of an included file, which SUMO
+    reports and reads past. ``read_to``: each file's last departure read (s)."""
     if not cuts:
         return None
-    stop = read_to - route_steps if route_steps > 0 else (begin or 0.0)
-    return CutDemand(cuts[0].path, cuts[0].line, read_to, max(stop, begin or 0.0), route_steps)
+    cut = next((c for c in cuts if c.included_from is None), cuts[0])
+    if cut.included_from is not None:
+        return CutDemand(cut.path, cut.line, read_to.get(cut.path, begin or 0.0), float("inf"), route_steps,
+                         cut.included_from)
+    last = max([begin or 0.0, *read_to.values()])
+    stop = last - route_steps if route_steps > 0 else (begin or 0.0)
+    return CutDemand(cut.path, cut.line, last, max(stop, begin or 0.0), route_steps)
 
 
 def start_times(scen, edge_ids: set[str], begin: float | None, demand: Sequence[str], flag: str = "--begin",
