@@ -124,3 +124,41 @@ def test_vehicles_at_their_stop_stand_on_its_lane(diagonal_net, tmp_path):
     assert len(standing) >= 2
     assert {net.lanes[p.lane].id for p in standing} == {"ab_1"}
     assert standing[0].pos == pytest.approx(250.0 - AT_STOP_M)
+
+
+def test_a_parking_area_with_spaces_fills_its_lots_as_sumo_does(tmp_path):
+    """A parking area of two roadside lots and four ``<space>``s (docs: Simulation/ParkingArea): its
+    capacity is SUMO's (roadside lots and spaces), and the estimate's cars parked there at T stand on
+    its lane within the area, as each car SUMO parks there has its lane position within it (the spaces'
+    cars at the space's own pose, off the road); the roadside lots past the second lie before the area."""
+    import libsumo
+
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.fill.demand import DemandEstimate, parking_lots
+    from sumo_scendiff.fill.en_route import place_en_route
+    from sumo_scendiff.map.network import Network
+    net_path = _netgenerate(str(tmp_path / "grid.net.xml"))
+    spaces = "".join(f'<space x="170" y="{y}" angle="90"/>' for y in (200, 210, 220, 230))
+    add, routes = tmp_path / "pa.add.xml", tmp_path / "d.rou.xml"
+    add.write_text(f'<additional><parkingArea id="pa" lane="B1B2_0" startPos="40" endPos="100" roadsideCapacity="2">'
+                   f'{spaces}</parkingArea></additional>')
+    routes.write_text('<routes><route id="r2" edges="B0B1 B1B2 B2B3 B3C3"/><flow id="park" begin="5" end="900" '
+                      'period="15" route="r2"><stop parkingArea="pa" duration="75" parking="true"/></flow></routes>')
+    libsumo.start([sumo_binary(), "-n", net_path, "-r", str(routes), "-a", str(add), "--no-step-log", "true",
+                   "--no-warnings", "true"])
+    try:
+        while libsumo.simulation.getTime() < BEGIN:
+            libsumo.simulationStep()
+        capacity = int(libsumo.simulation.getParameter("pa", "parkingArea.capacity"))
+        parked = {v: (libsumo.vehicle.getLanePosition(v), libsumo.vehicle.getPosition(v))
+                  for v in libsumo.parkingarea.getVehicleIDs("pa")}
+    finally:
+        libsumo.close()
+    assert len(parked) >= 4 and all(40.0 <= pos <= 100.0 for pos, _ in parked.values())
+    assert sum(xy[0] == pytest.approx(170.0) for _, xy in parked.values()) >= 2    # in the spaces, off the road
+    assert parking_lots([str(add)])["pa"].capacity == capacity == 6
+    net = Network.load(net_path)
+    est = DemandEstimate.at(net, [str(routes)], float(BEGIN), additional=[str(add)])
+    placed, _ = place_en_route(net, est)
+    at_pa = [p.pos for p in placed if p.vehicle.stopped is not None]
+    assert len(at_pa) >= 4 and all(40.0 <= pos <= 100.0 for pos in at_pa), sorted(at_pa)

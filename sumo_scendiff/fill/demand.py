@@ -50,7 +50,7 @@ class EnRoute:
     stop_at: float = 0.0           # m along the edge where that stop ends (where its front stands)
     to_stop: float = 0.0           # s after entering the edge it reaches that stop
     hold: float = 0.0              # s it stands there (its duration, or to its until)
-    lot: float = 0.0               # m between the lots of the parking area that stop is at (0: none)
+    lots: Lots | None = None       # the lots of the parking area that stop is at (None: no parking area)
     stop_lane: str | None = None   # the lane that stop is on
 
     @property
@@ -189,7 +189,7 @@ class _Stops:
         if k is None:
             return {"stops": own}
         return {"stops": own, "stop": k, "stop_at": pos.trip.stop_at[pos.k], "to_stop": pos.to_stop,
-                "hold": pos.hold, "lot": self.lots.get(own[k].get("parkingArea"), 0.0),
+                "hold": pos.hold, "lots": self.lots.get(own[k].get("parkingArea")),
                 "stop_lane": stop_lane(own[k], self.places)}
 
 
@@ -205,21 +205,40 @@ def on_lane(stop: dict, snet, vclass: str) -> dict:
     return stop if lane is None else {k: v for k, v in stop.items() if k != "edge"} | {"lane": lane.getID()}
 
 
-def parking_lots(additional) -> dict[str, float]:
-    """Every parking area of the additional files with roadside lots: id -> m from one lot's end to
-    the next (its ``length``, else its stretch over its ``roadsideCapacity``, as MSParkingArea lays
-    them out back from ``endPos``); numbers only (a negative or missing position: left out)."""
+@dataclass(frozen=True)
+class Lots:
+    """A parking area's lots as MSParkingArea lays them out: ``roadside`` lots along its lane, each
+    ``spacing`` m on from the last (their ends back from the area's end), then its ``<space>``s
+    (``spaces``), each entered from the area's end (their pose is the space's, off the road); SUMO
+    fills them in that order."""
+    spacing: float      # m (0: no roadside lot)
+    roadside: int
+    spaces: int
+
+    @property
+    def capacity(self) -> int:
+        """SUMO's capacity: its roadsideCapacity and its ``<space>``s."""
+        return self.roadside + self.spaces
+
+
+def parking_lots(additional) -> dict[str, Lots]:
+    """Every parking area of the additional files with lots: id -> its :class:`Lots`. Roadside lots
+    end every (endPos - startPos) / roadsideCapacity m (``MSParkingArea::setRoadsideCapacity``; its
+    ``length`` is the lots' size, not their spacing); numbers only (a negative or missing position
+    leaves the roadside lots out, not the ``<space>``s)."""
     from ..core.sumo_xml import elements
     out = {}
     for _, el in elements(additional, ("parkingArea",)):
+        spaces = sum(1 for c in el if c.tag == "space")
         try:
-            capacity = int(el.get("roadsideCapacity", "0"))
-            span = float(el.get("endPos")) - float(el.get("startPos", "0"))
-            lot = float(el.get("length")) if el.get("length") else span / capacity if capacity > 0 else 0.0
+            roadside = int(el.get("roadsideCapacity", "0"))
+            spacing = (float(el.get("endPos")) - float(el.get("startPos", "0"))) / roadside if roadside > 0 else 0.0
         except (TypeError, ValueError):
-            continue
-        if el.get("id") and lot > 0:
-            out[el.get("id")] = lot
+            roadside, spacing = 0, 0.0
+        if spacing <= 0:
+            roadside, spacing = 0, 0.0
+        if el.get("id") and roadside + spaces > 0:
+            out[el.get("id")] = Lots(spacing, roadside, spaces)
     return out
 
 
@@ -275,4 +294,4 @@ def _depart_offset(pos: str | None, length: float) -> float:
     return min(max(p + length if p < 0 else p, 0.0), length)
 
 
-__all__ = ["DemandEstimate", "EnRoute", "on_lane"]
+__all__ = ["DemandEstimate", "EnRoute", "Lots", "on_lane", "parking_lots"]

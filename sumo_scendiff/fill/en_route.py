@@ -100,11 +100,14 @@ def _fit(lanes: list[int], vid: str, want: float | None, body: Body, room: dict,
 
 def _at_stop(v: EnRoute, parked: Counter, lanes: list[int], edge_lanes: list[int], net) -> tuple[float, list[int]]:
     """(front, lanes) of a vehicle standing at its stop: at the stop's end, on the stop's lane (of
-    ``edge_lanes``, its edge's it may use; else ``lanes``), in a parking area at the next free lot
-    back from its end (``parked``: per area the lots taken)."""
+    ``edge_lanes``, its edge's it may use; else ``lanes``). In a parking area SUMO fills its roadside
+    lots first, this one at the next free one back from the area's end (``parked``: per area the
+    vehicles placed in it), then its ``<space>``s, which SUMO enters from the area's end: there (one
+    behind the other on the lane, the placement's room), never at a roadside lot beyond the area's start."""
     area = (v.edges[0], v.stop_at)
-    front = v.stop_at - AT_STOP_M - parked[area] * v.lot
-    parked[area] += v.lot > 0
+    k = parked[area]
+    parked[area] += v.lots is not None
+    front = v.stop_at - AT_STOP_M - (k * v.lots.spacing if v.lots is not None and k < v.lots.roadside else 0.0)
     return front, [i for i in edge_lanes if net.lanes[i].id == v.stop_lane] or lanes
 
 
