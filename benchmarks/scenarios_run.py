@@ -2,6 +2,7 @@
 the results (markdown and JSON)."""
 from __future__ import annotations
 
+import gzip
 import json
 import os
 import shutil
@@ -244,24 +245,37 @@ def expected_vehicles(name: str, out: Path) -> tuple[int | None, str]:
     if not doc_path.is_file():
         return None, ""
     doc = json.loads(doc_path.read_text())
-    seeded, due = _seeded(doc), _demand_due(name, out, doc)
+    seeded = _seeded(doc)
     # the state keeps SUMO's queue of vehicles due but not yet in (a full network's), the portable start not
     queued = int((doc.get("density") or {}).get("waiting_to_enter") or 0) if name == "fill_replay" else 0
-    if name == "fill_replay":
-        due = max(0, due - _due_in_state(out, doc))
+    due = _new_after_state(out) if name == "fill_replay" else _demand_due(name, out, doc)
     return seeded + due + queued, (f"fill.json placed {seeded}" + (f" + {due} the demand departs then" if due else "")
                                    + (f" + {queued} waiting to enter in its state" if queued else ""))
 
 
-def _due_in_state(out: Path, doc: dict) -> int:
-    """The demand's departures due at the state's time that the state holds already, on the road or in
-    its queue, so not due again in the replay: a route file's vehicles are loaded ahead into it
-    (sumorl_nguyen: the 3 due among the 75 queued), a flow's are made when due (ma2c_real_net: none)."""
-    from sumo_scendiff.sim.state import waiting_in_state
-    state, t = out / "fill" / "state.xml.gz", doc.get("state_time")
-    if t is None or not state.is_file():
+def _new_after_state(out: Path) -> int:
+    """The vehicles the fill's state replay holds at its first step that its state does not: the demand's
+    departures then, as SUMO makes them from the state (a route file's vehicles due then are in the state's
+    queue already, sumorl_nguyen; a flow ending at T makes its last vehicle at T, ma2c_real_net, which a
+    run begun at T without the state does not). By TraCI, one step; 0 without a state."""
+    import re
+    import uuid
+
+    import traci
+    cfg, state = out / "fill" / "scenario.sumocfg", out / "fill" / "state.xml.gz"
+    if not (cfg.is_file() and state.is_file()):
         return 0
-    return waiting_in_state(str(state), (), float(t)) - waiting_in_state(str(state), (), float(t) - 1e-3)
+    with gzip.open(state, "rt") as f:
+        held_before = set(re.findall(r'<vehicle id="([^"]*)"', f.read()))
+    label = f"corpus-{uuid.uuid4().hex}"
+    traci.start([_sumo(), "-c", str(cfg), "--no-step-log", "true"], label=label)
+    conn = traci.getConnection(label)
+    try:
+        conn.simulationStep()
+        now = set(conn.vehicle.getIDList()) | set(conn.simulation.getPendingVehicles())
+    finally:
+        conn.close()
+    return len(now - held_before)
 
 
 def _demand_due(name: str, out: Path, doc: dict) -> int:
