@@ -262,19 +262,26 @@ def _new_after_state(out: Path) -> int:
     import uuid
 
     import traci
+    from sumolib.miscutils import getFreeSocketPort
     cfg, state = out / "fill" / "scenario.sumocfg", out / "fill" / "state.xml.gz"
     if not (cfg.is_file() and state.is_file()):
         return 0
     with gzip.open(state, "rt") as f:
         held_before = set(re.findall(r'<vehicle id="([^"]*)"', f.read()))
+    # SUMO started in the fill's folder, as the replay step: the scenario's outputs land there
+    port = getFreeSocketPort()
+    proc = subprocess.Popen([_sumo(), "-c", str(cfg), "--no-step-log", "true", "--remote-port", str(port)],
+                            cwd=cfg.parent, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     label = f"corpus-{uuid.uuid4().hex}"
-    traci.start([_sumo(), "-c", str(cfg), "--no-step-log", "true"], label=label)
-    conn = traci.getConnection(label)
     try:
+        conn = traci.connect(port, label=label, proc=proc)
         conn.simulationStep()
         now = set(conn.vehicle.getIDList()) | set(conn.simulation.getPendingVehicles())
-    finally:
         conn.close()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
     return len(now - held_before)
 
 
@@ -302,7 +309,8 @@ def _demand_due(name: str, out: Path, doc: dict) -> int:
     tree.write(bare)
     try:
         subprocess.run([_sumo(), "-c", bare, "--end", f"{begin + 1:g}", "--no-step-log", "true",
-                        "--summary-output", summary], capture_output=True, timeout=TIMEOUT["sumo"], check=False)
+                        "--summary-output", summary], capture_output=True, cwd=cfg.parent, timeout=TIMEOUT["sumo"],
+                       check=False)
     finally:
         bare.unlink()
     return held(next(summary_steps(summary), None)) or 0
