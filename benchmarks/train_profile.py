@@ -1,6 +1,7 @@
 """Benchmark: where a training step's CPU time goes, stage by stage, and where a recording's goes.
 
     python benchmarks/train_profile.py --data DIR [--steps 6] [--warmup 2] [--results results/train_profile.json] [-o table.md]
+        [--model-config '{"stem": "stride2"}']
     python -m sumo_scendiff.data -n networks/grid4x4_2lane_tls.net.xml -o DIR --scenes 200 -s 0   # a small DIR
 
 Training: each training stage of ``configs/scendiff.json`` (autoencoder, decoder, diffusion) runs
@@ -105,6 +106,9 @@ def get_options(args=None):
     p.add_argument("--record-per-episode", type=int, default=20)
     p.add_argument("--results", default=os.path.join(ROOT, "results", "train_profile.json"))
     p.add_argument("-o", "--output", default=None, help="also write the tables to this markdown file")
+    p.add_argument("--model-config", type=json.loads, default={}, metavar="JSON",
+                   help="merged into every training stage's model config, e.g. '{\"stem\": \"stride2\"}' "
+                        "(a model option measured beside the recipe's own)")
     p.add_argument("--child", default=None, help=argparse.SUPPRESS)
     p.add_argument("--work", default=None, help=argparse.SUPPRESS)
     o = p.parse_args(args)
@@ -121,10 +125,12 @@ def stage_options(name: str, o):
     """The stage's options as ``train recipe`` gives them (batch per process of the recipe's DDP
     processes), reading ``--data``, writing under ``--work``, without validation."""
     from sumo_scendiff.train import recipe as rc
+    from sumo_scendiff.train import stages
     from sumo_scendiff.train.__main__ import get_options as train_options
     args = rc.stage_args(rc.load(RECIPE), name, out=o.work, data=o.work)
     opts = train_options(args)
     opts.data, opts.val = [o.data], None
+    opts.model_config = stages._merge(opts.model_config, o.model_config)
     return opts
 
 
@@ -441,7 +447,8 @@ def record_table(rec: dict) -> list[str]:
 def run_child(o, what: str) -> dict:
     cmd = [sys.executable, os.path.abspath(__file__), "--data", o.data, "--steps", str(o.steps), "--warmup",
            str(o.warmup), *[a for n in o.record_net for a in ("--record-net", n)], "--record-scenes", str(o.record_scenes),
-           "--record-per-episode", str(o.record_per_episode), "--child", what, "--work", o.work]
+           "--record-per-episode", str(o.record_per_episode), "--model-config", json.dumps(o.model_config),
+           "--child", what, "--work", o.work]
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     res = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True)
     if res.returncode != 0:

@@ -78,6 +78,31 @@ def test_map_skips_join_the_decoder_at_their_resolution():
         assert torch.equal(ae.D_down.pyramid(m)[0], ae.D_down(m))
 
 
+def test_a_stride2_stem_keeps_every_shape_downstream():
+    """stem "stride2": E and D_down start at 64 px with one stride-2 convolution, without the full
+    resolution's ResnetBlock and Downsample; the latent, D_down's output and the pyramid the decoder's
+    skips read (32 and 64 px, same widths) keep their shapes, so the decoder is the same."""
+    full, cheap = (ScenarioAutoencoder(AutoencoderConfig(**{**TINY.__dict__, "stem": s})).eval()
+                   for s in ("full", "stride2"))
+    x, m = torch.rand(2, 15, 128, 128), torch.rand(2, TINY.C_m, 128, 128)
+    with torch.no_grad():
+        for ae in (full, cheap):
+            mu, logvar = ae.encode(x)
+            assert mu.shape == logvar.shape == (2, TINY.C_z, 16, 16)
+            out, feats = ae.D_down.pyramid(m)
+            assert out.shape == (2, TINY.C_map, 16, 16) and torch.equal(out, ae.D_down(m))
+            assert [tuple(f.shape[1:]) for f in feats[1:]] == [(8, 64, 64), (8, 32, 32)]
+            assert ae(x, m)[0].shape == (2, C_Y, 64, 64)
+        assert tuple(full.D_down.pyramid(m)[1][0].shape[1:]) == (4, 128, 128)
+        assert tuple(cheap.D_down.pyramid(m)[1][0].shape[1:]) == (4, 64, 64)
+    # the stem is what changed: the decoder's weights fit either, the encoders' do not
+    assert full.D_up.state_dict().keys() == cheap.D_up.state_dict().keys()
+    assert full.E.conv_in.stride == (1, 1) and cheap.E.conv_in.stride == (2, 2)
+    assert sum(p.numel() for p in cheap.E.parameters()) < sum(p.numel() for p in full.E.parameters())
+    with pytest.raises(ValueError, match="stem 'half'"):
+        ScenarioAutoencoder(AutoencoderConfig(**{**TINY.__dict__, "stem": "half"}))
+
+
 def test_a_token_branch_changes_only_the_cells_a_token_covers():
     """token_branch > 0: the head's outputs corrected where the token raster's token channel is set;
     with the branch's weights anything, a raster without tokens (or none) decodes exactly as the

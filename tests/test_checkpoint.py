@@ -173,3 +173,25 @@ def test_the_shipped_checkpoint_reads_with_todays_defaults():
     assert ckpt.config_from_dict(DiffusionConfig, ck["diffusion_config"]) == DiffusionConfig()
     raw = torch.load(DEFAULT_CHECKPOINT, weights_only=True)["autoencoder_config"]
     assert raw["map_skips"] and raw["token_speeds_filled"] and raw["token_branch_mix"]
+
+
+def test_a_stride2_stem_round_trips_and_an_earlier_file_reads_as_the_full_stem(tmp_path):
+    """A model saved with ``stem`` "stride2" loads (weights_only) into the same architecture and
+    encodes the same; the shipped file, stored before the field existed, reads as the full stem and
+    its weights fit the default model exactly (strict load)."""
+    from sumo_scendiff.generation.generator import DEFAULT_CHECKPOINT
+    from sumo_scendiff.model.diffusion import DiffusionConfig
+    ae = ScenarioAutoencoder(AutoencoderConfig(enc_channels=(4, 4, 4, 4), dec_channels=(4, 4, 4), C_map=4,
+                                               stem="stride2")).eval()
+    path = str(tmp_path / "s.pt")
+    ckpt.save(path, "autoencoder-train", state=ae.state_dict(), model_config=ckpt.config_to_dict(ae.cfg))
+    ck = ckpt.load(path, "autoencoder-train")
+    again = ScenarioAutoencoder(ckpt.config_from_dict(AutoencoderConfig, ck["model_config"])).eval()
+    ckpt.load_state(again, ck["state"], path)
+    x = torch.rand(1, 15, 128, 128)
+    assert again.cfg.stem == "stride2" and torch.equal(again.encode(x)[0], ae.encode(x)[0])
+    shipped = ckpt.load(DEFAULT_CHECKPOINT, "scenario-diffusion")
+    assert "stem" not in torch.load(DEFAULT_CHECKPOINT, weights_only=True)["autoencoder_config"]
+    cfg = ckpt.config_from_dict(AutoencoderConfig, shipped["autoencoder_config"])
+    assert cfg.stem == "full" and ckpt.config_from_dict(DiffusionConfig, shipped["diffusion_config"]).stem == "full"
+    ckpt.load_state(ScenarioAutoencoder(cfg), {k: v.float() for k, v in shipped["autoencoder"].items()}, DEFAULT_CHECKPOINT)

@@ -186,6 +186,20 @@ def test_no_map_ablation_ignores_the_map_and_survives_its_config_round_trip():
     assert not torch.equal(model.encode_map(m1), model.encode_map(m2))
 
 
+def test_a_stride2_stem_gives_the_same_map_encoding_shape():
+    """DiffusionConfig.stem "stride2": E_m starts at 64 px; its output, what the UNet reads, keeps
+    its shape, and the option survives a checkpoint's config round trip."""
+    from sumo_scendiff.model import checkpoint as ckpt
+    from sumo_scendiff.model.diffusion import DiffusionConfig, ScenarioDiffusion
+    cfg = DiffusionConfig(map_channels=(4, 8, 8, 8), unet=CFG, stem="stride2")
+    cfg = ckpt.config_from_dict(DiffusionConfig, ckpt.config_to_dict(cfg))
+    full, cheap = (ScenarioDiffusion(c) for c in (DiffusionConfig(map_channels=(4, 8, 8, 8), unet=CFG), cfg))
+    m = torch.rand(2, cfg.C_m, 128, 128)
+    assert cfg.stem == "stride2" and cheap.E_m.conv_in.stride == (2, 2)
+    assert cheap.encode_map(m).shape == full.encode_map(m).shape == (2, CFG.c_map, 16, 16)
+    assert full.denoiser.state_dict().keys() == cheap.denoiser.state_dict().keys()
+
+
 def test_training_noise_levels_follow_the_config():
     from sumo_scendiff.model.diffusion import DiffusionConfig, ScenarioDiffusion
     from sumo_scendiff.model.edm import P_MEAN, P_STD

@@ -49,6 +49,7 @@ class AutoencoderConfig:
     C_z: int = 4  # latent channels
     C_map: int = 16  # channels of D_down(m)
     enc_channels: tuple[int, ...] = (16, 32, 64, 64)  # E and D_down, at 128, 64, 32, 16 px
+    stem: str = "full"  # E's and D_down's first layers (encoder_stem): "full" or "stride2"
     dec_channels: tuple[int, ...] = (64, 32, 32)  # D_up, at 16, 32, 64 px (CPU budget)
     dropout: float = 0.0
     kl_weight: float = 0.01  # appendix C.3 has 0.1: the latent was then too noisy to place boxes
@@ -74,17 +75,44 @@ class AutoencoderConfig:
     loss: DetectionLossConfig = field(default_factory=DetectionLossConfig)
 
 
+# ConvEncoder's stems (AutoencoderConfig.stem, DiffusionConfig.stem): "full" is the paper's conv_in and
+# a first level at the raster's full resolution; "stride2" reads the raster with one stride-2
+# convolution straight to the first level's width at half resolution (docs/training.md)
+STEMS = ("full", "stride2")
+
+
+def encoder_stem(stem: str, in_ch: int, ch: int, dropout: float = 0.0) -> tuple[nn.Module, list[nn.Module]]:
+    """``(conv_in, first level)`` of a :class:`ConvEncoder` whose first width is ``ch``.
+
+    "full": a 3x3 conv_in, then the first level's ResnetBlock and Downsample at full resolution.
+    "stride2": one stride-2 3x3 convolution and no first-level layers: the blocks at full
+    resolution are the slowest per FLOP on CPU, and the decoder reads none of their features
+    (its map skips are at 32 and 64 px), so the encoder starts at half resolution and its
+    output, latent and skips keep their shapes."""
+    if stem == "full":
+        return nn.Conv2d(in_ch, ch, 3, padding=1), [ResnetBlock(ch, ch, dropout=dropout), Downsample(ch)]
+    if stem == "stride2":
+        return nn.Conv2d(in_ch, ch, 3, stride=2, padding=1), []
+    raise ValueError(f"unknown encoder stem {stem!r} (one of {', '.join(STEMS)})")
+
+
 class ConvEncoder(nn.Module):
     """LDM-style encoder: conv_in, [ResnetBlock, Downsample] per level, mid ResnetBlock, GN-SiLU-conv_out.
 
     Downsamples by 2^(len(channels) - 1). Used for E (out_ch = 2 C_z) and D_down (out_ch = C_map).
+    ``stem`` (:func:`encoder_stem`): "stride2" replaces conv_in and the first level by one stride-2
+    convolution; the output's shape is the same.
     """
 
-    def __init__(self, in_ch: int, channels: tuple[int, ...], out_ch: int, dropout: float = 0.0):
+    def __init__(self, in_ch: int, channels: tuple[int, ...], out_ch: int, dropout: float = 0.0,
+                 stem: str = "full"):
         super().__init__()
-        self.conv_in = nn.Conv2d(in_ch, channels[0], 3, padding=1)
-        layers, prev = [], channels[0]
-        for i, ch in enumerate(channels):
+        if len(channels) < 2:  # the stem is the first level's (and its Downsample's)
+            raise ValueError(f"a ConvEncoder needs two levels or more, not {len(channels)}")
+        self.stem = stem
+        self.conv_in, layers = encoder_stem(stem, in_ch, channels[0], dropout)
+        prev = channels[0]
+        for i, ch in enumerate(channels[1:], start=1):
             layers.append(ResnetBlock(prev, ch, dropout=dropout))
             if i < len(channels) - 1:
                 layers.append(Downsample(ch))
@@ -99,8 +127,10 @@ class ConvEncoder(nn.Module):
 
     def pyramid(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
         """``(forward(x), features)``: also the features entering each Downsample, finest first,
-        ``(B, channels[i], H / 2^i, W / 2^i)``."""
-        h, feats = self.conv_in(x), []
+        ``(B, channels[i], H / 2^i, W / 2^i)``; with the "stride2" stem the first is the stem's
+        output, ``(B, channels[0], H / 2, W / 2)`` (the decoder reads only the 32 and 64 px ones)."""
+        h = self.conv_in(x)
+        feats = [h] if self.stem == "stride2" else []  # the place of the first level's, which it has not
         for layer in self.body:
             if isinstance(layer, Downsample):
                 feats.append(h)
@@ -235,8 +265,8 @@ class ScenarioAutoencoder(nn.Module):
     def __init__(self, cfg: AutoencoderConfig = AutoencoderConfig()):
         super().__init__()
         self.cfg = cfg
-        self.E = ConvEncoder(cfg.C_x, cfg.enc_channels, 2 * cfg.C_z, cfg.dropout)
-        self.D_down = ConvEncoder(cfg.C_m, cfg.enc_channels, cfg.C_map, cfg.dropout)
+        self.E = ConvEncoder(cfg.C_x, cfg.enc_channels, 2 * cfg.C_z, cfg.dropout, cfg.stem)
+        self.D_down = ConvEncoder(cfg.C_m, cfg.enc_channels, cfg.C_map, cfg.dropout, cfg.stem)
         self.D_up = DetectionDecoder(cfg)
 
     def encode(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -28,14 +28,15 @@ class CheckpointError(ValueError):
 
 
 # Fields whose default changed, each with the value a version-1 config that lacks it was trained
-# with (a config holds the fields its version had): part -> field -> value
+# with (a config holds the fields its version had): part -> field -> value. ``stem`` (the encoders'
+# first layers) came after version 1 and every earlier model has the full one, whatever the default
 EARLIER_DEFAULTS = {
     "autoencoder": {"C_m": 21, "kl_weight": 0.1, "latent_noise": 1.0, "heading_bins": 0, "C_t": 0,
                     "token_branch": 0, "map_skips": False, "token_speeds_filled": False,
-                    "token_branch_mix": False},
+                    "token_branch_mix": False, "stem": "full"},
     "autoencoder.loss": {"box_weight": 1.0, "vertex_weight": 1.0, "category_weights": [0.1, 0.3, 4.0],
                          "heading_bin_weight": 1.0, "speed_weight": 0.0, "told_speed_weight": 0.0},
-    "diffusion": {"P_mean": -0.5, "P_std": 1.0},
+    "diffusion": {"P_mean": -0.5, "P_std": 1.0, "stem": "full"},
     "diffusion.unet": {"pos_freqs": 0, "splat_ch": 0},
 }
 # Switches version-1 configs stored that this version no longer has: what each switched on is now the only

@@ -45,6 +45,7 @@ class DiffusionConfig:
 
     C_m: int = len(MAP_CHANNELS)  # E_m reads the first C_m map channels (11: no lane_dir*)
     map_channels: tuple[int, ...] = (16, 32, 64, 64)
+    stem: str = "full"  # E_m's first layers (autoencoder.encoder_stem): "full" or "stride2"
     unet: UNetConfig = field(default_factory=UNetConfig)
     use_map: bool = True        # False: the paper's no-map ablation (m replaced by zeros)
     # training noise levels, log(sigma) ~ N(P_mean, P_std^2) (eq. 1; appendix D: -0.5 and 1, edm.P_MEAN
@@ -60,7 +61,7 @@ class ScenarioDiffusion(nn.Module):
     def __init__(self, cfg: DiffusionConfig = DiffusionConfig()):
         super().__init__()
         self.cfg = cfg
-        self.E_m = ConvEncoder(cfg.C_m, cfg.map_channels, cfg.unet.c_map)
+        self.E_m = ConvEncoder(cfg.C_m, cfg.map_channels, cfg.unet.c_map, stem=cfg.stem)
         self.denoiser = EDMPrecond(UNet(cfg.unet))
         self.edm_loss = EDMLoss(p_mean=cfg.P_mean, p_std=cfg.P_std)
 
