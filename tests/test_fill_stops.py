@@ -162,3 +162,49 @@ def test_a_parking_area_with_spaces_fills_its_lots_as_sumo_does(tmp_path):
     placed, _ = place_en_route(net, est)
     at_pa = [p.pos for p in placed if p.vehicle.stopped is not None]
     assert len(at_pa) >= 4 and all(40.0 <= pos <= 100.0 for pos in at_pa), sorted(at_pa)
+
+
+@pytest.mark.slow   # a real fill
+def test_parked_cars_stay_parked_in_both_starts_of_sumos_own_run(tmp_path):
+    """A fill from SUMO's own run to T (``--area``, no estimate): the cars parked in the parking area at
+    T are in the portable start too, departing on the area's lane where they park and parked again in
+    the step after (SUMO gives a parked car no lane: departing from the edge after, its stop would be
+    behind it and SUMO refused the car), their later stops kept; fill.json counts what both starts hold."""
+    import re
+
+    import libsumo
+
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.fill.__main__ import get_options, main
+    _netgenerate(str(tmp_path / "grid.net.xml"))
+    (tmp_path / "stops.add.xml").write_text('<additional><parkingArea id="pa" lane="B1B2_0" startPos="40" '
+                                            'endPos="100" roadsideCapacity="4"/></additional>')
+    (tmp_path / "d.rou.xml").write_text(ROUTES)
+    out = tmp_path / "o"
+    assert main(get_options(["-n", str(tmp_path / "grid.net.xml"), "-r", str(tmp_path / "d.rou.xml"),
+                             "-a", str(tmp_path / "stops.add.xml"), "--begin", str(BEGIN),
+                             "--area=-10,-10,460,460", "-o", str(out)])) == 0
+    with open(out / "fill.json") as f:
+        doc = json.load(f)
+    seeded = {a["vehicle"] for a in doc["agents"] if a["vehicle"] is not None}
+    assert doc["summary"]["vehicles"] == len(seeded) and doc["summary"]["refused"] == 0
+
+    def parked(config: str, steps: int) -> tuple[set, set]:
+        libsumo.start([sumo_binary(), "-c", str(out / config), "--no-step-log", "true", "--no-warnings", "true"])
+        try:
+            present = set(libsumo.vehicle.getIDList())
+            for _ in range(steps):
+                libsumo.simulationStep()
+            return present, {v for v in libsumo.vehicle.getIDList() if libsumo.vehicle.isStoppedParking(v)}
+        finally:
+            libsumo.close()
+    in_state, parked_state = parked("scenario.sumocfg", 0)
+    portable = set(re.findall(r'<vehicle id="start\.([^"]+)"', (out / "start.rou.xml").read_text()))
+    assert in_state == seeded == portable
+    assert len(parked_state) >= 2
+    _, parked_start = parked("start.sumocfg", 2)
+    assert {v.removeprefix("start.") for v in parked_start} >= parked_state
+    # their later stops kept, the parked one's duration what is left of it
+    for vid in parked_state:
+        car = re.search(rf'<vehicle id="start\.{re.escape(vid)}".*?</vehicle>', (out / "start.rou.xml").read_text(), re.S)
+        assert car and 'parkingArea="pa"' in car.group(0) and float(re.search(r'duration="([^"]+)"', car.group(0))[1]) < 75

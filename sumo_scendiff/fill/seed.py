@@ -230,12 +230,14 @@ def load_each(load, vehicles, remove) -> dict[str, str]:
             remove(vid)
 
 
-def remove_vehicle(vid: str, routes_path: str | None = None, state_path: str | None = None) -> None:
+def remove_vehicle(vid: str, routes_path: str | None = None, state_path: str | None = None,
+                   state_vid: str | None = None) -> None:
     """Take vehicle ``vid`` out of a portable start's route file (its vehicle and its route) and out
-    of a saved state (its vehicle, and its place in its lane's list of vehicles)."""
+    of a saved state (its vehicle, a parked one's transfer back to its lane, and its place in its
+    lane's list of vehicles); ``state_vid``: its id in the state where that is another."""
     import gzip
     import xml.etree.ElementTree as ET
-    for path in (routes_path, state_path):
+    for path, vid in ((routes_path, vid), (state_path, state_vid or vid)):
         if not path:
             continue
         opener = gzip.open if path.endswith(".gz") else open
@@ -243,7 +245,8 @@ def remove_vehicle(vid: str, routes_path: str | None = None, state_path: str | N
             tree = ET.parse(f)
         root = tree.getroot()
         for el in list(root):
-            if el.tag == "vehicle" and el.get("id") == vid or el.tag == "route" and el.get("id") == f"{vid}_replay":
+            if el.tag in ("vehicle", "vehicleTransfer") and el.get("id") == vid \
+                    or el.tag == "route" and el.get("id") == f"{vid}_replay":
                 root.remove(el)
         for lst in root.iter("vehicles"):      # a state's <lane><vehicles value="a b"/></lane>
             ids = lst.get("value", "").split()
@@ -253,12 +256,14 @@ def remove_vehicle(vid: str, routes_path: str | None = None, state_path: str | N
             tree.write(f, encoding="UTF-8", xml_declaration=True)
 
 
-def admit_start(folder: str, poses: dict, ends: dict) -> tuple[int, dict[str, str]]:
+def admit_start(folder: str, poses: dict, ends: dict, state_ids: dict[str, str] | None = None
+                ) -> tuple[int, dict[str, str]]:
     """The folder's two starts, made to load in SUMO: the portable start's stops SUMO would refuse
     pruned (sim.stops.prune_file_stops; ``ends``: the stopping places), its departures fitted to the
     box centres (``poses``: vehicle id -> x, y; sim.export.fit_departures), and the state loaded
     and stepped once; a vehicle SUMO still refuses at either is taken out of both
-    (:func:`load_each`). Returns (departures fitted, vehicle id -> SUMO's reason per one taken out)."""
+    (:func:`load_each`; ``state_ids``: the portable start's id -> the state's, where they differ).
+    Returns (departures fitted, vehicle id -> SUMO's reason per one taken out)."""
     from ..sim.export import fit_departures
     from ..sim.stops import prune_file_stops
     from ..sim.sumo import close, start_config
@@ -276,11 +281,16 @@ def admit_start(folder: str, poses: dict, ends: dict) -> tuple[int, dict[str, st
         finally:
             close(sim)
 
+    named = {vid: (state_ids or {}).get(vid, vid) for vid in poses}   # as the state names them
+    portable = {v: vid for vid, v in named.items()}
+
     def remove(vid):
-        remove_vehicle(vid, routes, state)
+        remove_vehicle(vid, routes, state, named[vid])
     refused = load_each(lambda: _caught(fit), set(poses), remove)
     prune_file_stops(routes, ends)   # a departure the fit moved past its stop's end
-    refused.update(load_each(lambda: _caught(step_state), set(poses) - set(refused), remove))
+    by_state = load_each(lambda: _caught(step_state), {named[v] for v in poses if v not in refused},
+                         lambda v: remove(portable[v]))
+    refused.update({portable[v]: why for v, why in by_state.items()})
     return fitted[0], refused
 
 

@@ -148,7 +148,8 @@ def sumo_start(req, net, scen, begin: float, start: float, folder: str, timing: 
     options = write_configurations(folder, replace(cfg, routes=()), list(scen.routes), inflow, state_time,
                                    start_last=True, demand_begin=scen.begin or 0.0)
     refitted, refused = admit_start(folder, {PORTABLE_PREFIX + a["vehicle"]: (a["x"], a["y"]) for a in agents},
-                                    place_ends(cfg.additional, net))
+                                    place_ends(cfg.additional, net),
+                                    state_ids={PORTABLE_PREFIX + a["vehicle"]: a["vehicle"] for a in agents})
     refused = {vid.removeprefix(PORTABLE_PREFIX): why for vid, why in refused.items()}
     refuse_at_load(agents, refused)
     start_model = mesoscopic_start(folder, scen)

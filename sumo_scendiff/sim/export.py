@@ -169,7 +169,12 @@ def _vehicle_xml(sim, vid: str, net, declared: dict) -> tuple[str, str, str, boo
     edges = list(sim.vehicle.getRoute(vid))[sim.vehicle.getRouteIndex(vid):]
     lane = sim.vehicle.getLaneID(vid)
     exact = bool(lane) and (not lane.startswith(":") or len(edges) > 1)
-    if exact:
+    parked = None if lane else _parked_lane(sim, vid, edges)
+    if parked:
+        # SUMO gives a parked vehicle no lane; it departs standing where it parks, on its stop's lane
+        # (its route from the stop's edge on), and parks again in the step after its departure
+        pos, lane_index, lat = sim.vehicle.getLanePosition(vid), int(parked.rpartition("_")[2]), 0.0
+    elif exact:
         pos, lane_index = sim.vehicle.getLanePosition(vid), sim.vehicle.getLaneIndex(vid)
         lat = sim.vehicle.getLateralLanePosition(vid)
         if lane.startswith(":"):   # the route index still points at the edge before the junction
@@ -189,6 +194,21 @@ def _vehicle_xml(sim, vid: str, net, declared: dict) -> tuple[str, str, str, boo
            + (' insertionChecks="none"' if exact else '')
            + (">" + "".join(f"\n        {s}" for s in stops) + "\n    </vehicle>" if stops else "/>"))
     return vtype, route, veh, exact
+
+
+def _parked_lane(sim, vid: str, edges: list[str]) -> str | None:
+    """The lane of the stop vehicle ``vid`` stands parked at (off the road), where its remaining route
+    ``edges`` begins on that lane's edge; None for one not parked. Departing from the edge after it,
+    as a vehicle on no lane does, its stop would be behind it: SUMO refuses to load that ("is not
+    downstream the current route")."""
+    try:
+        if not sim.vehicle.isStoppedParking(vid):
+            return None
+        stops = sim.vehicle.getStops(vid, 1)
+    except Exception:   # gone
+        return None
+    lane = stops[0].lane if stops else ""
+    return lane if lane and edges and lane.rpartition("_")[0] == edges[0] else None
 
 
 def write_routes(path: str, sim, vehicle_ids, net, vtype_files=None) -> dict[str, bool]:

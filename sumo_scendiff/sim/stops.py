@@ -207,10 +207,14 @@ def _file_end(st, ends) -> tuple[str | None, float | None]:
 def stops_xml(sim, vid: str) -> list[str]:
     """The stops ``vid`` has still to make, as ``<stop>`` elements of a route file."""
     out = []
-    for st in sim.vehicle.getStops(vid):
-        place = next((k for k, f in PLACES.items() if st.stopFlags & f and st.stoppingPlaceID), None)
+    for k, st in enumerate(sim.vehicle.getStops(vid)):
+        place = next((p for p, f in PLACES.items() if st.stopFlags & f and st.stoppingPlaceID), None)
+        # SUMO reports no lane for a stop of one edge (``edge=``) the vehicle stands at: the one it stands on
+        lane = st.lane or (sim.vehicle.getLaneID(vid) if k == 0 and sim.vehicle.isStopped(vid) else "")
+        if not place and not lane:
+            continue    # SUMO refuses a stop with an empty lane, and names no other
         attrs = {place: st.stoppingPlaceID} if place else {
-            "lane": st.lane, "startPos": f"{st.startPos:.2f}", "endPos": f"{st.endPos:.2f}"}
+            "lane": lane, "startPos": f"{st.startPos:.2f}", "endPos": f"{st.endPos:.2f}"}
         if st.duration >= 0:
             attrs["duration"] = f"{st.duration:g}"
         if st.until >= 0:
