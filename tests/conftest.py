@@ -14,6 +14,10 @@ import pytest
 _CACHE = tempfile.mkdtemp(prefix="scendiff-test-cache-")
 os.environ["XDG_CACHE_HOME"] = _CACHE
 atexit.register(shutil.rmtree, _CACHE, True)
+# under pytest-xdist (-n) the workers share the cores: one BLAS thread each, as oversubscribed threads slow
+# every torch test; set before any test module imports torch
+if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) > 1:
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
 def netconvert(nodes: str, edges: str, out: str, *extra: str, turnarounds: bool = False) -> str:

@@ -71,7 +71,9 @@ def test_runnable_blocks_are_marked_and_safe():
                     assert OUT_FLAG.search(cmd), f"README line {line}: a runnable command writes " \
                         f"into the tree (give it -o): {cmd}"
     first = blocks()[0][2]
-    assert "python -m pytest -q" in first and "pip install" in first   # .ci/run's test command
+    assert "python -m pytest -q" in first and "pip install" in first
+    test_command = next(c for c in commands(first) if "pytest" in c).split("&&")[-1].strip()
+    assert test_command in (ROOT / ".ci" / "run").read_text().splitlines(), ".ci/run runs another test command"
 
 
 def _env():
