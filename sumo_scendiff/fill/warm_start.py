@@ -79,6 +79,7 @@ def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
     from ..sim.state import save_state, waiting_in_state
     from ..sim.sumo import SimConfig, close, settings
     from ..sim.warmup import start_warm
+    from .edge_stops import carry_edge_stops
     from .seed import write_start_routes
     cfg = SimConfig(net=scen.net, routes=tuple(scen.routes), additional=tuple(scen.additional), seed=req.seed,
                     begin=start, **settings(req, scen, mesoscopic=False))   # as _sim_config (fill/api.py)
@@ -94,6 +95,7 @@ def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
         routes = os.path.join(folder, "start.rou.xml")
         exact = write_start_routes(routes, sim, ids, net, state_time,
                                    vtype_files=list(scen.routes) + list(scen.additional))
+        carry_edge_stops(routes, state, sim, ids)
         _drop_their_vtypes(routes, [*scen.routes, *scen.additional])
         _rename(routes)
         waiting = waiting_in_state(state, sim.vehicle.getIDList(), state_time)
