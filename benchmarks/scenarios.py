@@ -56,6 +56,8 @@ from pathlib import Path
 
 # the corpus's modules sit beside this script; put them on the path when it is loaded by file (tests, report.py)
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+# and the product from this work tree, as its steps run it (scenarios_run.product_env)
+sys.path.insert(1, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from scenarios_build import _named_files, _sumo_home, build  # noqa: E402,F401 -- the corpus's interface
 from scenarios_registry import REGISTRY, Scenario  # noqa: E402,F401

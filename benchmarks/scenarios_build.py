@@ -38,8 +38,14 @@ def _sha256(path: Path) -> str:
 
 
 def _from_wheel(sc: Scenario, dest: Path, cache: Path) -> dict:
+    """The configuration and the files it names; then the files its build steps read (``files``, beside
+    the configuration) and those steps (a script of the folder, as ``_from_github`` runs them)."""
     from importlib.metadata import version
-    _copy_scenario(_sumo_home() / sc.get["path"], dest)
+    cfg = _sumo_home() / sc.get["path"]
+    _copy_scenario(cfg, dest)
+    for name in sc.get.get("files", []):
+        shutil.copy2(cfg.parent / name, dest / name)
+    _run_steps(sc.get.get("steps", []), dest)
     return {"eclipse-sumo": version("eclipse-sumo")}
 
 
@@ -86,12 +92,17 @@ def _from_github(sc: Scenario, dest: Path, cache: Path, mirror: Path | None) -> 
     for rel, (path, commit) in g["files"].items():
         (dest / rel).parent.mkdir(parents=True, exist_ok=True)
         (dest / rel).write_bytes(_github_file(g["repo"], commit, path, cache, mirror))
-    for cmd in g["steps"]:
+    _run_steps(g["steps"], dest)
+    return {}
+
+
+def _run_steps(steps: list, dest: Path) -> None:
+    """A source's build steps in its folder, in order (``_program``; a SUMO test's configuration)."""
+    for cmd in steps:
         if cmd[0] == TEST_CONFIG:
             _test_config(dest, cmd[1], cmd[2:])
             continue
         subprocess.run(_program(cmd[0], dest) + cmd[1:], cwd=dest, check=True, capture_output=True, timeout=1800)
-    return {}
 
 
 # a build step writing a SUMO test's configuration: ["sumo-test-config", CFG, OPTIONS_FILE, ...]

@@ -29,6 +29,16 @@ def _game(name, cfg, covers=(), **kw):
                     {"kind": "sumo-wheel", "path": f"tools/game/{cfg}"}, Path(cfg).name, covers, **kw)
 
 
+def _sumolib_rilsa(name, folder, covers=(), **kw):
+    """One of sumolib's RiLSA real-world examples (tools/sumolib/scenario/scenarios/RealWorld, EPL-2.0): a
+    configuration whose root is ``<c>`` and names its network by SUMO's synonym ``net``; the flows by the
+    example's own makeRoutes.py."""
+    path = f"tools/sumolib/scenario/scenarios/RealWorld/{folder}/run.sumo.cfg"
+    return Scenario(name, "SUMO tools/sumolib scenarios (eclipse-sumo wheel)", "EPL-2.0",
+                    {"kind": "sumo-wheel", "path": path, "files": ["makeRoutes.py"], "steps": [["makeRoutes.py"]]},
+                    "run.sumo.cfg", covers, **kw)
+
+
 def _pypi(name, package, version, cfg, licence, covers=(), source=None, **kw):
     """``cfg``: the configuration's path inside the package's wheel."""
     return Scenario(name, source or f"{package} (PyPI)", licence,
@@ -180,6 +190,9 @@ REGISTRY: list[Scenario] = [
     _game("game_DRT2", "DRT2.sumocfg", ("buses", "taxis", "persons", "stops"), offset=120),
     _game("game_fokr_bs", "fokr_bs_demo.sumocfg", ("bicycles", "pedestrians", "trips"), offset=60),
     _game("game_rail_demo", "rail_demo.sumocfg", ("rail",), offset=120),
+    _sumolib_rilsa("sumolib_rilsa1", "RiLSA_example1",
+                   ("lights", "trucks", "<c> configuration root", "option synonym net", "departPos base"),
+                   offset=300),
     _sumo_rl("sumorl_single_intersection", "single-intersection/single-intersection.sumocfg",
              ("lights",)),
     _sumo_rl("sumorl_2way_single", "2way-single-intersection/single-intersection.sumocfg", ("lights",)),

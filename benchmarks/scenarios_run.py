@@ -27,8 +27,11 @@ TIMEOUT = {"sumo": 600, "run": 1200, "run_replay": 300, "fill": 1500, "fill_repl
 
 
 def _config_value(cfg: Path, key: str) -> str | None:
-    for el in ET.parse(cfg).getroot().iter(key):
-        return el.get("value")
+    """A configuration's option ``key`` (its long name) by whichever of SUMO's names it is written."""
+    from sumo_scendiff.core.sumo_xml import option_name
+    for el in ET.parse(cfg).getroot().iter():
+        if isinstance(el.tag, str) and option_name(el.tag) == key and el.get("value") is not None:
+            return el.get("value")
     return None
 
 
@@ -112,7 +115,7 @@ def step(cmd: list, timeout: float, log: Path, cwd: Path) -> dict:
     # its own process group: the `sumo` entry point is a wrapper around the binary, and a timeout must
     # end both (a binary waiting for a TraCI client would hold its port)
     p = subprocess.Popen([str(c) for c in cmd], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         cwd=cwd, stdin=subprocess.DEVNULL, start_new_session=True)
+                         cwd=cwd, stdin=subprocess.DEVNULL, start_new_session=True, env=product_env())
     try:
         out, err = p.communicate(timeout=timeout)
         rc = p.returncode
@@ -126,6 +129,13 @@ def step(cmd: list, timeout: float, log: Path, cwd: Path) -> dict:
     if rc != 0:
         res["error"] = _one_line(err) or _one_line(out)
     return res
+
+
+def product_env() -> dict:
+    """The environment of a step: the product imported from this work tree (``ROOT``), the one each row's
+    ``product`` names, whichever checkout an editable install of the package points to."""
+    path = os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH")) if p)
+    return {**os.environ, "PYTHONPATH": path}
 
 
 def placement(doc_path: Path) -> dict | None:

@@ -67,6 +67,25 @@ def test_build_copies_every_named_file_and_records_its_source(corpus, tmp_path):
     assert ref.returncode == 0, ref.stderr
 
 
+def test_a_wheel_source_runs_its_build_steps_and_reads_sumos_option_synonyms(corpus, tmp_path):
+    """sumolib's RiLSA example: its flows by its own makeRoutes.py; its configuration (root ``<c>``) names
+    the network by SUMO's synonym ``net``, which the harness's area reads as SUMO does."""
+    sc = _entry(corpus, "sumolib_rilsa1")
+    cfg = corpus.build(sc, tmp_path)
+    assert (cfg.parent / "flows.rou.xml").is_file() and (cfg.parent / "makeRoutes.py").is_file()
+    x0, y0, x1, y1 = corpus.fill_area(sc, cfg)
+    assert x1 > x0 and y1 > y0
+
+
+def test_a_step_runs_the_product_of_this_work_tree(corpus, tmp_path):
+    """Each row names the work tree's commit: its steps import the product from there, not from wherever an
+    editable install of the package points (another checkout)."""
+    code = "import sumo_scendiff; print(sumo_scendiff.__file__)"
+    res = corpus.step([sys.executable, "-c", code], 60, tmp_path / "where.log", tmp_path)
+    assert res["ok"]
+    assert str(HERE.parent / "sumo_scendiff") in (tmp_path / "where.log").read_text()
+
+
 def test_a_github_source_not_at_hand_is_named(corpus, tmp_path):
     sc = corpus.Scenario("x", "github:someone/nothing", "MIT",
                          {"kind": "github", "repo": "someone/nothing",

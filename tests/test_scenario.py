@@ -248,3 +248,16 @@ def test_how_strictly_sumo_reads_the_files_is_carried(tmp_path, grid):
     cfg.write_text(f'<configuration><input><net-file value="{grid.path}"/></input><report>'
                    '<verbose value="true"/><xml-validation value="never"/></report></configuration>')
     assert scenario_from_files(str(cfg)).options == (("xml-validation", "never"),)
+
+
+def test_sumos_other_names_for_its_inputs_are_read(scenario):
+    """SUMO takes ``net``, ``routes`` and ``additional`` for its input options (MSFrame's synonyms) under any
+    root (sumolib's RiLSA examples: ``<c><net value=.../>``): the same inputs, none carried as a run option."""
+    (scenario / "c.sumo.cfg").write_text(
+        '<c>\n  <net value="cross.net.xml"/>\n  <routes value="sub/cars.rou.xml"/>\n'
+        '  <additional value="vtypes.add.xml"/>\n  <b value="10"/>\n</c>\n')
+    s = scenario_from_files(str(scenario / "c.sumo.cfg"))
+    assert s.net == str(scenario / "cross.net.xml") and s.routes == (str(scenario / "sub" / "cars.rou.xml"),)
+    assert s.additional == (str(scenario / "vtypes.add.xml"),) and s.begin == 10.0 and s.options == ()
+    # a flag replaces the file whichever name the configuration gives it
+    assert scenario_from_files(str(scenario / "c.sumo.cfg"), routes=[str(scenario / "sub" / "cars.rou.xml")])

@@ -35,6 +35,16 @@ _AT_END = frozenset({expat.errors.codes[c] for c in (expat.errors.XML_ERROR_NO_E
 FLOWS = ("flow", "personFlow", "containerFlow")
 # a calibrator's <flow>s are the vehicles it inserts to hold its edge's count, not demand of their own
 NOT_DEMAND_PARENTS = ("calibrator",)
+# the other names SUMO takes for its input and time options, in a configuration as on its command line
+# (MSFrame: the one-letter abbreviations and addSynonyme's net, routes, additional); the long name is the
+# one SUMO documents and writes when it saves a configuration
+OPTION_SYNONYMS = {"n": "net-file", "net": "net-file", "r": "route-files", "routes": "route-files",
+                   "a": "additional-files", "additional": "additional-files", "b": "begin", "e": "end"}
+
+
+def option_name(name: str) -> str:
+    """A SUMO option's long name, whichever of its names (OPTION_SYNONYMS) is given."""
+    return OPTION_SYNONYMS.get(name, name)
 
 
 class XmlError(ValueError):

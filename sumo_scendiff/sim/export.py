@@ -283,7 +283,6 @@ def fit_departures(config: str, routes_path: str, poses: dict[str, tuple[float, 
     return n - len(fix)
 
 
-LONG_NAMES = {"n": "net-file", "r": "route-files", "a": "additional-files", "b": "begin", "e": "end"}
 INPUTS = ("net-file", "route-files", "additional-files")
 
 
@@ -295,9 +294,9 @@ def write_sumocfg(path: str, options: dict[str, str], state: str | None,
     files instead of the options' own. ``begin``: the configuration's begin instead of the options'
     (the scene's time); a flow without begin keeps the options' (SUMO's when it loaded the demand),
     written into the folder's copy."""
-    from ..core.sumo_xml import seconds
+    from ..core.sumo_xml import option_name, seconds
     here = os.path.dirname(os.path.abspath(path))
-    options = {LONG_NAMES.get(k, k): v for k, v in options.items()}
+    options = {option_name(k): v for k, v in options.items()}
     loaded = seconds(options.get("begin")) or 0.0       # SUMO's default begin: 0
     if begin is not None:
         options["begin"] = f"{begin:g}"

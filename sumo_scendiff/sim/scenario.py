@@ -20,10 +20,10 @@ import os
 from dataclasses import dataclass
 from typing import Sequence
 
-# option names of a .sumocfg (long and short) -> SumoScenario fields
-_LISTS = {"route-files": "routes", "r": "routes", "additional-files": "additional", "a": "additional"}
-_FILES = {"net-file": "net", "n": "net"}
-_TIMES = {"begin": "begin", "b": "begin", "end": "end", "e": "end"}
+# option names of a .sumocfg (long: core.sumo_xml.option_name reads the others) -> SumoScenario fields
+_LISTS = {"route-files": "routes", "additional-files": "additional"}
+_FILES = {"net-file": "net"}
+_TIMES = {"begin": "begin", "end": "end"}
 # sections of a .sumocfg whose options are not carried (see the module's doc); an option outside any
 # section is carried unless it names a file or an output. The mesoscopic model (its section's options:
 # mesosim, meso-edgelength, ...) is carried; the fill alone leaves it out (sim.sumo.settings, meso_notice)
@@ -109,25 +109,29 @@ def read_sumocfg(path: str, skip: frozenset[str] = frozenset(), replace_with: st
         raise ScenarioError(f"{path}: not a SUMO configuration ({str(e).splitlines()[0]})") from None
     if not opts:
         raise ScenarioError(f"{path}: not a SUMO configuration (no options with a value)")
+    from ..core.sumo_xml import option_name
     here = os.path.dirname(os.path.abspath(path))
     out: dict = {"config": os.path.abspath(path)}
-    for opt in (o for o in opts if o.name not in skip):
-        if opt.name in _FILES or opt.name in _LISTS:
+    for opt in opts:
+        name = option_name(opt.name)
+        if name in skip:
+            continue
+        if name in _FILES or name in _LISTS:
             given = _split(opt.value)
             files = [os.path.normpath(os.path.join(here, f)) for f in given]
             for f, g in zip(files, given):
                 if not os.path.exists(f):
                     raise ScenarioError(f"{path}: {opt.name}: {g}: no such file (give {replace_with} to use "
                                         "other files)")
-            if opt.name in _FILES:
+            if name in _FILES:
                 if not files:
                     raise ScenarioError(f"{path}: {opt.name}: names no file")
                 out["net"] = files[0]
             else:
-                out[_LISTS[opt.name]] = tuple(files)
-        elif opt.name in _TIMES:
-            out[_TIMES[opt.name]] = _time(path, opt.name, opt.value)
-        elif opt.name == "step-length":
+                out[_LISTS[name]] = tuple(files)
+        elif name in _TIMES:
+            out[_TIMES[name]] = _time(path, opt.name, opt.value)
+        elif name == "step-length":
             out["step_length"] = _time(path, opt.name, opt.value)
             if not out["step_length"] > 0:
                 raise ScenarioError(f"{path}: step-length: must be > 0 ({opt.value!r})")
@@ -141,6 +145,7 @@ def run_options(path: str) -> tuple[tuple[str, str], ...]:
     that names a file (its path would not travel with the exported scenario)."""
     import xml.etree.ElementTree as ET
 
+    from ..core.sumo_xml import option_name
     from ..core.tools import sumo_option_sections
     sections = sumo_option_sections()
     out = []
@@ -154,7 +159,7 @@ def run_options(path: str) -> tuple[tuple[str, str], ...]:
                     and o.tag.startswith("xml-validation") and o.get("value") is not None]
             continue
         for opt in opts:
-            name, value = opt.tag, opt.get("value")
+            name, value = option_name(opt.tag) if isinstance(opt.tag, str) else opt.tag, opt.get("value")
             # an option outside any section (SUMO reads those too) goes by the section SUMO files it
             # under: a TraCI port given so would make every in-process run wait for a client
             if (not isinstance(name, str) or value is None or name in _LISTS or name in _FILES or name in _TIMES
@@ -195,8 +200,8 @@ def scenario_from_files(config: str | None = None, net: str | None = None,
     """The scenario of a ``.sumocfg`` with ``-n``/``-r``/``-a`` replacing what it names, so a
     configuration naming a file that was not shipped is usable with the flag that replaces it
     (``replace_with``: how the caller's user gives them, for the error)."""
-    skip = {name for name, flag in (("net-file", net), ("n", net), ("route-files", routes), ("r", routes),
-                                    ("additional-files", additional), ("a", additional)) if flag}
+    skip = {name for name, flag in (("net-file", net), ("route-files", routes), ("additional-files", additional))
+            if flag}
     fields = read_sumocfg(config, frozenset(skip), replace_with) if config else {}
     if net:
         fields["net"] = os.path.abspath(net)

@@ -20,12 +20,14 @@ import tempfile
 from dataclasses import replace
 
 from ..core.files import file_sha256
+from ..core.sumo_xml import option_name
 from .state import save_state
 
 # bumped when what a cached state holds changes (its options, how it is saved)
 STATE_VERSION = 2
-# options naming an input file: their contents, not their paths, are the key
-FILE_OPTIONS = frozenset({"n", "r", "a", "net-file", "route-files", "additional-files"})
+# options naming an input file (by any of their names, core.sumo_xml.option_name): their contents, not
+# their paths, are the key
+FILE_OPTIONS = frozenset({"net-file", "route-files", "additional-files"})
 # SUMO saves its random number generators with a state only when asked: without them a run started
 # from the state draws other numbers than the run that saved it (other departures of a flow with a
 # probability, other driver imperfection) -- an option on what a state holds, not on what SUMO simulates
@@ -71,7 +73,7 @@ def state_key(cfg, until: float) -> str:
     each input file replaced by its contents' hash, and the time."""
     args, out = replace(cfg, extra=_without_rng(cfg.extra)).args(), []
     for k, a in enumerate(args):
-        if k and args[k - 1].lstrip("-") in FILE_OPTIONS:
+        if k and option_name(args[k - 1].lstrip("-")) in FILE_OPTIONS:
             a = ",".join(file_sha256(p) for p in a.split(","))
         out.append(a)
     doc = {"version": STATE_VERSION, "sumo": _sumo_version(), "args": out,
