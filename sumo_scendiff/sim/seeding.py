@@ -35,8 +35,6 @@ pose; docs/evaluation.md, "Seeding SUMO: placement and hand-off"), so the Seeder
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 import shapely
 
@@ -44,65 +42,19 @@ from ..core.geometry import OVERLAP_AREA, T0, box_polygons, pose_to_sumo, wrap_a
 from ..core.scene import VEHICLE_CLASSES, Scene
 from ..map.network import Network
 from .drops import Drops
-from .fleet import DEFAULT_MIN_GAP, PARENT_PARAM, Fleet
+from .fleet import PARENT_PARAM, Fleet
+from .gaps import Gaps
 from .junctions import JunctionConflicts
 from .pose_routes import PoseRoutes
 from .routes import RouteChooser
-from .settle import MIN_GAP_MARGIN, Settling, krauss_safe_speed
+from .seed_report import STATUSES, SeedReport
+from .settle import Settling, krauss_safe_speed
 from .stop_lines import StopLines
 from .sumo import mesoscopic
 
 POS_TOLERANCE, YAW_TOLERANCE = 0.5, 0.1   # m, rad: "present where it was generated"
 CLAMPED = 0.01         # m: a position on an internal lane this near its start is SUMO's clamp, not a pose
 LANE_END_MARGIN = 0.05  # m: a nose further than this past its lane's end is moved back behind it
-
-
-STATUSES = ("placed", "misplaced", "refused", "dropped")   # every generated agent is exactly one
-
-
-@dataclass
-class SeedReport:
-    ids: dict[int, str] = field(default_factory=dict)        # agent index -> vehicle id
-    refused: dict[int, str] = field(default_factory=dict)    # agent index -> reason
-    misplaced: dict[int, float] = field(default_factory=dict)  # agent index -> position error (m)
-    targets: dict[int, tuple] = field(default_factory=dict)  # agent index -> (x_front, y_front, angle)
-    slowed: dict[int, tuple] = field(default_factory=dict)   # agent index -> (generated, departure speed)
-    gap_fitted: dict[int, tuple] = field(default_factory=dict)  # agent index -> (minGap, minGap fitted)
-    dropped: dict[int, str] = field(default_factory=dict)    # agent index -> why our own rules did not seed it
-    pulled_back: dict[int, float] = field(default_factory=dict)  # agent index -> m moved behind its lane's end
-    narrowed: dict[int, tuple] = field(default_factory=dict)  # agent index -> (generated, SUMO width), width_cap
-    to_stop_line: dict[int, float] = field(default_factory=dict)  # agent index -> m moved from a red junction
-    own_route: dict[int, str] = field(default_factory=dict)  # agent index -> how its given route went (RouteChooser.along)
-    lanes: dict[int, tuple] = field(default_factory=dict)     # agent index -> (normal lane id, front pos) seeded on
-
-    @property
-    def placed(self) -> int:
-        return len(self.ids) - len(self.misplaced)
-
-    @property
-    def conflicts(self) -> dict[int, str]:
-        """The agents not seeded by the seeder's own rules: :attr:`dropped` (its earlier name)."""
-        return self.dropped
-
-    def status(self, i: int) -> tuple[str, str | float | None]:
-        """Agent ``i``'s record: ``placed`` (None), ``misplaced`` (its position error, m), ``refused``
-        (SUMO's reason) or ``dropped`` (the rule's reason); exactly one (README, scene.json)."""
-        if i in self.dropped:
-            return "dropped", self.dropped[i]
-        if i in self.refused:
-            return "refused", self.refused[i]
-        if i in self.misplaced:
-            return "misplaced", self.misplaced[i]
-        if i in self.ids:
-            return "placed", None
-        return "dropped", "not seeded"   # an index the seeding never reached: not in SUMO, never "placed"
-
-    def counts(self, generated: int) -> dict[str, int]:
-        """generated = placed + misplaced + refused + dropped for a scene of ``generated`` agents."""
-        out = {"generated": generated, **dict.fromkeys(STATUSES, 0)}
-        for i in range(generated):
-            out[self.status(i)[0]] += 1
-        return out
 
 
 def sublane(sim) -> bool:
@@ -113,7 +65,7 @@ def sublane(sim) -> bool:
         return False
 
 
-class Seeder(Settling, StopLines, PoseRoutes, Drops):
+class Seeder(Gaps, Settling, StopLines, PoseRoutes, Drops):
     def __init__(self, sim, net: Network, prefix: str = "sd", seed: int = 0):
         self.sim, self.net, self.prefix = sim, net, prefix
         self.rng = np.random.default_rng(seed)
@@ -212,29 +164,6 @@ class Seeder(Settling, StopLines, PoseRoutes, Drops):
             self.sim.route.remove(f"{vid}_route")
         except Exception:   # a SUMO without route.remove keeps it
             pass
-
-    @staticmethod
-    def leaders(boxes: np.ndarray, others: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Per box, the nearest box ahead in its lane (|lateral| < 1.5 m, heading within 0.5 rad) among
-        ``boxes`` and then ``others`` (index into their concatenation, -1: none) and the bumper gap to it."""
-        n = len(boxes)
-        b = np.concatenate([boxes[:, :5], np.zeros((0, 5)) if others is None else others[:, :5]]).astype(np.float64)
-        lead, gap = np.full(n, -1), np.full(n, np.inf)
-        for i in range(n):
-            d = b[:, :2] - b[i, :2]
-            c, s = np.cos(b[i, 2]), np.sin(b[i, 2])
-            ahead, side = d @ [c, s], d @ [-s, c]
-            same = (ahead > 0) & (np.abs(side) < 1.5) & (np.abs(wrap_angle(b[:, 2] - b[i, 2])) < 0.5)
-            same[i] = False
-            if same.any():
-                j = np.flatnonzero(same)[np.argmin(ahead[same])]
-                lead[i], gap[i] = j, ahead[j] - 0.5 * (b[i, 3] + b[j, 3])
-        return lead, gap
-
-    @staticmethod
-    def min_gaps(bumper_gap: np.ndarray) -> np.ndarray:
-        """A minGap per agent that fits the bumper gap to the agent ahead in its lane."""
-        return np.clip(np.nan_to_num(bumper_gap - MIN_GAP_MARGIN, posinf=DEFAULT_MIN_GAP), 0.3, DEFAULT_MIN_GAP)
 
     # ---- seeding --------------------------------------------------------------------------------
     def fit_lane_ends(self, scene: Scene, report: SeedReport, others: np.ndarray) -> None:
@@ -365,38 +294,6 @@ class Seeder(Settling, StopLines, PoseRoutes, Drops):
             report.lanes[i] = (lane.id, self._front_pos(lane, fx, fy))
         if slowed is not None:
             report.slowed[i] = slowed
-
-    def departure_speeds(self, lead: np.ndarray, gap: np.ndarray, speed: np.ndarray,
-                         types: list | None = None) -> np.ndarray:
-        """Per agent the speed it departs at: its own (``speed[:n]``: generated, 0 if held), at most
-        Krauss' safe speed for the ``gap`` (m beyond its minGap) to the vehicle ahead (``lead``: an
-        index into the agents and then the host's vehicles, whose speeds follow in ``speed``) at that
-        one's departure speed: a leader slowed at hand-off slows the queue behind it too. The
-        driving parameters are those of the agent's vType's parent (DEFAULT_VEHTYPE or ``types[i]``)."""
-        n, t = len(lead), self.sim.vehicletype
-        known = self._known_types()
-        params: dict[str, tuple[float, float]] = {}
-        out = np.full(n, np.nan)
-
-        def settle(i: int, seen: frozenset) -> float:
-            if not np.isnan(out[i]):
-                return out[i]
-            v = max(float(speed[i]), 0.0)
-            j = int(lead[i])
-            if j >= 0:
-                if j < n and j not in seen:
-                    v_lead = settle(j, seen | {i})
-                else:                    # the host's vehicle, or a ring of agents (taken as drawn)
-                    v_lead = max(float(speed[j]), 0.0)
-                parent = types[i] if types is not None and types[i] in known else "DEFAULT_VEHTYPE"
-                if parent not in params:
-                    params[parent] = (t.getDecel(parent), t.getTau(parent))
-                v = min(v, krauss_safe_speed(float(gap[i]), v_lead, *params[parent]))
-            out[i] = v
-            return v
-        for i in range(n):
-            settle(i, frozenset())
-        return out
 
     def _depart_pos(self, lane, edges: list[str], fx: float, fy: float) -> str:
         """``vehicle.add``'s departPos: the lane's start where ``moveToXY`` then puts the vehicle at its
