@@ -194,3 +194,38 @@ def test_a_vehicle_departing_at_begin_does_not_depart_again_in_a_scene(tmp_path,
     copy = gzip.open(folder / "user.rou.xml.gz").read().decode()
     assert copy == text.replace('depart="begin"', 'depart="0.0"').replace("depart='begin'", "depart='0.0'")
     assert user.read_text() == text
+
+
+FLAWS = {"missing": None, "empty": "",
+         "mismatched": ('<routes>\n    <vehicle id="i1" depart="1"><route edges="A0B0 B0C0"/></vehicle>\n'
+                        '    <vehicle id="i2" depart="2"><route edges="A0B0 B0C0"/></vehicl>\n</routes>\n')}
+FLAW_WORDS = {"missing": "no such file", "empty": "empty file", "mismatched": "mismatched tag"}
+
+
+@pytest.mark.parametrize("flaw", list(FLAWS))
+def test_an_included_route_files_other_flaws_are_reported_and_read_past_as_sumo_reads_them(tmp_path, grid, flaw):
+    """SUMO reports an included route file that is missing, empty or not well-formed (its elements whole
+    before the flaw are loaded) and reads on past the include: the demand reads the same vehicles, warns
+    naming the file and its flaw, and a scene's folder of it replays in stock SUMO."""
+    import xml.etree.ElementTree as ET
+
+    from sumo_scendiff.sim.export import write_sumocfg
+    if FLAWS[flaw] is not None:
+        (tmp_path / "inc.rou.xml").write_text(FLAWS[flaw])
+    path, trips = tmp_path / "main.rou.xml", tmp_path / "trips.xml"
+    path.write_text('<routes>\n    <vehicle id="a" depart="0"><route edges="A0B0 B0C0"/></vehicle>\n'
+                    '    <include href="inc.rou.xml"/>\n'
+                    '    <vehicle id="b" depart="5"><route edges="A0B0 B0C0"/></vehicle>\n</routes>\n')
+    done = _sumo("-n", grid.path, "-r", str(path), "--end", "100", "--tripinfo-output", str(trips))
+    assert done.returncode == 0 and "inc.rou.xml" in done.stderr, done.stderr
+    departed = sorted(t.get("id") for t in ET.parse(trips).getroot().iter("tripinfo"))
+    assert departed == sorted(el.get("id") for _, el in elements([str(path)], ("vehicle",)))
+    span = demand_span([str(path)], _edges(grid))
+    assert tuple(span) == (0.0, 5.0) and span.cut.stop == float("inf")
+    assert all(s in span.cut.warning() for s in ("inc.rou.xml", FLAW_WORDS[flaw], "included from", "main.rou.xml"))
+    folder = tmp_path / "scene"
+    folder.mkdir()
+    write_sumocfg(str(folder / "scenario.sumocfg"), {"net-file": grid.path, "route-files": str(path)}, None,
+                  begin=0.0)
+    replay = _sumo("-c", str(folder / "scenario.sumocfg"), "--end", "20")
+    assert replay.returncode == 0, replay.stderr

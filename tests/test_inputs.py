@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from sumo_scendiff.core.sumo_xml import XmlError, elements, seconds
+from sumo_scendiff.core.sumo_xml import elements, seconds
 from sumo_scendiff.data.demand import DemandError, demand_span
 from sumo_scendiff.sim.preflight import preflight
 from sumo_scendiff.sim.scenario import ScenarioError, scenario_from_files
@@ -104,7 +104,8 @@ def test_a_gzipped_route_file_whatever_its_name(tmp_path, grid):
 
 def test_includes_are_read_in_place_relative_to_the_including_file(tmp_path, grid):
     """<include href> in a route and an additional file, resolved from the including file's folder
-    as SUMO resolves it; an include of a missing file names both."""
+    as SUMO resolves it. An additional file including a missing file is one SUMO refuses at load (the
+    preflight names it with SUMO's error); the reading notes it and reads past, as SUMO reads a route file."""
     _write(tmp_path / "parts" / "types.xml", '<additional><vType id="mix"/><vType id="bus"/></additional>')
     add = _write(tmp_path / "parts" / "main.add.xml",
                  '<add><include href="types.xml"/><busStop id="bs1" lane="A0B0_0" startPos="20" endPos="45"/>'
@@ -117,9 +118,13 @@ def test_includes_are_read_in_place_relative_to_the_including_file(tmp_path, gri
     assert tags == ["vType", "vType", "busStop", "busStop"]
     assert demand_span([routes], _edges(grid), [add]) == (25200.0, 32400.0)
     preflight(scenario_from_files(net=grid.path, routes=[routes], additional=[add]))
-    _write(tmp_path / "bad.add.xml", '<add><include href="parts/nothere.xml"/></add>')
-    with pytest.raises(XmlError, match=r"bad\.add\.xml: include href=\"parts/nothere\.xml\": no such file"):
-        list(elements([str(tmp_path / "bad.add.xml")], {"vType"}))
+    bad = _write(tmp_path / "bad.add.xml", '<add><include href="parts/nothere.xml"/></add>')
+    cuts = []
+    assert list(elements([bad], {"vType"}, cuts)) == []
+    assert (cuts[0].path, cuts[0].included_from, cuts[0].problem) == (
+        str(tmp_path / "parts" / "nothere.xml"), bad, "no such file")
+    with pytest.raises(ScenarioError, match=r"SUMO refuses to load it: .*parts/nothere\.xml"):
+        preflight(scenario_from_files(net=grid.path, routes=[routes], additional=[bad]))
 
 
 def test_flow_spans_as_sumo_computes_them(tmp_path, grid):

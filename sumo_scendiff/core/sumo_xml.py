@@ -14,7 +14,11 @@ before (``MSRouteLoaderControl``): its whole elements are handed over, and the c
 (:class:`Cut`); SUMO quits when its reading reaches it, and refuses an additional file so cut at load.
 A file pulled in by ``<include>`` and cut short is another matter for a route file: SUMO's reader of the
 include reports the flaw as an error and hands back (``XMLSubSys::runParser``), so the including file
-is read on past it and only the included file's rest is lost (``Cut.included_from``).
+is read on past it and only the included file's rest is lost (``Cut.included_from``). So for any flaw
+of an included file: missing ("Cannot read file"), empty, or not well-formed where it is (a mismatched
+tag): SUMO reports it, keeps the elements whole before it and reads on past the include
+(``Cut.problem``). SUMO refuses an additional file so flawed at load, which its own check
+(sim.preflight) reports first.
 """
 from __future__ import annotations
 
@@ -53,11 +57,13 @@ class XmlError(ValueError):
 
 @dataclass(frozen=True)
 class Cut:
-    """A file that ends inside its root element: where its reading stopped (line, 1-based);
-    ``included_from``: the file whose ``<include>`` pulled it in (None: a file given to SUMO)."""
+    """A file that ends inside its root element: where its reading stopped (line, 1-based; 0: it was
+    not read); ``included_from``: the file whose ``<include>`` pulled it in (None: a file given to SUMO);
+    ``problem``: an included file's other flaw SUMO reads past (None: cut short)."""
     path: str
     line: int
     included_from: str | None = None
+    problem: str | None = None
 
 
 def open_xml(path: str) -> BinaryIO:
@@ -114,17 +120,32 @@ def _walk(path: str, tags: frozenset, chain: tuple[str, ...],
           cuts: list[Cut] | None) -> Iterator[tuple[str, ET.Element]]:
     if path in chain:
         raise XmlError(f"{chain[-1]}: includes {path}, which includes it back")
+    try:
+        f = open_xml(path)
+    except XmlError as e:                      # no such file, empty
+        if not chain:
+            raise
+        _read_past(cuts, Cut(path, 0, chain[-1], str(e).removeprefix(f"{path}: ")))
+        return
     started: list = []
-    with open_xml(path) as f:
+    with f:
         try:
             yield from _events(path, f, tags, chain, cuts, started)
         except ET.ParseError as e:
-            if not (started and e.code in _AT_END):
+            cut_short = bool(started) and e.code in _AT_END
+            if not (chain or cut_short):
                 raise XmlError(f"{path}: not well-formed XML ({e})") from None
-            if cuts is not None:
-                cuts.append(Cut(path, e.position[0], chain[-1] if chain else None))
+            _read_past(cuts, Cut(path, e.position[0], chain[-1] if chain else None,
+                                 None if cut_short else f"not well-formed XML ({e})"))
         except (OSError, EOFError) as e:       # a gzip cut short or corrupt
-            raise XmlError(f"{path}: cannot be read ({e})") from None
+            if not chain:
+                raise XmlError(f"{path}: cannot be read ({e})") from None
+            _read_past(cuts, Cut(path, 0, chain[-1], f"cannot be read ({e})"))
+
+
+def _read_past(cuts: list[Cut] | None, cut: Cut) -> None:
+    if cuts is not None:
+        cuts.append(cut)
 
 
 def _events(path: str, f: BinaryIO, tags: frozenset, chain: tuple[str, ...], cuts, started: list):
@@ -141,10 +162,7 @@ def _events(path: str, f: BinaryIO, tags: frozenset, chain: tuple[str, ...], cut
             elif el.tag in tags:
                 inside = 1
             elif el.tag == "include" and el.get("href"):
-                target = include_path(path, el.get("href"))
-                if not os.path.isfile(target):
-                    raise XmlError(f"{path}: include href=\"{el.get('href')}\": no such file {target}")
-                yield from _walk(target, tags, chain + (path,), cuts)
+                yield from _walk(include_path(path, el.get("href")), tags, chain + (path,), cuts)
             continue
         depth -= 1
         if inside:

@@ -221,13 +221,16 @@ class CutDemand:
     stop: float         # SUMO's time when its reading reaches the cut (s; inf: it reads on)
     ahead: float        # how far ahead of its clock SUMO reads (s; its --route-steps)
     included_from: str | None = None
+    problem: str | None = None     # an included file's flaw other than a cut (core.sumo_xml.Cut)
 
     def warning(self) -> str:
         from ..core.cli import clock
         if self.included_from is not None:
-            return (f"{self.path}: cut short at line {self.line} (no closing tag), included from "
-                    f"{self.included_from}; SUMO reports an error, reads it to its last whole departure, "
-                    f"{self.read_to:g} s ({clock(self.read_to)}), and reads on past its include")
+            flaw = (self.problem or f"cut short at line {self.line} (no closing tag)")
+            kept = (f"reads it to its last whole departure, {self.read_to:g} s ({clock(self.read_to)}), "
+                    if self.line else "")
+            return (f"{self.path}: {flaw}, included from {self.included_from}; SUMO reports an error, "
+                    f"{kept}and reads on past its include")
         return (f"{self.path}: cut short at line {self.line} (no closing tag); SUMO reads it to its last whole "
                 f"departure, {self.read_to:g} s ({clock(self.read_to)}), and quits when its reading, "
                 f"{self.ahead:g} s ahead of its clock (--route-steps), reaches the cut: at about {self.stop:g} s "
@@ -300,7 +303,7 @@ def _cut(cuts: list[Cut], read_to: dict[str, float], begin: float | None, route_
     cut = next((c for c in cuts if c.included_from is None), cuts[0])
     if cut.included_from is not None:
         return CutDemand(cut.path, cut.line, read_to.get(cut.path, begin or 0.0), float("inf"), route_steps,
-                         cut.included_from)
+                         cut.included_from, cut.problem)
     last = max([begin or 0.0, *read_to.values()])
     stop = last - route_steps if route_steps > 0 else (begin or 0.0)
     return CutDemand(cut.path, cut.line, last, max(stop, begin or 0.0), route_steps)

@@ -139,15 +139,18 @@ def _bundle_includes(src: str, folder: str, flow_begin: float | None = None) -> 
         target, dest = include_path(src, href), os.path.join(folder, href)
         if not os.path.isfile(target):
             continue                  # SUMO names the missing file when it loads the folder
+        # an empty one too, and reads on past it (core.sumo_xml): copied as it is
+        empty = not os.path.getsize(target)
         if not os.path.exists(dest):
             os.makedirs(os.path.dirname(dest), exist_ok=True)
-            inserts = _beginless(target) if flow_begin is not None else []
+            inserts = _beginless(target) if flow_begin is not None and not empty else []
             if inserts:
                 with open(dest, "wb") as out:
                     _copy(target, out, inserts, flow_begin)
             else:
                 shutil.copyfile(target, dest)
-        _bundle_includes(target, os.path.dirname(dest), flow_begin)
+        if not empty:
+            _bundle_includes(target, os.path.dirname(dest), flow_begin)
 
 
 def bundle(src: str, folder: str, includes: bool = False, flow_begin: float | None = None) -> str:
