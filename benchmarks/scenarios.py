@@ -26,7 +26,8 @@ Sources (docs/corpus.md lists every scenario with its licence):
   SUMO feature real-world scenarios use (mesoscopic, sublane, persons, parking, TAZ, trams, ...).
 
 The code beside this command line: ``scenarios_registry.py`` (the rows), ``scenarios_build.py`` (the cache),
-``scenarios_features.py`` (the feature variants' builders), ``scenarios_run.py`` (the steps and the table).
+``scenarios_features.py`` and ``scenarios_features_more.py`` (the feature variants' builders), ``scenarios_run.py``
+(the steps and the table), ``scenarios_counts.py`` (what each replay must hold).
 
 For each scenario ``run`` does, every step a subprocess with its own time limit:
 
@@ -61,9 +62,9 @@ sys.path.insert(1, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from scenarios_build import _named_files, _sumo_home, build  # noqa: E402,F401 -- the corpus's interface
 from scenarios_registry import REGISTRY, Scenario  # noqa: E402,F401
-from scenarios_run import (DEFAULT_CACHE, TIMEOUT, _merge, _one_line, _share, _sumo, _write_markdown,  # noqa: E402,F401
-                           begin_time, check_count, commands, fill_area, first_failure, markdown, placement,
-                           run_scenario, running_at, step)
+from scenarios_counts import _sumo, check_count, running_at  # noqa: E402,F401
+from scenarios_run import (DEFAULT_CACHE, TIMEOUT, _merge, _one_line, _share, _write_markdown,  # noqa: E402,F401
+                           begin_time, commands, fill_area, first_failure, markdown, placement, run_scenario, step)
 
 
 # --------------------------------------------------------------------------- command line

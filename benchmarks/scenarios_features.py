@@ -43,12 +43,12 @@ def trips(dest: Path, net: str, vclass: str, out: str, *extra: str) -> str:
     return out
 
 
-def sumocfg(path: Path, net: str, routes=(), additionals=(), **options) -> None:
+def sumocfg(path: Path, net: str, routes=(), additionals=(), begin="0", end=str(END), **options) -> None:
     """A configuration; ``options`` by SUMO's option names (``_`` for ``-``, ``__`` for ``.``)."""
     inputs = [("net-file", net)] + [("route-files", ",".join(routes))] * bool(routes) \
         + [("additional-files", ",".join(additionals))] * bool(additionals)
-    opts = [("begin", "0"), ("end", str(END))] + [(k.replace("__", ".").replace("_", "-"), str(v))
-                                                   for k, v in options.items()]
+    opts = [("begin", begin), ("end", end)] + [(k.replace("__", ".").replace("_", "-"), str(v))
+                                               for k, v in options.items()]
     body = "".join(f'        <{k} value="{v}"/>\n' for k, v in inputs)
     rest = "".join(f'        <{k} value="{v}"/>\n' for k, v in opts)
     path.write_text(f"<configuration>\n    <input>\n{body}    </input>\n    <processing>\n{rest}"
@@ -397,6 +397,14 @@ FEATURES = {
 }
 
 
+def all_features() -> dict:
+    """The matrix: this module's rows and those of its second part (scenarios_features_more.py, built on
+    this module's helpers), in that order."""
+    from scenarios_features_more import MORE_FEATURES
+    return {**FEATURES, **MORE_FEATURES}
+
+
 def build_feature(name: str, dest: Path) -> dict:
-    FEATURES[name][0](dest)
-    return {"built_with": f"benchmarks/scenarios_features.py:{FEATURES[name][0].__name__}"}
+    builder = all_features()[name][0]
+    builder(dest)
+    return {"built_with": f"benchmarks/{builder.__module__}.py:{builder.__name__}"}

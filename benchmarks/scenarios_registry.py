@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from scenarios_features import FEATURES
+from scenarios_features import all_features
 
 
 @dataclasses.dataclass(frozen=True)
@@ -161,6 +161,9 @@ SUMO_TESTS = "tests/sumo/"
 TEST_OPTIONS = ("tests/sumo/options.sumo", "43dfea9b48cb87f76cd1219f53cd1532a150af6d")
 TAXI_TEST = SUMO_TESTS + "devices/taxi/2taxis_10persons/"
 CONTAINER_TEST = SUMO_TESTS + "devices/taxi/containers/10containers_sameEdge"
+SUBLANE_MIXED = SUMO_TESTS + "sublane_model/1edge_3lanes_mixed/"
+SUBLANE_LEFTHAND = SUMO_TESTS + "sublane_model/basic/overtaking_lefthand/"
+BATTERY_TEST = SUMO_TESTS + "devices/battery/chargingStations_totalPower2/"
 
 
 def _sumo_test(name: str, files: dict, options: list, covers: tuple, steps=(), **kw) -> Scenario:
@@ -336,6 +339,30 @@ REGISTRY: list[Scenario] = [
                                              "bcdbb70c15f6a85a91c5667369e2f3f9e153bc21")},
                [(CONTAINER_TEST + "_bidi/options.sumo", "c2b6a0b9e460e5c7128ae422e134d2ad33835494")],
                ("bidirectional edge", "containers", "containerFlow", "taxi device", "trucks"), offset=30),
+    # SUMO's sublane model (lateral-resolution): a vTypeDistribution of cars and mopeds queueing at a red light
+    # on three lanes, and a left-hand road where a car overtakes a slow one at step length 0.2
+    _sumo_test("sumotest_sublane_mixed",
+               {"net.net.xml": (SUBLANE_MIXED + "net.net.xml", "bfc373cc087c232989c310f972c6ac55354e9924"),
+                "input_routes.rou.xml": (SUBLANE_MIXED + "input_routes.rou.xml",
+                                         "9ae189ee1ee2531a4969e67393a426e66b388ca1")},
+               [(SUBLANE_MIXED + "options.sumo", "519e7f1ba3c06a925161729bdb6e8f351ef74fba")],
+               ("sublane model", "mopeds", "vTypeDistribution", "departPosLat random", "queue at a red light"),
+               offset=90),
+    _sumo_test("sumotest_sublane_lefthand",
+               {"net.net.xml": (SUBLANE_LEFTHAND + "net.net.xml", "90d678d1082d240d69afc42f170b1c821bad12dd"),
+                "input_routes.rou.xml": (SUBLANE_LEFTHAND + "input_routes.rou.xml",
+                                         "519e7f1ba3c06a925161729bdb6e8f351ef74fba")},
+               [(SUBLANE_LEFTHAND + "options.sumo", "90d678d1082d240d69afc42f170b1c821bad12dd")],
+               ("left-hand", "sublane model", "overtaking", "step length 0.2", "no internal links"), offset=8),
+    # a test with a configuration of its own (netedit's): battery devices by the configuration's probability,
+    # trips stopping at a chargingStation of limited total power and at an edge
+    _github("sumotest_battery_charging", SUMO_REPO,
+            {**_at("5150e0a9e4747aa0247508c9bea6e524a0a242bf", BATTERY_TEST, ["sumo.sumocfg", "input_routes.rou.xml"]),
+             **_at("a6f436312586af2d469c62fbcc20b42d98a91fb5", BATTERY_TEST,
+                   ["net.net.xml", "input_additional.add.xml"])},
+            "sumo.sumocfg", "EPL-2.0",
+            ("battery device", "chargingStation", "stops at an edge", "trips with stops", "turnarounds"),
+            offset=150),
     _github("osm_chiangmai", "greede14/OSM-SUMO-ChiangMai-Research",
             _at(CHIANGMAI, "", ["osm.sumocfg", "osm.net.xml.gz", "osm.motorcycle.trips.xml",
                                 "osm.passenger.trips.xml", "osm.poly.xml.gz", "osm.view.xml"]),
@@ -349,10 +376,10 @@ REGISTRY: list[Scenario] = [
 
 def _feature(name: str) -> Scenario:
     """A feature variant: the generated grid with one SUMO feature (scenarios_features.FEATURES)."""
-    _, covers, kw = FEATURES[name]
+    _, covers, kw = all_features()[name]
     return Scenario(name, "feature variant: netgenerate grid + randomTrips", "generated",
                     {"kind": "feature", "feature": name}, **{"config": "scenario.sumocfg", "covers": covers, **kw})
 
 
-REGISTRY += [_feature(name) for name in FEATURES]
+REGISTRY += [_feature(name) for name in all_features()]
 

@@ -1,8 +1,7 @@
 """Running the corpus (benchmarks/scenarios.py): one scenario's six steps beside stock SUMO, and the table of
-the results (markdown and JSON)."""
+the results (markdown and JSON); what each replay must hold is scenarios_counts.py's."""
 from __future__ import annotations
 
-import gzip
 import json
 import os
 import shutil
@@ -14,7 +13,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from scenarios_build import build
-from scenarios_features import _binary
+from scenarios_counts import NEEDS, REFERENCE_TIMEOUT, _config_value, _sumo, check_count, running_at
 from scenarios_registry import REGISTRY, Scenario
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -22,17 +21,8 @@ DEFAULT_CACHE = Path.home() / ".cache" / "sumo-scendiff" / "corpus"
 MIN_AREA_WIDTH = 10.0   # m: an area clipped narrower than a road is the square's extent there
 AREA_SIDE = 400.0      # m: the fill's square when the registry names no area
 ROLL = 30.0            # s: how far past T stock SUMO runs each configuration
-TIMEOUT = {"sumo": 600, "run": 1200, "run_replay": 300, "fill": 1500, "fill_replay": 600,
+TIMEOUT = {"sumo": REFERENCE_TIMEOUT, "run": 1200, "run_replay": 300, "fill": 1500, "fill_replay": 600,
            "fill_start": 600}
-
-
-def _config_value(cfg: Path, key: str) -> str | None:
-    """A configuration's option ``key`` (its long name) by whichever of SUMO's names it is written."""
-    from sumo_scendiff.core.sumo_xml import option_name
-    for el in ET.parse(cfg).getroot().iter():
-        if isinstance(el.tag, str) and option_name(el.tag) == key and el.get("value") is not None:
-            return el.get("value")
-    return None
 
 
 def begin_time(sc: Scenario, cfg: Path) -> float:
@@ -94,10 +84,6 @@ def _clip(lo: float, hi: float, b0: float, b1: float) -> tuple:
     is a line (its lanes lie beside it; sumotest_containers_bidi), and the fill wants an area."""
     clipped = (max(b0, lo), min(b1, hi))
     return clipped if clipped[1] - clipped[0] >= MIN_AREA_WIDTH else (lo, hi)
-
-
-def _sumo() -> str:
-    return _binary("sumo")
 
 
 def _one_line(text: str) -> str:
@@ -192,171 +178,6 @@ def commands(cfg: Path, t: float, area: tuple, out: Path, scenes: int = 2, rollo
         "fill_start": [_sumo(), "-c", out / "fill" / "start.sumocfg", "--end", end,
                        "--no-step-log", "true", "--summary-output", out / "fill_start_summary.xml"],
     }
-
-
-def summary_steps(summary: Path):
-    """The <step> elements of a SUMO summary-output, as dicts of their attributes, in time order."""
-    if summary.is_file():
-        for _, el in ET.iterparse(summary):
-            if el.tag == "step":
-                yield dict(el.attrib)
-            el.clear()
-
-
-def step_at(summary: Path, t: float) -> dict | None:
-    """The summary's last step at or before ``t``."""
-    last = None
-    for st in summary_steps(summary):
-        if float(st["time"]) > t + 1e-6:
-            break
-        last = st
-    return last
-
-
-def running_at(summary: Path, t: float) -> int | None:
-    """Vehicles on the road in stock SUMO's run at T (its summary-output): how much traffic the product
-    was given to fill around."""
-    st = step_at(summary, t)
-    return int(st["running"]) if st else None
-
-
-def held(st: dict | None) -> int | None:
-    """The vehicles SUMO holds at a step: on the road (running) and loaded, due, not yet inserted
-    (waiting: the portable start's vehicles still queued at their departure)."""
-    return int(st["running"]) + int(st["waiting"]) if st else None
-
-
-# a replay's first step may differ from what the folder says by this much (docs/corpus.md: vehicles
-# arriving or teleported in the first step, the demand's departures due in it)
-COUNT_TOLERANCE = (2, 0.02)     # vehicles, share of the expected count: the larger of the two
-
-
-def _seeded(doc: dict) -> int:
-    """The agents a scene.json / fill.json says stand in SUMO: placed, or seeded off their pose."""
-    return sum(a.get("status") in ("placed", "misplaced") for a in doc.get("agents", []))
-
-
-def expected_vehicles(name: str, out: Path) -> tuple[int | None, str]:
-    """What a replay must hold at its first step and the words naming where that count comes from:
-    for the run's scene, stock SUMO's vehicles at the scene's time plus the scene's seeded agents; for
-    the fill's state and portable start, fill.json's seeded agents (the demand's own among them), and
-    for the state the vehicles it holds waiting to enter (fill.json's ``waiting_to_enter``)."""
-    if name == "run_replay":
-        doc_path = out / "run" / "scene_000" / "scene.json"
-        if not doc_path.is_file():
-            return None, ""
-        doc = json.loads(doc_path.read_text())
-        t, seed = float(doc["time"]), doc["sumo_options"].get("seed")
-        stock = held(step_at(_stock_summary(out, t, seed), t))
-        if stock is None:
-            return None, ""
-        return stock + _seeded(doc), f"stock SUMO (seed {seed}) held {stock} at {t:g} s + {_seeded(doc)} placed"
-    doc_path = out / "fill" / "fill.json"
-    if not doc_path.is_file():
-        return None, ""
-    doc = json.loads(doc_path.read_text())
-    seeded = _seeded(doc)
-    # the state keeps SUMO's queue of vehicles due but not yet in (a full network's), the portable start not
-    queued = int((doc.get("density") or {}).get("waiting_to_enter") or 0) if name == "fill_replay" else 0
-    due = _new_after_state(out) if name == "fill_replay" else _demand_due(name, out, doc)
-    return seeded + due + queued, (f"fill.json placed {seeded}" + (f" + {due} the demand departs then" if due else "")
-                                   + (f" + {queued} waiting to enter in its state" if queued else ""))
-
-
-def _new_after_state(out: Path) -> int:
-    """The vehicles the fill's state replay holds at its first step that its state does not: the demand's
-    departures then, as SUMO makes them from the state (a route file's vehicles due then are in the state's
-    queue already, sumorl_nguyen; a flow ending at T makes its last vehicle at T, ma2c_real_net, which a
-    run begun at T without the state does not). By TraCI, one step; 0 without a state."""
-    import re
-    import uuid
-
-    import traci
-    from sumolib.miscutils import getFreeSocketPort
-    cfg, state = out / "fill" / "scenario.sumocfg", out / "fill" / "state.xml.gz"
-    if not (cfg.is_file() and state.is_file()):
-        return 0
-    with gzip.open(state, "rt") as f:
-        held_before = set(re.findall(r'<vehicle id="([^"]*)"', f.read()))
-    # SUMO started in the fill's folder, as the replay step: the scenario's outputs land there
-    port = getFreeSocketPort()
-    proc = subprocess.Popen([_sumo(), "-c", str(cfg), "--no-step-log", "true", "--remote-port", str(port)],
-                            cwd=cfg.parent, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    label = f"corpus-{uuid.uuid4().hex}"
-    try:
-        conn = traci.connect(port, label=label, proc=proc)
-        conn.simulationStep()
-        now = set(conn.vehicle.getIDList()) | set(conn.simulation.getPendingVehicles())
-        conn.close()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait()
-    return len(now - held_before)
-
-
-def _demand_due(name: str, out: Path, doc: dict) -> int:
-    """The demand's own vehicles SUMO holds at a fill replay's first step (its departures due then, many
-    a second in a city's demand): the replay's configuration run for that step without the fill's vehicles
-    (its state, its start file); 0 where there is no such configuration."""
-    cfg = out / "fill" / ("scenario.sumocfg" if name == "fill_replay" else "start.sumocfg")
-    if not cfg.is_file():
-        return 0
-    demand = {Path(r).name for r in doc.get("routes", [])}
-    tree = ET.parse(cfg)
-    for parent in list(tree.getroot().iter()):
-        for el in list(parent):
-            if el.tag == "route-files":
-                kept = [f for f in el.get("value", "").split(",") if f.removesuffix(".gz") in demand]
-                if kept:
-                    el.set("value", ",".join(kept))
-                else:
-                    parent.remove(el)
-            elif el.tag == "load-state":
-                parent.remove(el)
-    begin = float(_config_value(cfg, "begin") or 0)
-    bare, summary = cfg.with_name(f"_{name}_demand.sumocfg"), out / f"{name}_demand_summary.xml"
-    tree.write(bare)
-    try:
-        subprocess.run([_sumo(), "-c", bare, "--end", f"{begin + 1:g}", "--no-step-log", "true",
-                        "--summary-output", summary], capture_output=True, cwd=cfg.parent, timeout=TIMEOUT["sumo"],
-                       check=False)
-    finally:
-        bare.unlink()
-    return held(next(summary_steps(summary), None)) or 0
-
-
-def _stock_summary(out: Path, t: float, seed) -> Path:
-    """Stock SUMO's summary-output of the run's configuration up to ``t`` with the product's SUMO seed:
-    the vehicles the scene kept from the simulation are those of a run with that seed (the corpus's own
-    stock step keeps the configuration's, SUMO's default where it names none). Without a TraCI server
-    (``remote-port 0``), as the product's own SUMO: one the configuration asks for waits for a client
-    until the time limit (sumorl_ow), and its binary outlived the killed wrapper, holding the port."""
-    cfg = json.loads((out / "run" / "run.json").read_text())["configuration"]
-    path = out / "run_reference_summary.xml"
-    subprocess.run([_sumo(), "-c", cfg, "--end", f"{t:g}", "--no-step-log", "true", "--summary-output", path,
-                    "--remote-port", "0", *(["--seed", str(seed)] if seed is not None else [])],
-                   capture_output=True, cwd=out, timeout=TIMEOUT["sumo"], check=False)
-    return path
-
-
-def check_count(name: str, res: dict, out: Path) -> dict:
-    """``res`` of a replay with SUMO's vehicles at its first step against what the folder holds
-    (:func:`expected_vehicles`): a mismatch beyond :data:`COUNT_TOLERANCE` fails the step."""
-    if name not in NEEDS or not res.get("ok"):
-        return res
-    want, source = expected_vehicles(name, out)
-    got = held(next(summary_steps(out / f"{name}_summary.xml"), None))
-    if want is None or got is None:
-        return res
-    res = {**res, "vehicles": {"sumo": got, "expected": want}}
-    if abs(got - want) > max(COUNT_TOLERANCE[0], COUNT_TOLERANCE[1] * want):
-        what = "scene" if name == "run_replay" else ("state" if name == "fill_replay" else "start")
-        res.update(ok=False, error=f"{what} holds {got} vehicles, {source}")
-    return res
-
-
-NEEDS = {"run_replay": "run", "fill_replay": "fill", "fill_start": "fill"}
 
 
 def run_scenario(sc: Scenario, cache: Path, mirror: Path | None = None) -> dict:

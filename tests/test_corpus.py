@@ -272,7 +272,8 @@ def test_the_run_replays_reference_takes_no_traci_client(corpus, tmp_path, monke
     """As sumo-rl's OW: a configuration with remote-port; stock SUMO's reference run for the scene's count
     waited for a TraCI client until its time limit (no count), its binary left holding the port."""
     from sumo_scendiff.core.tools import sumo_binary
-    monkeypatch.setitem(corpus.TIMEOUT, "sumo", 20)
+    import scenarios_counts
+    monkeypatch.setattr(scenarios_counts, "REFERENCE_TIMEOUT", 20)
     subprocess.run([sumo_binary("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "200",
                     "-o", str(tmp_path / "g.net.xml")], check=True, capture_output=True)
     (tmp_path / "d.rou.xml").write_text('<routes><flow id="f" begin="0" end="60" period="5" from="A0A1" '
@@ -284,8 +285,7 @@ def test_the_run_replays_reference_takes_no_traci_client(corpus, tmp_path, monke
     (out / "run" / "run.json").write_text(json.dumps({"configuration": str(tmp_path / "s.sumocfg")}))
     (out / "run" / "scene_000" / "scene.json").write_text(json.dumps({"time": 30.0, "sumo_options": {"seed": 0},
                                                                        "agents": []}))
-    import scenarios_run
-    count, words = scenarios_run.expected_vehicles("run_replay", out)
+    count, words = scenarios_counts.expected_vehicles("run_replay", out)
     assert count is not None and count > 0 and "stock SUMO" in words, words
 
 
