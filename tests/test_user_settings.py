@@ -13,6 +13,7 @@ from types import SimpleNamespace
 
 import pytest
 
+from sumo_scendiff.core.tools import sumo_binary
 from sumo_scendiff.sim.scenario import scenario_from_files
 from sumo_scendiff.sim.sumo import (ADDED_OPTIONS, PRODUCT_STEP_LENGTH, SUMO_STEP_LENGTH, SimConfig, close, settings,
                                     settings_problem, start, step_length_for)
@@ -146,3 +147,28 @@ def test_a_fill_keeps_the_scenarios_settings(cross_net, tmp_path):
         opts = {el.tag: el.get("value") for el in ET.parse(out / name).getroot()}
         assert opts["step-length"] == "1" and opts["time-to-teleport"] == "-1", name
         assert opts["lateral-resolution"] == "0.4", name
+
+
+def test_an_ssm_devices_default_output_is_not_written_where_the_user_runs_the_product(cross_net, tmp_path,
+                                                                                      monkeypatch):
+    """SUMO's SSM device writes ssm_<vehicle>.xml into the working directory unless given a file (stock
+    ``sumo -c`` does, here): the product's runs of the scenario (warm-up, seeding, scenes) write none there."""
+    cfg = _config(tmp_path, cross_net, processing='<device.ssm.probability value="1"/>')
+    stock = tmp_path / "stock"
+    stock.mkdir()
+    done = subprocess.run([sumo_binary("sumo"), "-c", cfg, "--end", "20", "--no-step-log"], cwd=stock,
+                          capture_output=True, text=True)
+    assert done.returncode == 0 and list(stock.glob("ssm_*.xml")), done.stderr
+    scen = scenario_from_files(cfg)
+    assert ("device.ssm.probability", "1") in scen.options
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    monkeypatch.chdir(mine)
+    sim = start(SimConfig(net=scen.net, routes=scen.routes, scenario_options=scen.options, step_length=1.0))
+    try:
+        for _ in range(20):
+            sim.simulationStep()
+        assert sim.vehicle.getIDCount() > 0
+    finally:
+        close(sim)
+    assert not list(mine.iterdir())

@@ -19,6 +19,7 @@ import sys
 from dataclasses import dataclass, field
 
 from ..core.tools import sumo_binary
+from .additional import NULL
 
 
 class SimError(RuntimeError):
@@ -44,6 +45,11 @@ ADDED_OPTIONS = {"collision.check-junctions": "true", "save-state.precision": "6
 STATE_OPTIONS = {"save-state.transportables": "true"}
 # SUMO's console kept quiet: no difference in what it simulates
 QUIET_OPTIONS = {"no-step-log": "true", "duration-log.disable": "true"}
+# a device's output SUMO writes where it runs without being asked: an SSM device (device.ssm.*, a vType's
+# has.ssm.device) writes ssm_<vehicle>.xml into the working directory unless given a file, and every run of
+# the product (warm-up, seeding, each scene) wrote and overwrote them where its user ran it; a scenario's
+# outputs are its user's business (sim.scenario), these are discarded as those are left out
+DEVICE_OUTPUTS = {"device.ssm.file": NULL}
 # and its warnings too, for a SUMO that only loads, checks or replays what was already reported
 SILENT_OPTIONS = {**QUIET_OPTIONS, "no-warnings": "true"}
 # the product's own, never a scenario's: the inputs and time window it builds and the seed of its -s
@@ -105,7 +111,8 @@ class SimConfig:
             theirs.pop("lateral-resolution", None)
             if self.lateral_resolution > 0:
                 theirs["lateral-resolution"] = f"{self.lateral_resolution:g}"
-        return {**QUIET_OPTIONS, **STATE_OPTIONS, **(ADDED_OPTIONS if self.seeding_options else {}), **theirs}
+        return {**QUIET_OPTIONS, **STATE_OPTIONS, **DEVICE_OUTPUTS, **(ADDED_OPTIONS if self.seeding_options else {}),
+                **theirs}
 
     def args(self) -> list[str]:
         """Command line (without the binary); also what ``scenario.sumocfg`` repeats."""
