@@ -147,6 +147,11 @@ def _at(commit: str, folder: str, names: list) -> dict:
     return {n: (folder + n, commit) for n in names}
 
 
+# OpenCDA's (a CARLA co-simulation framework's) freeway: a network netconvert made from OpenDRIVE with CARLA's
+# type map, its demand redefining SUMO's DEFAULT_VEHTYPE and departing 320 m before an edge's end
+OPENCDA_FREEWAY = "opencda/assets/2lane_freeway_simplified/2lane_freeway_simplified."
+
+
 # users' own scenarios from SUMO's osmWebWizard, as they pushed them: Chiang Mai (left-hand traffic, motorcycles)
 # and Chicago's Kennedy Expressway (its configuration names a file by a Windows path on its author's machine)
 CHIANGMAI = "78bf6dd0dcc58b1ad32dd030bb30bc90cc801c1f"
@@ -363,6 +368,12 @@ REGISTRY: list[Scenario] = [
             "sumo.sumocfg", "EPL-2.0",
             ("battery device", "chargingStation", "stops at an edge", "trips with stops", "turnarounds"),
             offset=150),
+    _github("opencda_2lane_freeway", "ucla-mobility/OpenCDA",
+            {"2lane_freeway_simplified.sumocfg": (OPENCDA_FREEWAY + "sumocfg", "7dbb3159206c6dbffd08722d36b9c218caaf777f"),
+             "2lane_freeway_simplified.net.xml": (OPENCDA_FREEWAY + "net.xml", "1db917fe8b8ec3626e1b3adf4dced1ef64bf83fd"),
+             "2lane_freeway_simplified.rou.xml": (OPENCDA_FREEWAY + "rou.xml", "034b14711f563d03327e0d3ff8f6902744db10cb")},
+            "2lane_freeway_simplified.sumocfg", "MIT",
+            ("highway", "merge", "network from OpenDRIVE", "DEFAULT_VEHTYPE redefined", "negative departPos")),
     _github("osm_chiangmai", "greede14/OSM-SUMO-ChiangMai-Research",
             _at(CHIANGMAI, "", ["osm.sumocfg", "osm.net.xml.gz", "osm.motorcycle.trips.xml",
                                 "osm.passenger.trips.xml", "osm.poly.xml.gz", "osm.view.xml"]),
