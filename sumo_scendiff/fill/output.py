@@ -17,6 +17,7 @@ from ..sim.state import save_state
 from ..sim.stops import place_ends
 from ..sim.sumo import close
 from .en_route import write_vtypes
+from .flow_ids import number_flows
 from .picture import draw_fill, edge_density
 from .inflow import inflow_sample, probe_speed, write_inflow
 from .seed import admit_start, refuse_at_load, seed_fill, write_start_routes
@@ -184,6 +185,8 @@ def write_configurations(folder, cfg, routes, inflow: dict, state_time: float, s
     start = [os.path.join(folder, "start.rou.xml")]
     write_sumocfg(os.path.join(folder, "start.sumocfg"), loaded, None,
                   routes=onward + start if start_last else start + onward, begin=state_time)
+    # SUMO numbers a flow from 0 again when it starts after the flow's begin (fill/flow_ids.py)
+    number_flows(folder, state_time)
     return options
 
 

@@ -1,0 +1,72 @@
+"""The demand's flows in the fill's folder number their vehicles on as SUMO's own run does: a flow whose
+f.0..f.11 departed before T departs f.12 next in both starts (SUMO itself, loaded with --begin T, would
+start again at f.0). Real SUMO, a tiny grid."""
+from __future__ import annotations
+
+import pytest
+
+from .test_fill_robust import _netgenerate
+
+BEGIN = 300
+# a flow of each kind of fixed departures (period, vehsPerHour of a period SUMO rounds to ms, number
+# spread over begin..end, number at a period) and a random one, which keeps its own numbering (on a
+# route of its own: its vehicles differ, and would hold up others' departures differently)
+ROUTES = """<routes>
+  <route id="r" edges="B0B1 B1B2 B2B3 B3C3"/>
+  <flow id="g" begin="0" end="900" vehsPerHour="700" from="A0A1" to="A1A2"/>
+  <flow id="n" begin="3.3" end="901" number="7" route="r"/>
+  <flow id="f" begin="5" end="900" period="25"><route edges="C0C1 C1C2 C2C3"/></flow>
+  <flow id="m" begin="10" period="33.3" number="40" route="r"/>
+  <flow id="p" begin="5" end="900" probability="0.02"><route edges="D0D1 D1D2 D2D3"/></flow>
+</routes>"""
+
+
+def _departed(args: list[str], until: float) -> dict[str, float]:
+    """stock SUMO: vehicle id -> the time it was to depart (its departure less its delay: insertion waits
+    on the traffic, whose speed factors SUMO draws in another order from a state), to ``until``."""
+    import libsumo
+
+    from sumo_scendiff.core.tools import sumo_binary
+    libsumo.start([sumo_binary(), *args, "--no-step-log", "true", "--no-warnings", "true"])
+    out: dict[str, float] = {}
+    try:
+        while libsumo.simulation.getTime() < until:
+            libsumo.simulationStep()
+            for vid in libsumo.simulation.getDepartedIDList():
+                if vid not in out:   # a car leaving a parking lot departs again
+                    out[vid] = libsumo.vehicle.getDeparture(vid) - libsumo.vehicle.getDepartDelay(vid)
+    finally:
+        libsumo.close()
+    return out
+
+
+def test_departures_are_sumos():
+    """A flow's departures as SUMO spaces them (ms steps; the test below checks them against SUMO)."""
+    from sumo_scendiff.fill.flow_ids import departures
+    assert departures({"begin": "5", "end": "900", "period": "25"})[-1] == 880_000
+    assert len(departures({"begin": "0", "end": "900", "vehsPerHour": "700"})) == 175   # 5 143 ms apart
+    assert departures({"begin": "3.3", "end": "901", "number": "7"})[1] == 3_300 + 128_242
+    assert departures({"begin": "0", "end": "900", "probability": "0.1"}) is None
+    assert departures({"begin": "0", "period": "exp(0.1)"}) is None
+
+
+@pytest.mark.slow   # a real fill
+def test_flows_number_on_in_both_starts(tmp_path):
+    from sumo_scendiff.fill.__main__ import get_options, main
+    net = _netgenerate(str(tmp_path / "grid.net.xml"))
+    (tmp_path / "d.rou.xml").write_text(ROUTES)
+    out = tmp_path / "o"
+    assert main(get_options(["-n", net, "-r", str(tmp_path / "d.rou.xml"), "--begin", str(BEGIN),
+                             "-o", str(out)])) == 0
+    until = BEGIN + 400
+    own = {v: t for v, t in _departed(["-n", net, "-r", str(tmp_path / "d.rou.xml"), "--seed", "0"], until).items()
+           if t >= BEGIN}
+    fixed = {v for v in own if not v.startswith("p.")}
+    assert {"g.59", "f.12", "n.3", "m.9"} <= fixed
+    for config in ("start.sumocfg", "scenario.sumocfg"):
+        replay = _departed(["-c", str(out / config)], until)
+        mine = {v for v, t in replay.items() if t >= BEGIN and not v.startswith(("p.", "start."))}
+        assert mine == fixed, (config, sorted(mine ^ fixed))
+        assert all(abs(replay[v] - own[v]) < 1e-6 for v in fixed), config
+        # the random flow departs under its own numbering, never an id of a vehicle already made
+        assert not {v for v in replay if v.startswith("p.")} & {f"start.{v}" for v in replay}
