@@ -2,7 +2,7 @@
 public scenarios use and the first rows do not, each on the same generated grid (or, for a level crossing,
 a network of plain files), in SUMO's documented syntax (sumo.dlr.de: Simulation/Basic_Definition,
 Specification/Persons (personTrip), Simulation/Railways (rail crossings), Simulation/Emergency,
-Simulation/Parallelization, Simulation/Lane-Changing (continuous lane change))."""
+Simulation/Parallelization, Simulation/Lane-Changing (continuous lane change), Simulation/Output/SSM_Device)."""
 from __future__ import annotations
 
 import subprocess
@@ -106,6 +106,12 @@ def emergency(dest: Path) -> None:
     sumocfg(dest / "scenario.sumocfg", "net.net.xml", ["passenger.rou.xml", ambulances], lateral_resolution="0.8")
 
 
+def ssm(dest: Path) -> None:
+    """SUMO's SSM device on every vehicle (``device.ssm.probability``) with no file named: it writes
+    ssm_<vehicle>.xml into the working directory."""
+    base(dest, device__ssm__probability="1")
+
+
 # name -> (builder, what it covers, the row's fields over the corpus's defaults), as scenarios_features.FEATURES
 MORE_FEATURES = {
     "feat_lanechange_duration": (lanechange_duration, ("continuous lane change",), {}),
@@ -114,4 +120,5 @@ MORE_FEATURES = {
     "feat_rail_crossing": (rail_crossing, ("rail crossing", "trains among cars"), {}),
     "feat_threads": (threads, ("parallel simulation (threads)",), {}),
     "feat_emergency": (emergency, ("emergency vehicles", "bluelight device", "sublane model"), {}),
+    "feat_ssm": (ssm, ("SSM device", "outputs by default"), {}),
 }

@@ -202,11 +202,26 @@ def run_scenario(sc: Scenario, cache: Path, mirror: Path | None = None) -> dict:
             row["steps"][name] = {"ok": None, "error": f"skip: {NEEDS[name]} wrote no {Path(cmd[2]).name}"}
             continue
         limit = sc.timeout.get(name, TIMEOUT[name])
-        row["steps"][name] = check_count(name, step(cmd, limit, out / "logs" / f"{name}.log", out), out)
+        before = set(out.iterdir())
+        res = check_count(name, step(cmd, limit, out / "logs" / f"{name}.log", out), out)
+        row["steps"][name] = stray_outputs(name, res, out, before)
     row["sumo_running_at_T"] = running_at(out / "sumo_summary.xml", t)
     row["placement_run"] = placement(out / "run" / "scene_000" / "scene.json")
     row["placement_fill"] = placement(out / "fill" / "fill.json")
     return row
+
+
+def stray_outputs(name: str, res: dict, out: Path, before: set) -> dict:
+    """``res`` of the product's step (run, fill) failed where it wrote into its working directory (``out``)
+    anything but its ``-o`` folder: a scenario's output SUMO writes where it runs (an SSM device's
+    ssm_<vehicle>.xml) is its user's business, not the product's to write beside them."""
+    if name not in ("run", "fill") or not res.get("ok"):
+        return res
+    stray = sorted(p.name for p in set(out.iterdir()) - before - {out / name})
+    if not stray:
+        return res
+    return {**res, "ok": False, "error": f"wrote {len(stray)} files into its working directory: "
+                                         + ", ".join(stray[:3])}
 
 
 # --------------------------------------------------------------------------- the table

@@ -169,6 +169,19 @@ def test_a_sumo_test_is_run_as_its_test_runner_joins_its_options(corpus, tmp_pat
     assert ref.returncode == 0, ref.stderr
 
 
+def test_a_product_step_writing_beside_its_output_folder_fails(corpus, tmp_path):
+    """run and fill write into their -o folder only: an SSM device's ssm_<vehicle>.xml, which SUMO writes
+    where it runs, in the step's working directory fails the step, naming the files."""
+    import scenarios_run
+    before = set(tmp_path.iterdir())
+    (tmp_path / "run").mkdir()
+    assert scenarios_run.stray_outputs("run", {"ok": True}, tmp_path, before) == {"ok": True}
+    (tmp_path / "ssm_pas0.xml").write_text("<SSMLog/>")
+    res = scenarios_run.stray_outputs("run", {"ok": True}, tmp_path, before)
+    assert res["ok"] is False and "ssm_pas0.xml" in res["error"]
+    assert scenarios_run.stray_outputs("sumo", {"ok": True}, tmp_path, before) == {"ok": True}
+
+
 def test_one_line_takes_sumos_error_else_the_traceback_tail(corpus):
     sumo = "Warning: x\nError: No option with the name 'osg-view' exists.\nQuitting (on error).\n"
     assert corpus._one_line(sumo) == "Error: No option with the name 'osg-view' exists."
