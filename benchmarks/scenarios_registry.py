@@ -169,6 +169,7 @@ CONTAINER_TEST = SUMO_TESTS + "devices/taxi/containers/10containers_sameEdge"
 SUBLANE_MIXED = SUMO_TESTS + "sublane_model/1edge_3lanes_mixed/"
 SUBLANE_LEFTHAND = SUMO_TESTS + "sublane_model/basic/overtaking_lefthand/"
 BATTERY_TEST = SUMO_TESTS + "devices/battery/chargingStations_totalPower2/"
+NEMA_TEST = SUMO_TESTS + "tls/NEMA/basic/"
 
 
 def _sumo_test(name: str, files: dict, options: list, covers: tuple, steps=(), **kw) -> Scenario:
@@ -359,6 +360,16 @@ REGISTRY: list[Scenario] = [
                                          "519e7f1ba3c06a925161729bdb6e8f351ef74fba")},
                [(SUBLANE_LEFTHAND + "options.sumo", "90d678d1082d240d69afc42f170b1c821bad12dd")],
                ("left-hand", "sublane model", "overtaking", "step length 0.2", "no internal links"), offset=8),
+    # a NEMA dual-ring actuated controller at a right-on-red junction of a 3D network in UTM coordinates
+    # (30 km from its origin, not normalised), flows by probability, the controller's states saved by timedEvents
+    _sumo_test("sumotest_nema",
+               {**_at("40756f0cc149e3022da4f1bc6936c4c543a6665c", NEMA_TEST, ["net.net.xml"]),
+                **_at("ec7f6e56e227fd342ce38a8dfd9f79e4328960c3", NEMA_TEST,
+                      ["input_routes.rou.xml", "input_additional2.add.xml"]),
+                **_at("00728c34c28fe2940303276986130d62d398d22c", NEMA_TEST, ["input_additional.add.xml"])},
+               [(NEMA_TEST + "options.sumo", "81cf4240216734bc309054a668a97d70c25ba923")],
+               ("NEMA controller", "right on red", "3D network", "UTM coordinates", "timedEvent outputs"),
+               offset=300),
     # a test with a configuration of its own (netedit's): battery devices by the configuration's probability,
     # trips stopping at a chargingStation of limited total power and at an edge
     _github("sumotest_battery_charging", SUMO_REPO,
