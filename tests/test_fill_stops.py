@@ -126,6 +126,18 @@ def test_vehicles_at_their_stop_stand_on_its_lane(diagonal_net, tmp_path):
     assert standing[0].pos == pytest.approx(250.0 - AT_STOP_M)
 
 
+def _spaces_scenario(d) -> tuple:
+    """(additional file, route file) in folder ``d``: a parking area of two roadside lots and four
+    ``<space>``s at the end of B1B2 (docs: Simulation/ParkingArea), a car parking 75 s there every 15 s."""
+    spaces = "".join(f'<space x="170" y="{y}" angle="90"/>' for y in (200, 210, 220, 230))
+    add, routes = d / "pa.add.xml", d / "d.rou.xml"
+    add.write_text(f'<additional><parkingArea id="pa" lane="B1B2_0" startPos="40" endPos="100" roadsideCapacity="2">'
+                   f'{spaces}</parkingArea></additional>')
+    routes.write_text('<routes><route id="r2" edges="B0B1 B1B2 B2B3 B3C3"/><flow id="park" begin="5" end="900" '
+                      'period="15" route="r2"><stop parkingArea="pa" duration="75" parking="true"/></flow></routes>')
+    return add, routes
+
+
 def test_a_parking_area_with_spaces_fills_its_lots_as_sumo_does(tmp_path):
     """A parking area of two roadside lots and four ``<space>``s (docs: Simulation/ParkingArea): its
     capacity is SUMO's (roadside lots and spaces), and the estimate's cars parked there at T stand on
@@ -138,12 +150,7 @@ def test_a_parking_area_with_spaces_fills_its_lots_as_sumo_does(tmp_path):
     from sumo_scendiff.fill.en_route import place_en_route
     from sumo_scendiff.map.network import Network
     net_path = _netgenerate(str(tmp_path / "grid.net.xml"))
-    spaces = "".join(f'<space x="170" y="{y}" angle="90"/>' for y in (200, 210, 220, 230))
-    add, routes = tmp_path / "pa.add.xml", tmp_path / "d.rou.xml"
-    add.write_text(f'<additional><parkingArea id="pa" lane="B1B2_0" startPos="40" endPos="100" roadsideCapacity="2">'
-                   f'{spaces}</parkingArea></additional>')
-    routes.write_text('<routes><route id="r2" edges="B0B1 B1B2 B2B3 B3C3"/><flow id="park" begin="5" end="900" '
-                      'period="15" route="r2"><stop parkingArea="pa" duration="75" parking="true"/></flow></routes>')
+    add, routes = _spaces_scenario(tmp_path)
     libsumo.start([sumo_binary(), "-n", net_path, "-r", str(routes), "-a", str(add), "--no-step-log", "true",
                    "--no-warnings", "true"])
     try:
@@ -208,3 +215,37 @@ def test_parked_cars_stay_parked_in_both_starts_of_sumos_own_run(tmp_path):
     for vid in parked_state:
         car = re.search(rf'<vehicle id="start\.{re.escape(vid)}".*?</vehicle>', (out / "start.rou.xml").read_text(), re.S)
         assert car and 'parkingArea="pa"' in car.group(0) and float(re.search(r'duration="([^"]+)"', car.group(0))[1]) < 75
+
+
+@pytest.mark.slow   # a real fill
+def test_cars_in_the_spaces_of_a_parking_area_are_parked_in_the_first_step(tmp_path):
+    """The estimate's cars parked at T in a parking area's ``<space>``s: SUMO enters every space from the
+    area's end, so the fill seeds them all there (their boxes on one another for the seeding step) and
+    SUMO parks them together in the start's first step, as its own run has them parked at T; seeded one
+    behind the other on the lane they parked 11, 17 and 22 s late, one after another."""
+    import libsumo
+
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.fill.__main__ import get_options, main
+    net = _netgenerate(str(tmp_path / "grid.net.xml"))
+    add, routes = _spaces_scenario(tmp_path)
+    out = tmp_path / "o"
+    assert main(get_options(["-n", net, "-r", str(routes), "-a", str(add), "--begin", str(BEGIN), "--demand-estimate",
+                             "-o", str(out)])) == 0
+
+    def parked(args: list[str]) -> tuple[int, int]:
+        """(cars parked at pa, of them in a space off the road) once SUMO is at BEGIN + 2."""
+        libsumo.start([sumo_binary(), *args, "--no-step-log", "true", "--no-warnings", "true"])
+        try:
+            while libsumo.simulation.getTime() < BEGIN + 2:
+                libsumo.simulationStep()
+            ids = libsumo.parkingarea.getVehicleIDs("pa")
+            return len(ids), sum(libsumo.vehicle.getPosition(v)[0] == pytest.approx(170.0) for v in ids)
+        finally:
+            libsumo.close()
+    own, filled = parked(["-n", net, "-r", str(routes), "-a", str(add)]), parked(["-c", str(out / "scenario.sumocfg")])
+    # as many parked (SUMO's own run has freed a roadside lot its history knows and the estimate does not)
+    assert own[1] >= 2 and filled[0] == own[0]
+    with open(out / "fill.json") as f:
+        moved = [a for a in json.load(f)["agents"] if "to_space_entry_m" in a]
+    assert len(moved) == filled[1] >= 2 and all(a["status"] == "placed" for a in moved)

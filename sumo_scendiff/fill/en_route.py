@@ -49,6 +49,8 @@ class Placed:
     heading: float         # rad, the lane's there
     length: float
     width: float
+    # parked at T in a ``<space>`` of its parking area: SUMO enters every space from the area's end
+    space: bool = False
 
 
 def write_vtypes(route_files, path: str) -> list[str]:
@@ -98,17 +100,20 @@ def _fit(lanes: list[int], vid: str, want: float | None, body: Body, room: dict,
     return None
 
 
-def _at_stop(v: EnRoute, parked: Counter, lanes: list[int], edge_lanes: list[int], net) -> tuple[float, list[int]]:
-    """(front, lanes) of a vehicle standing at its stop: at the stop's end, on the stop's lane (of
-    ``edge_lanes``, its edge's it may use; else ``lanes``). In a parking area SUMO fills its roadside
-    lots first, this one at the next free one back from the area's end (``parked``: per area the
-    vehicles placed in it), then its ``<space>``s, which SUMO enters from the area's end: there (one
-    behind the other on the lane, the placement's room), never at a roadside lot beyond the area's start."""
+def _at_stop(v: EnRoute, parked: Counter, lanes: list[int], edge_lanes: list[int], net
+             ) -> tuple[float, list[int], bool]:
+    """(front, lanes, in a space) of a vehicle standing at its stop: at the stop's end, on the stop's
+    lane (of ``edge_lanes``, its edge's it may use; else ``lanes``). In a parking area SUMO fills its
+    roadside lots first, this one at the next free one back from the area's end (``parked``: per area
+    the vehicles placed in it), then its ``<space>``s, which SUMO enters from the area's end: there (one
+    behind the other on the lane, the placement's room; the seeding moves it to the end,
+    fill/seed.py), never at a roadside lot beyond the area's start."""
     area = (v.edges[0], v.stop_at)
     k = parked[area]
     parked[area] += v.lots is not None
-    front = v.stop_at - AT_STOP_M - (k * v.lots.spacing if v.lots is not None and k < v.lots.roadside else 0.0)
-    return front, [i for i in edge_lanes if net.lanes[i].id == v.stop_lane] or lanes
+    roadside = v.lots is not None and k < v.lots.roadside
+    front = v.stop_at - AT_STOP_M - (k * v.lots.spacing if roadside else 0.0)
+    return front, [i for i in edge_lanes if net.lanes[i].id == v.stop_lane] or lanes, v.lots is not None and not roadside
 
 
 def allows(net, lane: int, vclass: str) -> bool:
@@ -155,9 +160,9 @@ def place_en_route(net, est: DemandEstimate, bodies: dict[str, Body] | None = No
 
         def permitted(lanes: list[int]) -> list[int]:
             return lanes if vclass is None else [i for i in lanes if allows(net, i, vclass)]
-        want, lanes = None if v.waiting else v.front, permitted(lanes_for(v.edges))
+        want, lanes, space = None if v.waiting else v.front, permitted(lanes_for(v.edges)), False
         if v.stopped is not None:
-            want, lanes = _at_stop(v, parked, lanes, permitted(list(by_edge.get(v.edges[0], {}).values())), net)
+            want, lanes, space = _at_stop(v, parked, lanes, permitted(list(by_edge.get(v.edges[0], {}).values())), net)
         best = _fit(lanes, v.id, want, body, room, used, net, shared, taken)
         for k in range(len(v.behind) if best is None else 0):
             # a queue longer than its edge stands back on the route's edges before it, as a queue
@@ -176,7 +181,7 @@ def place_en_route(net, est: DemandEstimate, bodies: dict[str, Body] | None = No
         if lane in shared:
             taken.add(shared[lane])
         xy, heading = net.lane_pose(lane, front - 0.5 * length)
-        placed.append(Placed(v, lane, float(front), float(xy[0]), float(xy[1]), heading, length, width))
+        placed.append(Placed(v, lane, float(front), float(xy[0]), float(xy[1]), heading, length, width, space))
     return placed, skipped
 
 

@@ -50,6 +50,8 @@ def _agents(result, reports) -> list[dict]:
                 row["pulled_back_m"] = round(rep.pulled_back[a], 3)
             if rep is not None and a in rep.to_stop_line:  # waiting on red inside a junction (Seeder.fit_red_junctions)
                 row["to_stop_line_m"] = round(rep.to_stop_line[a], 3)
+            if a in scene.meta.get("to_space_entry", {}):  # parked in a space at T (seed._to_space_entry)
+                row["to_space_entry_m"] = scene.meta["to_space_entry"][a]
             if rep is not None and a in rep.narrowed:     # wider than the network's junctions assume (Seeder.width_cap)
                 row["sumo_width"] = rep.narrowed[a][1]
             fleet = scene.meta.get(DRAWN_KEY, {}).get(a)

@@ -85,7 +85,7 @@ def _seed_all(result, net, cfg, seed, quiet, progress, demand, routes, model_fle
     # the vehicles seeded so far, world rows (x, y, heading, length, width, speed) where the seeder put
     # them: a tile's pins are its neighbours as drawn, but the seeder moves some (a nose over the stop
     # line pulled back, a car waiting inside a junction on red to its stop line) and refuses others
-    seeded, stopping = np.zeros((0, 6)), []
+    seeded, stopping, spaces = np.zeros((0, 6)), [], []
     for k in tqdm(result.order, desc="seeding", unit=" tile", disable=not progress):
         scene = result.scenes[k]
         if scene is None or not len(scene):
@@ -107,7 +107,10 @@ def _seed_all(result, net, cfg, seed, quiet, progress, demand, routes, model_fle
                                  routes=[v and v.edges for v in mine] if mine else None,
                                  types=[v and v.type for v in mine] if mine else None)
         stopping += _give_stops(sim, reports[k], mine)
+        spaces += [(scene, a, reports[k], demand[d].vehicle) for a, d in enumerate(which or ())
+                   if d is not None and demand[d].space and a in reports[k].ids]
         seeded = np.vstack([seeded, scene_rows(scene)[sorted(reports[k].ids)]])
+    _to_space_entry(sim, net, spaces)
     sim.simulationStep()
     for rep in reports.values():
         seeder.verify(rep)
@@ -125,6 +128,35 @@ def _stand_at_stops(scene, mine) -> None:
     for a, v in enumerate(mine or ()):
         if v is not None and v.stopped is not None:
             scene.speed[a] = 0.0
+
+
+def _to_space_entry(sim, net, spaces) -> None:
+    """The seeded vehicles parked at T in a parking area's ``<space>``s (``spaces``: scene, agent, its
+    report, its demand vehicle) moved to the area's end, where SUMO enters every space from
+    (``MSParkingArea::addLotEntry`` without ``--parking.maneuver``): they stand there together after
+    the seeding step and all park in the next, each in a space of its own, off the lane before SUMO
+    looks for collisions. Seeded one behind the other (a seeding puts no two vehicles at one place),
+    each would drive up from standing and park seconds after the one before it, where SUMO's own run
+    has them all parked. The agent's pose is the moved one (fill.json ``to_space_entry_m``)."""
+    from ..core.geometry import center_to_front, yaw_to_sumo_angle
+    for scene, a, rep, v in spaces:
+        vid, lane = rep.ids[a], net.lane_index.get(v.stop_lane)
+        if lane is None:
+            continue
+        length = float(scene.boxes[a, 3])
+        xy, yaw = net.lane_pose(lane, v.stop_at - 0.5 * length)
+        fx, fy = center_to_front(xy[0], xy[1], yaw, length)
+        edge, _, index = v.stop_lane.rpartition("_")
+        try:    # a vehicle SUMO has still to insert takes where to stand from moveToXY (its front)
+            sim.vehicle.moveToXY(vid, edge, int(index), float(fx), float(fy), keepRoute=1)
+        except Exception:   # libsumo's TraCIException: that lane is not on its route where it stands
+            continue
+        w = scene.window
+        box = np.array([*w.world_to_scene(np.asarray(xy)[None])[0], w.yaw_to_scene(yaw)])
+        scene.meta.setdefault("to_space_entry", {})[a] = round(float(np.hypot(*(box[:2] - scene.boxes[a, :2]))), 3)
+        scene.boxes[a, :3] = box
+        scene.traj[a, :, 0], scene.traj[a, :, 1], scene.traj[a, :, 2] = box[0], box[1], box[2]
+        rep.targets[a] = (float(fx), float(fy), float(yaw_to_sumo_angle(yaw)))
 
 
 def _give_stops(sim, rep, mine) -> list[str]:
