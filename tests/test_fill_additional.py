@@ -73,7 +73,7 @@ def test_sumos_own_run_of_an_additional_files_demand(game, tmp_path):
     assert all(f'<{tag} id="{i}"' in carried for tag, i in (("busStop", "stop"), ("inductionLoop", "loop"),
                                                             ("person", "walker")))
     # the flow that departed before T: its departures on, named as SUMO's own run names them (fill/flow_ids.py)
-    with open(os.path.join(done.folder, "flows.rou.xml")) as f:
+    with open(os.path.join(done.folder, "flow_departures.rou.xml")) as f:
         assert '<flow id="f_we"' not in carried and '<vehicle id="f_we.' in f.read()
 
 

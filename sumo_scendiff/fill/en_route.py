@@ -113,7 +113,8 @@ def _at_stop(v: EnRoute, parked: Counter, lanes: list[int], edge_lanes: list[int
     parked[area] += v.lots is not None
     roadside = v.lots is not None and k < v.lots.roadside
     front = v.stop_at - AT_STOP_M - (k * v.lots.spacing if roadside else 0.0)
-    return front, [i for i in edge_lanes if net.lanes[i].id == v.stop_lane] or lanes, v.lots is not None and not roadside
+    on_stop_lane = [i for i in edge_lanes if net.lanes[i].id == v.stop_lane]
+    return front, on_stop_lane or lanes, v.lots is not None and not roadside
 
 
 def allows(net, lane: int, vclass: str) -> bool:

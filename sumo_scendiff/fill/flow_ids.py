@@ -1,6 +1,6 @@
 """The demand's flows numbered on in the fill's folder as SUMO's own run numbers them.
 
-    number_flows(folder, state_time)     # after write_configurations: both .sumocfg files take flows.rou.xml
+    number_flows(folder, state_time)     # after write_configurations: both .sumocfg files load FILE
 
 SUMO names a flow's vehicles ``<flow>.<index>``, the index counting the vehicles the flow made
 (``MSInsertionControl``), and a flow loaded with ``--begin`` after its own begin skips the departures
@@ -8,8 +8,8 @@ before it without counting them: its first vehicle is ``f.0`` again where SUMO's
 Only a saved state carries the count on (``<flowState index=...>``); stock SUMO has no attribute for a
 flow's first index. So a flow of fixed departures (``period``, ``vehsPerHour``, ``number``) that
 departed before the folder's time is taken out of the folder's copies of the files and its departures
-from then on written one by one, under the ids SUMO's own run gives them, into flows.rou.xml (sorted
-by departure, after the demand's files): the portable start names them as the user's run does, and a
+from then on written one by one, under the ids SUMO's own run gives them, into :data:`FILE` (sorted by
+departure, loaded after the demand's files): the portable start names them as the user's run does, and a
 start from the state too (its flowState of a flow no file defines makes nothing). A random flow
 (``probability``, ``period="exp(...)"``) keeps its own numbering, as does a scenario whose ``--scale``
 is not 1 (SUMO skips some of a scaled flow's vehicles without counting them).
@@ -22,7 +22,7 @@ import math
 import os
 import xml.etree.ElementTree as ET
 
-FILE = "flows.rou.xml"
+FILE = "flow_departures.rou.xml"
 DAY_MS = 86_400_000     # SUMO's end of a flow that gives none
 # a flow's attributes that say when it departs; the rest are each vehicle's
 _TIMING = ("id", "begin", "end", "period", "vehsPerHour", "number", "probability", "perHour")
