@@ -46,6 +46,11 @@ def test_departures_are_sumos():
     assert departures({"begin": "5", "end": "900", "period": "25"})[-1] == 880_000
     assert len(departures({"begin": "0", "end": "900", "vehsPerHour": "700"})) == 175   # 5 143 ms apart
     assert departures({"begin": "3.3", "end": "901", "number": "7"})[1] == 3_300 + 128_242
+    # no end: the simulation's --end where set, else a day after its begin (SUMO 1.28: y.1 at 17 380 s,
+    # 19 080 s with --end 95000)
+    assert departures({"begin": "100", "number": "5"})[1] == 17_380_000
+    assert departures({"begin": "100", "number": "5"}, sim_end="95000")[1] == 19_080_000
+    assert len(departures({"begin": "0", "period": "3600"}, sim_end="-1")) == 24
     assert departures({"begin": "0", "end": "900", "probability": "0.1"}) is None
     assert departures({"begin": "0", "period": "exp(0.1)"}) is None
 

@@ -23,7 +23,7 @@ import os
 import xml.etree.ElementTree as ET
 
 FILE = "flow_departures.rou.xml"
-DAY_MS = 86_400_000     # SUMO's end of a flow that gives none
+DAY_MS = 86_400_000     # a flow that gives no end ends this long after its begin, where SUMO's --end is not set
 # a flow's attributes that say when it departs; the rest are each vehicle's
 _TIMING = ("id", "begin", "end", "period", "vehsPerHour", "number", "probability", "perHour")
 # a flow that gives no route but where it goes: its vehicles are trips
@@ -37,26 +37,31 @@ def _ms(value: str | None) -> int | None:
     return None if t is None else int(math.floor(t * 1000.0 + 0.5))
 
 
-def departures(flow: dict) -> list[int] | None:
+def departures(flow: dict, sim_end: str | None = None) -> list[int] | None:
     """The departure times (ms) of a ``<flow>`` (attribute dict) of fixed departures, in order, as
     SUMO spaces them (each the one before plus the period in whole ms; ``number`` over begin..end:
-    that span divided in whole ms); None for a random flow or one SUMO would not read."""
-    begin, end = _ms(flow.get("begin", "0")), _ms(flow.get("end"))
+    that span divided in whole ms); None for a random flow or one SUMO would not read. A flow without
+    an end ends at the simulation's ``sim_end`` (its ``--end``) where one is set, else a day after its
+    begin (as SUMO 1.28 runs them)."""
+    begin = _ms(flow.get("begin", "0"))
     number = int(flow["number"]) if str(flow.get("number", "")).isdigit() else None
     if begin is None or flow.get("probability") is not None or flow.get("perHour") is not None:
         return None
+    end, until = _ms(flow.get("end")), _ms(sim_end)
+    if end is None:     # SUMO's --end is -1 where none is set
+        end = until if until is not None and until >= 0 else begin + DAY_MS
     if flow.get("vehsPerHour") is not None:
         vph = float(flow["vehsPerHour"])
         period = int(math.floor(3_600_000.0 / vph + 0.5)) if vph > 0 else None
     elif flow.get("period") is not None:
         period = _ms(flow["period"])                  # "exp(0.1)": random, None
-    elif number and end is not None:
+    elif number:
         period = (end - begin) // number
     else:
         return None
     if not period or period <= 0:
         return None
-    count = number if number is not None else math.ceil(((end if end is not None else DAY_MS) - begin) / period)
+    count = number if number is not None else math.ceil((end - begin) / period)
     return [begin + k * period for k in range(count)]
 
 
@@ -74,7 +79,7 @@ def _vehicles(flow: ET.Element, times: list[int], first: int) -> list[tuple[int,
     return out
 
 
-def _renumber_file(path: str, state_ms: int) -> list[tuple[int, ET.Element]]:
+def _renumber_file(path: str, state_ms: int, sim_end: str | None) -> list[tuple[int, ET.Element]]:
     """The flows of fixed departures of file ``path`` that departed before ``state_ms``, taken out of it
     (the file rewritten, not through a link it shares); their departures from then on as elements."""
     from ..core.sumo_xml import open_xml
@@ -82,7 +87,7 @@ def _renumber_file(path: str, state_ms: int) -> list[tuple[int, ET.Element]]:
         tree = ET.parse(f)
     root, out = tree.getroot(), []
     for flow in [el for el in root if el.tag == "flow"]:
-        times = departures(flow.attrib)
+        times = departures(flow.attrib, sim_end)
         before = sum(t < state_ms for t in times) if times else 0
         if not before:
             continue
@@ -115,7 +120,8 @@ def number_flows(folder: str, state_time: float, skip=("start.rou.xml", "inflow.
     names = [n for key in ("route-files", "additional-files") for n in options.get(key, "").split(",")
              if n and n not in skip and os.path.isfile(os.path.join(folder, n))]
     state_ms = int(math.floor(state_time * 1000.0 + 0.5))
-    found = sorted((pair for n in dict.fromkeys(names) for pair in _renumber_file(os.path.join(folder, n), state_ms)),
+    found = sorted((pair for n in dict.fromkeys(names)
+                    for pair in _renumber_file(os.path.join(folder, n), state_ms, options.get("end"))),
                    key=lambda pair: pair[0])
     if not found:
         return 0
