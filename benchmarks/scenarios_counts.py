@@ -133,16 +133,20 @@ def _new_after_state(out: Path) -> int:
 def _demand_due(name: str, out: Path, doc: dict) -> int:
     """The demand's own vehicles SUMO holds at a fill replay's first step (its departures due then, many
     a second in a city's demand): the replay's configuration run for that step without the fill's vehicles
-    (its state, its start file); 0 where there is no such configuration."""
+    (its state, its start file); 0 where there is no such configuration. The demand is the user's route
+    files and any other the folder writes for it (the flows numbered on, flows.rou.xml), not the file of
+    the fill's own vehicles (fill.json's ``portable_ids``: ``start.<vehicle> in start.rou.xml``)."""
     cfg = out / "fill" / ("scenario.sumocfg" if name == "fill_replay" else "start.sumocfg")
     if not cfg.is_file():
         return 0
     demand = {Path(r).name for r in doc.get("routes", [])}
+    own = (doc.get("portable_ids") or "").rpartition(" in ")[2]
     tree = ET.parse(cfg)
     for parent in list(tree.getroot().iter()):
         for el in list(parent):
             if el.tag == "route-files":
-                kept = [f for f in el.get("value", "").split(",") if f.removesuffix(".gz") in demand]
+                kept = [f for f in el.get("value", "").split(",")
+                        if (f != own if own else f.removesuffix(".gz") in demand)]
                 if kept:
                     el.set("value", ",".join(kept))
                 else:

@@ -222,10 +222,12 @@ def test_a_replay_holding_other_vehicles_than_the_folder_says_fails(corpus, tmp_
     assert corpus.first_failure({"steps": {"fill_start": res}})[0] == (None if copies == 1 else "fill_start")
 
 
-def test_a_replay_counts_the_demands_departures_due_in_its_first_step(corpus, tmp_path):
+@pytest.mark.parametrize("numbered_on", [False, True])
+def test_a_replay_counts_the_demands_departures_due_in_its_first_step(corpus, tmp_path, numbered_on):
     """As sumo-experiments' Bologna: three of the demand's own vehicles depart in the portable start's
     first step beside its eight seeded ones; they are the demand's, measured by SUMO in the start's
-    configuration without its own file, not a fault of the start."""
+    configuration without its own file, not a fault of the start. The demand's flows the fill writes
+    numbered on (flows.rou.xml: game_cross) are the demand's too: all but the start's own file."""
     from sumo_scendiff.core.tools import sumo_binary
     fill = tmp_path / "fill"
     fill.mkdir()
@@ -238,14 +240,20 @@ def test_a_replay_counts_the_demands_departures_due_in_its_first_step(corpus, tm
     (fill / "d.rou.xml").write_text("<routes>" + "".join(
         f'<vehicle id="d{k}" depart="10" departPos="10"><route edges="{e}"/></vehicle>'
         for k, e in enumerate(["A2A1", "B2B1", "C2C1"])) + "</routes>")
+    routes, doc = "start.rou.xml,d.rou.xml", {"agents": [{"status": "placed"}] * len(edges),
+                                              "routes": [str(tmp_path / "user" / "d.rou.xml")]}
+    if numbered_on:
+        (fill / "flows.rou.xml").write_text('<routes><vehicle id="f.7" depart="10" departPos="10">'
+                                            '<route edges="C1B1"/></vehicle></routes>')
+        routes, doc["portable_ids"] = routes + ",flows.rou.xml", "start.<vehicle> in start.rou.xml"
     (fill / "start.sumocfg").write_text('<configuration><net-file value="g.net.xml"/><begin value="10"/>'
-                                        '<route-files value="start.rou.xml,d.rou.xml"/></configuration>')
-    (fill / "fill.json").write_text(json.dumps({"agents": [{"status": "placed"}] * len(edges),
-                                                "routes": [str(tmp_path / "user" / "d.rou.xml")]}))
+                                        f'<route-files value="{routes}"/></configuration>')
+    (fill / "fill.json").write_text(json.dumps(doc))
     cmd = [corpus._sumo(), "-c", fill / "start.sumocfg", "--end", "20", "--no-step-log", "true",
            "--summary-output", tmp_path / "fill_start_summary.xml"]
     res = corpus.check_count("fill_start", corpus.step(cmd, 60, tmp_path / "log", tmp_path), tmp_path)
-    assert res["ok"] and res["vehicles"] == {"sumo": 11, "expected": 11}, res
+    want = 11 + numbered_on
+    assert res["ok"] and res["vehicles"] == {"sumo": want, "expected": want}, res
     assert not list(fill.glob("_*.sumocfg"))
 
 
