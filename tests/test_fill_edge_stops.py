@@ -11,7 +11,9 @@ import pytest
 from .test_fill_robust import _netgenerate
 
 BEGIN = 300
-LEAVE_S = 6.0     # s: a portable start departs each stacked parked car a step after the one before
+# s: a portable start departs each car parked at the stop's end a step after the one before, and a car
+# arriving behind them waits for those departures (6 s late, docs/fill.md)
+LEAVE_S = 8.0
 # a car parks 75 s at the end of B1B2 (no parking area), another line stops 20 s at the end of C2C3
 ROUTES = """<routes>
   <route id="r2" edges="B0B1 B1B2 B2B3 B3C3"/><route id="r3" edges="C0C1 C1C2 C2C3 C3D3"/>
