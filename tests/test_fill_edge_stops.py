@@ -57,17 +57,19 @@ def test_cars_at_stops_of_one_edge_keep_them_in_the_portable_start(tmp_path):
     assert main(get_options(["-n", str(tmp_path / "grid.net.xml"), "-r", str(tmp_path / "d.rou.xml"),
                              "--begin", str(BEGIN), "-o", str(out)])) == 0
     own = _stops(str(out / "scenario.sumocfg"), 120)
-    portable = _stops(str(out / "start.sumocfg"), 120)
+    # as long again as a car may leave late: one that leaves near the end of SUMO's own window leaves in it
+    portable = _stops(str(out / "start.sumocfg"), 120 + LEAVE_S)
     parked_at_t = {v for v, (t0, _, parked) in own.items() if parked and t0 <= BEGIN + 1}
     on_the_way = {v for v, (t0, _, parked) in own.items() if not parked and t0 > BEGIN + 2}
     assert len(parked_at_t) >= 2 and on_the_way, own
-    assert set(portable) == set(own)
+    assert set(own) <= set(portable)
     assert all(portable[v][2] for v in parked_at_t)            # parked again, not driven off
-    late = {v: portable[v][1] - own[v][1] for v in own}
+    late = {v: portable[v][1] - own[v][1] for v in own if own[v][1] is not None}
     assert all(abs(dt) <= LEAVE_S for dt in late.values()), late
     # the parked cars' stops on the lane SUMO parked them from, the rest of their duration
-    text = (out / "start.rou.xml").read_text()
+    text, rest = (out / "start.rou.xml").read_text(), []
     for vid in parked_at_t:
         car = re.search(rf'<vehicle id="start\.{re.escape(vid)}".*?</vehicle>', text, re.S)
         assert car and 'lane="B1B2_0"' in car.group(0) and 'departLane="0"' in car.group(0)
-        assert float(re.search(r'duration="([^"]+)"', car.group(0))[1]) < 75
+        rest.append(float(re.search(r'duration="([^"]+)"', car.group(0))[1]))
+    assert max(rest) <= 75 and min(rest) < 75     # one may have parked at T itself

@@ -21,10 +21,12 @@ def scenario(cross_net, tmp_path, monkeypatch):
 
 
 def _sumos_own(net: str, routes: str | None, until: float, additional: tuple[str, ...] = ()) -> set[str]:
-    """The vehicles stock SUMO has on the network at ``until`` (libsumo, one step at a time)."""
+    """The vehicles stock SUMO has on the network at ``until`` (libsumo, one step at a time, SUMO's
+    default seed)."""
+    from sumo_scendiff.fill.routing import ROUTER_SEED
     from sumo_scendiff.sim.sumo import SimConfig, close, start
     sim = start(SimConfig(net=net, routes=(routes,) if routes else (), additional=additional, step_length=1.0,
-                          begin=0.0, seeding_options=False))
+                          begin=0.0, seeding_options=False, seed=ROUTER_SEED))
     try:
         while sim.simulation.getTime() < until - 1e-9:
             sim.simulationStep()
@@ -81,16 +83,18 @@ def test_the_estimate_is_kept_as_an_option():
 # a part of the crossing: the centre, most of the west and south arms, the start of the north and east
 AREA = (-120.0, -120.0, 40.0, 40.0)
 # a person walking the west-east road: at 200 s the early one is past the area, the later one in it
-PERSONS = ('<routes><person id="p_early" depart="0"><walk edges="wc ce"/></person>'
+PERSONS = ('<routes><person id="p_early" depart="0" departPos="60"><walk edges="wc ce"/></person>'
            '<person id="p_late" depart="120"><walk edges="wc ce"/></person></routes>')
 
 
 def _own_at(net: str, routes: tuple[str, ...], until: float) -> tuple[dict, dict, int]:
-    """Stock SUMO stepped to ``until``: per vehicle its box centre, per person its position, and the
-    vehicles departing in the step after it."""
+    """Stock SUMO stepped to ``until`` (SUMO's default seed): per vehicle its box centre, per person its
+    position, and the vehicles departing in the step after it."""
     from sumo_scendiff.core.geometry import sumo_to_pose
+    from sumo_scendiff.fill.routing import ROUTER_SEED
     from sumo_scendiff.sim.sumo import SimConfig, close, start
-    sim = start(SimConfig(net=net, routes=routes, step_length=1.0, begin=0.0, seeding_options=False))
+    sim = start(SimConfig(net=net, routes=routes, step_length=1.0, begin=0.0, seeding_options=False,
+                          seed=ROUTER_SEED))
     try:
         while sim.simulation.getTime() < until - 1e-9:
             sim.simulationStep()
@@ -195,3 +199,45 @@ def test_an_area_takes_a_taxi_out_with_its_rider(tmp_path):
     counts = json.loads(run.stdout.strip().splitlines()[-1])
     assert (counts["on_network"], counts["in_area"]) == (1, 0)
     assert counts["persons"] == {"on_network": 1, "in_area": 0, "outside": 1}
+
+
+RANDOM_DEMAND = """<routes>
+  <vType id="car" sigma="0.5" length="5" speedDev="0.2"/>
+  <route id="we" edges="wc ce"/><route id="sn" edges="sc cn"/><route id="ws" edges="wc cs"/>
+  <flow id="f_we" type="car" route="we" begin="0" end="400" period="7" departSpeed="random"/>
+  <flow id="f_sn" type="car" route="sn" begin="0" end="400" probability="0.12"/>
+  <flow id="f_x" type="car" route="ws" begin="0" end="400" period="exp(0.1)"/>
+</routes>
+"""
+
+
+def _state_poses(path: str) -> dict:
+    import gzip
+    import xml.etree.ElementTree as ET
+    with (gzip.open(path) if path.endswith(".gz") else open(path, "rb")) as f:
+        root = ET.parse(f).getroot()
+    return {v.get("id"): (v.get("pos"), v.get("speed"), v.get("speedFactor")) for v in root.iter("vehicle")
+            if v.get("pos") is not None}
+
+
+@pytest.mark.parametrize("seed_line", ['<random_number><seed value="42"/></random_number>', ""])
+def test_sumos_own_run_is_the_users_whatever_the_fills_seed(cross_net, tmp_path, monkeypatch, seed_line):
+    """The demand's random draws (probability and exp() flows, departSpeed="random", speedDev) are
+    SUMO's under the configuration's seed (or SUMO's default), not the fill's -s: the state at T holds
+    the vehicles of stock ``sumo -c`` at T, each where it stands and as fast."""
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.fill.api import fill
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    (tmp_path / "d.rou.xml").write_text(RANDOM_DEMAND)
+    config = tmp_path / "s.sumocfg"
+    config.write_text(f'<configuration><input><net-file value="{cross_net}"/><route-files value="d.rou.xml"/>'
+                      f'</input>{seed_line}</configuration>')
+    stock = tmp_path / "stock.xml"
+    run = subprocess.run([sumo_binary(), "-c", str(config), "--end", "201", "--save-state.times", "200",
+                          "--save-state.files", str(stock), "--save-state.precision", "6", "--no-step-log", "true"],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr[-400:]
+    done = fill(config=str(config), begin=200.0, out=str(tmp_path / "filled"), seed=5)
+    assert done.doc["sumo_seed"] == (42 if seed_line else 23423)
+    theirs = _state_poses(str(stock))
+    assert len(theirs) > 10 and _state_poses(os.path.join(done.folder, "state.xml.gz")) == theirs

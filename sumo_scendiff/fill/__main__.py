@@ -58,7 +58,9 @@ def _parser():
                         "--begin, as fast as stock SUMO and exact, its state kept for the next time)")
     p.add_argument("--p-mask", type=float, default=1.0, metavar="P",
                    help="global token of a tile without neighbours (default 1: the model's prior; lower: fewer vehicles)")
-    p.add_argument("-s", "--seed", type=int, default=0)
+    p.add_argument("-s", "--seed", type=int, default=0,
+                   help="the model's seed (its draws); SUMO's own run of a demand keeps the configuration's "
+                        "seed (default: SUMO's)")
     add_arguments(p)       # --step-length, --lateral-resolution, --no-seeding-options
     p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
     p.add_argument("--workers", type=int, default=None, metavar="N",

@@ -43,6 +43,30 @@ def _agents(sim, ids: list[str]) -> list[dict]:
     return out
 
 
+def own_random(scen) -> tuple[int, tuple[str, ...]]:
+    """The seed the user's own ``sumo -c`` runs ``scen`` with (its configuration's ``seed``, else SUMO's
+    default) and its other options on SUMO's random numbers (``random``, ``thread-rngs``: the section
+    ``random_number``) as command-line words. SUMO's own run is the user's: the fill's ``-s`` seeds the
+    model's draws only, never the demand's departures, lanes, speed factors or routes."""
+    from sumolib.options import readOptions
+
+    from ..core.sumo_xml import option_name
+    from ..core.tools import sumo_option_sections
+    from .routing import ROUTER_SEED
+    if not scen.config:
+        return ROUTER_SEED, ()
+    sections, seed, extra = sumo_option_sections(), ROUTER_SEED, ()
+    for opt in readOptions(scen.config):
+        name = option_name(opt.name)
+        if sections.get(name) != "random_number":
+            continue
+        if name == "seed":
+            seed = int(opt.value)
+        else:
+            extra += (f"--{name}", opt.value)
+    return seed, extra
+
+
 def _keep_area(sim, agents: list[dict], area: tuple | None) -> tuple[list[dict], dict | None]:
     """The agents whose box centre lies in ``area`` (tiles.in_area, the estimate's rule too); every
     other vehicle, and every person outside it, taken out of ``sim`` before its state is saved (TraCI
@@ -78,11 +102,16 @@ def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
     Returns (cfg, agents, exact, state time, vehicles waiting to enter, the area's record)."""
     from ..sim.state import save_state, waiting_in_state
     from ..sim.sumo import SimConfig, close, settings
-    from ..sim.warmup import start_warm
+    from ..sim.warmup import start_warm, warm_config
     from .edge_stops import carry_edge_stops
     from .seed import write_start_routes
-    cfg = SimConfig(net=scen.net, routes=tuple(scen.routes), additional=tuple(scen.additional), seed=req.seed,
+    seed, rng = own_random(scen)
+    cfg = SimConfig(net=scen.net, routes=tuple(scen.routes), additional=tuple(scen.additional), seed=seed,
                     begin=start, **settings(req, scen, mesoscopic=False))   # as _sim_config (fill/api.py)
+    # run, saved and exported as the warm-up runs it: the user's options alone (none of the seeding's:
+    # nothing is seeded) and SUMO's random number generators kept in the state, so scenario.sumocfg
+    # goes on drawing what the user's own run draws
+    cfg = warm_config(replace(cfg, extra=cfg.extra + rng))
     t = time.perf_counter()
     sim = start_warm(cfg, begin, quiet=not req.verbose)
     try:
@@ -170,7 +199,7 @@ def sumo_start(req, net, scen, begin: float, start: float, folder: str, timing: 
         source["vehicles"] = area
     doc = {"format": FORMAT, "version": VERSION, "network": os.path.abspath(scen.net),
            "configuration": scen.config, "routes": [os.path.abspath(r) for r in scen.routes],
-           "begin": begin, "state_time": state_time, "seed": req.seed,
+           "begin": begin, "state_time": state_time, "seed": req.seed, "sumo_seed": cfg.seed,
            "area": None if req.area is None else [float(v) for v in req.area], "stride": None,
            "portable_ids": f"{PORTABLE_PREFIX}<vehicle> in start.rou.xml",
            "density": source, "sumo_options": options, "inflow": inflow, "fleet": "scenario",
