@@ -11,8 +11,10 @@ departed before the folder's time is taken out of the folder's copies of the fil
 from then on written one by one, under the ids SUMO's own run gives them, into :data:`FILE` (sorted by
 departure, loaded after the demand's files): the portable start names them as the user's run does, and a
 start from the state too (its flowState of a flow no file defines makes nothing). A random flow
-(``probability``, ``period="exp(...)"``) keeps its own numbering, as does a scenario whose ``--scale``
-is not 1 (SUMO skips some of a scaled flow's vehicles without counting them).
+(``probability``, ``period="exp(...)"``) keeps its own numbering (its departures are SUMO's draws,
+known only by running on), as does every flow where ``--scale`` is not 1: SUMO scales a flow's period
+without chance but a single vehicle by chance, so departures written one by one would be scaled again
+(docs/fill.md).
 """
 from __future__ import annotations
 
