@@ -11,8 +11,7 @@ import pytest
 from .test_fill_robust import _netgenerate
 
 BEGIN = 300
-# s: a portable start departs each car parked at the stop's end a step after the one before, and a car
-# arriving behind them waits for those departures (6 s late, docs/fill.md)
+# s: a car parked at T parks again in the portable start's second step and leaves that much late
 LEAVE_S = 8.0
 # a car parks 75 s at the end of B1B2 (no parking area), another line stops 20 s at the end of C2C3
 ROUTES = """<routes>
@@ -64,6 +63,8 @@ def test_cars_at_stops_of_one_edge_keep_them_in_the_portable_start(tmp_path):
     assert len(parked_at_t) >= 2 and on_the_way, own
     assert set(own) <= set(portable)
     assert all(portable[v][2] for v in parked_at_t)            # parked again, not driven off
+    # all in one step (SUMO's checks against the other cars left out: they depart at one place)
+    assert len({portable[v][0] for v in parked_at_t}) == 1, {v: portable[v] for v in parked_at_t}
     late = {v: portable[v][1] - own[v][1] for v in own if own[v][1] is not None}
     assert all(abs(dt) <= LEAVE_S for dt in late.values()), late
     # the parked cars' stops on the lane SUMO parked them from, the rest of their duration

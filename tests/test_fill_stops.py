@@ -249,3 +249,30 @@ def test_cars_in_the_spaces_of_a_parking_area_are_parked_in_the_first_step(tmp_p
     with open(out / "fill.json") as f:
         moved = [a for a in json.load(f)["agents"] if "to_space_entry_m" in a]
     assert len(moved) == filled[1] >= 2 and all(a["status"] == "placed" for a in moved)
+
+
+@pytest.mark.slow   # a real fill
+def test_sumos_own_cars_in_a_parking_areas_spaces_park_together_in_the_portable_start(tmp_path):
+    """From SUMO's own run: the cars parked at T in a parking area's ``<space>``s (each departing at the
+    area's end, where SUMO enters them) are all parked again after the portable start's second step;
+    with SUMO's insertion checks against the other cars they departed one step after another."""
+    import libsumo
+
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.fill.__main__ import get_options, main
+    net = _netgenerate(str(tmp_path / "grid.net.xml"))
+    add, routes = _spaces_scenario(tmp_path)
+    out = tmp_path / "o"
+    assert main(get_options(["-n", net, "-r", str(routes), "-a", str(add), "--begin", str(BEGIN), "-o", str(out)])) == 0
+
+    def parked(config: str, steps: int) -> set[str]:
+        libsumo.start([sumo_binary(), "-c", str(out / config), "--no-step-log", "true", "--no-warnings", "true"])
+        try:
+            for _ in range(steps):
+                libsumo.simulationStep()
+            return {v.removeprefix("start.") for v in libsumo.parkingarea.getVehicleIDs("pa")}
+        finally:
+            libsumo.close()
+    at_t = parked("scenario.sumocfg", 0)
+    assert len(at_t) >= 5       # its two roadside lots and spaces
+    assert parked("start.sumocfg", 2) == at_t

@@ -2,6 +2,7 @@
 run has them at the state's time.
 
     carry_edge_stops("start.rou.xml", "state.xml.gz", sim, ids)    # before the start's ids are renamed
+    park_together("start.rou.xml", sim, ids)                        # the cars parked at one place
 
 TraCI reports such a stop with neither lane nor edge (``vehicle.getStops`` gives the stop as given,
 not the lane SUMO chose), and a car parked at one on no lane at all, so the portable start
@@ -101,4 +102,27 @@ def carry_edge_stops(path: str, state_path: str, sim, ids) -> int:
     return len(mine)
 
 
-__all__ = ["carry_edge_stops", "state_stops"]
+# SUMO's insertion checks for a car departing where it parks: all but those against the other cars
+# (collision, leaderGap, followerGap). Every car parked at one stop's end, or entering a parking area's
+# spaces, departs at one place; with those checks SUMO inserts one a step (each after the one before
+# parked off the lane), without them all in the first step, standing on one another until they park in
+# the next. Not "none": the departure is not where the car stands (it stands off the lane), and
+# sim.export.fit_departures moves only departures of "none" to their poses.
+PARKED_CHECKS = "junction stop speedLimit arrivalSpeed pedestrian bidi oncomingTrain"
+
+
+def park_together(path: str, sim, ids) -> int:
+    """Every vehicle of ``ids`` that ``sim`` has parked given :data:`PARKED_CHECKS` in the portable start
+    ``path`` (its ids as ``sim``'s); returns how many."""
+    parked = {vid for vid in ids if sim.vehicle.isStoppedParking(vid)}
+    if not parked:
+        return 0
+    tree = ET.parse(path)
+    cars = [el for el in tree.getroot() if el.tag == "vehicle" and el.get("id") in parked]
+    for el in cars:
+        el.set("insertionChecks", PARKED_CHECKS)
+    tree.write(path, encoding="UTF-8", xml_declaration=True)
+    return len(cars)
+
+
+__all__ = ["PARKED_CHECKS", "carry_edge_stops", "park_together", "state_stops"]

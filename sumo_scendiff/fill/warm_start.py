@@ -103,7 +103,7 @@ def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
     from ..sim.state import save_state, waiting_in_state
     from ..sim.sumo import SimConfig, close, settings
     from ..sim.warmup import start_warm, warm_config
-    from .edge_stops import carry_edge_stops
+    from .edge_stops import carry_edge_stops, park_together
     from .seed import write_start_routes
     seed, rng = own_random(scen)
     cfg = SimConfig(net=scen.net, routes=tuple(scen.routes), additional=tuple(scen.additional), seed=seed,
@@ -125,6 +125,7 @@ def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
         exact = write_start_routes(routes, sim, ids, net, state_time,
                                    vtype_files=list(scen.routes) + list(scen.additional))
         carry_edge_stops(routes, state, sim, ids)
+        park_together(routes, sim, ids)
         _drop_their_vtypes(routes, [*scen.routes, *scen.additional])
         _rename(routes)
         waiting = waiting_in_state(state, sim.vehicle.getIDList(), state_time)
