@@ -75,3 +75,24 @@ def test_flows_number_on_in_both_starts(tmp_path):
         assert all(abs(replay[v] - own[v]) < 1e-6 for v in fixed), config
         # the random flow departs under its own numbering, never an id of a vehicle already made
         assert not {v for v in replay if v.startswith("p.")} & {f"start.{v}" for v in replay}
+
+
+@pytest.mark.slow   # a real fill
+def test_a_route_file_cut_short_keeps_its_flows(tmp_path):
+    """A route file cut short (SUMO runs it to where its reading reaches the cut): the fill runs, its
+    flows left as given, and both starts run in stock SUMO."""
+    import subprocess
+
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.fill.__main__ import get_options, main
+    net = _netgenerate(str(tmp_path / "grid.net.xml"))
+    cut = tmp_path / "cut.rou.xml"
+    cut.write_text('<routes>\n  <flow id="f" begin="5" end="900" period="25"><route edges="C0C1 C1C2 C2C3"/></flow>\n'
+                   + "".join(f'  <vehicle id="v{t}" depart="{t}"><route edges="B0B1 B1B2"/></vehicle>\n'
+                             for t in range(0, 3001, 100)) + '  <vehicle id="v3100" depart="3100"><route edg')
+    out = tmp_path / "o"
+    assert main(get_options(["-n", net, "-r", str(cut), "--begin", str(BEGIN), "-o", str(out)])) == 0
+    for cfg in ("scenario.sumocfg", "start.sumocfg"):
+        run = subprocess.run([sumo_binary(), "-c", str(out / cfg), "--end", str(BEGIN + 60), "--no-step-log", "true"],
+                             capture_output=True, text=True)
+        assert run.returncode == 0, run.stderr[-400:]

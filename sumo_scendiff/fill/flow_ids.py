@@ -85,8 +85,11 @@ def _renumber_file(path: str, state_ms: int, sim_end: str | None) -> list[tuple[
     """The flows of fixed departures of file ``path`` that departed before ``state_ms``, taken out of it
     (the file rewritten, not through a link it shares); their departures from then on as elements."""
     from ..core.sumo_xml import open_xml
-    with open_xml(path) as f:
-        tree = ET.parse(f)
+    try:
+        with open_xml(path) as f:
+            tree = ET.parse(f)
+    except ET.ParseError:   # a file cut short: SUMO reads it to the cut (data.demand), its flows left as given
+        return []
     root, out = tree.getroot(), []
     for flow in [el for el in root if el.tag == "flow"]:
         times = departures(flow.attrib, sim_end)
