@@ -4,6 +4,7 @@ small scale against the real SUMO."""
 from __future__ import annotations
 
 import importlib.util
+import json
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -163,7 +164,10 @@ def test_the_fills_portable_start_is_not_scaled_twice(features, tmp_path):
                            "-o", str(out)], capture_output=True, text=True, cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-300:]
     running = _running_after_a_step(out / "scenario.sumocfg", tmp_path)
-    assert running > 10 and _running_after_a_step(out / "start.sumocfg", tmp_path) == running
+    # the state holds the vehicles still waiting to enter at T (they enter on its first steps); the
+    # portable start does not carry them (docs/fill.md): scaled twice, it would hold about twice as many
+    waiting = json.loads((out / "fill.json").read_text())["density"]["waiting_to_enter"]
+    assert running > 10 and running - waiting <= _running_after_a_step(out / "start.sumocfg", tmp_path) <= running
 
 
 def test_a_mesoscopic_scenario_is_said_to_run_microscopically(features, tmp_path):
