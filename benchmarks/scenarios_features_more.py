@@ -112,6 +112,29 @@ def ssm(dest: Path) -> None:
     base(dest, device__ssm__probability="1")
 
 
+def bike_lanes(dest: Path) -> None:
+    """Bicycle lanes beside the car lanes (netgenerate's ``bikelanes.guess``), bicycles among the cars."""
+    base(dest, "--bikelanes.guess", "--bikelanes.guess.max-speed", "20", classes=("passenger", "bicycle"))
+
+
+EMISSIONS = """    <vType id="petrol" vClass="passenger" emissionClass="HBEFA4/PC_petrol_Euro-6ab"/>
+    <vType id="diesel_truck" vClass="truck" emissionClass="HBEFA3/HDV_D_EU5"/>
+    <vType id="electric" vClass="passenger" emissionClass="Energy/unknown"/>
+    <flow id="petrol" type="petrol" from="A0B0" to="D3C3" begin="0" end="300" period="12"/>
+    <flow id="trucks" type="diesel_truck" from="D0C0" to="A3A2" begin="0" end="300" period="20"/>
+    <flow id="electric" type="electric" from="B3B2" to="C0D0" begin="0" end="300" period="15"/>
+"""
+
+
+def emissions(dest: Path) -> None:
+    """vTypes of several emission classes (HBEFA 4 and 3, SUMO's energy model) and every vehicle with an
+    emissions device (``device.emissions.probability``)."""
+    base(dest)
+    classes = write(dest, "emissions.rou.xml", "routes", EMISSIONS)
+    sumocfg(dest / "scenario.sumocfg", "net.net.xml", ["passenger.rou.xml", classes],
+            device__emissions__probability="1")
+
+
 # name -> (builder, what it covers, the row's fields over the corpus's defaults), as scenarios_features.FEATURES
 MORE_FEATURES = {
     "feat_lanechange_duration": (lanechange_duration, ("continuous lane change",), {}),
@@ -121,4 +144,6 @@ MORE_FEATURES = {
     "feat_threads": (threads, ("parallel simulation (threads)",), {}),
     "feat_emergency": (emergency, ("emergency vehicles", "bluelight device", "sublane model"), {}),
     "feat_ssm": (ssm, ("SSM device", "outputs by default"), {}),
+    "feat_bike_lanes": (bike_lanes, ("bicycle lanes", "bicycles"), {}),
+    "feat_emissions": (emissions, ("emission classes", "emissions device", "trucks"), {}),
 }
