@@ -146,3 +146,42 @@ def test_a_repeated_route_is_driven_its_times_over(grid, tmp_path):
     deps, _ = routed_departures(grid.path, [str(tmp_path / "loop.rou.xml")], until=100.0)
     edges = {d.id: d.edges for d in deps}
     assert edges["f.0"] == tuple(loop.split()) * 3 and edges["once"] == ("A0B0", "B0C0")
+
+
+INCLUDED_FLAWS = {"missing": None, "empty": "",
+                  "mismatched": ('<routes>\n    <vehicle id="i1" depart="1"><route edges="A0B0 B0C0"/></vehicle>\n'
+                                 '    <vehicle id="i2" depart="2"><route edges="A0B0 B0C0"/></vehicl>\n</routes>\n'),
+                  "cut": '<routes>\n    <vehicle id="i1" depart="1"><route edges="A0B0 B0C0"/></vehicle>\n    <veh'}
+
+
+@pytest.mark.parametrize("flaw", list(INCLUDED_FLAWS))
+def test_an_included_files_flaw_is_read_past_as_sumo_reads_it(grid, tmp_path, flaw):
+    """A route file includes one (in another folder) that includes a file missing, empty, not
+    well-formed or cut short: SUMO reports it, keeps its whole elements before the flaw and reads on;
+    duarouter quits on it. The estimate routes what SUMO departs, the user's files untouched."""
+    import subprocess
+    import xml.etree.ElementTree as ET
+
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.fill.routing import routed_departures
+    (tmp_path / "sub").mkdir()
+    if INCLUDED_FLAWS[flaw] is not None:
+        (tmp_path / "sub" / "inc.rou.xml").write_text(INCLUDED_FLAWS[flaw])
+    (tmp_path / "sub" / "mid.rou.xml").write_text(
+        '<routes>\n    <vType id="slow" maxSpeed="5"/>\n    <include href="inc.rou.xml"/>\n'
+        '    <vehicle id="m" type="slow" depart="3"><route edges="B0B1 B1B2"/></vehicle>\n</routes>\n')
+    main = tmp_path / "main.rou.xml"
+    main.write_text('<routes>\n    <vehicle id="a" depart="0"><route edges="A0B0 B0C0"/></vehicle>\n'
+                    '    <include href="sub/mid.rou.xml"/>\n'
+                    '    <flow id="f" begin="4" end="20" period="8" from="C1B1" to="B1A1"/>\n</routes>\n')
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*.xml")}
+    trips = tmp_path / "trips.xml"
+    done = subprocess.run([sumo_binary("sumo"), "-n", grid.path, "-r", str(main), "--end", "100", "--no-step-log",
+                           "--tripinfo-output", str(trips)], capture_output=True, text=True)
+    assert done.returncode == 0 and "inc.rou.xml" in done.stderr, done.stderr
+    departed = sorted(t.get("id") for t in ET.parse(trips).getroot().iter("tripinfo"))
+    assert ("i1" in departed) == (flaw in ("mismatched", "cut"))
+    deps, unrouted = routed_departures(grid.path, [str(main)], until=100.0)
+    assert sorted(d.id for d in deps) == departed and unrouted == 0
+    assert {d.id: d.type for d in deps}["m"] == "slow"
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*.xml") if p != trips} == before

@@ -67,9 +67,10 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
                                "option, which the scenario does not set (SUMO refuses them too)")
     with tempfile.TemporaryDirectory(prefix="scendiff-route-") as work:
         out = os.path.join(work, "routed.rou.xml")
+        routes = _routes_for_router(route_files, traits.included_flaws, work)
         args = [sumo_binary("duarouter"), "-n", os.path.abspath(net_path),
                 # duarouter routes an additional file's vehicles too, and refuses an empty -r
-                *(["-r", ",".join(os.path.abspath(p) for p in route_files)] if route_files else []), "-o", out,
+                *(["-r", ",".join(routes)] if routes else []), "-o", out,
                 *(["--junction-taz"] if junction_taz else []), *(["--scale", scale] if scale else []),
                 "--ignore-errors", "--no-step-log",
                 # a public transport vehicle (one with a line) is left out of duarouter's output otherwise
@@ -137,11 +138,72 @@ def _for_router(additional, work: str) -> list[str]:
     return out
 
 
+def _routes_for_router(route_files, flawed: frozenset, work: str) -> list[str]:
+    """The route files as duarouter is given them: each as it is where no file it includes is
+    ``flawed`` (missing, empty, not well-formed or cut short: core.sumo_xml.Cut). SUMO reports such an
+    included file, keeps its elements whole before the flaw and reads on past the include; duarouter
+    quits on it. So a file with one below it is given as a copy in ``work`` of what SUMO reads of it
+    (the user's files are never written); the fill has warned of the flaw (fill.api._begin)."""
+    paths = [os.path.abspath(p) for p in route_files]
+    if not flawed:
+        return paths
+    copies: dict[str, str | None] = {}
+    return [_as_sumo_reads(p, flawed, work, copies) or p for p in paths]
+
+
+def _as_sumo_reads(path: str, flawed: frozenset, work: str, copies: dict) -> str | None:
+    """A copy in ``work`` of what SUMO reads of ``path``: its top-level elements whole before any flaw
+    of its own (``path`` in ``flawed``), its includes pointing at such copies of theirs and those of
+    a file SUMO reads nothing of left out; None where SUMO reads nothing of it."""
+    import xml.etree.ElementTree as ET
+
+    from ..core.sumo_xml import XmlError, open_xml
+    if path in copies:
+        return copies[path]
+    copies[path] = None                        # an include cycle: SUMO refuses it, duarouter names it
+    out, root, depth = os.path.join(work, f"{len(copies)}_{os.path.basename(path).removesuffix('.gz')}"), None, 0
+    try:
+        f = open_xml(path)
+    except XmlError:                           # missing, empty: nothing of it
+        return None
+    with f, open(out, "wb") as w:
+        try:
+            for event, el in ET.iterparse(f, events=("start", "end")):
+                depth += 1 if event == "start" else -1
+                if root is None:
+                    root = el
+                    w.write(f"<{el.tag}>\n".encode())
+                elif event == "end" and depth == 1:
+                    if _point_includes(el, path, flawed, work, copies):
+                        w.write(ET.tostring(el, encoding="utf-8", xml_declaration=False) + b"\n")
+                    root.clear()
+        except (ET.ParseError, OSError, EOFError):
+            pass                               # its flaw, or a cut SUMO also reads up to
+        if root is not None:
+            w.write(f"</{root.tag}>\n".encode())
+    copies[path] = out if root is not None else None
+    return copies[path]
+
+
+def _point_includes(el, path: str, flawed: frozenset, work: str, copies: dict) -> bool:
+    """Points the includes in ``el`` (a top-level element of ``path``) at what SUMO reads of theirs;
+    False where ``el`` is an include of a file SUMO reads nothing of."""
+    from ..core.sumo_xml import include_path
+    for inc in [i for i in el.iter("include") if i.get("href")]:
+        target = include_path(path, inc.get("href"))
+        copy = _as_sumo_reads(target, flawed, work, copies)
+        if copy is None and inc is el:
+            return False
+        inc.set("href", copy or target)
+    return True
+
+
 @dataclass(frozen=True)
 class _Traits:
     from_junction: bool      # a trip or flow between junctions (fromJunction, toJunction, viaJunctions)
     probability_flow: bool   # a flow of random departures (duarouter hangs on one with --begin)
     repeats: dict            # routes driven more than once (``repeat``: a bus loop), edges -> repetitions
+    included_flaws: frozenset = frozenset()   # included files SUMO reads past (core.sumo_xml.Cut)
 
 
 def _traits(route_files) -> _Traits:
@@ -151,8 +213,9 @@ def _traits(route_files) -> _Traits:
     from ..core.sumo_xml import XmlError, elements
     junction = probability = False
     repeats: dict[tuple[str, ...], int] = {}
+    cuts: list = []
     try:
-        for _, el in elements(route_files, ("vehicle", "trip", "flow", "route")):
+        for _, el in elements(route_files, ("vehicle", "trip", "flow", "route"), cuts):
             junction |= any(el.get(a) for a in _JUNCTION_ATTRS)
             probability |= el.tag == "flow" and el.get("probability") is not None
             for r in [el] if el.tag == "route" else el.findall("route"):
@@ -163,7 +226,7 @@ def _traits(route_files) -> _Traits:
                         continue      # SUMO names the bad value when it loads the file
     except XmlError:
         pass                          # a broken file: duarouter names it in its own words
-    return _Traits(junction, probability, repeats)
+    return _Traits(junction, probability, repeats, frozenset(c.path for c in cuts if c.included_from))
 
 
 def _read(path: str, since: float, until: float, depart_speed: str = "0",
