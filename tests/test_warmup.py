@@ -95,3 +95,39 @@ def test_the_key_follows_the_inputs_contents_and_the_time(scenario):
     with open(scenario.routes[0], "a") as f:
         f.write("<!-- edited -->\n")
     assert state_key(scenario, 200.0) != key
+
+
+def _state_ids(path: str) -> set[str]:
+    import gzip
+    import xml.etree.ElementTree as ET
+    with (gzip.open(path) if path.endswith(".gz") else open(path, "rb")) as f:
+        return {v.get("id") for v in ET.parse(f).getroot().iter("vehicle")}
+
+
+@pytest.mark.parametrize("seed_line", ['<random_number><seed value="42"/></random_number>', ""])
+def test_run_warms_the_demand_with_the_users_sumo_seed(cross_net, tmp_path, monkeypatch, seed_line):
+    """``run -c`` runs the demand to --begin as the user's own ``sumo -c`` runs it: under the
+    configuration's seed (else SUMO's default), not ``-s`` (the model's). The probability flow's
+    departures at T+1 (the state after the seeding step) are stock SUMO's: it departed other
+    vehicles under the run's -s."""
+    import subprocess
+    import sys
+
+    from sumo_scendiff.core.tools import sumo_binary
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    (tmp_path / "d.rou.xml").write_text(DEMAND)
+    config = tmp_path / "s.sumocfg"
+    config.write_text(f'<configuration><input><net-file value="{cross_net}"/><route-files value="d.rou.xml"/>'
+                      f'</input>{seed_line}</configuration>')
+    stock = tmp_path / "stock.xml"
+    done = subprocess.run([sumo_binary(), "-c", str(config), "--end", "202", "--save-state.times", "201",
+                           "--save-state.files", str(stock), "--no-step-log", "true"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-400:]
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "sumo_scendiff.run", "-c", str(config), "--begin", "200", "-s", "5",
+                           "--scenes", "1", "--rollout", "0", "--center", "0,0", "-o", str(out)],
+                          capture_output=True, text=True, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-400:]
+    theirs = _state_ids(str(stock))
+    ours = {v for v in _state_ids(str(out / "scene_000" / "state.xml.gz")) if not v.startswith("sd")}
+    assert len(theirs) > 5 and ours == theirs

@@ -43,30 +43,6 @@ def _agents(sim, ids: list[str]) -> list[dict]:
     return out
 
 
-def own_random(scen) -> tuple[int, tuple[str, ...]]:
-    """The seed the user's own ``sumo -c`` runs ``scen`` with (its configuration's ``seed``, else SUMO's
-    default) and its other options on SUMO's random numbers (``random``, ``thread-rngs``: the section
-    ``random_number``) as command-line words. SUMO's own run is the user's: the fill's ``-s`` seeds the
-    model's draws only, never the demand's departures, lanes, speed factors or routes."""
-    from sumolib.options import readOptions
-
-    from ..core.sumo_xml import option_name
-    from ..core.tools import sumo_option_sections
-    from .routing import ROUTER_SEED
-    if not scen.config:
-        return ROUTER_SEED, ()
-    sections, seed, extra = sumo_option_sections(), ROUTER_SEED, ()
-    for opt in readOptions(scen.config):
-        name = option_name(opt.name)
-        if sections.get(name) != "random_number":
-            continue
-        if name == "seed":
-            seed = int(opt.value)
-        else:
-            extra += (f"--{name}", opt.value)
-    return seed, extra
-
-
 def _keep_area(sim, agents: list[dict], area: tuple | None) -> tuple[list[dict], dict | None]:
     """The agents whose box centre lies in ``area`` (tiles.in_area, the estimate's rule too); every
     other vehicle, and every person outside it, taken out of ``sim`` before its state is saved (TraCI
@@ -102,10 +78,11 @@ def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
     Returns (cfg, agents, exact, state time, vehicles waiting to enter, the area's record)."""
     from ..sim.state import save_state, waiting_in_state
     from ..sim.sumo import SimConfig, close, settings
+    from ..sim.scenario import own_random
     from ..sim.warmup import start_warm, warm_config
     from .edge_stops import carry_edge_stops, park_together
     from .seed import write_start_routes
-    seed, rng = own_random(scen)
+    seed, rng = own_random(scen)   # the user's SUMO seed: -s seeds the model's draws only
     cfg = SimConfig(net=scen.net, routes=tuple(scen.routes), additional=tuple(scen.additional), seed=seed,
                     begin=start, **settings(req, scen, mesoscopic=False))   # as _sim_config (fill/api.py)
     # run, saved and exported as the warm-up runs it: the user's options alone (none of the seeding's:

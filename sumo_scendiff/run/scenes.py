@@ -202,11 +202,15 @@ def _session(o, scen, net, gen, sumo_settings: dict, times: tuple, progress: boo
     """The simulation of the scenario and the warm-up that runs its demand up to the seeding time
     (sim/session.py); with demand SUMO starts at the configuration's begin, else the demand's first
     departure (before it the network is empty), and without demand at --begin."""
+    from ..sim.scenario import own_random
     from ..sim.session import Session
     from ..sim.sumo import SimConfig
     begin, at = times
+    # a demand runs to the seeding time as the user's own sumo runs it: their SUMO seed, not -s (the
+    # model's); the state keeps SUMO's random numbers, so every scene's rollout draws on from it
+    seed, rng = own_random(scen) if demand else (o.seed, ())
     cfg = SimConfig(net=scen.net, routes=scen.routes, additional=scen.additional, gui=o.gui, traci=o.traci,
-                    seed=o.seed, begin=begin, **sumo_settings)
+                    seed=seed, begin=begin, extra=rng, **sumo_settings)
     session = Session(cfg, net, gen, quiet=not o.verbose, model_fleet=o.model_fleet)
     if not demand:
         return session, session.prepare

@@ -33,6 +33,10 @@ _NOT_CARRIED = frozenset({"input", "output", "time", "report", "gui_only", "trac
 _NOT_CARRIED_LOOSE = _NOT_CARRIED - {"input", "output"}
 
 
+# SUMO's --seed where a configuration gives none (``sumo --help``: "Use INT as random seed [23423]")
+SUMO_DEFAULT_SEED = 23423
+
+
 class ScenarioError(ValueError):
     """One line: the file (or flag) and the problem."""
 
@@ -220,3 +224,27 @@ def scenario_from_files(config: str | None = None, net: str | None = None,
     if fields["net"].endswith(".sumocfg"):
         raise ScenarioError(f"-n: {fields['net']}: a SUMO configuration, not a network (give it with -c)")
     return SumoScenario(**fields)
+
+
+def own_random(scen: SumoScenario) -> tuple[int, tuple[str, ...]]:
+    """The seed the user's own ``sumo -c`` runs ``scen`` with (its configuration's ``seed``, else SUMO's
+    default) and its other options on SUMO's random numbers (``random``, ``thread-rngs``: the section
+    ``random_number``, which :attr:`SumoScenario.options` leaves out) as command-line words. A demand run
+    to the seeding time is the user's own run: the CLIs' ``-s`` seeds the model's draws only, never the
+    demand's departures, lanes, speed factors or routes."""
+    from sumolib.options import readOptions
+
+    from ..core.sumo_xml import option_name
+    from ..core.tools import sumo_option_sections
+    if not scen.config:
+        return SUMO_DEFAULT_SEED, ()
+    sections, seed, extra = sumo_option_sections(), SUMO_DEFAULT_SEED, ()
+    for opt in readOptions(scen.config):
+        name = option_name(opt.name)
+        if sections.get(name) != "random_number":
+            continue
+        if name == "seed":
+            seed = int(opt.value)
+        else:
+            extra += (f"--{name}", opt.value)
+    return seed, extra

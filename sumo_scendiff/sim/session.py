@@ -52,6 +52,7 @@ class Session:
         self._owns_base = True           # a base state this session saved (removed at close)
         self.sim = None
         self._at_base = False
+        self._base_draws = False         # the base state holds SUMO's random numbers (prepare_at)
         self.timing = {"seed": 0.0, "export": 0.0, "rollout": 0.0}
 
     # ---- the base simulation --------------------------------------------------------------------
@@ -90,7 +91,9 @@ class Session:
         except Exception as e:   # SUMO stopping on the demand (an unknown vType, a broken route)
             raise _stopped(e) from None
         self.timing["warm_up"] = time.perf_counter() - t   # a part of the caller's load (0 when reused)
-        return self.prepare(state=state)
+        self.prepare(state=state)
+        self._base_draws = True          # warm_config saves SUMO's random numbers with the state
+        return self
 
     def at_base(self):
         """The simulation at the base state (restarted if a scene has run since)."""
@@ -144,8 +147,9 @@ class Session:
         ``out_dir/name``, hold the agents on their generated future for ``replay`` seconds (<= 2)
         and roll it out; returns the row of statistics (also in rollout.json)."""
         # the simulation still at the base with this seed serves the scene as a fresh one would (the
-        # first scene of a run: SUMO started once, not twice)
-        reuse = self._at_base and self.sim is not None and seed == self.cfg.seed
+        # first scene of a run: SUMO started once, not twice); so with any seed where the base state
+        # holds SUMO's random numbers, which a loaded state restores whatever --seed says
+        reuse = self._at_base and self.sim is not None and (seed == self.cfg.seed or self._base_draws)
         if self.sim is not None and not reuse:
             close(self.sim)
             self.sim = None

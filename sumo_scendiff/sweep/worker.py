@@ -93,6 +93,7 @@ class Worker:
         return start, at
 
     def session(self, entry: NetworkEntry, step_length: float):
+        from ..sim.scenario import own_random
         from ..sim.session import Session
         from ..sim.sumo import SimConfig
         key = (entry.name, step_length)
@@ -104,7 +105,9 @@ class Worker:
             begin, at = self._times(entry, scen, net)
             # the user's scenario as run starts it: its additional files (vTypes, programs, stops),
             # its options; the step is the scenario's (spec.Spec.step_length_of) unless the spec's
-            cfg = SimConfig(net=scen.net, routes=scen.routes, additional=scen.additional,
+            # and its demand run with its own SUMO seed (run's _session)
+            seed, rng = own_random(scen) if at is not None else (0, ())
+            cfg = SimConfig(net=scen.net, routes=scen.routes, additional=scen.additional, seed=seed, extra=rng,
                             step_length=step_length, begin=begin, scenario_options=scen.options)
             session = Session(cfg, net, self.generator)
             # the demand run to the seeding time as stock SUMO runs it, its state kept (sim/warmup.py)
