@@ -91,18 +91,24 @@ def expected_vehicles(name: str, out: Path) -> tuple[int | None, str]:
         return None, ""
     doc = json.loads(doc_path.read_text())
     seeded = _seeded(doc)
-    # the state keeps SUMO's queue of vehicles due but not yet in (a full network's), the portable start not
+    # the state keeps SUMO's queue of vehicles due but not yet in (a full network's), the portable start not:
+    # SUMO loads each into its insertion queue and tries it in the first step, where it enters or waits on,
+    # held either way (MSStateHandler::closeVehicle, MSInsertionControl::emitVehicles)
     queued = int((doc.get("density") or {}).get("waiting_to_enter") or 0) if name == "fill_replay" else 0
-    due = _new_after_state(out) if name == "fill_replay" else _demand_due(name, out, doc)
-    return seeded + due + queued, (f"fill.json placed {seeded}" + (f" + {due} the demand departs then" if due else "")
-                                   + (f" + {queued} waiting to enter in its state" if queued else ""))
+    due, left = _first_step_of_state(out) if name == "fill_replay" else (_demand_due(name, out, doc), 0)
+    return seeded + due + queued - left, (
+        f"fill.json placed {seeded}" + (f" + {due} the demand departs then" if due else "")
+        + (f" + {queued} waiting to enter in its state" if queued else "")
+        + (f" - {left} arriving in its first step" if left else ""))
 
 
-def _new_after_state(out: Path) -> int:
-    """The vehicles the fill's state replay holds at its first step that its state does not: the demand's
-    departures then, as SUMO makes them from the state (a route file's vehicles due then are in the state's
-    queue already, sumorl_nguyen; a flow ending at T makes its last vehicle at T, ma2c_real_net, which a
-    run begun at T without the state does not). By TraCI, one step; 0 without a state."""
+def _first_step_of_state(out: Path) -> tuple[int, int]:
+    """What the fill's state replay's first step adds to its state and takes from it: the vehicles it
+    holds then that the state does not (the demand's departures then, as SUMO makes them from the state:
+    a route file's vehicles due then are in the state's queue already, sumorl_nguyen; a flow ending at T
+    makes its last vehicle at T, ma2c_real_net, which a run begun at T without the state does not), and
+    those arriving in it (the summary's first step is counted after it: feat_distributions' state had
+    three cars at their arrival). By TraCI, one step; (0, 0) without a state."""
     import re
     import uuid
 
@@ -110,7 +116,7 @@ def _new_after_state(out: Path) -> int:
     from sumolib.miscutils import getFreeSocketPort
     cfg, state = out / "fill" / "scenario.sumocfg", out / "fill" / "state.xml.gz"
     if not (cfg.is_file() and state.is_file()):
-        return 0
+        return 0, 0
     with gzip.open(state, "rt") as f:
         held_before = set(re.findall(r'<vehicle id="([^"]*)"', f.read()))
     # SUMO started in the fill's folder, as the replay step: the scenario's outputs land there
@@ -122,12 +128,13 @@ def _new_after_state(out: Path) -> int:
         conn = traci.connect(port, label=label, proc=proc)
         conn.simulationStep()
         now = set(conn.vehicle.getIDList()) | set(conn.simulation.getPendingVehicles())
+        left = len(set(conn.simulation.getArrivedIDList()) & held_before)
         conn.close()
     finally:
         if proc.poll() is None:
             proc.kill()
         proc.wait()
-    return len(now - held_before)
+    return len(now - held_before), left
 
 
 def _demand_due(name: str, out: Path, doc: dict) -> int:

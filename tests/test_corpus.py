@@ -261,12 +261,8 @@ def test_a_state_replay_counts_the_departures_its_queue_holds_once(corpus, tmp_p
     """As sumo-rl's Nguyen: the state saved at T holds SUMO's queue of vehicles due by T and not yet in;
     a route file's departures due in the replay's first step are among them (they were counted twice), a
     flow's are not (ma2c_real_net: they are due then)."""
-    from sumo_scendiff.core.tools import sumo_binary
     from sumo_scendiff.sim.state import waiting_in_state
-    fill = tmp_path / "fill"
-    fill.mkdir()
-    subprocess.run([sumo_binary("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "200",
-                    "-o", str(fill / "g.net.xml")], check=True, capture_output=True)
+    fill = _grid_fill(tmp_path)
     # six vehicles due at one spot at T = 10: one enters a second, the rest wait in SUMO's queue
     (fill / "d.rou.xml").write_text("<routes>" + "".join(
         f'<vehicle id="d{k}" depart="{5 if k < 2 else 10}"><route edges="A0A1 A1A2"/></vehicle>'
@@ -276,17 +272,66 @@ def test_a_state_replay_counts_the_departures_its_queue_holds_once(corpus, tmp_p
                    check=True, capture_output=True)
     on_road = ["d0", "d1"]
     queued = waiting_in_state(str(fill / "state.xml.gz"), on_road, 10.0)
-    (fill / "scenario.sumocfg").write_text('<configuration><net-file value="g.net.xml"/><begin value="10"/>'
-                                           '<route-files value="d.rou.xml"/><load-state value="state.xml.gz"/>'
-                                           '</configuration>')
-    (fill / "fill.json").write_text(json.dumps({"agents": [{"status": "placed"}] * len(on_road),
-                                                "routes": [str(tmp_path / "user" / "d.rou.xml")],
-                                                "density": {"waiting_to_enter": queued}, "state_time": 10.0}))
-    cmd = [corpus._sumo(), "-c", fill / "scenario.sumocfg", "--end", "20", "--no-step-log", "true",
-           "--summary-output", tmp_path / "fill_replay_summary.xml"]
-    res = corpus.check_count("fill_replay", corpus.step(cmd, 60, tmp_path / "log", tmp_path), tmp_path)
+    res = _state_replay(corpus, tmp_path, 10.0, len(on_road), queued)
     # the flow's vehicle due at T is made then, not held in the state: due in the replay's first step
     assert queued == 6 and res["ok"] and res["vehicles"] == {"sumo": 9, "expected": 9}, res
+
+
+def test_a_state_replay_counts_the_vehicles_arriving_in_its_first_step(corpus, tmp_path):
+    """As feat_distributions: the state saved at T holds cars at their arrival, which SUMO takes off the
+    road in the replay's first step (its summary's first step is counted after it), beside a queue of
+    vehicles due and not yet in, each of which enters then or waits on: SUMO holds the state's cars
+    less those arriving plus the whole queue, not a fault of the state."""
+    import xml.etree.ElementTree as ET
+
+    from sumo_scendiff.sim.state import waiting_in_state
+    fill = _grid_fill(tmp_path)
+    # four cars alike (no chance in their driving) arriving together, and five due at one spot
+    (fill / "d.rou.xml").write_text('<routes><vType id="t" sigma="0" speedDev="0"/>' + "".join(
+        f'<vehicle id="a{k}" type="t" depart="0" departPos="0" arrivalPos="150"><route edges="{e}"/></vehicle>'
+        for k, e in enumerate(["A0A1", "B0B1", "C0C1", "A1A2"])) + "".join(
+        f'<vehicle id="q{k}" depart="5"><route edges="B1B2"/></vehicle>' for k in range(5)) + "</routes>")
+    trips = tmp_path / "trips.xml"
+    subprocess.run([corpus._sumo(), "-n", fill / "g.net.xml", "-r", fill / "d.rou.xml", "--end", "60",
+                    "--tripinfo-output", trips, "--no-step-log", "true"], check=True, capture_output=True)
+    span = {v.get("id"): (float(v.get("depart")), float(v.get("arrival")))
+            for v in ET.parse(trips).getroot().iter("tripinfo")}
+    t = span["a0"][1]
+    assert all(span[f"a{k}"][1] == t for k in range(4))
+    subprocess.run([corpus._sumo(), "-n", fill / "g.net.xml", "-r", fill / "d.rou.xml", "--end", f"{t + 1:g}",
+                    "--save-state.times", f"{t:g}", "--save-state.files", fill / "state.xml.gz",
+                    "--no-step-log", "true"], check=True, capture_output=True)
+    on_road = [v for v, (depart, arrival) in span.items() if depart < t <= arrival]    # the state's at t
+    queued = waiting_in_state(str(fill / "state.xml.gz"), on_road, t)
+    res = _state_replay(corpus, tmp_path, t, len(on_road), queued)
+    assert queued >= 1 and len(on_road) >= 5
+    want = len(on_road) + queued - 4
+    assert res["ok"] and res["vehicles"] == {"sumo": want, "expected": want}, res
+
+
+def _grid_fill(tmp_path: Path) -> Path:
+    """A fill folder ``tmp_path/fill`` holding netgenerate's 3x3 grid of 200 m blocks, g.net.xml."""
+    from sumo_scendiff.core.tools import sumo_binary
+    fill = tmp_path / "fill"
+    fill.mkdir()
+    subprocess.run([sumo_binary("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "200",
+                    "-o", str(fill / "g.net.xml")], check=True, capture_output=True)
+    return fill
+
+
+def _state_replay(corpus, tmp_path: Path, t: float, placed: int, queued: int) -> dict:
+    """The fill_replay step's count of the state ``tmp_path/fill/state.xml.gz`` saved at ``t`` from the
+    demand ``d.rou.xml``, fill.json saying ``placed`` agents and ``queued`` waiting to enter."""
+    fill = tmp_path / "fill"
+    (fill / "scenario.sumocfg").write_text(f'<configuration><net-file value="g.net.xml"/><begin value="{t:g}"/>'
+                                           '<route-files value="d.rou.xml"/><load-state value="state.xml.gz"/>'
+                                           '</configuration>')
+    (fill / "fill.json").write_text(json.dumps({"agents": [{"status": "placed"}] * placed,
+                                                "routes": [str(tmp_path / "user" / "d.rou.xml")],
+                                                "density": {"waiting_to_enter": queued}, "state_time": t}))
+    cmd = [corpus._sumo(), "-c", fill / "scenario.sumocfg", "--end", f"{t + 10:g}", "--no-step-log", "true",
+           "--summary-output", tmp_path / "fill_replay_summary.xml"]
+    return corpus.check_count("fill_replay", corpus.step(cmd, 60, tmp_path / "log", tmp_path), tmp_path)
 
 
 def test_the_run_replays_reference_takes_no_traci_client(corpus, tmp_path, monkeypatch):
