@@ -160,8 +160,9 @@ def _as_sumo_reads(path: str, flawed: frozenset, work: str, copies: dict) -> str
     from ..core.sumo_xml import XmlError, open_xml
     if path in copies:
         return copies[path]
-    copies[path] = None                        # an include cycle: SUMO refuses it, duarouter names it
-    out, root, depth = os.path.join(work, f"{len(copies)}_{os.path.basename(path).removesuffix('.gz')}"), None, 0
+    copies[path] = None                        # an include back up the chain: SUMO refuses it at load
+    out = os.path.join(work, f"r{len(copies)}_{os.path.basename(path).removesuffix('.gz')}")
+    root, depth = None, 0
     try:
         f = open_xml(path)
     except XmlError:                           # missing, empty: nothing of it
