@@ -107,9 +107,9 @@ def _state_ids(path: str) -> set[str]:
 @pytest.mark.parametrize("seed_line", ['<random_number><seed value="42"/></random_number>', ""])
 def test_run_warms_the_demand_with_the_users_sumo_seed(cross_net, tmp_path, monkeypatch, seed_line):
     """``run -c`` runs the demand to --begin as the user's own ``sumo -c`` runs it: under the
-    configuration's seed (else SUMO's default), not ``-s`` (the model's). The probability flow's
-    departures at T+1 (the state after the seeding step) are stock SUMO's: it departed other
-    vehicles under the run's -s."""
+    configuration's seed (else SUMO's default), not ``-s`` (the model's), and every scene goes on under
+    it. The probability flow's departures at T+1 (the state after the seeding step) are stock SUMO's:
+    it departed other vehicles under the run's -s."""
     import subprocess
     import sys
 
@@ -125,9 +125,10 @@ def test_run_warms_the_demand_with_the_users_sumo_seed(cross_net, tmp_path, monk
     assert done.returncode == 0, done.stderr[-400:]
     out = tmp_path / "out"
     done = subprocess.run([sys.executable, "-m", "sumo_scendiff.run", "-c", str(config), "--begin", "200", "-s", "5",
-                           "--scenes", "1", "--rollout", "0", "--center", "0,0", "-o", str(out)],
+                           "--scenes", "2", "--rollout", "0", "--center", "0,0", "-o", str(out)],
                           capture_output=True, text=True, cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-400:]
     theirs = _state_ids(str(stock))
-    ours = {v for v in _state_ids(str(out / "scene_000" / "state.xml.gz")) if not v.startswith("sd")}
-    assert len(theirs) > 5 and ours == theirs
+    assert len(theirs) > 5
+    for scene in ("scene_000", "scene_001"):   # the first on the warm simulation, the second started from its state
+        assert {v for v in _state_ids(str(out / scene / "state.xml.gz")) if not v.startswith("sd")} == theirs, scene

@@ -207,7 +207,7 @@ def _session(o, scen, net, gen, sumo_settings: dict, times: tuple, progress: boo
     from ..sim.sumo import SimConfig
     begin, at = times
     # a demand runs to the seeding time as the user's own sumo runs it: their SUMO seed, not -s (the
-    # model's); the state keeps SUMO's random numbers, so every scene's rollout draws on from it
+    # model's); each scene's rollout goes on under it (Session._realise)
     seed, rng = own_random(scen) if demand else (o.seed, ())
     cfg = SimConfig(net=scen.net, routes=scen.routes, additional=scen.additional, gui=o.gui, traci=o.traci,
                     seed=seed, begin=begin, extra=rng, **sumo_settings)

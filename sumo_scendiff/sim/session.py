@@ -92,7 +92,7 @@ class Session:
             raise _stopped(e) from None
         self.timing["warm_up"] = time.perf_counter() - t   # a part of the caller's load (0 when reused)
         self.prepare(state=state)
-        self._base_draws = True          # warm_config saves SUMO's random numbers with the state
+        self._base_draws = True          # warm_config saves SUMO's random numbers' counts with the state
         return self
 
     def at_base(self):
@@ -146,10 +146,13 @@ class Session:
         """Seed ``scene`` into a fresh simulation at the base state, export it to
         ``out_dir/name``, hold the agents on their generated future for ``replay`` seconds (<= 2)
         and roll it out; returns the row of statistics (also in rollout.json)."""
+        # a base state holding SUMO's random numbers (the demand's run to T) goes on under the seed it
+        # was run with: SUMO saves how far each generator has drawn and, loading it, draws that far
+        # from --seed; so the demand goes on after T as the user's own run does, whatever -s is
+        sumo_seed = self.cfg.seed if self._base_draws else seed
         # the simulation still at the base with this seed serves the scene as a fresh one would (the
-        # first scene of a run: SUMO started once, not twice); so with any seed where the base state
-        # holds SUMO's random numbers, which a loaded state restores whatever --seed says
-        reuse = self._at_base and self.sim is not None and (seed == self.cfg.seed or self._base_draws)
+        # first scene of a run: SUMO started once, not twice)
+        reuse = self._at_base and self.sim is not None and sumo_seed == self.cfg.seed
         if self.sim is not None and not reuse:
             close(self.sim)
             self.sim = None
@@ -157,7 +160,7 @@ class Session:
         writer = ScenarioWriter(out_dir, name, force=force)
         try:
             t = time.perf_counter()
-            sim = self.sim if reuse else start(replace(self.cfg, seed=seed, state=self.base), quiet=self.quiet)
+            sim = self.sim if reuse else start(replace(self.cfg, seed=sumo_seed, state=self.base), quiet=self.quiet)
             self.sim = sim
             cosim = CoSimulation(sim, self.net, self.generator, seed=seed, prefix="sd")
             if self.model_fleet:   # a fleet without a mix: no drawn agent is given a scenario's vType
