@@ -132,3 +132,32 @@ def test_run_warms_the_demand_with_the_users_sumo_seed(cross_net, tmp_path, monk
     assert len(theirs) > 5
     for scene in ("scene_000", "scene_001"):   # the first on the warm simulation, the second started from its state
         assert {v for v in _state_ids(str(out / scene / "state.xml.gz")) if not v.startswith("sd")} == theirs, scene
+
+
+def test_run_waits_for_its_ego_as_the_users_sumo_runs(cross_net, tmp_path, monkeypatch):
+    """``run --ego``: the demand runs until the ego has driven --ego-after as the user's own sumo runs it
+    (their seed and options, none of the seeding's), and the scene goes on from there: the state
+    after the seeding step holds stock SUMO's vehicles at that time, whatever -s is."""
+    import json
+    import subprocess
+    import sys
+
+    from sumo_scendiff.core.tools import sumo_binary
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    (tmp_path / "d.rou.xml").write_text(DEMAND)
+    config = tmp_path / "s.sumocfg"
+    config.write_text(f'<configuration><input><net-file value="{cross_net}"/><route-files value="d.rou.xml"/>'
+                      f'</input></configuration>')
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "sumo_scendiff.run", "-c", str(config), "--ego", "late",
+                           "--ego-after", "3", "-s", "5", "--scenes", "1", "--rollout", "0", "-o", str(out)],
+                          capture_output=True, text=True, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-400:]
+    t = json.loads((out / "scene_000" / "scene.json").read_text())["time"]
+    stock = tmp_path / "stock.xml"
+    done = subprocess.run([sumo_binary(), "-c", str(config), "--end", f"{t + 1:g}", "--save-state.times", f"{t:g}",
+                           "--save-state.files", str(stock), "--no-step-log", "true"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-400:]
+    theirs = _state_ids(str(stock))
+    assert len(theirs) > 5 and "late" in theirs
+    assert {v for v in _state_ids(str(out / "scene_000" / "state.xml.gz")) if not v.startswith("sd")} == theirs

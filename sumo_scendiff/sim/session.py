@@ -65,17 +65,26 @@ class Session:
             self.sim = start(replace(self.cfg, state=state), quiet=self.quiet)
             self._at_base, self.base, self._owns_base = True, state, False
             return self
-        self.sim = start(self.cfg, quiet=self.quiet)
-        self._at_base = True
-        if warm_up is not None:
-            try:
-                with self._said():
-                    warm_up(self.sim)
-            except Exception as e:   # SUMO stopping on the demand (an unknown vType, a broken route)
-                raise _stopped(e, self.sim) from None
-            fd, self.base = tempfile.mkstemp(suffix=".xml.gz", prefix="scendiff-base-")
+        if warm_up is None:
+            self.sim = start(self.cfg, quiet=self.quiet)
+            self._at_base = True
+            return self
+        # the demand runs as the user's own sumo runs it (warmup.warm_config: their options alone, SUMO's
+        # draws kept in the state), headless as prepare_at's; the scenes then start from its state
+        from .warmup import warm_config
+        sim = start(replace(warm_config(self.cfg), gui=False, traci=False), quiet=self.quiet)
+        try:
+            with self._said():
+                warm_up(sim)
+            fd, base = tempfile.mkstemp(suffix=".xml.gz", prefix="scendiff-base-")
             os.close(fd)
-            save_state(self.sim, self.base)
+            save_state(sim, base)
+        except Exception as e:   # SUMO stopping on the demand (an unknown vType, a broken route)
+            raise _stopped(e, sim) from None
+        finally:
+            close(sim)
+        self.prepare(state=base)
+        self._owns_base, self._base_draws = True, True
         return self
 
     def prepare_at(self, until: float) -> "Session":
