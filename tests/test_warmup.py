@@ -104,34 +104,55 @@ def _state_ids(path: str) -> set[str]:
         return {v.get("id") for v in ET.parse(f).getroot().iter("vehicle")}
 
 
+def _user_scenario(tmp_path, net: str, seed_line: str = ""):
+    """DEMAND in a configuration of the user's (``seed_line``: its random_number section, if any)."""
+    (tmp_path / "d.rou.xml").write_text(DEMAND)
+    config = tmp_path / "s.sumocfg"
+    config.write_text(f'<configuration><input><net-file value="{net}"/><route-files value="d.rou.xml"/>'
+                      f'</input>{seed_line}</configuration>')
+    return config
+
+
+def _stock_ids(config, t: float, tmp_path) -> set[str]:
+    """The vehicles stock ``sumo -c config`` holds at ``t`` (its saved state's)."""
+    import subprocess
+
+    from sumo_scendiff.core.tools import sumo_binary
+    stock = tmp_path / "stock.xml"
+    done = subprocess.run([sumo_binary(), "-c", str(config), "--end", f"{t + 1:g}", "--save-state.times", f"{t:g}",
+                           "--save-state.files", str(stock), "--no-step-log", "true"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-400:]
+    return _state_ids(str(stock))
+
+
+def _run(config, tmp_path, *args: str):
+    import subprocess
+    import sys
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "sumo_scendiff.run", "-c", str(config), "-s", "5", "--rollout", "0",
+                           "-o", str(out), *args], capture_output=True, text=True, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-400:]
+    return out
+
+
+def _kept(out, scene: str) -> set[str]:
+    """The demand's vehicles in a scene's state after the seeding step (the seeded ones left out)."""
+    return {v for v in _state_ids(str(out / scene / "state.xml.gz")) if not v.startswith("sd")}
+
+
 @pytest.mark.parametrize("seed_line", ['<random_number><seed value="42"/></random_number>', ""])
 def test_run_warms_the_demand_with_the_users_sumo_seed(cross_net, tmp_path, monkeypatch, seed_line):
     """``run -c`` runs the demand to --begin as the user's own ``sumo -c`` runs it: under the
     configuration's seed (else SUMO's default), not ``-s`` (the model's), and every scene goes on under
     it. The probability flow's departures at T+1 (the state after the seeding step) are stock SUMO's:
     it departed other vehicles under the run's -s."""
-    import subprocess
-    import sys
-
-    from sumo_scendiff.core.tools import sumo_binary
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    (tmp_path / "d.rou.xml").write_text(DEMAND)
-    config = tmp_path / "s.sumocfg"
-    config.write_text(f'<configuration><input><net-file value="{cross_net}"/><route-files value="d.rou.xml"/>'
-                      f'</input>{seed_line}</configuration>')
-    stock = tmp_path / "stock.xml"
-    done = subprocess.run([sumo_binary(), "-c", str(config), "--end", "202", "--save-state.times", "201",
-                           "--save-state.files", str(stock), "--no-step-log", "true"], capture_output=True, text=True)
-    assert done.returncode == 0, done.stderr[-400:]
-    out = tmp_path / "out"
-    done = subprocess.run([sys.executable, "-m", "sumo_scendiff.run", "-c", str(config), "--begin", "200", "-s", "5",
-                           "--scenes", "2", "--rollout", "0", "--center", "0,0", "-o", str(out)],
-                          capture_output=True, text=True, cwd=tmp_path)
-    assert done.returncode == 0, done.stderr[-400:]
-    theirs = _state_ids(str(stock))
+    config = _user_scenario(tmp_path, cross_net, seed_line)
+    theirs = _stock_ids(config, 201, tmp_path)
+    out = _run(config, tmp_path, "--begin", "200", "--scenes", "2", "--center", "0,0")
     assert len(theirs) > 5
     for scene in ("scene_000", "scene_001"):   # the first on the warm simulation, the second started from its state
-        assert {v for v in _state_ids(str(out / scene / "state.xml.gz")) if not v.startswith("sd")} == theirs, scene
+        assert _kept(out, scene) == theirs, scene
 
 
 def test_run_waits_for_its_ego_as_the_users_sumo_runs(cross_net, tmp_path, monkeypatch):
@@ -139,25 +160,8 @@ def test_run_waits_for_its_ego_as_the_users_sumo_runs(cross_net, tmp_path, monke
     (their seed and options, none of the seeding's), and the scene goes on from there: the state
     after the seeding step holds stock SUMO's vehicles at that time, whatever -s is."""
     import json
-    import subprocess
-    import sys
-
-    from sumo_scendiff.core.tools import sumo_binary
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    (tmp_path / "d.rou.xml").write_text(DEMAND)
-    config = tmp_path / "s.sumocfg"
-    config.write_text(f'<configuration><input><net-file value="{cross_net}"/><route-files value="d.rou.xml"/>'
-                      f'</input></configuration>')
-    out = tmp_path / "out"
-    done = subprocess.run([sys.executable, "-m", "sumo_scendiff.run", "-c", str(config), "--ego", "late",
-                           "--ego-after", "3", "-s", "5", "--scenes", "1", "--rollout", "0", "-o", str(out)],
-                          capture_output=True, text=True, cwd=tmp_path)
-    assert done.returncode == 0, done.stderr[-400:]
-    t = json.loads((out / "scene_000" / "scene.json").read_text())["time"]
-    stock = tmp_path / "stock.xml"
-    done = subprocess.run([sumo_binary(), "-c", str(config), "--end", f"{t + 1:g}", "--save-state.times", f"{t:g}",
-                           "--save-state.files", str(stock), "--no-step-log", "true"], capture_output=True, text=True)
-    assert done.returncode == 0, done.stderr[-400:]
-    theirs = _state_ids(str(stock))
-    assert len(theirs) > 5 and "late" in theirs
-    assert {v for v in _state_ids(str(out / "scene_000" / "state.xml.gz")) if not v.startswith("sd")} == theirs
+    config = _user_scenario(tmp_path, cross_net)
+    out = _run(config, tmp_path, "--ego", "late", "--ego-after", "3", "--scenes", "1")
+    theirs = _stock_ids(config, json.loads((out / "scene_000" / "scene.json").read_text())["time"], tmp_path)
+    assert len(theirs) > 5 and "late" in theirs and _kept(out, "scene_000") == theirs
