@@ -152,3 +152,12 @@ def test_duarouter_warnings_are_counted(tmp_path, capsys):
                for ln in err), err
     # that, "has no valid route" and "not reachable": a line each for 30 trips' 90 warnings
     assert len(err) == 3 and all("times, first:" in ln for ln in err), err
+
+
+def test_the_estimate_goes_on_under_the_users_sumo_seed(bus_fill):
+    """The folder's configuration runs the user's scenario on from the estimate under its own SUMO seed
+    (the configuration names none: SUMO's default), not the fill's -s (the model's draws)."""
+    import xml.etree.ElementTree as ET
+    d, doc = bus_fill
+    kept = {el.tag: el.get("value") for el in ET.parse(d / "o" / "scenario.sumocfg").getroot().iter()}
+    assert kept["seed"] == "23423" and doc["seed"] == 0

@@ -286,9 +286,12 @@ def _no_road(req: FillRequest, net):
 def _sim_config(req: FillRequest, scen, begin: float):
     """SUMO's configuration of the fill: the network and additional files (the demand goes into the
     folder's configurations), the scenario's step and options but its mesoscopic model (the fill is
-    microscopic: sim.scenario.meso_notice), starting at ``begin``."""
+    microscopic: sim.scenario.meso_notice), starting at ``begin``. A user's scenario goes on under its
+    own SUMO seed (sim.scenario.own_random), a bare network under ``-s``."""
+    from ..sim.scenario import own_random
     from ..sim.sumo import SimConfig, settings
-    return SimConfig(net=scen.net, additional=scen.additional, seed=req.seed, begin=begin,
+    seed, rng = own_random(scen) if scen.config or scen.routes else (req.seed, ())
+    return SimConfig(net=scen.net, additional=scen.additional, seed=seed, begin=begin, extra=rng,
                      **settings(req, scen, mesoscopic=False))
 
 
