@@ -21,13 +21,15 @@ import subprocess
 import tempfile
 from dataclasses import dataclass
 
+from ..sim.scenario import SUMO_DEFAULT_SEED
+
 # a trip's ends at junctions (SUMO and duarouter need junction-taz for them)
 _JUNCTION_ATTRS = ("fromJunction", "toJunction", "viaJunctions")
 # what SUMO refuses at loading and duarouter, told to ignore errors, only warns of
 _UNKNOWN = re.compile(r"The (vehicle type|route|route distribution) '[^']*' for .* is not known")
 # duarouter's random choices (probability flows, distributions) with SUMO's default seed: the draws
 # a run of the demand without --seed makes
-ROUTER_SEED = 23423
+ROUTER_SEED = SUMO_DEFAULT_SEED
 ROUTER_TIMEOUT_S = 600.0
 
 
