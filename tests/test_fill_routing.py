@@ -185,3 +185,41 @@ def test_an_included_files_flaw_is_read_past_as_sumo_reads_it(grid, tmp_path, fl
     assert sorted(d.id for d in deps) == departed and unrouted == 0
     assert {d.id: d.type for d in deps}["m"] == "slow"
     assert {p: p.read_bytes() for p in tmp_path.rglob("*.xml") if p != trips} == before
+
+
+def test_the_estimate_routes_with_the_users_sumo_seed(grid, tmp_path):
+    """A probability flow on a routeDistribution: its departures and routes are random draws. The
+    estimate's router takes the configuration's seed, as the user's own SUMO run and the rest of the
+    fill do (sim.scenario.own_random): with ``<seed value="42"/>`` every vehicle it has en route is on
+    the route stock duarouter draws under that seed, and the estimate is not the default seed's; a
+    configuration naming SUMO's default seed gives the estimate of one naming none."""
+    import subprocess
+    import xml.etree.ElementTree as ET
+
+    from sumo_scendiff.core.tools import sumo_binary
+    from sumo_scendiff.fill.amount import _estimate
+    from sumo_scendiff.fill.api import FillRequest
+    from sumo_scendiff.sim.scenario import SUMO_DEFAULT_SEED, scenario_from_files
+    routes = tmp_path / "p.rou.xml"
+    routes.write_text('<routes><routeDistribution id="rd"><route id="r0" edges="A0B0 B0C0" probability="0.5"/>'
+                      '<route id="r1" edges="A0B0 B0B1" probability="0.5"/></routeDistribution>'
+                      '<flow id="p" route="rd" begin="0" end="300" probability="0.25"/></routes>')
+
+    def estimate(seed):
+        cfg = tmp_path / f"s{seed}.sumocfg"
+        cfg.write_text(f'<configuration><input><net-file value="{grid.path}"/><route-files value="{routes}"/>'
+                       '</input>' + (f'<random_number><seed value="{seed}"/></random_number>' if seed else '')
+                       + '</configuration>')
+        scen = scenario_from_files(config=str(cfg))
+        est = _estimate(FillRequest(config=str(cfg)), grid, scen, 60.0, [str(routes)])
+        return {v.id: v.edges for v in est.en_route}
+
+    own = estimate(42)
+    drawn = tmp_path / "drawn.rou.xml"
+    subprocess.run([sumo_binary("duarouter"), "-n", grid.path, "-r", str(routes), "-o", str(drawn), "--seed", "42",
+                    "--no-step-log"], check=True, capture_output=True)
+    routed = {v.get("id"): tuple(v.find("route").get("edges").split())
+              for v in ET.parse(drawn).getroot().iter("vehicle")}
+    assert own and all(routed[i][-len(edges):] == edges for i, edges in own.items()), (own, routed)
+    assert own != estimate(None)
+    assert estimate(SUMO_DEFAULT_SEED) == estimate(None)

@@ -23,10 +23,10 @@ def scenario(cross_net, tmp_path, monkeypatch):
 def _sumos_own(net: str, routes: str | None, until: float, additional: tuple[str, ...] = ()) -> set[str]:
     """The vehicles stock SUMO has on the network at ``until`` (libsumo, one step at a time, SUMO's
     default seed)."""
-    from sumo_scendiff.fill.routing import ROUTER_SEED
+    from sumo_scendiff.sim.scenario import SUMO_DEFAULT_SEED
     from sumo_scendiff.sim.sumo import SimConfig, close, start
     sim = start(SimConfig(net=net, routes=(routes,) if routes else (), additional=additional, step_length=1.0,
-                          begin=0.0, seeding_options=False, seed=ROUTER_SEED))
+                          begin=0.0, seeding_options=False, seed=SUMO_DEFAULT_SEED))
     try:
         while sim.simulation.getTime() < until - 1e-9:
             sim.simulationStep()
@@ -91,10 +91,10 @@ def _own_at(net: str, routes: tuple[str, ...], until: float) -> tuple[dict, dict
     """Stock SUMO stepped to ``until`` (SUMO's default seed): per vehicle its box centre, per person its
     position, and the vehicles departing in the step after it."""
     from sumo_scendiff.core.geometry import sumo_to_pose
-    from sumo_scendiff.fill.routing import ROUTER_SEED
+    from sumo_scendiff.sim.scenario import SUMO_DEFAULT_SEED
     from sumo_scendiff.sim.sumo import SimConfig, close, start
     sim = start(SimConfig(net=net, routes=routes, step_length=1.0, begin=0.0, seeding_options=False,
-                          seed=ROUTER_SEED))
+                          seed=SUMO_DEFAULT_SEED))
     try:
         while sim.simulation.getTime() < until - 1e-9:
             sim.simulationStep()

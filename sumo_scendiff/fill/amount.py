@@ -73,8 +73,9 @@ def _edge_data(path: str, net, tiles, begin: float) -> Amount:
 
 def _estimate(req, net, scen, begin: float, demand):
     """The demand's vehicles en route at ``begin`` (fill/demand.py), without simulating."""
-    from ..sim.sumo import step_length_for
     from ..core.sumo_xml import boolean
+    from ..sim.scenario import own_random
+    from ..sim.sumo import step_length_for
     from .demand import DemandEstimate
     from .routing import RoutingError
     options = dict(scen.options)
@@ -83,7 +84,9 @@ def _estimate(req, net, scen, begin: float, demand):
         return DemandEstimate.at(net, list(scen.routes), begin, additional=scen.additional,
                                  due=begin + step_length_for(scen, req.step_length),
                                  depart_speed=options.get("default.departspeed"),
-                                 junction_taz=boolean(options.get("junction-taz")), scale=options.get("scale"))
+                                 junction_taz=boolean(options.get("junction-taz")), scale=options.get("scale"),
+                                 # its random routes are those the user's own seed draws
+                                 sumo_random=own_random(scen))
     except RoutingError as e:
         raise AmountError(f"{', '.join(demand)}: {e}") from None
 

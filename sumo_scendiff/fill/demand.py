@@ -26,6 +26,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..map.network import window_square
+from ..sim.scenario import SUMO_DEFAULT_SEED
 
 HORIZON_S = 7200.0           # departures longer ago than this are not followed (none is en route)
 FLOW_SPAN_S = 3600.0         # the lights' load is the demand's flow over this long before --begin
@@ -100,12 +101,15 @@ class DemandEstimate:
 
     @classmethod
     def at(cls, net, route_files, begin: float, additional=(), due: float | None = None,
-           depart_speed: str | None = None, junction_taz: bool = False, scale: str | None = None) -> DemandEstimate:
+           depart_speed: str | None = None, junction_taz: bool = False, scale: str | None = None,
+           sumo_random: tuple[int, tuple[str, ...]] = (SUMO_DEFAULT_SEED, ())) -> DemandEstimate:
         """The departures up to ``begin`` and, with ``due`` (> ``begin``), those before ``due`` too, as
         if departing at ``begin``: a fill's state is saved a seeding step after ``begin``, and SUMO
         started from it skips the demand's departures before that time, so the fill carries them.
         ``depart_speed``: SUMO's ``default.departspeed`` the demand runs with (None: the installed
-        SUMO's); ``junction_taz``, ``scale``: its ``junction-taz`` and ``scale`` options. Raises :class:`~.routing.RoutingError` when SUMO's router cannot read the demand."""
+        SUMO's); ``junction_taz``, ``scale``: its ``junction-taz`` and ``scale`` options; ``sumo_random``:
+        the seed and random options it runs under (sim.scenario.own_random; SUMO's default seed unless
+        given). Raises :class:`~.routing.RoutingError` when SUMO's router cannot read the demand."""
         from .queues import Trip, run_to
         from .routing import routed_departures
         from .travel import DEFAULT_DRIVER, TravelTimes, link_flows, vtype_drivers
@@ -113,7 +117,8 @@ class DemandEstimate:
         drivers = vtype_drivers([*route_files, *additional])
         departures, unrouted = routed_departures(net.path, route_files, additional, until=max(begin, due or begin),
                                                  since=begin - HORIZON_S, depart_speed=depart_speed,
-                                                 junction_taz=junction_taz, scale=scale)
+                                                 junction_taz=junction_taz, scale=scale,
+                                                 sumo_random=sumo_random)
         if due is not None and due > begin:
             departures = [replace(d, depart=min(d.depart, begin)) for d in departures if d.depart < due]
         # the lights' load: the demand's flow through each link over the last hour (or since it began)

@@ -27,9 +27,9 @@ from ..sim.scenario import SUMO_DEFAULT_SEED
 _JUNCTION_ATTRS = ("fromJunction", "toJunction", "viaJunctions")
 # what SUMO refuses at loading and duarouter, told to ignore errors, only warns of
 _UNKNOWN = re.compile(r"The (vehicle type|route|route distribution) '[^']*' for .* is not known")
-# duarouter's random choices (probability flows, distributions) with SUMO's default seed: the draws
-# a run of the demand without --seed makes
-ROUTER_SEED = SUMO_DEFAULT_SEED
+# of the options on SUMO's random numbers (sim.scenario.own_random's words), those duarouter has
+# (thread-rngs is the simulation's alone)
+_ROUTER_RANDOM = frozenset({"--random"})
 ROUTER_TIMEOUT_S = 600.0
 
 
@@ -50,14 +50,18 @@ class Departure:
 
 def routed_departures(net_path: str, route_files, additional=(), until: float = float("inf"),
                       since: float = float("-inf"), depart_speed: str | None = None,
-                      junction_taz: bool = False, scale: str | None = None) -> tuple[list[Departure], int]:
+                      junction_taz: bool = False, scale: str | None = None,
+                      sumo_random: tuple[int, tuple[str, ...]] = (SUMO_DEFAULT_SEED, ())
+                      ) -> tuple[list[Departure], int]:
     """Every vehicle of ``route_files`` and ``additional`` (SUMO loads an additional file's vehicles
     as demand) departing from ``since`` to ``until``, routed by duarouter,
     in the order of departure, and how many it found no route for. A vehicle without a
     ``departSpeed`` departs at ``depart_speed`` (SUMO's ``default.departspeed``: the scenario's, else
     the installed SUMO's); ``junction_taz``: the scenario's ``junction-taz`` (trips between
     junctions); ``scale``: its ``scale`` option (SUMO's copies of each vehicle, ``id.1``, ..., as duarouter
-    makes them). Raises :class:`RoutingError`."""
+    makes them); ``sumo_random``: the seed and random-number options the user's SUMO runs the
+    demand with (sim.scenario.own_random: seed, option words), which duarouter's random choices (probability flows,
+    distributions) take too, so that another seed gives other routes. Raises :class:`RoutingError`."""
     from ..core.sumo_log import echo, first_error
     from ..core.tools import sumo_binary, sumo_defaults
     if depart_speed is None:
@@ -80,7 +84,7 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
                 # the files were judged by stock SUMO with the scenario's own options (sim/preflight.py);
                 # duarouter's schema is stricter than sumo's (a flow's beginLane, SUMO's bicycle game)
                 "--xml-validation", "never", "--xml-validation.routes", "never",
-                "--seed", str(ROUTER_SEED)]
+                "--seed", str(sumo_random[0]), *_router_random(sumo_random[1])]
         if until < float("inf"):
             args += ["--end", f"{until + 1.0:.3f}"]
         # duarouter 1.28 never returns from a probability flow that began before its --begin: with
@@ -107,6 +111,11 @@ def routed_departures(net_path: str, route_files, additional=(), until: float = 
         echo(done.stderr, prefix="duarouter: ", warnings_only=True)
         departures, triggered = _read(out, since, until, depart_speed, traits.repeats)
         return departures, triggered + sum("has no valid route" in line for line in done.stderr.splitlines())
+
+
+def _router_random(words: tuple[str, ...]) -> list[str]:
+    """Of own_random's option words (name, value pairs), those duarouter has."""
+    return [w for name, value in zip(words[::2], words[1::2]) if name in _ROUTER_RANDOM for w in (name, value)]
 
 
 # additional elements that are no demand and that duarouter 1.28 cannot read: a calibrator's <flow>
