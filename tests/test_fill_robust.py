@@ -161,3 +161,24 @@ def test_the_estimate_goes_on_under_the_users_sumo_seed(bus_fill):
     d, doc = bus_fill
     kept = {el.tag: el.get("value") for el in ET.parse(d / "o" / "scenario.sumocfg").getroot().iter()}
     assert kept["seed"] == "23423" and doc["seed"] == 0
+
+
+def test_a_flawed_include_is_said_once(tmp_path, capfd, monkeypatch):
+    """A route file including a missing file: SUMO reads past it with an error line at every load, and
+    the fill loads it several times (SUMO's run to T, the start from its state, the folder's two
+    starts, their copies of the file naming the folder's path): the fill warns once naming the file,
+    SUMO's line is shown once, and the folder is written."""
+    from sumo_scendiff.fill.__main__ import get_options, main
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))     # SUMO's run to T made here
+    _netgenerate(str(tmp_path / "grid.net.xml"))
+    (tmp_path / "main.rou.xml").write_text(
+        '<routes>\n    <flow id="f" begin="0" end="200" period="5" from="A0A1" to="A2A3"/>\n'
+        '    <include href="gone.rou.xml"/>\n</routes>\n')
+    (tmp_path / "s.sumocfg").write_text('<configuration><input><net-file value="grid.net.xml"/>'
+                                        '<route-files value="main.rou.xml"/></input></configuration>')
+    capfd.readouterr()
+    assert main(get_options(["-c", str(tmp_path / "s.sumocfg"), "--begin", "30", "-o", str(tmp_path / "o")])) == 0
+    err = capfd.readouterr().err.splitlines()
+    assert sum("gone.rou.xml: no such file" in ln for ln in err) == 1, err
+    assert sum("Cannot read file" in ln for ln in err) == 1, err
+    assert (tmp_path / "o" / "state.xml.gz").exists()

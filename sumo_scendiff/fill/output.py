@@ -82,10 +82,11 @@ def write_outputs(folder, req, net, gen, scen, demand, cfg, sumo, result, source
     # the portable start's box centres where the state has them (a vehicle on a curve departs with
     # its lane's heading, which swings its box about its front)
     # and both starts load in SUMO: a vehicle it refuses is taken out alone (seed.admit_start)
+    said: set[str] = set()            # the kinds of SUMO's messages loading the folder: each shown once
     refitted, refused = admit_start(folder, {a["vehicle"]: (a["x"], a["y"]) for a in agents if a["vehicle"] in set(ids)},
-                                    place_ends(cfg.additional, net))
+                                    place_ends(cfg.additional, net), said=said)
     refuse_at_load(agents, refused)
-    start_model = mesoscopic_start(folder, scen)
+    start_model = mesoscopic_start(folder, scen, said)
     seeded = [a for a in agents if a["vehicle"] is not None]
     rows = np.array([[a[k] for k in ("x", "y", "heading", "length", "width", "speed")] for a in seeded]
                     ).reshape(-1, 6)
@@ -192,12 +193,13 @@ def write_configurations(folder, cfg, routes, inflow: dict, state_time: float, s
     return options
 
 
-def mesoscopic_start(folder: str, scen) -> dict | None:
+def mesoscopic_start(folder: str, scen, said: set[str] | None = None) -> dict | None:
     """start.sumocfg in the scenario's mesoscopic model (its ``mesosim`` and ``meso-*`` options), where
     it runs one: the portable start holds no state, and SUMO inserts each departure into the segment of
     its place; scenario.sumocfg loads a microscopic state, which that model does not (docs/sumo-options.md).
     Called once the start loads microscopically (seed.admit_start); where SUMO refuses it in the
-    mesoscopic model, it stays microscopic. Returns fill.json's ``start_model`` (None: no such model)."""
+    mesoscopic model, it stays microscopic; ``said``: the kinds of SUMO's messages shown (seed.said_once).
+    Returns fill.json's ``start_model`` (None: no such model)."""
     from xml.sax.saxutils import quoteattr
 
     from ..core.sumo_xml import boolean
@@ -220,7 +222,7 @@ def mesoscopic_start(folder: str, scen) -> dict | None:
         finally:
             close(sim)
     try:
-        _caught(first_step)
+        _caught(first_step, said)
     except SimError as e:
         with open(path, "w") as f:
             f.write(micro)

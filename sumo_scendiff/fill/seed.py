@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import re
 from collections import Counter
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -288,20 +289,21 @@ def remove_vehicle(vid: str, routes_path: str | None = None, state_path: str | N
             tree.write(f, encoding="UTF-8", xml_declaration=True)
 
 
-def admit_start(folder: str, poses: dict, ends: dict, state_ids: dict[str, str] | None = None
-                ) -> tuple[int, dict[str, str]]:
+def admit_start(folder: str, poses: dict, ends: dict, state_ids: dict[str, str] | None = None,
+                said: set[str] | None = None) -> tuple[int, dict[str, str]]:
     """The folder's two starts, made to load in SUMO: the portable start's stops SUMO would refuse
     pruned (sim.stops.prune_file_stops; ``ends``: the stopping places), its departures fitted to the
     box centres (``poses``: vehicle id -> x, y; sim.export.fit_departures), and the state loaded
     and stepped once; a vehicle SUMO still refuses at either is taken out of both
     (:func:`load_each`; ``state_ids``: the portable start's id -> the state's, where they differ).
+    What SUMO says loading them is shown once, each kind not in ``said`` (:func:`said_once`).
     Returns (departures fitted, vehicle id -> SUMO's reason per one taken out)."""
     from ..sim.export import fit_departures
     from ..sim.stops import prune_file_stops
     from ..sim.sumo import close, start_config
     routes, state = os.path.join(folder, "start.rou.xml"), os.path.join(folder, "state.xml.gz")
     prune_file_stops(routes, ends)
-    fitted = [0]
+    fitted, said = [0], set() if said is None else said
 
     def fit():
         fitted[0] = fit_departures(os.path.join(folder, "start.sumocfg"), routes, poses)
@@ -318,29 +320,46 @@ def admit_start(folder: str, poses: dict, ends: dict, state_ids: dict[str, str] 
 
     def remove(vid):
         remove_vehicle(vid, routes, state, named[vid])
-    refused = load_each(lambda: _caught(fit), set(poses), remove)
+    refused = load_each(lambda: _caught(fit, said), set(poses), remove)
     prune_file_stops(routes, ends)   # a departure the fit moved past its stop's end
-    by_state = load_each(lambda: _caught(step_state), {named[v] for v in poses if v not in refused},
+    by_state = load_each(lambda: _caught(step_state, said), {named[v] for v in poses if v not in refused},
                          lambda v: remove(portable[v]))
     refused.update({portable[v]: why for v, why in by_state.items()})
     return fitted[0], refused
 
 
-def _caught(run) -> None:
+def _caught(run, said: set[str] | None = None) -> None:
     """``run()`` (SUMO started on the folder, its first step) with SUMO's console caught: what
     fails at the first step (a route it cannot drive: libsumo's FatalTraCIError says nothing) is a
-    SimError with SUMO's first error, as a refusal to start is."""
-    from ..core.sumo_log import caught_stderr, echo, first_error
+    SimError with SUMO's first error, as a refusal to start is. What SUMO says meanwhile is shown
+    after, once (:func:`said_once`)."""
+    from ..core.sumo_log import first_error
     from ..sim.sumo import SimError
-    with caught_stderr() as text:
+    with said_once(set() if said is None else said) as text:
         try:
             run()
         except SimError:
             raise
         except Exception as e:   # libsumo's FatalTraCIError / TraCIException
             raise SimError(f"SUMO refused to start: {first_error(text()) or str(e) or type(e).__name__}") from None
-        said = text()
-    echo(said)
+
+
+@contextmanager
+def said_once(said: set[str]):
+    """What SUMO says while the block runs (on its stderr, and what sim.sumo echoes of its loading),
+    shown after it, but the kinds of message in ``said`` (core.sumo_log.shape: the shapes shown
+    already, added to): the fill loads the user's files and then the folder's copies of them several
+    times, and each load says the same, a flawed include naming its copy. Yields a function
+    returning what SUMO wrote on its stderr so far; a block that raises shows nothing (its error says it)."""
+    import contextlib
+    import io
+
+    from ..core.sumo_log import caught_stderr, echo, shape
+    with caught_stderr() as text, contextlib.redirect_stderr(io.StringIO()) as echoed:
+        yield text
+        lines = list(dict.fromkeys((echoed.getvalue() + text()).splitlines()))   # a line each start says: once
+    echo("\n".join(ln for ln in lines if shape(ln) not in said))
+    said.update(shape(ln) for ln in lines)
 
 
 def refuse_at_load(agents: list[dict], refused: dict[str, str]) -> None:

@@ -73,15 +73,16 @@ def _keep_area(sim, agents: list[dict], area: tuple | None) -> tuple[list[dict],
     return kept, record
 
 
-def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
+def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict, said: set[str]):
     """SUMO at ``begin``, only what lies in ``req.area`` kept; its state, the portable start's routes.
-    Returns (cfg, agents, exact, state time, vehicles waiting to enter, the area's record)."""
+    What SUMO says on the way is shown once (seed.said_once; ``said``: the kinds shown). Returns
+    (cfg, agents, exact, state time, vehicles waiting to enter, the area's record)."""
     from ..sim.state import save_state, waiting_in_state
     from ..sim.sumo import SimConfig, close, settings
     from ..sim.scenario import own_random
     from ..sim.warmup import start_warm, warm_config
     from .edge_stops import carry_edge_stops, park_together
-    from .seed import write_start_routes
+    from .seed import said_once, write_start_routes
     seed, rng = own_random(scen)   # the user's SUMO seed: -s seeds the model's draws only
     cfg = SimConfig(net=scen.net, routes=tuple(scen.routes), additional=tuple(scen.additional), seed=seed,
                     begin=start, **settings(req, scen, mesoscopic=False))   # as _sim_config (fill/api.py)
@@ -90,7 +91,8 @@ def _run(req, net, scen, begin: float, start: float, folder: str, timing: dict):
     # goes on drawing what the user's own run draws
     cfg = warm_config(replace(cfg, extra=cfg.extra + rng))
     t = time.perf_counter()
-    sim = start_warm(cfg, begin, quiet=not req.verbose)
+    with said_once(said):   # a run made now and the start from its state load the same files
+        sim = start_warm(cfg, begin, quiet=not req.verbose)
     try:
         timing["warm_up"] = time.perf_counter() - t
         agents, area = _keep_area(sim, _agents(sim, list(sim.vehicle.getIDList())), req.area)
@@ -151,17 +153,18 @@ def sumo_start(req, net, scen, begin: float, start: float, folder: str, timing: 
     from .output import FORMAT, ONWARD, VERSION, mesoscopic_start, summary, write_configurations
     from .picture import draw_fill
     from .seed import admit_start, refuse_at_load
-    cfg, agents, exact, state_time, waiting, area = _run(req, net, scen, begin, start, folder, timing)
+    said: set[str] = set()            # the kinds of SUMO's messages shown: each once
+    cfg, agents, exact, state_time, waiting, area = _run(req, net, scen, begin, start, folder, timing, said)
     t = time.perf_counter()
     inflow = {"file": None, "reason": ONWARD}
     options = write_configurations(folder, replace(cfg, routes=()), list(scen.routes), inflow, state_time,
                                    start_last=True, demand_begin=scen.begin or 0.0)
     refitted, refused = admit_start(folder, {PORTABLE_PREFIX + a["vehicle"]: (a["x"], a["y"]) for a in agents},
                                     place_ends(cfg.additional, net),
-                                    state_ids={PORTABLE_PREFIX + a["vehicle"]: a["vehicle"] for a in agents})
+                                    state_ids={PORTABLE_PREFIX + a["vehicle"]: a["vehicle"] for a in agents}, said=said)
     refused = {vid.removeprefix(PORTABLE_PREFIX): why for vid, why in refused.items()}
     refuse_at_load(agents, refused)
-    start_model = mesoscopic_start(folder, scen)
+    start_model = mesoscopic_start(folder, scen, said)
     seeded = [a for a in agents if a["vehicle"] is not None]
     rows = np.array([[a[k] for k in ("x", "y", "heading", "length", "width", "speed")] for a in seeded]
                     ).reshape(-1, 6)
