@@ -95,30 +95,32 @@ def expected_vehicles(name: str, out: Path) -> tuple[int | None, str]:
     # SUMO loads each into its insertion queue and tries it in the first step, where it enters or waits on,
     # held either way (MSStateHandler::closeVehicle, MSInsertionControl::emitVehicles)
     queued = int((doc.get("density") or {}).get("waiting_to_enter") or 0) if name == "fill_replay" else 0
-    due, left = _first_step_of_state(out) if name == "fill_replay" else (_demand_due(name, out, doc), 0)
+    due, left = _first_step(name, out, doc)
     return seeded + due + queued - left, (
         f"fill.json placed {seeded}" + (f" + {due} the demand departs then" if due else "")
         + (f" + {queued} waiting to enter in its state" if queued else "")
         + (f" - {left} arriving in its first step" if left else ""))
 
 
-def _first_step_of_state(out: Path) -> tuple[int, int]:
-    """What the fill's state replay's first step adds to its state and takes from it: the vehicles it
-    holds then that the state does not (the demand's departures then, as SUMO makes them from the state:
-    a route file's vehicles due then are in the state's queue already, sumorl_nguyen; a flow ending at T
-    makes its last vehicle at T, ma2c_real_net, which a run begun at T without the state does not), and
-    those arriving in it (the summary's first step is counted after it: feat_distributions' state had
-    three cars at their arrival). By TraCI, one step; (0, 0) without a state."""
-    import re
+def _first_step(name: str, out: Path, doc: dict) -> tuple[int, int]:
+    """What a fill replay's first step adds to the vehicles its folder holds and takes from them, both
+    replays counted alike: SUMO started on the replay's configuration in the fill's folder for one step
+    (by TraCI), the vehicles it holds then (on the road or waiting to enter) that the folder's own do
+    not include, and those of the folder's own arriving in it (the summary's first step is counted
+    after it). The folder's own: the state's vehicles, or the portable start's file's
+    (:func:`_own_vehicles`). What it adds is the demand's departures then, flows the fill numbers on
+    included (a route file's vehicles due then are in the state's queue already, sumorl_nguyen; a flow
+    ending at T makes its last vehicle at T, ma2c_real_net, which a run begun at T without the state
+    does not); what it takes off, the state's cars at their arrival (feat_distributions: three). (0, 0)
+    without the configuration."""
     import uuid
 
     import traci
     from sumolib.miscutils import getFreeSocketPort
-    cfg, state = out / "fill" / "scenario.sumocfg", out / "fill" / "state.xml.gz"
-    if not (cfg.is_file() and state.is_file()):
+    cfg = out / "fill" / ("scenario.sumocfg" if name == "fill_replay" else "start.sumocfg")
+    own = _own_vehicles(name, out, doc)
+    if not cfg.is_file() or own is None:
         return 0, 0
-    with gzip.open(state, "rt") as f:
-        held_before = set(re.findall(r'<vehicle id="([^"]*)"', f.read()))
     # SUMO started in the fill's folder, as the replay step: the scenario's outputs land there
     port = getFreeSocketPort()
     proc = subprocess.Popen([_sumo(), "-c", str(cfg), "--no-step-log", "true", "--remote-port", str(port)],
@@ -128,48 +130,30 @@ def _first_step_of_state(out: Path) -> tuple[int, int]:
         conn = traci.connect(port, label=label, proc=proc)
         conn.simulationStep()
         now = set(conn.vehicle.getIDList()) | set(conn.simulation.getPendingVehicles())
-        left = len(set(conn.simulation.getArrivedIDList()) & held_before)
+        left = len(set(conn.simulation.getArrivedIDList()) & own)
         conn.close()
     finally:
         if proc.poll() is None:
             proc.kill()
         proc.wait()
-    return len(now - held_before), left
+    return len(now - own), left
 
 
-def _demand_due(name: str, out: Path, doc: dict) -> int:
-    """The demand's own vehicles SUMO holds at a fill replay's first step (its departures due then, many
-    a second in a city's demand): the replay's configuration run for that step without the fill's vehicles
-    (its state, its start file); 0 where there is no such configuration. The demand is the user's route
-    files and any other the folder writes for it (the flows numbered on, flows.rou.xml), not the file of
-    the fill's own vehicles (fill.json's ``portable_ids``: ``start.<vehicle> in start.rou.xml``)."""
-    cfg = out / "fill" / ("scenario.sumocfg" if name == "fill_replay" else "start.sumocfg")
-    if not cfg.is_file():
-        return 0
-    demand = {Path(r).name for r in doc.get("routes", [])}
-    own = (doc.get("portable_ids") or "").rpartition(" in ")[2]
-    tree = ET.parse(cfg)
-    for parent in list(tree.getroot().iter()):
-        for el in list(parent):
-            if el.tag == "route-files":
-                kept = [f for f in el.get("value", "").split(",")
-                        if (f != own if own else f.removesuffix(".gz") in demand)]
-                if kept:
-                    el.set("value", ",".join(kept))
-                else:
-                    parent.remove(el)
-            elif el.tag == "load-state":
-                parent.remove(el)
-    begin = float(_config_value(cfg, "begin") or 0)
-    bare, summary = cfg.with_name(f"_{name}_demand.sumocfg"), out / f"{name}_demand_summary.xml"
-    tree.write(bare)
-    try:
-        subprocess.run([_sumo(), "-c", bare, "--end", f"{begin + 1:g}", "--no-step-log", "true",
-                        "--summary-output", summary], capture_output=True, cwd=cfg.parent, timeout=REFERENCE_TIMEOUT,
-                       check=False)
-    finally:
-        bare.unlink()
-    return held(next(summary_steps(summary), None)) or 0
+def _own_vehicles(name: str, out: Path, doc: dict) -> set[str] | None:
+    """The vehicle ids a fill replay starts with: the state's (state.xml.gz) or the portable start's
+    own file's (fill.json's ``portable_ids``: ``start.<vehicle> in start.rou.xml``; start.rou.xml where
+    it names none); None where that file is not there."""
+    import re
+    if name == "fill_replay":
+        state = out / "fill" / "state.xml.gz"
+        if not state.is_file():
+            return None
+        with gzip.open(state, "rt") as f:
+            return set(re.findall(r'<vehicle id="([^"]*)"', f.read()))
+    start = out / "fill" / ((doc.get("portable_ids") or "").rpartition(" in ")[2] or "start.rou.xml")
+    if not start.is_file():
+        return None
+    return {el.get("id") for _, el in ET.iterparse(start) if el.tag == "vehicle"}
 
 
 def _stock_summary(out: Path, t: float, seed) -> Path:

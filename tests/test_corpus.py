@@ -239,6 +239,31 @@ def test_a_replay_counts_the_demands_departures_due_in_its_first_step(corpus, tm
     assert not list(fill.glob("_*.sumocfg"))
 
 
+def test_the_portable_starts_count_is_the_states(corpus, tmp_path):
+    """The estimate's folder (fill.json names no ``portable_ids``): a flow the fill numbers on departs in
+    the portable start's first step from its own file (flow_departures.rou.xml), which is the demand's
+    as much as the user's route file is. Both replays are counted by one step of their own
+    configuration: what it holds beyond the folder's own vehicles (start.rou.xml's, the state's)."""
+    fill = _grid_fill(tmp_path)
+    edges = ["A0A1", "A1A2", "B0B1", "B1B2"]
+    (fill / "start.rou.xml").write_text("<routes>" + "".join(
+        f'<vehicle id="fill{k}.0" depart="10" departPos="80"><route edges="{e}"/></vehicle>'
+        for k, e in enumerate(edges)) + "</routes>")
+    (fill / "d.rou.xml").write_text('<routes><vehicle id="d0" depart="10" departPos="10"><route edges="C2C1"/>'
+                                    '</vehicle></routes>')
+    (fill / "flow_departures.rou.xml").write_text('<routes><vehicle id="f.3" depart="10" departPos="10">'
+                                                  '<route edges="C1B1"/></vehicle></routes>')
+    (fill / "start.sumocfg").write_text('<configuration><net-file value="g.net.xml"/><begin value="10"/>'
+                                        '<route-files value="start.rou.xml,d.rou.xml,flow_departures.rou.xml"/>'
+                                        '</configuration>')
+    (fill / "fill.json").write_text(json.dumps({"agents": [{"status": "placed"}] * len(edges),
+                                                "routes": [str(tmp_path / "user" / "d.rou.xml")]}))
+    cmd = [corpus._sumo(), "-c", fill / "start.sumocfg", "--end", "20", "--no-step-log", "true",
+           "--summary-output", tmp_path / "fill_start_summary.xml"]
+    res = corpus.check_count("fill_start", corpus.step(cmd, 60, tmp_path / "log", tmp_path), tmp_path)
+    assert res["vehicles"] == {"sumo": 6, "expected": 6}, res
+
+
 def test_a_state_replay_counts_the_departures_its_queue_holds_once(corpus, tmp_path):
     """As sumo-rl's Nguyen: the state saved at T holds SUMO's queue of vehicles due by T and not yet in;
     a route file's departures due in the replay's first step are among them (they were counted twice), a
