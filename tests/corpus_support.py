@@ -10,7 +10,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 DATA = HERE / "data" / "corpus"
 # a placement table's statuses (the product's, and the harness's "conflict")
-STATUSES = {"placed", "misplaced", "refused", "dropped", "conflict"}
+STATUSES = {"placed", "misplaced", "refused", "existing", "dropped", "conflict"}
 
 
 def load_corpus():

@@ -50,8 +50,7 @@ def test_files_and_scene_json(exported):
     assert not [n for n in os.listdir(os.path.dirname(folder)) if ".partial" in n]
     doc = json.load(open(os.path.join(folder, "scene.json")))
     assert doc["format"] == "sumo-scendiff-scenario" and doc["version"] == 1
-    assert doc["counts"] == {"generated": 5, "placed": 4, "misplaced": 0, "refused": 1, "dropped": 0,
-                             "copies_of_existing": 0}
+    assert doc["counts"] == {"generated": 5, "placed": 4, "misplaced": 0, "refused": 1, "existing": 0, "dropped": 0}
     agents = doc["agents"]
     assert [a["status"] for a in agents] == ["placed"] * 4 + ["refused"]
     assert agents[0]["token"] == 0 and agents[0]["token_source"] == "user"

@@ -1,4 +1,4 @@
-"""Honest records: every generated agent is placed, misplaced, refused or dropped (with the reason);
+"""Honest records: every generated agent is placed, misplaced, refused, existing or dropped (with the reason);
 the counts add up in scene.json, rollout.json and run.json; a replay of the exported folder in stock
 SUMO finds every `placed` agent at its pose; a token of the user's gives a vehicle or a warning.
 The shipped model, real libsumo and the `run` CLI, on a tiny crossing (small scale)."""
@@ -22,13 +22,13 @@ def _check_counts(doc: dict, roll: dict) -> None:
     for a in doc["agents"]:
         counts[a["status"]] += 1
         # a vehicle exactly for those SUMO has; a reason (or the error) for every one not placed
-        assert (a["vehicle"] is None) == (a["status"] in ("refused", "dropped")), a
+        assert (a["vehicle"] is None) == (a["status"] in ("refused", "existing", "dropped")), a
         if a["status"] == "misplaced":
             assert a["position_error"] > 0
         elif a["status"] != "placed":
             assert a["reason"], a
         if a["token"] is not None and a["token_source"] != "user":   # the model's copy of a kept vehicle
-            assert a["status"] == "dropped" and "already there" in a["reason"]
+            assert a["status"] == "existing" and f"vehicle {a['token_source']!r} was already there and is kept" in a["reason"]
     assert {k: doc["counts"][k] for k in ("generated", *STATUSES)} == {"generated": len(doc["agents"]), **counts}
     assert {k: roll[k] for k in doc["counts"]} == doc["counts"]
 
@@ -79,12 +79,15 @@ def test_records_add_up_and_a_replay_finds_every_placed_agent(cross_net, demand,
 
 
 def test_a_cosimulation_records_agents_dropped_beside_the_hosts_vehicles(cross_net, cross_scene):
-    """CoSimulation.place: an agent on a host's vehicle is dropped with the vehicle named; a user's
-    token whose agent that was is lost with that reason, and verify warns of it; the counts add up."""
+    """CoSimulation.place: the model's copy of a host's vehicle (drawn for its token) is ``existing``:
+    the host's vehicle kept, the copy not added, not a failure; an agent on a host's vehicle is dropped
+    with the vehicle named; a user's token whose agent that was is lost with that reason, and verify
+    warns of it; the counts and scene.json's records add up."""
     import numpy as np
 
     from sumo_scendiff.map.network import Network
     from sumo_scendiff.sim.cosim import CoSimulation, Existing
+    from sumo_scendiff.sim.export import _dropped_before
     from sumo_scendiff.sim.sumo import SimConfig, start
     net = Network.load(cross_net)
     scene = cross_scene(net)
@@ -100,11 +103,12 @@ def test_a_cosimulation_records_agents_dropped_beside_the_hosts_vehicles(cross_n
             cosim.verify(seeding)
     finally:
         sim.close()
-    assert seeding.before_reason == ["the model's copy of vehicle 'host0', already there",
+    assert seeding.before_reason == ["vehicle 'host0' was already there and is kept; the model's copy of it is not added",
                                      "its box overlaps vehicle 'host1', already there"]
     assert seeding.lost_tokens() == {0: "its vehicle was dropped: its box overlaps vehicle 'host1', already there"}
-    assert seeding.counts() == {"generated": 5, "placed": 2, "misplaced": 0, "refused": 1, "dropped": 2,
-                                "copies_of_existing": 1}
+    assert seeding.counts() == {"generated": 5, "placed": 2, "misplaced": 0, "refused": 1, "existing": 1, "dropped": 1}
+    records = _dropped_before(seeding)
+    assert [(a["status"], a["token_source"]) for a in records] == [("existing", "host0"), ("dropped", "user")]
 
 
 TOKENS = {"frame": "world", "agents": [

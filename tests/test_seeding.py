@@ -233,4 +233,4 @@ def test_a_vehicle_sumo_does_not_have_after_the_seeding_step_is_refused(cross_ne
     assert status == "refused" and "not in the simulation after the seeding step" in why
     assert 0 not in report.ids and 0 not in report.misplaced and left == set(report.ids.values())
     assert report.status(4)[0] == "refused" and report.placed == 3
-    assert report.counts(len(scene)) == {"generated": 5, "placed": 3, "misplaced": 0, "refused": 2, "dropped": 0}
+    assert report.counts(len(scene)) == {"generated": 5, "placed": 3, "misplaced": 0, "refused": 2, "existing": 0, "dropped": 0}

@@ -176,8 +176,9 @@ def test_generate_keep_replay_and_run_gives_the_same_scene(studio, tmp_path):
     assert status == 200, doc
     scene = doc["scenes"][0]
     assert scene["window"] == {"cx": CENTER[0], "cy": CENTER[1], "yaw": 0.0, "size": 100.0}
+    from sumo_scendiff.sim.seed_report import STATUSES
     n = scene["counts"]   # records add up: each generated agent has one status
-    assert n["placed"] + n["misplaced"] + n["refused"] + n["dropped"] == n["generated"] == len(scene["agents"])
+    assert sum(n[s] for s in STATUSES) == n["generated"] == len(scene["agents"])
     bus = [a for a in scene["agents"] if a["source"] == "user" and a["token"] == 0]
     # the token's class is its vehicle's, at the class's size (docs/tokens.md), though the model draws a bus
     # token's box about a truck's length: drawn, in scene.json and in SUMO a bus (the export's checked below)

@@ -238,7 +238,7 @@ def summary(net, agents, seeded, rows, area_km, tiles, exact, refused, refitted)
     in_junctions = int(net.in_junction(front).sum())
     dens = edge_density(net, rows)
     return {"tiles": tiles, "kept": len(agents), "vehicles": len(seeded),
-            # kept = placed + misplaced + refused + dropped (SeedReport.status)
+            # kept = placed + misplaced + refused + existing + dropped (SeedReport.status; none existing here)
             **{s: sum(a["status"] == s for a in agents) for s in STATUSES},
             "start_exact": sum(v for vid, v in exact.items() if vid not in refused), "start_refitted": refitted,
             "pulled_back": sum("pulled_back_m" in a for a in agents),

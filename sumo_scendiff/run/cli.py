@@ -153,20 +153,20 @@ def print_summary(summary: dict) -> None:
     rolled = any(r.get("seconds", 0) > 0 for r in rows)
     wide = max([11] + [len(str(r["location"])) for r in rows])
     print(f"{'scene':10} {'where':{wide}} {'kept':>5} {'generated':>9} {'placed':>6} {'misplaced':>9} "
-          f"{'refused':>7} {'dropped':>7} {'veh/km':>6} {'collisions':>10} {'teleports':>9} {'e-brakes':>8} {'speed':>6}")
+          f"{'refused':>7} {'existing':>8} {'dropped':>7} {'veh/km':>6} {'collisions':>10} {'teleports':>9} {'e-brakes':>8} {'speed':>6}")
     for r in rows:
         density = "–" if r.get("density_veh_per_km") is None else f"{r['density_veh_per_km']:.0f}"
         speed = f"{r['mean_speed']:6.1f}" if rolled else f"{'–':>6}"
         print(f"{r['scene']:10} {r['location']:{wide}} {r['existing_vehicles']:5d} {r['generated']:9d} "
-              f"{r['placed']:6d} {r['misplaced']:9d} {r['refused']:7d} {r.get('dropped', 0):7d} {density:>6} "
+              f"{r['placed']:6d} {r['misplaced']:9d} {r['refused']:7d} {r.get('existing', 0):8d} {r.get('dropped', 0):7d} {density:>6} "
               f"{r['collisions']:10d} {r['teleports']:9d} {r['emergency_brakes']:8d} {speed}")
     gen = sum(r["generated"] for r in rows)
     n = {s: sum(r.get(s, 0) for r in rows) for s in STATUSES}
-    copies = sum(r.get("copies_of_existing", 0) for r in rows)
-    new = gen - copies          # the model's copies of the vehicles kept are theirs, not new traffic
+    new = gen - n["existing"]   # the model's copies of the vehicles kept are theirs, not new traffic
     print(f"of {gen} generated agents: placed {n['placed']} ({100.0 * n['placed'] / max(new, 1):.1f} % of the "
           f"{new} new) at their pose, misplaced {n['misplaced']}, refused by SUMO {n['refused']}, dropped "
-          f"{n['dropped']}" + (f" ({copies} the model's copies of vehicles already there)" if copies else "") + "; "
+          f"{n['dropped']}" + (f", {n['existing']} the model's copies of vehicles already there (kept, the copies "
+                               "not added)" if n["existing"] else "") + "; "
           f"beside {sum(r['existing_vehicles'] for r in rows)} vehicles kept from the simulation; "
           f"timing (s): " + ", ".join(f"{k} {v:.2f}" for k, v in summary["timing_s"].items()))
     print(f"wrote {len(rows)} scenario folders and run.json to {summary['output_dir']} "

@@ -42,6 +42,7 @@ from ..core.matching import match_agents
 from ..core.scene import Scene
 from ..map.network import Network
 from .request import counted_as_asked, generation_inputs, window_request
+from .seed_report import before_status
 from .seeding import Seeder, SeedReport
 from .settle import krauss_safe_speed
 from .sumo import died
@@ -79,12 +80,13 @@ class Seeding:
     token_source: list[str]               # "user" or the existing vehicle's id, per token
     token_of: list[int | None]            # per seeded agent: index into tokens, or None
     dropped: int = 0                      # generated agents not seeded: on top of existing vehicles
-    copies: int = 0                       # of those, the model's copies of a vehicle already there
+    copies: int = 0                       # of those, the model's copies of a vehicle already there (existing)
     seed: int = 0
     p_mask: float = 1.0
     meta: dict = field(default_factory=dict)
     # the generated agents not handed to the seeder (``dropped`` of them): the model's copy of a
-    # vehicle already there, or on top of one; their reasons and tokens, as for the seeded agents
+    # vehicle already there (status existing), or on top of one (dropped); their reasons and tokens,
+    # as for the seeded agents
     before: Scene | None = None
     before_reason: list[str] = field(default_factory=list)
     before_token: list[int | None] = field(default_factory=list)
@@ -94,11 +96,11 @@ class Seeding:
         return list(self.report.ids.values())
 
     def counts(self) -> dict[str, int]:
-        """Every generated agent once: generated = placed + misplaced + refused + dropped."""
+        """Every generated agent once: generated = placed + misplaced + refused + existing + dropped."""
         out = self.report.counts(len(self.scene))
         out["generated"] += self.dropped
-        out["dropped"] += self.dropped
-        out["copies_of_existing"] = self.copies   # among the dropped: the host's own vehicles redrawn
+        out["existing"] += self.copies     # the host's own vehicles redrawn: kept, the copies not added
+        out["dropped"] += self.dropped - self.copies
         return out
 
     def lost_tokens(self) -> dict[int, str]:
@@ -161,8 +163,8 @@ def on_existing(scene: Scene, token_of: list[int | None], token_source: list[str
                 existing: Existing) -> dict[int, str]:
     """The generated agents (index -> why) not to seed beside the host's vehicles: the model's copy of
     a vehicle already there (matched to its token), or a box within ``OVERLAP_BUFFER`` m of one."""
-    why = {i: f"the model's copy of vehicle {token_source[t]!r}, already there"
-           for i, t in enumerate(token_of) if t is not None and token_source[t] != "user"}
+    why = {i: f"vehicle {token_source[t]!r} was already there and is kept; the model's copy of it is not added"
+           for i, t in enumerate(token_of) if before_status(t, token_source) == "existing"}
     if len(existing.ids) and len(scene):
         hosts = shapely.buffer(box_polygons(existing.boxes), OVERLAP_BUFFER)
         agent, host = shapely.STRtree(hosts).query(box_polygons(scene.boxes), predicate="intersects")
@@ -285,7 +287,7 @@ class CoSimulation:
         self.count += 1
         named = [None if token_of[i] is None else tokens[token_of[i]].get("vtype") for i in idx]   # sim/fleet.py
         report = self.seeder.seed(sub, others=(existing.boxes, existing.speed), types=named)
-        copies = sum(token_of[i] is not None and token_source[token_of[i]] != "user" for i in gone.tolist())
+        copies = sum(before_status(token_of[i], token_source) == "existing" for i in gone.tolist())
         return Seeding(sub, report, tokens, token_source, [token_of[i] for i in idx],
                        dropped=len(gone), copies=copies, seed=seed, p_mask=p_mask, before=scene.select(gone),
                        before_reason=[why[i] for i in gone.tolist()],

@@ -27,6 +27,7 @@ from ..tokens.features import is_pinnable
 from .additional import output_folders
 from .bundle import bundle
 from .fleet import DRAWN_KEY, PARENT_PARAM
+from .seed_report import before_status
 from .state import save_state
 from .stops import stops_xml
 
@@ -66,12 +67,13 @@ def _agents(seeding, sim) -> list[dict]:
 
 
 def _dropped_before(seeding) -> list[dict]:
-    """The generated agents never handed to the seeder (on a vehicle already there), after the others."""
+    """The generated agents never handed to the seeder (on a vehicle already there), after the others:
+    ``existing`` where the agent is the model's copy of that vehicle, else ``dropped``."""
     before = seeding.before
     if before is None or not len(before):
         return []
     score = before.meta.get("score", [None] * len(before))
-    return [{**a, "vehicle": None, "status": "dropped", "reason": why,
+    return [{**a, "vehicle": None, "status": before_status(tok, seeding.token_source), "reason": why,
              "score": None if score[i] is None else float(score[i]),
              "token": tok, "token_source": None if tok is None else seeding.token_source[tok]}
             for i, (a, why, tok) in enumerate(zip(before.world_agents(), seeding.before_reason, seeding.before_token))]
@@ -106,7 +108,7 @@ def scene_document(seeding, net, sim, info: dict) -> dict:
             "dropped_on_existing": seeding.dropped,
             # the traffic lights the scene was generated with (tls id -> SUMO state string)
             "signals": seeding.scene.meta.get("signals", {}),
-            "counts": seeding.counts(),       # generated = placed + misplaced + refused + dropped
+            "counts": seeding.counts(),       # generated = placed + misplaced + refused + existing + dropped
             "agents": _agents(seeding, sim)}
 
 
@@ -331,7 +333,8 @@ def write_picture(path: str, seeding, net, ego=None) -> None:
     kinds = ["generated" if tok is None else "token" for tok in seeding.token_of]
     c = seeding.counts()
     title = (f"{net.name}  seed {seeding.seed}  p_mask {seeding.p_mask:.2f}  agents {c['generated']} "
-             f"(placed {c['placed']}, misplaced {c['misplaced']}, refused {c['refused']}, dropped {c['dropped']})")
+             f"(placed {c['placed']}, misplaced {c['misplaced']}, refused {c['refused']}, existing {c['existing']}, "
+             f"dropped {c['dropped']})")
     img = draw_scene(net, scene, pixels=800, token_xy=np.array(xy).reshape(-1, 2), title=title,
                      kinds=kinds, kept=np.array(kept).reshape(-1, 5), ego=ego)
     write_png(path, img)

@@ -1,16 +1,18 @@
 """What became of each generated agent at seeding: one record per agent, the records adding up.
 
-Every generated agent is exactly one of :data:`STATUSES` (:meth:`SeedReport.status`): ``placed``
-(in SUMO where it was generated), ``misplaced`` (in SUMO, off its pose), ``refused`` (SUMO's reason)
-or ``dropped`` (the seeder's own rule's reason); ``scene.json`` and ``fill.json`` count them so that
-generated = placed + misplaced + refused + dropped. The other fields say how a seeded vehicle was
+Every generated agent is exactly one of :data:`STATUSES` (:meth:`SeedReport.status`, and
+:func:`before_status` for those never handed to the seeder): ``placed`` (in SUMO where it was
+generated), ``misplaced`` (in SUMO, off its pose), ``refused`` (SUMO's reason), ``existing`` (the
+model's copy of a vehicle already in the simulation: that vehicle is kept as it is, the copy not
+added) or ``dropped`` (the seeder's own rule's reason); ``scene.json`` and ``fill.json`` count them
+so that generated = placed + misplaced + refused + existing + dropped. The other fields say how a seeded vehicle was
 fitted (slowed, a minGap fitted, pulled back behind its lane's end, narrowed, moved to a stop line).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-STATUSES = ("placed", "misplaced", "refused", "dropped")   # every generated agent is exactly one
+STATUSES = ("placed", "misplaced", "refused", "existing", "dropped")   # every generated agent is exactly one
 
 
 @dataclass
@@ -51,8 +53,16 @@ class SeedReport:
         return "dropped", "not seeded"   # an index the seeding never reached: not in SUMO, never "placed"
 
     def counts(self, generated: int) -> dict[str, int]:
-        """generated = placed + misplaced + refused + dropped for a scene of ``generated`` agents."""
+        """Each status's count (:data:`STATUSES`) of a scene of ``generated`` agents, all handed to the
+        seeder (none ``existing``)."""
         out = {"generated": generated, **dict.fromkeys(STATUSES, 0)}
         for i in range(generated):
             out[self.status(i)[0]] += 1
         return out
+
+
+def before_status(token: int | None, token_source) -> str:
+    """The status of a generated agent not handed to the seeder for a vehicle already in the
+    simulation (sim.cosim.on_existing): ``existing`` where it is the model's copy of that vehicle (its
+    token is the vehicle's: ``token_source[token]`` names it), else ``dropped`` (its box on one)."""
+    return "existing" if token is not None and token_source[token] != "user" else "dropped"

@@ -19,7 +19,7 @@ COLUMNS = ("id", "status", "network", "location", "kind", "token_set", "p_mask",
            "steps", "threshold", "guidance", "scene_guidance", "pin_tokens", "pin_speeds", "lane_headings",
            "lane_snap", "rollout", "step_length", "replay", "user_tokens",
            "user_tokens_matched", "user_tokens_lost",
-           "generated", "placed", "misplaced", "refused", "dropped", "existing_vehicles", "dropped_on_existing",
+           "generated", "placed", "misplaced", "refused", "existing", "dropped", "existing_vehicles", "dropped_on_existing",
            "vehicles_in_window", "density_veh_per_km",
            "collisions", "teleports", "emergency_brakes", "collisions_per_100", "teleports_per_100",
            "emergency_brakes_per_100", "mean_speed", "present_at_end", "arrived", "error")

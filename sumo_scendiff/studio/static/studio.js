@@ -6,7 +6,7 @@ const CELL_M = 250;        // lanes are grouped into cells of this size: a redra
 const LOD_PX_PER_M = 1.5;  // below this zoom only car lanes are drawn (a redraw of a whole city in < 50 ms)
 const WINDOW_M = 100;      // the generation window's side (run's window)
 const DENSITY_COLOURS = ["#4575b4", "#91bfdb", "#e0f3f8", "#fee090", "#fc8d59", "#d73027"];
-const STATUS_COLOURS = { placed: "#2b6cb0", misplaced: "#dd8a00", refused: "#c00", dropped: "#c00" };
+const STATUS_COLOURS = { placed: "#2b6cb0", misplaced: "#dd8a00", refused: "#c00", existing: "#718096", dropped: "#c00" };
 const LANE_STYLE = {
   car: ["#5a5a5a", 3.0], internal: ["#6b6b6b", 3.0], walk: ["#d6d2c4", 1.8], other: ["#b9b9a8", 2.0],
 };
