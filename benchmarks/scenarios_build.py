@@ -11,6 +11,7 @@ import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
 
+from scenarios_city import CITY_BUILDERS
 from scenarios_features import _binary, _sumo_home, build_feature
 from scenarios_registry import Scenario
 
@@ -194,6 +195,8 @@ def build(sc: Scenario, cache: Path, mirror: Path | None = None, force: bool = F
         extra = build_feature(sc.get["feature"], part)
     else:
         extra = _from_github(sc, part, cache, mirror)
+        if sc.get.get("builder"):
+            extra.update(CITY_BUILDERS[sc.get["builder"]](part, _binary("netconvert")))
     record = {"name": sc.name, "source": sc.source, "licence": sc.licence, "get": sc.get,
               "config": sc.config, **extra}
     (part / "source.json").write_text(json.dumps(record, indent=1) + "\n")

@@ -165,7 +165,8 @@ def commands(cfg: Path, t: float, area: tuple, out: Path, scenes: int = 2, rollo
     begin = clock_time if clock else f"{t:g}"
     a = ",".join(f"{v:.1f}" for v in area)
     return {
-        "sumo": [_sumo(), "-c", cfg, "--end", end, "--no-step-log", "true",
+        # a configuration's output-prefix (MoST's "most.") would rename the summary the row reads
+        "sumo": [_sumo(), "-c", cfg, "--end", end, "--no-step-log", "true", "--output-prefix", "",
                  "--summary-output", out / "sumo_summary.xml"],
         "run": [py, "-m", "sumo_scendiff.run", "-c", cfg, "--begin", begin, "--scenes", str(scenes),
                 "--rollout", f"{rollout:g}", "-o", out / "run"],
