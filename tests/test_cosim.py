@@ -76,7 +76,8 @@ def test_place_drops_agents_on_existing_vehicles_and_their_tokens(cross_net, cro
     try:
         cosim = CoSimulation(sim, net, generator=None)
         seeding = cosim.place(scene, ex.tokens(), ex.token_ids(), ex)
-        assert seeding.dropped == 2 and len(seeding.scene) == 3
+        # both the model's copies of the host's vehicles (matched to their tokens): kept, the copies not added
+        assert (seeding.copies, seeding.dropped) == (2, 0) and len(seeding.scene) == 3
         np.testing.assert_allclose(seeding.scene.boxes, scene.boxes[[1, 3, 4]])
         assert seeding.token_of == [None, None, None]
     finally:

@@ -31,6 +31,8 @@ def _check_counts(doc: dict, roll: dict) -> None:
             assert a["status"] == "existing" and f"vehicle {a['token_source']!r} was already there and is kept" in a["reason"]
     assert {k: doc["counts"][k] for k in ("generated", *STATUSES)} == {"generated": len(doc["agents"]), **counts}
     assert {k: roll[k] for k in doc["counts"]} == doc["counts"]
+    # the agents dropped for a vehicle already there: among the dropped, the model's copies not among them
+    assert roll["dropped_on_existing"] == doc["dropped_on_existing"] <= counts["dropped"]
 
 
 def _replay_finds_placed(folder, doc: dict) -> int:
@@ -87,7 +89,7 @@ def test_a_cosimulation_records_agents_dropped_beside_the_hosts_vehicles(cross_n
 
     from sumo_scendiff.map.network import Network
     from sumo_scendiff.sim.cosim import CoSimulation, Existing
-    from sumo_scendiff.sim.export import _dropped_before
+    from sumo_scendiff.sim.export import _dropped_before, scene_document
     from sumo_scendiff.sim.sumo import SimConfig, start
     net = Network.load(cross_net)
     scene = cross_scene(net)
@@ -101,8 +103,11 @@ def test_a_cosimulation_records_agents_dropped_beside_the_hosts_vehicles(cross_n
         sim.simulationStep()
         with pytest.warns(UserWarning, match="token 0: no vehicle: its vehicle was dropped: its box overlaps"):
             cosim.verify(seeding)
+        doc = scene_document(seeding, net, sim, {})
     finally:
         sim.close()
+    # scene.json says each once: the copy is existing, the agent on host1 dropped on an existing vehicle
+    assert (doc["counts"]["existing"], doc["counts"]["dropped"], doc["dropped_on_existing"]) == (1, 1, 1)
     assert seeding.before_reason == ["vehicle 'host0' was already there and is kept; the model's copy of it is not added",
                                      "its box overlaps vehicle 'host1', already there"]
     assert seeding.lost_tokens() == {0: "its vehicle was dropped: its box overlaps vehicle 'host1', already there"}

@@ -79,14 +79,12 @@ class Seeding:
     tokens: list[dict]                    # every token given to the model (user's, then existing)
     token_source: list[str]               # "user" or the existing vehicle's id, per token
     token_of: list[int | None]            # per seeded agent: index into tokens, or None
-    dropped: int = 0                      # generated agents not seeded: on top of existing vehicles
-    copies: int = 0                       # of those, the model's copies of a vehicle already there (existing)
     seed: int = 0
     p_mask: float = 1.0
     meta: dict = field(default_factory=dict)
-    # the generated agents not handed to the seeder (``dropped`` of them): the model's copy of a
-    # vehicle already there (status existing), or on top of one (dropped); their reasons and tokens,
-    # as for the seeded agents
+    # the generated agents not handed to the seeder for a vehicle already there: the model's copy of
+    # it (status existing: :attr:`copies`), or a box on or too close ahead of one (status dropped:
+    # :attr:`dropped`); their reasons and tokens, as for the seeded agents
     before: Scene | None = None
     before_reason: list[str] = field(default_factory=list)
     before_token: list[int | None] = field(default_factory=list)
@@ -95,12 +93,23 @@ class Seeding:
     def agent_ids(self) -> list[str]:
         return list(self.report.ids.values())
 
+    @property
+    def copies(self) -> int:
+        """The model's copies of a vehicle already there: that vehicle kept, the copy not added (``existing``)."""
+        return sum(before_status(t, self.token_source) == "existing" for t in self.before_token)
+
+    @property
+    def dropped(self) -> int:
+        """The agents dropped for a vehicle already there, not its copy: a box on or too close ahead of one
+        (``dropped``, among those the seeder's own rules drop; scene.json ``dropped_on_existing``)."""
+        return len(self.before_token) - self.copies
+
     def counts(self) -> dict[str, int]:
         """Every generated agent once: generated = placed + misplaced + refused + existing + dropped."""
         out = self.report.counts(len(self.scene))
-        out["generated"] += self.dropped
+        out["generated"] += len(self.before_token)
         out["existing"] += self.copies     # the host's own vehicles redrawn: kept, the copies not added
-        out["dropped"] += self.dropped - self.copies
+        out["dropped"] += self.dropped
         return out
 
     def lost_tokens(self) -> dict[int, str]:
@@ -287,9 +296,8 @@ class CoSimulation:
         self.count += 1
         named = [None if token_of[i] is None else tokens[token_of[i]].get("vtype") for i in idx]   # sim/fleet.py
         report = self.seeder.seed(sub, others=(existing.boxes, existing.speed), types=named)
-        copies = sum(before_status(token_of[i], token_source) == "existing" for i in gone.tolist())
         return Seeding(sub, report, tokens, token_source, [token_of[i] for i in idx],
-                       dropped=len(gone), copies=copies, seed=seed, p_mask=p_mask, before=scene.select(gone),
+                       seed=seed, p_mask=p_mask, before=scene.select(gone),
                        before_reason=[why[i] for i in gone.tolist()],
                        before_token=[token_of[i] for i in gone.tolist()])
 

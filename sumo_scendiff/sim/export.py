@@ -105,6 +105,8 @@ def scene_document(seeding, net, sim, info: dict) -> dict:
             "window": {"cx": w.cx, "cy": w.cy, "yaw": w.yaw, "size": w.size},
             "time": float(sim.simulation.getTime()), "seed": seeding.seed, "p_mask": seeding.p_mask,
             "tokens": _tokens(seeding, pin),
+            # of ``dropped``: the agents whose box lay on or too close ahead of a vehicle already there
+            # (the model's copies of those vehicles are ``existing``, counted apart)
             "dropped_on_existing": seeding.dropped,
             # the traffic lights the scene was generated with (tls id -> SUMO state string)
             "signals": seeding.scene.meta.get("signals", {}),
