@@ -19,6 +19,8 @@ import os
 import sys
 import time
 
+from sumo_scendiff.sim.seed_report import SEEDED, STATUSES
+
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
 COLOGNE8 = os.path.normpath(os.path.join(ROOT, "..", "shared", "nets", "resco_cologne8", "cologne8.net.xml"))
 PHASES = ("load", "raster", "generate", "seed", "rollout", "export")
@@ -90,16 +92,18 @@ def table(results: list[tuple[str, dict]], o, routes: str, command: str) -> str:
     row("simulated rollout time (s); simulated s per wall s",
         [f"{v:g}; {v / t['rollout']:.0f}x" if t.get("rollout") else f"{v:g}; –" for v, t in zip(sim_s, T)])
     row("overhead / simulated rollout time", [f"{100.0 * v / x:.1f} %" if x else "–" for v, x in zip(over, sim_s)])
-    for key, name in (("generated", "agents generated (each placed, misplaced, refused or dropped)"),
-                      ("dropped_on_existing", "dropped on existing vehicles"),
+    for key, name in (("generated", f"agents generated (each {', '.join(STATUSES[:-1])} or {STATUSES[-1]})"),
                       ("existing_vehicles", "existing vehicles in the windows (tokens)"),
+                      ("existing", "existing: the model's copies of those vehicles (kept, the copies not added)"),
+                      ("dropped", "dropped (the seeder's rules and the vehicles already there)"),
+                      ("dropped_on_existing", "of the dropped: on or too close ahead of a vehicle already there"),
                       ("refused", "refused"), ("misplaced", "misplaced")):
         row(name, [str(sum(sc.get(key, 0) for sc in s["scenes"])) for s in S])
     placed = [sum(sc["placed"] for sc in s["scenes"]) for s in S]
     gen = [sum(sc["generated"] for sc in s["scenes"]) for s in S]
-    drop = [sum(sc["dropped"] for sc in s["scenes"]) for s in S]   # every rule's drops
-    row("**placement** (placed / seeded: generated less those dropped)",
-        [f"**{100.0 * p / (g - d):.1f} %** ({p}/{g - d})" if g > d else "–" for p, g, d in zip(placed, gen, drop)])
+    seeded = [sum(sc[k] for sc in s["scenes"] for k in SEEDED) for s in S]   # neither existing nor dropped
+    row("**placement** (placed / seeded: placed + misplaced + refused)",
+        [f"**{100.0 * p / t:.1f} %** ({p}/{t})" if t else "–" for p, t in zip(placed, seeded)])
     row("placed / generated", [f"{100.0 * p / g:.1f} %" if g else "–" for p, g in zip(placed, gen)])
     for key, name in (("collisions", "collisions"), ("teleports", "teleports"),
                       ("emergency_brakes", "e-brake agents (first 10 s)")):

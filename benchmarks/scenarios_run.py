@@ -150,8 +150,9 @@ SEEDED = ("placed", "misplaced", "refused")   # the agents the product tried to 
 
 
 def placed_share(counts: dict) -> float | None:
-    """Placed among the agents it tried to seed: a ``dropped`` agent is the model's copy of a vehicle
-    already there, a ``conflict`` one overlapped a vehicle seeded before (each with its reason)."""
+    """Placed among the agents it tried to seed (placed, misplaced, refused: sim.seed_report.SEEDED); an
+    ``existing`` agent is the model's copy of a vehicle already there (kept, the copy not added), a
+    ``dropped`` one was not seeded by the seeder's rules (a place taken…); each with its reason."""
     tried = sum(counts.get(k, 0) for k in SEEDED)
     return round(counts.get("placed", 0) / tried, 4) if tried else None
 

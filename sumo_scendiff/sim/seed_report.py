@@ -12,7 +12,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-STATUSES = ("placed", "misplaced", "refused", "existing", "dropped")   # every generated agent is exactly one
+SEEDED = ("placed", "misplaced", "refused")   # the statuses of the agents handed to SUMO (a placement's share)
+STATUSES = (*SEEDED, "existing", "dropped")   # every generated agent is exactly one
 
 
 @dataclass
