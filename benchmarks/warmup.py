@@ -38,7 +38,6 @@ import time
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
 SHARED = os.path.join(ROOT, "..", "shared", "nets")
 TARGET = 1.2
-SUMO_SEED = 23423   # SUMO's default --seed: stock's run, drawn alike (the product passes its -s)
 
 
 def get_options(args=None):
@@ -88,9 +87,9 @@ def warm(cfg, T: float, folder: str | None) -> dict:
     return out
 
 
-def estimate(scen, T: float) -> dict:
+def estimate(scen, T: float, sumo_random: tuple) -> dict:
     """The fill's demand estimate at T: (wall s, vehicles en route, car-lane km), the network's loading
-    included (SUMO's warm-up includes its own)."""
+    included (SUMO's warm-up includes its own); its router under ``sumo_random`` (seed, option words)."""
     import shapely
 
     from sumo_scendiff.fill.demand import DemandEstimate
@@ -98,7 +97,7 @@ def estimate(scen, T: float) -> dict:
     from sumo_scendiff.map.network import Network
     t = time.perf_counter()
     net = Network.load(scen.net)
-    est = DemandEstimate.at(net, list(scen.routes), T, additional=scen.additional)
+    est = DemandEstimate.at(net, list(scen.routes), T, additional=scen.additional, sumo_random=sumo_random)
     wall = time.perf_counter() - t
     x0, y0, x1, y1 = car_bounds(net)
     return {"s": wall, "vehicles": est.vehicles, "km": net.car_lane_km_in(shapely.box(x0 - 1, y0 - 1, x1 + 1, y1 + 1))}
@@ -107,13 +106,16 @@ def estimate(scen, T: float) -> dict:
 def bench(config: str, o, work: str) -> dict:
     from dataclasses import replace
 
-    from sumo_scendiff.sim.scenario import scenario_from_files
+    from sumo_scendiff.sim.scenario import own_random, scenario_from_files
     from sumo_scendiff.sim.sumo import SimConfig, step_length_for
     scen = scenario_from_files(config=config)
     T = (scen.begin or 0.0) + o.after
+    # the seed stock ``sumo -c`` runs with (the configuration's, else SUMO's default), as the product's
+    # warm-up and estimate take it: the three draw alike
+    seed, rng = own_random(scen)
     cfg = SimConfig(net=scen.net, routes=scen.routes, additional=scen.additional, begin=scen.begin,
                     step_length=step_length_for(scen), scenario_options=scen.options, seeding_options=False,
-                    seed=SUMO_SEED)
+                    seed=seed, extra=rng)
     row = {"config": os.path.relpath(config, ROOT), "T": T, "step_length": cfg.step_length}
     for k in range(o.repeat):
         s, f = stock(config, T, cfg, work), warm(cfg, T, os.path.join(work, f"states{k}"))
@@ -121,7 +123,7 @@ def bench(config: str, o, work: str) -> dict:
         row["first"] = min(row.get("first", f), f, key=lambda r: r["s"])
     row["again"] = warm(cfg, T, os.path.join(work, "states0"))
     row["first_seeding_options"] = warm(replace(cfg, seeding_options=True), T, None)
-    row["estimate"] = estimate(scen, T)
+    row["estimate"] = estimate(scen, T, (seed, rng))
     for k in ("first", "again", "first_seeding_options", "estimate"):
         row[k]["ratio"] = round(row[k]["s"] / row["stock"]["s"], 3)
     return row

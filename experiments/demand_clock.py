@@ -43,10 +43,12 @@ def get_options(args=None):
 
 
 def cases(o, work: str):
-    """(name, network, route files, additional files, begin) per network to compare."""
+    """(name, network, route files, additional files, begin, SUMO's seed and random options) per
+    network to compare: the seed the user's own ``sumo -c`` runs the demand with (sim.scenario.own_random),
+    as the fill's estimate and its SUMO run take it."""
     from sumo_scendiff.data.demand import RandomDemand, check_demand, random_trips, write_vtypes
     from sumo_scendiff.map.network import Network
-    from sumo_scendiff.sim.scenario import scenario_from_files
+    from sumo_scendiff.sim.scenario import SUMO_DEFAULT_SEED, own_random, scenario_from_files
     if o.generated:
         vtypes = write_vtypes(os.path.join(work, "vtypes.add.xml"))
         for name in HELD_OUT:
@@ -54,7 +56,8 @@ def cases(o, work: str):
             for d in (float(x) for x in o.density.split(",")):
                 routes = random_trips(path, os.path.join(work, f"{name}_{d:g}.rou.xml"),
                                       RandomDemand(d, o.t1 + 300.0, o.seed))
-                yield f"{name} at {d:g}", Network.load(path), [routes], [vtypes], 0.0
+                # no configuration: stock ``sumo -n -r`` runs these trips under SUMO's default seed
+                yield f"{name} at {d:g}", Network.load(path), [routes], [vtypes], 0.0, (SUMO_DEFAULT_SEED, ())
         return
     for cfg, extra in REAL:
         if not os.path.exists(os.path.join(SHARED, cfg)):
@@ -64,15 +67,17 @@ def cases(o, work: str):
         net = Network.load(scen.net)
         begin = scen.begin if scen.begin is not None else math.floor(
             check_demand(list(scen.routes), {ln.edge for ln in net.lanes}, scen.additional))
-        yield cfg.split("/")[0], net, list(scen.routes), list(scen.additional), begin
+        yield cfg.split("/")[0], net, list(scen.routes), list(scen.additional), begin, own_random(scen)
 
 
-def compare(net, routes, additional, begin: float, o) -> dict:
+def compare(net, routes, additional, begin: float, sumo_random: tuple, o) -> dict:
     from scipy.stats import spearmanr
 
     from sumo_scendiff.fill.demand import DemandEstimate
     from sumo_scendiff.sim.sumo import SimConfig, close, start
-    sim = start(SimConfig(net=net.path, routes=tuple(routes), additional=tuple(additional), begin=begin))
+    seed, rng = sumo_random       # SUMO's run and the estimate's router draw alike
+    sim = start(SimConfig(net=net.path, routes=tuple(routes), additional=tuple(additional), begin=begin,
+                          seed=seed, extra=rng))
     sumo, est, rho = [], [], []
     try:
         for t in np.arange(begin + o.t0, begin + o.t1 + 1e-6, o.every):
@@ -83,7 +88,7 @@ def compare(net, routes, additional, begin: float, o) -> dict:
                 road = sim.vehicle.getRoadID(v)
                 if road and not road.startswith(":"):
                     on[road] = on.get(road, 0) + 1
-            e = DemandEstimate.at(net, routes, float(t), additional=additional)
+            e = DemandEstimate.at(net, routes, float(t), additional=additional, sumo_random=sumo_random)
             est.append(e.vehicles)
             keys = sorted(set(on) | set(e.on_edge))
             if len(keys) > 2:
@@ -102,8 +107,8 @@ def main(o) -> int:
     print("|---|---|---|---|---|---|---|")
     within = total = 0
     with tempfile.TemporaryDirectory(prefix="scendiff-clock-") as work:
-        for name, net, routes, additional, begin in tqdm(list(cases(o, work)), unit="net", file=sys.stderr):
-            r = compare(net, routes, additional, begin, o)
+        for name, net, routes, additional, begin, sumo_random in tqdm(list(cases(o, work)), unit="net", file=sys.stderr):
+            r = compare(net, routes, additional, begin, sumo_random, o)
             within, total = within + r["within"], total + r["n"]
             print(f"| {name} | {r['sumo']:.1f} | {r['est']:.1f} | {r['ratio']:.2f} | {r['lo']:.2f}…{r['hi']:.2f} | "
                   f"{r['within']} / {r['n']} | {r['rho']:.2f} |", flush=True)
