@@ -169,9 +169,15 @@ def test_the_cli_writes_it(scenario, tmp_path, capsys):
     net, routes = scenario
     out = tmp_path / "cli"
     assert main(get_options(["-n", net, "-r", routes, "--begin", "150", "-o", str(out), "-q"])) == 0
-    assert "SUMO's own run" in capsys.readouterr().out
     with open(out / "fill.json") as f:
-        assert json.load(f)["density"]["start"] == "sumo"
+        doc = json.load(f)
+    assert doc["density"]["start"] == "sumo" and doc["tiles"] == []
+    # the summary line says where the start came from: SUMO's vehicles, no tile of the model's
+    n = doc["summary"]["vehicles"]
+    printed = capsys.readouterr().out
+    assert (f"started from SUMO's own run of the demand to 150 s: {n} of its {n} vehicles are in the start; "
+            "the model filled no tile" in printed and n > 3), printed
+    assert "filled 0 tiles" not in printed
 
 
 # a taxi (SUMO's device.taxi) that picks its rider up on ce at 60 s and carries it along ec at 80 s, outside AREA

@@ -168,6 +168,19 @@ def _exit(o, code: int, message: str) -> int:
     return code
 
 
+def _headline(doc: dict) -> str:
+    """Where the start's vehicles came from: SUMO's own run of the demand (the model fills no tile
+    there: SUMO's vehicles are the start), else the tiles the model filled and what it drew."""
+    s = doc["summary"]
+    why = f"; {s['refused']} refused, fill.json says why" if s["refused"] else ""
+    if doc["density"].get("start") == "sumo":
+        return (f"started from SUMO's own run of the demand to {doc['begin']:g} s: {s['vehicles']} of its "
+                f"{s['kept']} vehicles{' in the area' if doc.get('area') else ''} are in the start{why}; "
+                f"the model filled no tile (SUMO's run gives every vehicle)")
+    return (f"filled {len(doc['tiles'])} tiles: {s['vehicles']} of {s['kept']} drawn vehicles seeded ({s['placed']} at "
+            f"their pose{why})")
+
+
 def _report(o, doc: dict) -> None:
     """What the fill did, on stdout (warnings on stderr)."""
     import os
@@ -182,12 +195,9 @@ def _report(o, doc: dict) -> None:
               f"{os.path.join(o.out, 'fill.json')} (no state: the scenario itself is the start)")
         return
     s = doc["summary"]
-    why = f"; {s['refused']} refused, fill.json says why" if s["refused"] else ""
-    print(f"filled {len(doc['tiles'])} tiles: {s['vehicles']} of {s['kept']} drawn vehicles seeded ({s['placed']} at "
-          f"their pose{why}), {s['density_veh_per_km']} veh/km of car lane as SUMO's edgeData counts them "
-          f"(+{s['in_junctions']} nosing into junctions); "
-          f"density source: {doc['density']['kind']}" + (" (SUMO's own run)" if doc["density"].get("start") == "sumo"
-                                                         else "" if doc["density"]["applied"] else " (not applied)"))
+    print(_headline(doc) + f", {s['density_veh_per_km']} veh/km of car lane as SUMO's edgeData counts them "
+          f"(+{s['in_junctions']} nosing into junctions); density source: {doc['density']['kind']}"
+          + ("" if doc["density"]["applied"] else " (not applied)"))
     workers = (doc.get("workers") or {}).get("count")
     print("timing (s): " + ", ".join(f"{k} {v:.1f}" for k, v in doc["timing_s"].items())
           + (f" ({workers} worker{'s' if workers > 1 else ''})" if workers else ""))
