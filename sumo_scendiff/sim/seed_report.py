@@ -42,7 +42,9 @@ class SeedReport:
 
     def status(self, i: int) -> tuple[str, str | float | None]:
         """Agent ``i``'s record: ``placed`` (None), ``misplaced`` (its position error, m), ``refused``
-        (SUMO's reason) or ``dropped`` (the rule's reason); exactly one (README, scene.json)."""
+        (SUMO's reason) or ``dropped`` (the rule's reason); exactly one (README, scene.json). Never
+        ``existing``: the model's copies of vehicles already there are not handed to the seeder
+        (:func:`before_status`)."""
         if i in self.dropped:
             return "dropped", self.dropped[i]
         if i in self.refused:
