@@ -139,5 +139,27 @@ def _vclass(route_file: str) -> str:
     return {"most.buses.flows.xml": "bus", "most.trains.flows.xml": "rail"}.get(route_file, "passenger")
 
 
+# a heavy demand on MoST's network (the corpus's other city rows are light): SUMO's randomTrips, routed by
+# duarouter into one route file of about 45 MB (84,000 vehicles), 25 departures a second from the fringe
+DENSE_TRIPS = ["-b", "0", "-e", "3600", "-p", "0.04", "--seed", "42", "--fringe-factor", "5",
+               "--min-distance", "2000"]
+
+
+def build_most_dense(dest: Path, netconvert: str) -> dict:
+    """MoST's network (:func:`build_most`) with a heavy generated demand in ``dense.sumocfg``."""
+    import sys
+
+    import sumo
+    record = build_most(dest, netconvert)
+    tool = Path(sumo.SUMO_HOME) / "tools" / "randomTrips.py"
+    subprocess.run([sys.executable, str(tool), "-n", "in/most.net.xml", *DENSE_TRIPS, "-o", "dense.trips.xml",
+                    "-r", "dense.rou.xml"], cwd=dest, check=True, capture_output=True, timeout=3600)
+    (dest / "dense.sumocfg").write_text(
+        '<configuration>\n    <input>\n        <net-file value="in/most.net.xml"/>\n'
+        '        <route-files value="dense.rou.xml"/>\n    </input>\n'
+        '    <time>\n        <begin value="0"/>\n    </time>\n</configuration>\n')
+    return {**record, "demand": ["randomTrips.py", *DENSE_TRIPS, "-r", "dense.rou.xml"]}
+
+
 # a github source's builder (its ``get["builder"]``), after its files are in the folder
-CITY_BUILDERS = {"most": build_most}
+CITY_BUILDERS = {"most": build_most, "most_dense": build_most_dense}

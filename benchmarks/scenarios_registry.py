@@ -402,7 +402,15 @@ REGISTRY: list[Scenario] = [
               "steps": [], "builder": "most"}, "most.sumocfg",
              ("city", "OSM", "parkingAreas", "buses", "trains", "stops", "rerouting devices", "sublane model",
               "step length 0.25", "route errors ignored", "persons' demand absent"), begin=21600.0,
-             note="T 6:00, 2 h after the configuration's begin: stock SUMO takes about 9 min to 8:00 here"),
+             area=(4000.0, 1000.0, 5000.0, 2000.0),
+             note="T 6:00, 2 h after the configuration's begin (stock SUMO takes about 9 min to 8:00 here); "
+                  "the fill's area 1 km of central Monaco"),
+    Scenario("most_monaco_dense", "github:lcodeca/MoSTScenario's network + SUMO randomTrips", "GPL-3.0-or-later",
+             {"kind": "github", "repo": MOST_REPO, "files": {k: list(v) for k, v in most_files().items()},
+              "steps": [], "builder": "most_dense"}, "dense.sumocfg",
+             ("city", "OSM", "heavy demand", "45 MB route file", "jams"), offset=120.0,
+             area=(4000.0, 1000.0, 5000.0, 2000.0),
+             note="randomTrips at 25 veh/s on Monaco: about 2,800 vehicles on the road at T"),
 ]
 
 def _feature(name: str) -> Scenario:
