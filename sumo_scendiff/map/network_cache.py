@@ -12,7 +12,7 @@ import sys
 from dataclasses import dataclass
 
 # A new layout of what is cached (the Lane and Junction fields, sumolib's net) takes a new version
-CACHE_VERSION = 1
+CACHE_VERSION = 2     # 2: a zero-length lane's footprint is a disc, not empty
 # sumolib's net is a graph whose nodes, edges, lanes and connections refer to each other, and pickle
 # descends one C call per reference: a 9 000-lane city needs a deeper stack than a thread's default
 _DUMP_STACK = 1 << 28

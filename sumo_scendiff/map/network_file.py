@@ -103,7 +103,12 @@ def _read(path: str):
 
 
 def _lane_polygon(shape: np.ndarray, width: float) -> shapely.Polygon:
+    # netconvert writes a zero-length connection of OSM's joined junctions as two equal points,
+    # whose flat-capped buffer is empty: such a lane is the disc of its width, never an empty
+    # footprint (no query finds it, and a distance to it is NaN)
     line = shapely.LineString(shape) if len(shape) > 1 else shapely.Point(shape[0])
+    if line.length == 0.0:
+        return shapely.Point(shape[0]).buffer(0.5 * width)
     return line.buffer(0.5 * width, cap_style="flat", join_style="mitre", mitre_limit=3.0)
 
 
