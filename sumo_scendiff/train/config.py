@@ -41,3 +41,5 @@ class TrainConfig:
     seed: int = 0
     workers: int = 0              # DataLoader worker processes (rendering is ~2 % of a step)
     rotate: bool = True           # rotation augmentation of the training windows
+    # diffusion stage: torch.compile the blocks where it pays on CPU (train/compiling.py, docs/training.md)
+    compile: bool = True

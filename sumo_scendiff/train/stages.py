@@ -16,6 +16,7 @@ from ..model.autoencoder import AutoencoderConfig, ScenarioAutoencoder
 from ..model.diffusion import DiffusionConfig, ScenarioDiffusion
 from ..tokens.masking import TokenMaskConfig
 from ..tokens.raster import C_T
+from .compiling import compile_diffusion_stage
 from .config import TrainConfig
 from .loop import Loop, TrainError, conditioning, estimate_latent_scale, load_training, rank
 from .token_decoder import decoder_conditioning
@@ -50,6 +51,16 @@ def model_config(o, cls, base: dict | None = None, **fixed):
 def warm_start_record(init: dict, path: str) -> dict:
     """What a warm-started run keeps of its source: its SHA-256 and the steps behind it."""
     return {"init_from_sha256": ckpt.sha256(path), "steps_before": init["step"] + init.get("steps_before", 0)}
+
+
+def adam(cls, params, **kw) -> torch.optim.Optimizer:
+    """``cls`` (Adam, AdamW) in its fused form where this torch has one for the device: the same
+    update to float rounding in a quarter of the CPU time (docs/training.md, "torch.compile")."""
+    params = list(params)
+    try:
+        return cls(params, fused=True, **kw)
+    except RuntimeError:   # torch before 2.4 fuses on CUDA only
+        return cls(params, **kw)
 
 
 # each stage's defaults: the shipped model's settings (docs/training.md)
@@ -92,8 +103,8 @@ def train_autoencoder(o) -> None:
         raise TrainError("--freeze-encoder needs --init-from (a trained encoder to keep)")
     if o.freeze_encoder:
         model.E.requires_grad_(False)
-    opt = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=cfg.lr,
-                           weight_decay=cfg.weight_decay)
+    opt = adam(torch.optim.Adam, [p for p in model.parameters() if p.requires_grad], lr=cfg.lr,
+               weight_decay=cfg.weight_decay)
     # a token-reading decoder (C_t) sees the partial tokens the diffusion model is trained with
     mask_cfg = token_mask_config(cfg)
 
@@ -130,7 +141,7 @@ def train_diffusion(o) -> None:
     if model.cfg.unet.c_z != ae.cfg.C_z:
         raise TrainError(f"--model-config: unet.c_z {model.cfg.unet.c_z} differs from "
                          f"{o.autoencoder}'s latent channels C_z {ae.cfg.C_z}")
-    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    opt = adam(torch.optim.AdamW, model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     scale = {"value": None}
     mask_cfg = token_mask_config(cfg)
 
@@ -155,6 +166,8 @@ def train_diffusion(o) -> None:
             extra["latent_scale"] = init["latent_scale"]  # same latent space: same scale, on any data
         print(f"{o.init_from}: warm start from step {init['step']}")
     loop = Loop("diffusion", o, cfg, model, opt, step_loss, extra=extra, frozen=[ae])
+    if cfg.compile:  # after the Loop's weight average copied the eager model
+        compile_diffusion_stage(ae, model)
     scale["value"] = loop.extra.get("latent_scale") or estimate_latent_scale(ae, loop)
     loop.extra["latent_scale"] = scale["value"]
     loop.run()
