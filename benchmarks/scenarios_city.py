@@ -140,7 +140,7 @@ def _vclass(route_file: str) -> str:
 
 
 # a heavy demand on MoST's network (the corpus's other city rows are light): SUMO's randomTrips, routed by
-# duarouter into one route file of about 45 MB (84,000 vehicles), 25 departures a second from the fringe
+# duarouter into one route file of 48 MB (90,000 vehicles), 25 departures a second from the fringe
 DENSE_TRIPS = ["-b", "0", "-e", "3600", "-p", "0.04", "--seed", "42", "--fringe-factor", "5",
                "--min-distance", "2000"]
 

@@ -408,9 +408,9 @@ REGISTRY: list[Scenario] = [
     Scenario("most_monaco_dense", "github:lcodeca/MoSTScenario's network + SUMO randomTrips", "GPL-3.0-or-later",
              {"kind": "github", "repo": MOST_REPO, "files": {k: list(v) for k, v in most_files().items()},
               "steps": [], "builder": "most_dense"}, "dense.sumocfg",
-             ("city", "OSM", "heavy demand", "45 MB route file", "jams"), offset=120.0,
+             ("city", "OSM", "heavy demand", "48 MB route file", "jams"), offset=120.0,
              area=(4000.0, 1000.0, 5000.0, 2000.0),
-             note="randomTrips at 25 veh/s on Monaco: about 2,800 vehicles on the road at T"),
+             note="randomTrips at 25 veh/s on Monaco: about 3,000 vehicles on the road at T"),
 ]
 
 def _feature(name: str) -> Scenario:
