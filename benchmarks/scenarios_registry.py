@@ -7,6 +7,7 @@ from pathlib import Path
 
 from scenarios_city import MOST_REPO, most_files
 from scenarios_features import all_features
+from scenarios_osm import osm_scenarios
 
 
 @dataclasses.dataclass(frozen=True)
@@ -420,5 +421,6 @@ def _feature(name: str) -> Scenario:
                     {"kind": "feature", "feature": name}, **{"config": "scenario.sumocfg", "covers": covers, **kw})
 
 
+REGISTRY += osm_scenarios(Scenario)
 REGISTRY += [_feature(name) for name in all_features()]
 
