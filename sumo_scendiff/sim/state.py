@@ -2,23 +2,37 @@
 
     save_state(sim, "state.xml.gz")     # saveState, the routes it left out added, checked whole
     waiting_in_state("state.xml.gz", sim.vehicle.getIDList(), t)   # loaded, due, not yet on the road
+    in_process_state("state.xml.gz")    # what libsumo loads of it: a copy without rail sub-driveways
 
 SUMO 1.28 writes a route into a state with the vehicle it was made for: a vehicle that shares that
 route and is still driving after its owner arrived -- the copies ``--scale`` makes of a vehicle (ids
 ``pas4.1``, route ``!pas4``) -- is saved naming a route the state no longer defines, and
 ``sumo --load-state`` refuses the file ("The route '!pas4' for vehicle 'pas4.1' is not known"), stock
 SUMO's own round trip included. Each such route is written into the state from the running simulation.
+
+SUMO 1.28's libsumo crashes (a segfault, the process gone) on a later start in the same process from a
+state that holds a rail signal's sub-driveway (``<subDriveWay>``: a train that departed inside a block);
+SUMO rebuilds them as its trains drive on, and stock SUMO drives the same with and without them
+(measured: FCD byte-identical, tests/test_state_subdriveway.py). The saved state keeps them for stock
+SUMO; what libsumo loads is a copy without them (:func:`in_process_state`).
 """
 from __future__ import annotations
 
+import atexit
 import gzip
+import os
 import re
+import shutil
+import tempfile
 
 from ..core.files import check_whole
 
 _ROUTE = re.compile(rb'<route id="([^"]*)"')
 _VEHICLE_ROUTE = re.compile(rb'<vehicle id="([^"]*)"[^>]*? route="([^"]*)"')
 _VEHICLE_DEPART = re.compile(rb'<vehicle id="([^"]*)"[^>]*? depart="([^"]*)"')
+_SUB_DRIVE_WAY = re.compile(rb'[ \t]*<subDriveWay [^>]*/>[ \t]*\r?\n?')
+_copies: dict[tuple, str] = {}     # (path, mtime, size) -> its copy for libsumo, this process's
+_folder: list[str] = []             # where those copies lie
 
 
 def save_state(sim, path: str) -> str:
@@ -55,4 +69,30 @@ def waiting_in_state(path: str, on_network, time: float) -> int:
                if v.decode() not in there and float(depart) <= time + 1e-9)
 
 
-__all__ = ["save_state", "waiting_in_state"]
+def in_process_state(path: str) -> str:
+    """The state libsumo loads for ``path``: ``path`` itself, or where it holds rail sub-driveways a copy
+    without them (in a temporary folder removed at exit), which later starts in this process survive."""
+    st = os.stat(path)
+    key = (os.path.abspath(path), st.st_mtime_ns, st.st_size)
+    if key in _copies:
+        return _copies[key]
+    opener = gzip.open if path.endswith(".gz") else open
+    with opener(path, "rb") as f:
+        text = f.read()
+    if b"<subDriveWay " not in text:
+        return path
+    copy = os.path.join(_copy_folder(), f"{len(_copies)}_{os.path.basename(path)}")
+    with opener(copy, "wb") as f:
+        f.write(_SUB_DRIVE_WAY.sub(b"", text))
+    _copies[key] = copy
+    return copy
+
+
+def _copy_folder() -> str:
+    if not _folder:
+        _folder.append(tempfile.mkdtemp(prefix="scendiff-states-"))
+        atexit.register(shutil.rmtree, _folder[0], True)
+    return _folder[0]
+
+
+__all__ = ["in_process_state", "save_state", "waiting_in_state"]

@@ -292,13 +292,25 @@ def died(e: BaseException, sim) -> SumoDied | None:
     return SumoDied(last_words(sim)) if type(e).__name__ == "FatalTraCIError" else None
 
 
+_TERMINAL: list = []     # the stderr faulthandler writes to, kept open
+
+
 def _start_libsumo(args: list[str]):
     """libsumo, started in-process; what SUMO writes to the terminal while loading (its process's
     stderr) is caught, so that a refusal is one line: SUMO's first error; its warnings (when not
     --no-warnings) still reach the terminal, each kind once with its count (core.sumo_log)."""
+    import faulthandler
+
     import libsumo
 
     from ..core.sumo_log import caught_stderr, echo, first_error
+    from .state import in_process_state
+    if "--load-state" in args:
+        at = args.index("--load-state") + 1
+        args = args[:at] + [in_process_state(args[at])] + args[at + 1:]
+    if not faulthandler.is_enabled():   # SUMO crashing in-process says so on stderr, not exit 139 alone;
+        _TERMINAL.append(os.fdopen(os.dup(2), "w"))   # a copy of it: caught_stderr takes fd 2 while SUMO loads
+        faulthandler.enable(_TERMINAL[0])
     with caught_stderr() as text:
         try:
             libsumo.start([sumo_binary("sumo")] + args)
@@ -315,9 +327,14 @@ def start_config(path: str):
     files' outputs going nowhere (sim.additional)."""
     from .additional import quiet_outputs
     from .scenario import scenario_from_files
+    from sumolib.options import readOptions
     extra = scenario_from_files(config=path).additional
+    # its state given again on the command line (which wins), so that libsumo loads the copy it survives
+    state = [os.path.join(os.path.dirname(os.path.abspath(path)), o.value)
+             for o in readOptions(path) if o.name == "load-state"]
     return _start_libsumo(["-c", path, *as_args(SILENT_OPTIONS)]
-                          + (["-a", ",".join(quiet_outputs(extra))] if extra else []))
+                          + (["-a", ",".join(quiet_outputs(extra))] if extra else [])
+                          + (["--load-state", state[0]] if state else []))
 
 
 def close(sim) -> None:
