@@ -90,6 +90,7 @@ class Seeder(Gaps, Settling, StopLines, PoseRoutes, Drops):
         self._bases: set[str] = set()        # the per-class vTypes made (vtype)
         self._edge_routes: set[str] = set()  # the one-edge routes added (add_on_route)
         self._staged: set[str] = set()       # vehicles whose staging route is still in SUMO (add_on_route)
+        self._inside: dict[str, tuple] = {}  # vehicle seeded inside a junction -> (its internal lane, front pos)
 
     # ---- vehicle types ------------------------------------------------------------------------
     def _known_types(self) -> Fleet:
@@ -292,6 +293,8 @@ class Seeder(Gaps, Settling, StopLines, PoseRoutes, Drops):
         report.targets[i] = (float(fx), float(fy), float(angle))
         if not lane.internal:
             report.lanes[i] = (lane.id, self._front_pos(lane, fx, fy))
+        else:
+            self._inside[vid] = (lane.id, min(self._front_pos(lane, fx, fy), lane.length))
         if slowed is not None:
             report.slowed[i] = slowed
 
@@ -333,6 +336,19 @@ class Seeder(Gaps, Settling, StopLines, PoseRoutes, Drops):
             pass
         self._drop_stage(vid)
 
+    def _back_on_road(self, report: SeedReport, i: int, vid: str) -> str | None:
+        """A vehicle SUMO holds on no lane after the seeding step (``moveToXY(keepRoute=2)`` with no lane
+        of its route within reach of its pose: SUMO keeps it at the exact point, off the road, and removes
+        it at the next step) is put on the lane it was seeded on at its front (``moveTo``): None; it is
+        then placed or misplaced as measured. Where SUMO refuses that too: why it is not seeded. Its
+        road is never asked for (libsumo crashes on getRoadID of such a vehicle)."""
+        lane = report.lanes.get(i) or self._inside.get(vid)
+        try:
+            self.sim.vehicle.moveTo(vid, *lane)
+        except Exception:   # no such lane recorded, or not on its route: SUMO would drop it
+            return "SUMO held it off the road (no lane of its route within reach of its pose)"
+        return None
+
     def verify(self, report: SeedReport) -> SeedReport:
         """After a simulation step: which seeded agents are not where they were generated (those
         SUMO clamped onto a junction's start first put back on their lane, :meth:`keep_on_seeded_lanes`).
@@ -343,10 +359,15 @@ class Seeder(Gaps, Settling, StopLines, PoseRoutes, Drops):
         collided = set(self.sim.simulation.getCollidingVehiclesIDList())
         for i, vid in list(report.ids.items()):
             fx, fy, angle = report.targets[i]
+            why = None
             if vid not in present:
-                report.refused[i] = ("removed by SUMO after a collision in the seeding step" if vid in collided
-                                     else "not in the simulation after the seeding step (SUMO did not insert it"
-                                     + (" into its segment, in its mesoscopic model)" if self.meso else ")"))
+                why = ("removed by SUMO after a collision in the seeding step" if vid in collided
+                       else "not in the simulation after the seeding step (SUMO did not insert it"
+                       + (" into its segment, in its mesoscopic model)" if self.meso else ")"))
+            elif not self.meso and not self.sim.vehicle.getLaneID(vid):
+                why = self._back_on_road(report, i, vid)
+            if why is not None:
+                report.refused[i] = why
                 self._withdraw(vid)
                 for d in (report.ids, report.targets, report.lanes, report.slowed):
                     d.pop(i, None)
