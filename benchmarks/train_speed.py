@@ -9,8 +9,9 @@ With ``--ab FLAGS --vs FLAGS`` the two settings of the same stage run in turn (A
 pair a short and a long run of each) as the recipe's two one-thread DDP processes, so that a
 machine whose speed drifts moves both sides of a pair alike: each pair gives A's and B's s/step
 and their ratio (the medians over the pairs are reported), and A's extra start-up (its wall time
-at the short count beyond B's, less the steps' difference): a compile's cost, with a fresh
-inductor cache per run (``TORCHINDUCTOR_CACHE_DIR``), as on a machine that never compiled.
+at the short count beyond B's, less the steps' difference): a compile's cost, from inductor's
+cache (``TORCHINDUCTOR_CACHE_DIR``, one per stage, filled by an unpaired first run of A whose
+extra start-up is the first compile's, as on a machine that never compiled).
 
 ``--optimizer`` times one AdamW step of the diffusion model's weights in this process (one thread,
 CPU seconds, medians of 15), the loop's form against the fused one the stages use, A B in turn.
@@ -74,13 +75,15 @@ def get_options(args=None):
     return o
 
 
-def run_seconds(stage_args: list[str], batch: int, procs: int, threads: int, steps: int, data: str) -> float:
-    """Wall time of one training run of ``steps`` steps from scratch (a fresh inductor cache)."""
+def run_seconds(stage_args: list[str], batch: int, procs: int, threads: int, steps: int, data: str,
+                cache: str | None = None) -> float:
+    """Wall time of one training run of ``steps`` steps from scratch (inductor's cache in ``cache``,
+    else a fresh one: a first compile)."""
     launcher = ([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node",
                  str(procs), "-m", "sumo_scendiff.train"] if procs > 1
                 else [sys.executable, "-m", "sumo_scendiff.train"])
-    with tempfile.TemporaryDirectory() as out, tempfile.TemporaryDirectory() as cache:
-        env = {**os.environ, "OMP_NUM_THREADS": str(threads), "TORCHINDUCTOR_CACHE_DIR": cache}
+    with tempfile.TemporaryDirectory() as out, tempfile.TemporaryDirectory() as fresh:
+        env = {**os.environ, "OMP_NUM_THREADS": str(threads), "TORCHINDUCTOR_CACHE_DIR": cache or fresh}
         cmd = launcher + stage_args + ["--data", data, "-o", out, "--steps", str(steps),
                                        "--batch-size", str(batch // procs), "--val-every", "1000000",
                                        "--ckpt-every", "1000000"]
@@ -92,16 +95,18 @@ def run_seconds(stage_args: list[str], batch: int, procs: int, threads: int, ste
     return seconds
 
 
-def ab_pair(args: list[str], batch: int, o) -> dict:
-    """One pair: A's and B's short and long runs in turn (DDP, 2 x 1 thread)."""
+def ab_pair(args: list[str], batch: int, o, cache: str) -> dict:
+    """One pair: A's and B's short and long runs in turn (DDP, 2 x 1 thread), A's compiles from
+    ``cache`` (warm: a first compile's time varies by minutes on a shared machine, more than the
+    steps between the two counts take)."""
     short, long = o.steps
     t = {}
     for steps in (short, long):
         for side, flags in (("a", o.ab), ("b", o.vs)):
-            t[side, steps] = run_seconds(args + shlex.split(flags), batch, 2, 1, steps, o.data)
+            t[side, steps] = run_seconds(args + shlex.split(flags), batch, 2, 1, steps, o.data, cache)
     a, b = ((t[s, long] - t[s, short]) / (long - short) for s in ("a", "b"))
-    return {"a_s_per_step": a, "b_s_per_step": b, "ratio": a / b,
-            "a_extra_startup_s": t["a", short] - t["b", short] - short * (a - b)}
+    return {"a_s_per_step": a, "b_s_per_step": b, "ratio": a / b, "a_short_s": t["a", short],
+            "b_short_s": t["b", short], "a_extra_startup_s": t["a", short] - t["b", short] - short * (a - b)}
 
 
 def main_ab(o) -> None:
@@ -110,20 +115,25 @@ def main_ab(o) -> None:
            "steps": o.steps, "data": o.data, "stages": {}}
     lines = [f"A `{o.ab}` against B `{o.vs}`: 2 DDP processes x 1 thread, s/step from runs of "
              f"{o.steps[0]} and {o.steps[1]} steps, medians of {o.pairs} A B pairs", "",
-             "| stage | global batch | A s/step | B s/step | A / B (pairs) | A's extra start-up (s) |",
+             "| stage | global batch | A s/step | B s/step | A / B (pairs) | A's extra start-up, cached / first (s) |",
              "|---|---|---|---|---|---|"]
     with tqdm(total=len(o.stages) * o.pairs, desc="pairs") as bar:
         for key in o.stages:
             label, batch, args = STAGES[KEYS[key]]
-            pairs = []
-            for _ in range(o.pairs):
-                pairs.append(ab_pair(args, batch, o))
-                bar.update()
+            with tempfile.TemporaryDirectory() as cache:
+                # A's first run, into an empty cache: what a first compile costs
+                first = run_seconds(args + shlex.split(o.ab), batch, 2, 1, o.steps[0], o.data, cache)
+                pairs = []
+                for _ in range(o.pairs):
+                    pairs.append(ab_pair(args, batch, o, cache))
+                    bar.update()
             med = {k: statistics.median(p[k] for p in pairs) for k in pairs[0]}
-            out["stages"][key] = {"pairs": pairs, "median": med}
+            med["a_first_compile_extra_s"] = first - med["a_short_s"] + med["a_extra_startup_s"]
+            out["stages"][key] = {"pairs": pairs, "median": med, "a_first_short_s": first}
             ratios = ", ".join(f"{p['ratio']:.3f}" for p in pairs)
             lines.append(f"| {label} | {batch} | {med['a_s_per_step']:.3f} | {med['b_s_per_step']:.3f} | "
-                         f"**{med['ratio']:.3f}** ({ratios}) | {med['a_extra_startup_s']:.0f} |")
+                         f"**{med['ratio']:.3f}** ({ratios}) | {med['a_extra_startup_s']:.0f} / "
+                         f"{med['a_first_compile_extra_s']:.0f} |")
     out["table"] = "\n".join(lines) + "\n"
     if o.results:
         with open(o.results, "w") as f:
