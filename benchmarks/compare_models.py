@@ -86,6 +86,9 @@ def get_options(args=None):
     p.add_argument("-j", "--jobs", type=int, default=1, help="parts run at once (each one process)")
     p.add_argument("-s", "--seed", type=int, default=0)
     p.add_argument("-o", "--output", default=None, help="also write the table here (markdown)")
+    p.add_argument("--spread", default=None, metavar="OUT2", help="the --out of the same comparison at another "
+                   "seed: each row at both seeds, its run-to-run spread and whether the second model is worse "
+                   "beyond it (the rows of finished parts)")
     o = p.parse_args(args)
     for path in o.models:
         if not os.path.isfile(path):
@@ -97,6 +100,8 @@ def get_options(args=None):
         p.error(f"--only: {', '.join(sorted(set(o.only) - set(o.names)))} is not one of --names")
     if o.jobs < 1 or o.seeds < 1:
         p.error("--jobs and --seeds must be >= 1")
+    if o.spread and not os.path.isdir(o.spread):
+        p.error(f"--spread {o.spread}: no such comparison folder")
     o.explicit = bool(o.nets)   # -n given: every part on those networks; else each part's own default set
     o.nets = [os.path.abspath(n) for n in o.nets] if o.nets else \
         [os.path.join(SHARED_NETS, c) for c in REAL_CITIES if os.path.exists(os.path.join(SHARED_NETS, c))]
@@ -157,6 +162,11 @@ def parts(o, name: str, model: str) -> list[Part]:
                      "--scenes", str(o.token_scenes), "--tokens", "--token-scenes", str(o.token_scenes), *seed,
                      *pool, "--json", "{tmp}"), os.path.join(out, "token-tables", f"{city(n)}.json")) for n in o.nets]
     return got
+
+
+def finished_parts(o, name: str, model: str) -> list[Part]:
+    """The model's parts whose files are there, skipped this time or not (``--skip``: not to run)."""
+    return [p for p in parts(argparse.Namespace(**{**vars(o), "skip": []}), name, model) if os.path.exists(p.path)]
 
 
 def run_part(part: Part) -> str | None:
@@ -252,7 +262,7 @@ def _read_json(path: str):
 
 def model_rows(o, name: str, model: str) -> dict[str, tuple]:
     """Every numeric row of one model's finished parts."""
-    done = [p for p in parts(o, name, model) if os.path.exists(p.path)]
+    done = finished_parts(o, name, model)
     dist = [r for p in done if p.name.startswith("evaluate/") for r in _read_json(p.path)["distribution"]]
     rows = evaluate_rows(dist) if dist else {}
     for p in done:
@@ -265,7 +275,7 @@ def model_rows(o, name: str, model: str) -> dict[str, tuple]:
 
 def pooled_handoff(o, name: str, model: str) -> str | None:
     """seeding_pool.py over the model's finished hand-off samples."""
-    files = [p.path for p in parts(o, name, model) if p.name.startswith("handoff/") and os.path.exists(p.path)]
+    files = [p.path for p in finished_parts(o, name, model) if p.name.startswith("handoff/")]
     if not files:
         return None
     res = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "seeding_pool.py"), *files],
@@ -286,11 +296,50 @@ def table(o) -> str:
         pool = pooled_handoff(o, name, model)
         if pool:
             lines += ["", f"Hand-off, {name}, {pool}"]
-        for p in parts(o, name, model):
+        for p in finished_parts(o, name, model):
             if p.path.endswith(".md") and not p.name.startswith("handoff/") and os.path.exists(p.path):
                 with open(p.path) as fh:
                     lines += ["", f"{p.name}, {name}:", "", fh.read().strip()]
     return "\n".join(lines)
+
+
+def _badness(key: str, value: float, ref: float | None) -> float:
+    """Larger is worse: the distance to the reference for a count, the negative for a count of rising
+    networks, else the value itself (MMD², JSD, errors, misses)."""
+    if key.startswith("agents per window"):
+        return abs(value - ref) if ref is not None else float("nan")
+    return -value if key.endswith("networks rising") else value
+
+
+def spread_rows(names: list[str], seeds: list[dict[str, dict]]) -> list[str]:
+    """One markdown row per measure both models have at both seeds: the values, the second model's
+    mean badness over the first's, the spread (the larger range of the two models over the seeds) and
+    ``worse`` where the difference is beyond it. ``seeds``: per seed, model name -> model_rows."""
+    a, b = names
+    lines = [f"| measure | {a} (per seed) | {b} (per seed) | {b} worse by (mean) | spread | verdict |",
+             "|---|---|---|---|---|---|"]
+    keys = [k for k in seeds[0].get(a, {}) if all(k in s.get(n, {}) for s in seeds for n in names)]
+    for key in keys:
+        got = {n: [s[n][key] for s in seeds] for n in names}
+        bad = {n: [_badness(key, v, ref) for v, ref in got[n]] for n in names}
+        if not all(np.isfinite(x) for n in names for x in bad[n]):
+            continue
+        worse_by = float(np.mean(bad[b]) - np.mean(bad[a]))
+        spread = max(float(np.ptp(bad[n])) for n in names)
+        verdict = "worse" if worse_by > spread else ("better" if -worse_by > spread else "")
+        cells = [" / ".join(_fmt(v) for v, _ in got[n]) for n in names]
+        lines.append(f"| {key} | {cells[0]} | {cells[1]} | {worse_by:+.3f} | {spread:.3f} | {verdict} |")
+    return lines
+
+
+def spread_table(o) -> str:
+    """The rows of this comparison and of ``--spread``'s (the same comparison at another seed)."""
+    seeds = []
+    for out in (o.out, o.spread):
+        seeds.append({name: model_rows(argparse.Namespace(**{**vars(o), "out": out}), name, model)
+                      for name, model in zip(o.names, o.models)})
+    return "\n".join([f"Run-to-run spread: this comparison (-s {o.seed}) and --spread's, the rows of the parts "
+                      "finished in both", ""] + spread_rows(o.names, seeds))
 
 
 def _fmt(v) -> str:
@@ -302,6 +351,8 @@ def _fmt(v) -> str:
 def main(o) -> int:
     failed = run_parts(o)
     text = table(o)
+    if o.spread:
+        text += "\n\n" + spread_table(o)
     print(text)
     if o.output:
         with open(o.output, "w") as f:

@@ -12,6 +12,8 @@ import pytest
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCRIPT = os.path.join(REPO, "benchmarks", "compare_models.py")
 SHIPPED = os.path.join(REPO, "sumo_scendiff", "weights", "scendiff.pt")
+sys.path.insert(0, os.path.join(REPO, "benchmarks"))
+from compare_models import spread_rows  # noqa: E402
 
 
 def _compare(tmp_path, cross_net, *args):
@@ -64,3 +66,28 @@ def test_bad_input_exit_2(tmp_path):
                         ([SHIPPED, SHIPPED, "--names", "a", "b", "-n", str(tmp_path / "no.net.xml")], "no such network")):
         res = subprocess.run([sys.executable, SCRIPT, *args], capture_output=True, text=True)
         assert res.returncode == 2 and words in res.stderr and "Traceback" not in res.stderr
+
+
+def test_the_spread_verdict_takes_each_rows_direction():
+    """A row is worse only beyond the larger range either model has over the seeds, in the row's own
+    direction: lower MMD², a count nearer the reference, more networks rising."""
+    def rows(mmd, agents, rising):
+        return {"MMD² joint — x": (mmd, 0.6), "agents per window — x": (agents, 7.0),
+                "density response model: networks rising": (rising, None)}
+    seeds = [{"a": rows(0.50, 8.0, 13.0), "b": rows(0.60, 9.5, 13.0)},
+             {"a": rows(0.52, 7.5, 12.0), "b": rows(0.61, 6.0, 12.0)}]
+    lines = spread_rows(["a", "b"], seeds)
+    cells = {ln.split("|")[1].strip(): [c.strip() for c in ln.split("|")[2:-1]] for ln in lines[2:]}
+    assert cells["MMD² joint — x"] == ["0.500 / 0.520", "0.600 / 0.610", "+0.095", "0.020", "worse"]
+    # |8 - 7|, |7.5 - 7| against |9.5 - 7|, |6 - 7|: b worse by 1.0 on average, within its own range 1.5
+    assert cells["agents per window — x"][2:] == ["+1.000", "1.500", ""]
+    assert cells["density response model: networks rising"][2:] == ["+0.000", "1.000", ""]
+    better = spread_rows(["b", "a"], seeds)
+    assert any(ln.startswith("| MMD² joint — x |") and ln.rstrip().endswith("| better |") for ln in better)
+
+
+def test_spread_of_a_missing_folder_is_one_line(tmp_path):
+    res = subprocess.run([sys.executable, SCRIPT, SHIPPED, SHIPPED, "--names", "a", "b", "--spread",
+                          str(tmp_path / "nothing")], capture_output=True, text=True)
+    assert res.returncode == 2 and "--spread" in res.stderr and "no such comparison folder" in res.stderr
+    assert "Traceback" not in res.stderr
