@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import gzip
 import json
+import os
+import signal
 import subprocess
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -14,6 +16,10 @@ from scenarios_features import _binary
 # the replays and the step whose folder each replays
 NEEDS = {"run_replay": "run", "fill_replay": "fill", "fill_start": "fill"}
 REFERENCE_TIMEOUT = 600   # s: a stock SUMO run of a configuration (the corpus's first step, a count's reference)
+
+
+class CountError(RuntimeError):
+    """A replay's count cannot be made (one line): the step fails saying so, never passes uncounted."""
 
 
 def _sumo() -> str:
@@ -71,24 +77,25 @@ def _seeded(doc: dict) -> int:
     return sum(a.get("status") in ("placed", "misplaced") for a in doc.get("agents", []))
 
 
-def expected_vehicles(name: str, out: Path) -> tuple[int | None, str]:
+def expected_vehicles(name: str, out: Path) -> tuple[int, str]:
     """What a replay must hold at its first step and the words naming where that count comes from:
     for the run's scene, stock SUMO's vehicles at the scene's time plus the scene's seeded agents; for
     the fill's state and portable start, fill.json's seeded agents (the demand's own among them), and
-    for the state the vehicles it holds waiting to enter (fill.json's ``waiting_to_enter``)."""
+    for the state the vehicles it holds waiting to enter (fill.json's ``waiting_to_enter``). Raises
+    CountError where it cannot be counted."""
     if name == "run_replay":
         doc_path = out / "run" / "scene_000" / "scene.json"
         if not doc_path.is_file():
-            return None, ""
+            raise CountError("could not count: the run wrote no scene_000/scene.json")
         doc = json.loads(doc_path.read_text())
         t, seed = float(doc["time"]), doc["sumo_options"].get("seed")
         stock = held(step_at(_stock_summary(out, t, seed), t))
         if stock is None:
-            return None, ""
+            raise CountError(f"could not count: stock SUMO's reference run has no step at {t:g} s")
         return stock + _seeded(doc), f"stock SUMO (seed {seed}) held {stock} at {t:g} s + {_seeded(doc)} placed"
     doc_path = out / "fill" / "fill.json"
     if not doc_path.is_file():
-        return None, ""
+        raise CountError("could not count: the fill wrote no fill.json")
     doc = json.loads(doc_path.read_text())
     seeded = _seeded(doc)
     # the state keeps SUMO's queue of vehicles due but not yet in (a full network's), the portable start not:
@@ -164,9 +171,21 @@ def _stock_summary(out: Path, t: float, seed) -> Path:
     until the time limit (sumorl_ow), and its binary outlived the killed wrapper, holding the port."""
     cfg = json.loads((out / "run" / "run.json").read_text())["configuration"]
     path = out / "run_reference_summary.xml"
-    subprocess.run([_sumo(), "-c", cfg, "--end", f"{t:g}", "--no-step-log", "true", "--summary-output", path,
-                    "--remote-port", "0", *(["--seed", str(seed)] if seed is not None else [])],
-                   capture_output=True, cwd=out, timeout=REFERENCE_TIMEOUT, check=False)
+    path.unlink(missing_ok=True)    # an earlier run's summary is not this one's count
+    # a configuration's output-prefix (MoST's "most.") would rename the summary read here
+    cmd = [_sumo(), "-c", cfg, "--end", f"{t:g}", "--no-step-log", "true", "--summary-output", path,
+           "--output-prefix", "", "--remote-port", "0", *(["--seed", str(seed)] if seed is not None else [])]
+    # its own process group: the `sumo` wrapper's binary is ended with it at the time limit
+    proc = subprocess.Popen([str(c) for c in cmd], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=out,
+                            start_new_session=True)
+    try:
+        proc.wait(timeout=REFERENCE_TIMEOUT)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+        raise CountError(f"could not count: stock SUMO's reference run took over {REFERENCE_TIMEOUT} s") from None
+    if not path.is_file():
+        raise CountError(f"could not count: stock SUMO's reference run wrote no {path.name}")
     return path
 
 
@@ -175,10 +194,13 @@ def check_count(name: str, res: dict, out: Path) -> dict:
     (:func:`expected_vehicles`): a mismatch beyond :data:`COUNT_TOLERANCE` fails the step."""
     if name not in NEEDS or not res.get("ok"):
         return res
-    want, source = expected_vehicles(name, out)
+    try:
+        want, source = expected_vehicles(name, out)
+    except CountError as e:
+        return {**res, "ok": False, "error": str(e)}
     got = held(next(summary_steps(out / f"{name}_summary.xml"), None))
-    if want is None or got is None:
-        return res
+    if got is None:
+        return {**res, "ok": False, "error": f"could not count: {name}_summary.xml has no step"}
     res = {**res, "vehicles": {"sumo": got, "expected": want}}
     if abs(got - want) > max(COUNT_TOLERANCE[0], COUNT_TOLERANCE[1] * want):
         what = "scene" if name == "run_replay" else ("state" if name == "fill_replay" else "start")

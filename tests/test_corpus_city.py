@@ -3,6 +3,7 @@ merger numbered it, routes the rebuilt network cannot drive repaired, and the ha
 summary where a configuration names an output-prefix."""
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -96,3 +97,39 @@ def test_the_stock_step_reads_its_summary_under_an_output_prefix(corpus, tmp_pat
     cmd = corpus.commands(cfg, 10.0, (0, 0, 100, 100), out)["sumo"]
     assert corpus.step(cmd, 60, out / "logs" / "sumo.log", out)["ok"]
     assert (out / "sumo_summary.xml").is_file()
+
+
+def _reference_folder(tmp_path, cfg_extra: str):
+    """A run's folder whose scene (at 30 s) the run replay's reference counts, on a configuration of a tiny
+    grid and a flow with ``cfg_extra`` in it."""
+    subprocess.run(["netgenerate", "--grid", "--grid.number", "3", "--grid.length", "200",
+                    "-o", str(tmp_path / "g.net.xml")], check=True, capture_output=True)
+    (tmp_path / "d.rou.xml").write_text('<routes><flow id="f" begin="0" end="60" period="5" from="A0A1" '
+                                        'to="A1A2"/></routes>')
+    (tmp_path / "s.sumocfg").write_text('<configuration><net-file value="g.net.xml"/><route-files value="d.rou.xml"/>'
+                                        f'{cfg_extra}</configuration>')
+    out = tmp_path / "out"
+    (out / "run" / "scene_000").mkdir(parents=True)
+    (out / "run" / "run.json").write_text(json.dumps({"configuration": str(tmp_path / "s.sumocfg")}))
+    (out / "run" / "scene_000" / "scene.json").write_text(json.dumps({"time": 30.0, "sumo_options": {"seed": 0},
+                                                                       "agents": []}))
+    return out
+
+
+def test_the_run_replays_reference_counts_under_an_output_prefix(corpus, tmp_path):
+    import scenarios_counts
+    out = _reference_folder(tmp_path, '<output-prefix value="most."/>')
+    count, words = scenarios_counts.expected_vehicles("run_replay", out)
+    assert count > 0 and "stock SUMO" in words, words
+
+
+def test_a_replay_that_cannot_be_counted_fails_in_one_line(corpus, tmp_path, monkeypatch):
+    """The reference over its time limit (F21) and a replay without a summary: the step fails, no traceback."""
+    import scenarios_counts
+    monkeypatch.setattr(scenarios_counts, "REFERENCE_TIMEOUT", 0.01)
+    out = _reference_folder(tmp_path, "")
+    res = scenarios_counts.check_count("run_replay", {"ok": True}, out)
+    assert res["ok"] is False and "took over" in res["error"], res
+    (out / "run" / "scene_000" / "scene.json").unlink()
+    res = scenarios_counts.check_count("run_replay", {"ok": True}, out)
+    assert res["ok"] is False and "could not count" in res["error"], res
