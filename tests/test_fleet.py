@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sumo_scendiff.map.network import Network
-from sumo_scendiff.sim.fleet import DRAWN_KEY, Fleet
+from sumo_scendiff.sim.fleet import DRAWN_KEY, Fleet, own_size
 from sumo_scendiff.sim.seeding import Seeder
 from sumo_scendiff.tokens.file import TokenFileError
 
@@ -36,7 +36,7 @@ def scenario(cross_net, tmp_path_factory):
     return cross_net, str(d / "types.add.xml"), str(d / "demand.rou.xml")
 
 
-def _seed(scenario, cross_scene, seed: int, types=None, demand: bool = True, tweak=None):
+def _seed(scenario, cross_scene, seed: int, types=None, demand: bool = True, tweak=None, sized=None):
     """Start SUMO on the scenario (its demand run 40 s), seed the five-agent crossing scene (changed
     by ``tweak(scene)``); returns per seeded agent (its vType as SUMO has it), the scene, the report
     and the fleet."""
@@ -52,7 +52,7 @@ def _seed(scenario, cross_scene, seed: int, types=None, demand: bool = True, twe
         for _ in range(40 if demand else 0):
             sim.simulationStep()
         seeder = Seeder(sim, net, seed=seed)
-        report = seeder.seed(scene, types=types)
+        report = seeder.seed(scene, types=types, sized=sized)
         sim.simulationStep()
         seeder.verify(report)
         t = sim.vehicletype
@@ -115,6 +115,21 @@ def test_a_named_vtype_is_given_and_unknown_names_are_one_line(scenario, cross_s
         fleet.token_vtypes([{"x": 1.0}, {"vtype": "bus_articulated"}], "tok.toml")
     msg = str(e.value)
     assert msg.startswith("tok.toml: agents[1]") and "'bus_articulated'" in msg and "\n" not in msg
+
+
+def test_a_token_that_gives_a_size_is_seeded_at_that_size(scenario, cross_scene):
+    """A user's token 10.5 x 2.5 m (a truck) is not given a car drawn from the mix: SUMO's vehicle has
+    the token's size, as the scenario's type nearest it (the coach), whatever the seed."""
+    def truck(scene):
+        scene.boxes[2, 3:5] = (10.5, 2.5)
+    for seed in (0, 1, 2, 3):
+        got, scene, report, _ = _seed(scenario, cross_scene, seed=seed, tweak=truck,
+                                      sized=[None, None, "size", None, None])
+        assert got[2][:3] == pytest.approx(("bus", 10.5, 2.5)) and got[2][4:] == OWN["coach"][4:]
+        assert tuple(scene.boxes[2, 3:5]) == pytest.approx((10.5, 2.5)) and scene.meta[DRAWN_KEY][2][0] == "coach"
+    # which user tokens keep their size (the co-simulation passes it per agent)
+    assert [own_size(t) for t in ({"x": 1.0, "length": 10.5, "width": 2.5}, {"vclass": "truck"},
+                                  {"vtype": "car", "length": 4.0}, {"x": 1.0, "speed": 3.0})] == ["size", "class", None, None]
 
 
 def test_a_bare_network_keeps_the_drawn_boxes(scenario, cross_scene):

@@ -41,6 +41,7 @@ from ..core.geometry import (
 from ..core.matching import match_agents
 from ..core.scene import Scene
 from ..map.network import Network
+from .fleet import own_size
 from .request import counted_as_asked, generation_inputs, window_request
 from .seed_report import before_status
 from .seeding import Seeder, SeedReport
@@ -295,7 +296,9 @@ class CoSimulation:
         self.seeder.count = 0
         self.count += 1
         named = [None if token_of[i] is None else tokens[token_of[i]].get("vtype") for i in idx]   # sim/fleet.py
-        report = self.seeder.seed(sub, others=(existing.boxes, existing.speed), types=named)
+        sized = [None if token_of[i] is None or token_source[token_of[i]] != "user" else own_size(tokens[token_of[i]])
+                 for i in idx]
+        report = self.seeder.seed(sub, others=(existing.boxes, existing.speed), types=named, sized=sized)
         return Seeding(sub, report, tokens, token_source, [token_of[i] for i in idx],
                        seed=seed, p_mask=p_mask, before=scene.select(gone),
                        before_reason=[why[i] for i in gone.tolist()],

@@ -149,6 +149,10 @@ def _vtype_xml(sim, tid: str, declared: dict) -> str:
         el.attrib.pop("probability", None)    # a member of a vTypeDistribution stands alone here
         el.set("id", tid)
         el.set("minGap", f"{vt.getMinGap(tid):.3f}")
+        pid = vt.getParameter(tid, PARENT_PARAM)
+        for name, get in (("length", vt.getLength), ("width", vt.getWidth)):
+            if abs(get(tid) - get(pid)) > 1e-6:      # a user token's size (Seeder.fit_type)
+                el.set(name, f"{get(tid):.3f}")
         el.tail = None
         return "    " + ET.tostring(el, encoding="unicode").strip()
     color = ",".join(str(c) for c in vt.getColor(tid))

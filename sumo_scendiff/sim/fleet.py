@@ -200,10 +200,14 @@ class Fleet:
         cost = np.array([self._cost(self.get(m), length, width, kind) for m in members])
         return self._pick(members, cost, [probs[m] for m in members], rng)
 
-    def nearest(self, length: float, width: float, kind: str, allowed, room: float, rng) -> str | None:
+    def nearest(self, length: float, width: float, kind: str, allowed, room: float, rng,
+                same_kind: bool = False) -> str | None:
         """The mix's type nearest a drawn box among those ``allowed`` (vClass -> bool) that fit in
-        ``room`` (m of length), sampled by the mix among those as near; None if none fits."""
+        ``room`` (m of length), sampled by the mix among those as near; None if none fits. With
+        ``same_kind`` only those of ``kind`` where the mix has one (a token's vclass)."""
         names = [n for n in self.share if allowed(self.get(n).vclass) and self.get(n).length <= room]
+        if same_kind:
+            names = [n for n in names if self.get(n).kind == kind] or names
         if not names:
             return None
         cost = np.array([self._cost(self.get(n), length, width, kind) for n in names])
@@ -234,13 +238,15 @@ class Fleet:
 
     # ---- a scene's vehicles --------------------------------------------------------------------
     def assign(self, scene: Scene, others: np.ndarray, lead: np.ndarray, gap: np.ndarray, net,
-               named: Sequence | None, rng) -> tuple[list[str | None], dict[int, str]]:
+               named: Sequence | None, rng, sized: Sequence | None = None) -> tuple[list[str | None], dict[int, str]]:
         """(per agent of ``scene`` the vType it is seeded as, None: the model's box on SUMO's default
         type as without a demand; the agents not to seed, with why). Each box is resized to its
         type's around the same centre (``scene.meta[DRAWN_KEY]`` keeps what was drawn). ``named``:
         per agent a type asked for (a token's ``vtype``, a demand vehicle's own) or None; ``others``
         the host's boxes (scene frame); ``lead``, ``gap``: :meth:`Seeder.leaders` of the agents' and
-        then the host's boxes (the room a longer type has)."""
+        then the host's boxes (the room a longer type has). ``sized``: per agent :func:`own_size` of
+        its user token: such an agent keeps its box and takes the mix's type nearest it (what the
+        token gives is what SUMO gets; the seeder gives the vehicle that size), not a drawn one."""
         n = len(scene)
         out: list[str | None] = [None] * n
         if not n:
@@ -252,24 +258,31 @@ class Fleet:
             name = named[i] if named is not None else None
             if name is not None and name in self.names:
                 out[i] = self.member(name, boxes[i, 3], boxes[i, 4], kinds[i], rng)
+        own = [out[i] is None and sized is not None and bool(sized[i]) for i in range(n)]
         if self.active:
             allowed = _lane_rules(scene, net)
+            for i in np.flatnonzero(own):
+                out[i] = self.nearest(boxes[i, 3], boxes[i, 4], kinds[i], allowed[i], np.inf, rng,
+                                      same_kind=sized[i] == "class")
             room = room_for(boxes[:, 3], lead, gap, n)
-            self._draw(out, kinds, allowed, room, boxes, rng)
+            self._draw(out, kinds, allowed, room, boxes, rng, own)
         drawn = {}
         for i, name in enumerate(out):
             if name is not None:
                 t = self.get(name)
                 drawn[i] = (name, float(boxes[i, 3]), float(boxes[i, 4]))
-                boxes[i, 3], boxes[i, 4] = t.length, t.width
-                scene.vclass[i] = VEHICLE_CLASSES.index(t.kind)
+                if not own[i]:
+                    boxes[i, 3], boxes[i, 4] = t.length, t.width
+                    scene.vclass[i] = VEHICLE_CLASSES.index(t.kind)
         scene.meta[DRAWN_KEY] = {**scene.meta.get(DRAWN_KEY, {}), **drawn}
         return out, crowded(before, boxes[:, :5], others, out)
 
-    def _draw(self, out: list, kinds: list[str], allowed: list, room: np.ndarray, boxes: np.ndarray, rng) -> None:
-        """The agents without a type yet: a fleet drawn from the mix, each drawn type given to the
-        agent it fits best (allowed on its lane, within its room); the rest the nearest that fits."""
-        free = [i for i, name in enumerate(out) if name is None]
+    def _draw(self, out: list, kinds: list[str], allowed: list, room: np.ndarray, boxes: np.ndarray, rng,
+              own: list) -> None:
+        """The agents without a type yet (but those keeping their own size): a fleet drawn from the
+        mix, each drawn type given to the agent it fits best (allowed on its lane, within its room);
+        the rest the nearest that fits."""
+        free = [i for i, name in enumerate(out) if name is None and not own[i]]
         if not free:
             return
         names = list(self.share)
@@ -296,6 +309,16 @@ class Fleet:
         w = np.asarray(weight, np.float64)[near]
         w = w / w.sum() if w.sum() > 0 else np.full(len(near), 1.0 / len(near))
         return names[int(near[rng.choice(len(near), p=w)])]
+
+
+def own_size(token) -> str | None:
+    """What a user's token fixes of its vehicle's size: "class" (it gives ``vclass``), "size" (it gives
+    ``length`` or ``width``), or None (neither, or it names a ``vtype``, which has its own size)."""
+    if not isinstance(token, Mapping) or token.get("vtype") is not None:
+        return None
+    if token.get("vclass") is not None:
+        return "class"
+    return "size" if token.get("length") is not None or token.get("width") is not None else None
 
 
 def scenario_type(type_id: str, vehicle: str) -> str:

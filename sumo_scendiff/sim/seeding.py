@@ -91,6 +91,7 @@ class Seeder(Gaps, Settling, StopLines, PoseRoutes, Drops):
         self._edge_routes: set[str] = set()  # the one-edge routes added (add_on_route)
         self._staged: set[str] = set()       # vehicles whose staging route is still in SUMO (add_on_route)
         self._inside: dict[str, tuple] = {}  # vehicle seeded inside a junction -> (its internal lane, front pos)
+        self._own_size: set[int] = set()     # this seeding's agents whose user token gave their size
 
     # ---- vehicle types ------------------------------------------------------------------------
     def _known_types(self) -> Fleet:
@@ -118,15 +119,20 @@ class Seeder(Gaps, Settling, StopLines, PoseRoutes, Drops):
             self._bases.add(tid)
         return tid
 
-    def fit_type(self, vid: str, length: float, width: float, min_gap: float, parent: str | None) -> None:
+    def fit_type(self, vid: str, length: float, width: float, min_gap: float, parent: str | None,
+                 own_size: bool = False) -> None:
         """The added vehicle's own size and minGap. SUMO gives a vehicle whose size or minGap is set
         (``vehicle.setMinGap`` ...) a type of its own, ``{type}@{vid}``, which settling can change
         without touching another vehicle and which SUMO deletes with the vehicle (the seeder leaves
         no vType behind). A copy of one of the scenario's vTypes (``parent``) differs only by a
-        minGap fitted to the gap ahead where that is below its own; else its box too."""
+        minGap fitted to the gap ahead where that is below its own, and the box a user's token gave it
+        (``own_size``); else its box too."""
         v, t = self.sim.vehicle, self.sim.vehicletype
         if parent is not None:
             v.setMinGap(vid, min(float(min_gap), float(t.getMinGap(parent))))
+            if own_size:
+                v.setLength(vid, float(length))
+                v.setWidth(vid, float(width))
             # an export writes the parent's own definition (its car-following model and parameters,
             # which TraCI cannot read back)
             t.setParameter(v.getTypeID(vid), PARENT_PARAM, parent)
@@ -202,7 +208,7 @@ class Seeder(Gaps, Settling, StopLines, PoseRoutes, Drops):
             report.pulled_back[i] = back
 
     def seed(self, scene: Scene, others: tuple[np.ndarray, np.ndarray] | None = None,
-             routes: list | None = None, types: list | None = None) -> SeedReport:
+             routes: list | None = None, types: list | None = None, sized: list | None = None) -> SeedReport:
         """Add every agent of ``scene``; call ``simulationStep`` and then :meth:`verify`.
 
         ``routes``: per agent a route (edges from where it stands) it should drive, or None: the
@@ -210,6 +216,8 @@ class Seeder(Gaps, Settling, StopLines, PoseRoutes, Drops):
         "lost" when neither reaches it and a destination is drawn as for the others). ``types``:
         per agent a vType it is asked to be (a token's, a demand vehicle's own), or None: with a
         demand one of the scenario's chosen by :meth:`~sumo_scendiff.sim.fleet.Fleet.assign`.
+        ``sized``: per agent what its user token fixes of its size (:func:`~sumo_scendiff.sim.fleet.own_size`):
+        such a vehicle has its box's size whatever vType it is.
 
         ``others``: (boxes (M, 5), speeds (M,)) in the scene frame of the host's vehicles around the
         window, which can be the vehicle ahead of an agent. An agent departs at its generated speed,
@@ -218,21 +226,22 @@ class Seeder(Gaps, Settling, StopLines, PoseRoutes, Drops):
         its ``decel``): those are in ``report.slowed``.
         """
         report = SeedReport()
-        keep, types, gaps, depart = self._prepare(scene, others, types, report)
+        keep, types, gaps, depart = self._prepare(scene, others, types, report, sized)
+        self._own_size = {i for i, s in enumerate(sized or ()) if s}
         self.routes.refresh()
         for i in range(len(scene)):
             if keep[i]:
                 self._add(scene, i, types[i], gaps[i], depart[i], routes[i] if routes is not None else None, report)
         return report
 
-    def _prepare(self, scene: Scene, others, types: list | None, report: SeedReport):
+    def _prepare(self, scene: Scene, others, types: list | None, report: SeedReport, sized: list | None = None):
         """Before any vehicle is added: each agent's vType (the scenario's, boxes resized), its
         pose fitted at red junctions and lane ends, whether it is seeded (``report.dropped`` says why
         not), its minGap and its departure speed. Returns (keep, types, min gaps, departure speeds)."""
         other_boxes, other_speed = others if others is not None else (np.zeros((0, 5)), np.zeros(0))
         types, crowded = self._known_types().assign(   # the scenario's vTypes, boxes resized (sim/fleet.py)
             scene, other_boxes, *self.leaders(np.concatenate([scene.boxes[:, :5], other_boxes[:, :5]])),
-            self.net, types, self.rng)
+            self.net, types, self.rng, sized)
         gone = self.fit_red_junctions(scene, report, other_boxes)
         self.fit_lane_ends(scene, report, other_boxes)
         lead, bumper_gap = self.leaders(scene.boxes, other_boxes)
@@ -279,7 +288,7 @@ class Seeder(Gaps, Settling, StopLines, PoseRoutes, Drops):
             self.add_on_route(vid, full, typeID=tid, depart="now",
                               departLane=str(lane_index) if not lane.internal else "best",
                               departPos=self._depart_pos(lane, full, fx, fy), departSpeed=f"{speed:.3f}")
-            self.fit_type(vid, scene.boxes[i, 3], width, gap, vtype if tid == vtype else None)
+            self.fit_type(vid, scene.boxes[i, 3], width, gap, vtype if tid == vtype else None, i in self._own_size)
             if not self.meso:
                 sim.vehicle.moveToXY(vid, "" if lane.internal else lane.edge, lane.index,
                                      float(fx), float(fy), float(angle), keepRoute=self.keep_route)
