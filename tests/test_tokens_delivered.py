@@ -284,3 +284,19 @@ def test_a_token_giving_one_of_its_speeds_is_drawn_at_it_without_braking_or_acce
             k = int(d.argmin())
             v = s.speed[k]
             assert d[k] < 1.0 and abs(v[at] - 8.0) < 2.5 and abs(v[-1] - v[T0]) < 2.0, (seed, key, v)
+
+
+def test_a_lane_offset_inside_a_junction_is_counted_on_its_road(cross2_net):
+    """A window centred on a junction (as ``run`` picks them): ``ahead`` finds an internal lane, one
+    lane per connection; ``lane_offset = 1`` is counted on the road that lane leads from or to, and
+    the error never names an internal lane the user did not write."""
+    net = Network.load(cross2_net)
+    y0 = float(net.lanes[net.lane_index["wc_0"]].shape[-1][1])
+    w = Window(0.0, y0, 0.0)                                   # eastbound on its right lane, on the crossing
+    inner = net.lookup(*w.scene_to_world(np.array([[2.0, 0.0]]))[0], 0.0, radius=5.0)[0]
+    assert inner.internal                                      # what ahead = 2 finds
+    (tok,) = resolve_tokens(net, w, parse_tokens({"agents": [{"ahead": 2, "lane_offset": 1}]}, "t.toml").for_window(w))
+    lane = net.lookup(*w.scene_to_world(np.array([[tok["x"], tok["y"]]]))[0], 0.0)[0]
+    assert lane.id in ("wc_1", "ce_1") and tok["heading"] == pytest.approx(0.0, abs=1e-3)
+    with pytest.raises(TokenFileError, match=r"token 0: lane_offset: edge 'wc' has no lane 2"):
+        resolve_tokens(net, w, parse_tokens({"agents": [{"ahead": 2, "lane_offset": 2}]}, "t.toml").for_window(w))

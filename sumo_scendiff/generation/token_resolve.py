@@ -9,7 +9,7 @@ the road"): ``edge``, ``lane``, ``pos`` (SUMO's lane, metres along it) or ``ahea
 of the point on that lane's centre line, and ``heading`` the lane's there unless the token gives
 one: the lane the user named is the direction of travel. A lane offset is counted on the network
 (SUMO's lane index on the same edge), not as a fixed width, so it lands on the lane's centre line
-on any road. A reference the network does not have raises
+on any road; inside a junction on the road the window's lane leads from or to. A reference the network does not have raises
 :class:`~sumo_scendiff.tokens.file.TokenFileError` naming the token and the key.
 """
 from __future__ import annotations
@@ -24,6 +24,7 @@ from ..tokens.file import REFERENCE_KEYS, TokenFileError
 
 AHEAD_RADIUS = 5.0          # m: how far from the point ahead the window's lane may lie
 AHEAD_MAX_ANGLE = np.pi / 3  # rad: the lane runs along the window's axis within this
+CHAIN = 8                   # internal lanes followed from one connection to its roads
 
 
 def resolve_tokens(net, window: Window, tokens: Sequence | np.ndarray | None, source: str = ""):
@@ -53,6 +54,25 @@ def _lane(net, edge: str, index: int, where: str, key: str) -> int:
     return k
 
 
+def _road_lanes(net, inside) -> list:
+    """The lanes of the roads (normal edges) the internal lane ``inside`` leads from and to, in that
+    order: a lane offset asked where the point ahead lies inside a junction is counted on them, since
+    an internal lane is one connection (one lane). Through a chain of internal lanes (an internal
+    junction between) both ways."""
+    snet, out = net.sumo_net, []
+    for step in (lambda ln: ln.getIncoming(), lambda ln: ln.getOutgoingLanes()):
+        lane = snet.getLane(inside.id)
+        for _ in range(CHAIN):
+            nxt = step(lane)
+            if not nxt:
+                break
+            lane = nxt[0]
+            if not lane.getID().startswith(":"):
+                out.append(net.lanes[net.lane_index[lane.getID()]])
+                break
+    return out
+
+
 def resolve_token(net, window: Window, token: Mapping, i: int = 0) -> dict:
     """One token dict with its reference keys resolved (see the module docstring)."""
     t = dict(token)
@@ -75,6 +95,9 @@ def resolve_token(net, window: Window, token: Mapping, i: int = 0) -> dict:
                                  f"{AHEAD_RADIUS:g} m of ({p[0, 0]:.1f}, {p[0, 1]:.1f}), {ahead:g} m "
                                  f"ahead of the window centre")
         ego = net.lanes[int(m.lane[0])]
+        if offset and ego.internal:
+            roads = _road_lanes(net, ego) or [ego]
+            ego = next((r for r in roads if f"{r.edge}_{r.index + offset}" in net.lane_index), roads[0])
         k = _lane(net, ego.edge, ego.index + offset, where, "lane_offset") if offset else int(m.lane[0])
         pos = float(shapely.line_locate_point(net.lines[k], shapely.Point(p[0])))
     xy, heading = net.lane_pose(k, pos)
