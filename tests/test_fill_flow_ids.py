@@ -96,3 +96,29 @@ def test_a_route_file_cut_short_keeps_its_flows(tmp_path):
         run = subprocess.run([sumo_binary(), "-c", str(out / cfg), "--end", str(BEGIN + 60), "--no-step-log", "true"],
                              capture_output=True, text=True)
         assert run.returncode == 0, run.stderr[-400:]
+
+
+def test_a_large_route_file_is_read_in_a_stream(tmp_path):
+    """A city's route file is renumbered without its DOM in memory (ElementTree's tree of it is several
+    times the file): the peak Python allocation stays under the file's size, and the file is rewritten
+    without its early flow, every vehicle kept."""
+    import tracemalloc
+    import xml.etree.ElementTree as ET
+
+    from sumo_scendiff.fill.flow_ids import _renumber_file
+    path = tmp_path / "big.rou.xml"
+    with open(path, "w") as f:
+        f.write('<routes>\n  <flow id="g" begin="0" end="900" period="60" from="A0A1" to="A1A2"/>\n')
+        f.writelines(f'  <vehicle id="v{k}" depart="{k}"><route edges="A0A1 A1A2 A2A3"/></vehicle>\n'
+                     for k in range(20000))
+        f.write('</routes>\n')
+    tracemalloc.start()
+    try:
+        found = _renumber_file(str(path), 300_000, None)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert [el.get("id") for _, el in found][:2] == ["g.5", "g.6"]
+    assert peak < path.stat().st_size, (peak, path.stat().st_size)
+    tags = [el.tag for el in ET.parse(path).getroot()]
+    assert tags.count("vehicle") == 20000 and "flow" not in tags
