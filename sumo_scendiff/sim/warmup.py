@@ -17,6 +17,7 @@ import hashlib
 import json
 import os
 import tempfile
+import xml.etree.ElementTree as ET
 from dataclasses import replace
 
 from ..core.files import file_sha256
@@ -69,16 +70,53 @@ def _without_rng(extra) -> tuple:
 
 
 def state_key(cfg, until: float) -> str:
-    """The key of ``cfg`` (sim.sumo.SimConfig) run to ``until``: SUMO's version, its command line with
-    each input file replaced by its contents' hash, and the time."""
+    """The key of ``cfg`` (sim.sumo.SimConfig) run to ``until``: SUMO's version, its command line (its
+    seed and options on random numbers among them) with each input file replaced by its contents' hash
+    (:func:`_contents_key`), and the time."""
     args, out = replace(cfg, extra=_without_rng(cfg.extra)).args(), []
     for k, a in enumerate(args):
         if k and option_name(args[k - 1].lstrip("-")) in FILE_OPTIONS:
-            a = ",".join(file_sha256(p) for p in a.split(","))
+            a = ",".join(_contents_key(p) for p in a.split(","))
         out.append(a)
     doc = {"version": STATE_VERSION, "sumo": _sumo_version(), "args": out,
            "until": round(float(until), 6)}
     return hashlib.sha256(json.dumps(doc).encode()).hexdigest()[:24]
+
+
+def _contents_key(path: str, chain: tuple[str, ...] = ()) -> str:
+    """The hash of input file ``path``'s bytes and of every file it ``<include>``s (SUMO reads them in
+    place: an edited included file is other traffic)."""
+    digest = file_sha256(path)
+    hrefs = _includes(path) if path not in chain else []
+    if not hrefs:
+        return digest
+    parts = [digest, *(_contents_key(h, chain + (path,)) if os.path.isfile(h) else "absent:" + h for h in hrefs)]
+    return hashlib.sha256("|".join(parts).encode()).hexdigest()
+
+
+def _includes(path: str) -> list[str]:
+    """The files ``path`` names in ``<include href>``, as SUMO resolves them; read in a stream only where
+    its text holds ``<include`` at all (a city's route file is large)."""
+    from ..core.sumo_xml import XmlError, include_path, open_xml
+    try:
+        with open_xml(path) as f:
+            tail, seen = b"", False
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                if b"<include" in tail + chunk:
+                    seen = True
+                    break
+                tail = chunk[-8:]
+            if not seen:
+                return []
+            f.seek(0)
+            hrefs = []
+            for _, el in ET.iterparse(f):
+                if el.tag == "include" and el.get("href"):
+                    hrefs.append(include_path(path, el.get("href")))
+                el.clear()
+            return hrefs
+    except (XmlError, ET.ParseError, OSError):     # SUMO says what is wrong with it when it loads it
+        return []
 
 
 def _sumo_version() -> str:
