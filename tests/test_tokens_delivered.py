@@ -298,5 +298,12 @@ def test_a_lane_offset_inside_a_junction_is_counted_on_its_road(cross2_net):
     (tok,) = resolve_tokens(net, w, parse_tokens({"agents": [{"ahead": 2, "lane_offset": 1}]}, "t.toml").for_window(w))
     lane = net.lookup(*w.scene_to_world(np.array([[tok["x"], tok["y"]]]))[0], 0.0)[0]
     assert lane.id in ("wc_1", "ce_1") and tok["heading"] == pytest.approx(0.0, abs=1e-3)
+    far = parse_tokens({"agents": [{"ahead": 2, "lane_offset": 2, "speed": 3.0}]}, "t.toml").for_window(w)
     with pytest.raises(TokenFileError, match=r"token 0: lane_offset: edge 'wc' has no lane 2"):
-        resolve_tokens(net, w, parse_tokens({"agents": [{"ahead": 2, "lane_offset": 2}]}, "t.toml").for_window(w))
+        resolve_tokens(net, w, far)
+    # run's windows: the road there has no such lane; one line naming the token, the token without its place
+    said = []
+    (tok,) = resolve_tokens(net, w, far, "t.toml", said)
+    assert said == ["token 0: lane_offset: edge 'wc' has no lane 2 (lanes 0..1): not in this window; "
+                    "the token is given without its place"]
+    assert tok.get("x") is None and "ahead" not in tok and "lane_offset" not in tok and tok["speed"] == 3.0

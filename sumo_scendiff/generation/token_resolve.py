@@ -27,18 +27,36 @@ AHEAD_MAX_ANGLE = np.pi / 3  # rad: the lane runs along the window's axis within
 CHAIN = 8                   # internal lanes followed from one connection to its roads
 
 
-def resolve_tokens(net, window: Window, tokens: Sequence | np.ndarray | None, source: str = ""):
+class NotHere(TokenFileError):
+    """A place relative to the window (``ahead``, ``lane_offset``) this window's road does not have:
+    the file is right, the window (one ``run`` picked, say) is not that road."""
+
+
+def resolve_tokens(net, window: Window, tokens: Sequence | np.ndarray | None, source: str = "",
+                   warnings: list | None = None):
     """``tokens`` (one window's dicts) with network references replaced by window-frame ``x``,
     ``y`` and ``heading``; other tokens, and encoded token arrays, are returned as they are.
-    ``source``: the token file, named first in an error."""
+    ``source``: the token file, named first in an error. With ``warnings`` (a list), a place
+    relative to the window that its road does not have (:class:`NotHere`) is one line there and the
+    token goes without its place (the model places its vehicle), instead of an error."""
     if tokens is None or isinstance(tokens, np.ndarray):
         return tokens
     if not any(isinstance(t, Mapping) and any(k in t for k in REFERENCE_KEYS) for t in tokens):
         return tokens
     try:
-        return [resolve_token(net, window, t, i) if isinstance(t, Mapping) else t for i, t in enumerate(tokens)]
+        return [_resolved(net, window, t, i, warnings) if isinstance(t, Mapping) else t for i, t in enumerate(tokens)]
     except TokenFileError as e:
         raise TokenFileError(f"{source}: {e}" if source else str(e)) from None
+
+
+def _resolved(net, window: Window, token: Mapping, i: int, warnings: list | None) -> dict:
+    try:
+        return resolve_token(net, window, token, i)
+    except NotHere as e:
+        if warnings is None:
+            raise
+        warnings.append(f"{e}: not in this window; the token is given without its place")
+        return {k: v for k, v in token.items() if k not in REFERENCE_KEYS}
 
 
 def _lane(net, edge: str, index: int, where: str, key: str) -> int:
@@ -47,8 +65,8 @@ def _lane(net, edge: str, index: int, where: str, key: str) -> int:
         lanes = sorted(ln.index for ln in net.lanes if ln.edge == edge)
         if not lanes:
             raise TokenFileError(f"{where}: {key}: no edge {edge!r} in {net.name}")
-        raise TokenFileError(f"{where}: {key}: edge {edge!r} has no lane {index} "
-                             f"(lanes {lanes[0]}..{lanes[-1]})")
+        error = NotHere if key == "lane_offset" else TokenFileError
+        raise error(f"{where}: {key}: edge {edge!r} has no lane {index} (lanes {lanes[0]}..{lanes[-1]})")
     if not net.lanes[k].car:
         raise TokenFileError(f"{where}: {key}: lane {net.lanes[k].id!r} is not a car lane")
     return k
@@ -91,7 +109,7 @@ def resolve_token(net, window: Window, token: Mapping, i: int = 0) -> dict:
         p = window.scene_to_world(np.array([[ahead, 0.0]]))
         m = net.match_poses(p, [window.yaw], radius=AHEAD_RADIUS, max_angle=AHEAD_MAX_ANGLE)
         if m.lane[0] < 0:
-            raise TokenFileError(f"{where}: ahead: no car lane along the window's heading within "
+            raise NotHere(f"{where}: ahead: no car lane along the window's heading within "
                                  f"{AHEAD_RADIUS:g} m of ({p[0, 0]:.1f}, {p[0, 1]:.1f}), {ahead:g} m "
                                  f"ahead of the window centre")
         ego = net.lanes[int(m.lane[0])]

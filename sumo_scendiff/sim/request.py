@@ -78,7 +78,8 @@ def window_request(net, sim, window: Window, existing, user_tokens: Sequence[dic
     whether ``sim``'s traffic sets the "auto" level (False: a simulation without demand);
     ``edge_data``: the level of "auto" read at ``sim``'s time instead; ``signals``: whether the
     generation conditions on the lights."""
-    user = list(resolve_tokens(net, window, list(user_tokens), source))
+    said: list[str] = []       # a place this window's road does not have: a warning, not an error
+    user = list(resolve_tokens(net, window, list(user_tokens), source, said))
     if fleet is not None:
         user = fleet.token_vtypes(user, source)
     tokens = user + existing.tokens()
@@ -89,7 +90,7 @@ def window_request(net, sim, window: Window, existing, user_tokens: Sequence[dic
         window=window, tokens=tokens, sources=["user"] * len(user) + existing.token_ids(),
         existing=existing, p_mask=p_mask if p_mask is not None else default_p_mask(tokens),
         target=target, lights=light_states(sim, net.lights_in(window)) if signals else None,
-        warnings=heading_warnings(net, window, user))
+        warnings=said + heading_warnings(net, window, user))
 
 
 def generation_inputs(requests: Sequence[WindowRequest]) -> dict:
