@@ -90,7 +90,8 @@ class Seeder(Gaps, Settling, StopLines, PoseRoutes, Drops):
         self._bases: set[str] = set()        # the per-class vTypes made (vtype)
         self._edge_routes: set[str] = set()  # the one-edge routes added (add_on_route)
         self._staged: set[str] = set()       # vehicles whose staging route is still in SUMO (add_on_route)
-        self._inside: dict[str, tuple] = {}  # vehicle seeded inside a junction -> (its internal lane, front pos)
+        # this seeding's vehicles -> ((lane, front pos) seeded on, first route edges, front point)
+        self._placing: dict[str, tuple] = {}
         self._own_size: set[int] = set()     # this seeding's agents whose user token gave their size
 
     # ---- vehicle types ------------------------------------------------------------------------
@@ -226,6 +227,7 @@ class Seeder(Gaps, Settling, StopLines, PoseRoutes, Drops):
         its ``decel``): those are in ``report.slowed``.
         """
         report = SeedReport()
+        self._placing = {}
         keep, types, gaps, depart = self._prepare(scene, others, types, report, sized)
         self._own_size = {i for i, s in enumerate(sized or ()) if s}
         self.routes.refresh()
@@ -302,8 +304,8 @@ class Seeder(Gaps, Settling, StopLines, PoseRoutes, Drops):
         report.targets[i] = (float(fx), float(fy), float(angle))
         if not lane.internal:
             report.lanes[i] = (lane.id, self._front_pos(lane, fx, fy))
-        else:
-            self._inside[vid] = (lane.id, min(self._front_pos(lane, fx, fy), lane.length))
+        self._placing[vid] = ((lane.id, min(self._front_pos(lane, fx, fy), lane.length)), tuple(full[:3]),
+                              (float(fx), float(fy)))
         if slowed is not None:
             report.slowed[i] = slowed
 
@@ -345,18 +347,38 @@ class Seeder(Gaps, Settling, StopLines, PoseRoutes, Drops):
             pass
         self._drop_stage(vid)
 
-    def _back_on_road(self, report: SeedReport, i: int, vid: str) -> str | None:
+    def _back_on_road(self, vid: str) -> str | None:
         """A vehicle SUMO holds on no lane after the seeding step (``moveToXY(keepRoute=2)`` with no lane
         of its route within reach of its pose: SUMO keeps it at the exact point, off the road, and removes
-        it at the next step) is put on the lane it was seeded on at its front (``moveTo``): None; it is
-        then placed or misplaced as measured. Where SUMO refuses that too: why it is not seeded. Its
-        road is never asked for (libsumo crashes on getRoadID of such a vehicle)."""
-        lane = report.lanes.get(i) or self._inside.get(vid)
-        try:
-            self.sim.vehicle.moveTo(vid, *lane)
-        except Exception:   # no such lane recorded, or not on its route: SUMO would drop it
+        it at the next step) is put on the lane it was seeded on at its front (``moveTo``), else on the
+        lane of its route's start nearest its front: None; it is then placed or misplaced as measured.
+        Where SUMO takes neither: why it is not seeded. Its road is never asked for (libsumo crashes on
+        getRoadID of such a vehicle)."""
+        if vid not in self._placing:
             return "SUMO held it off the road (no lane of its route within reach of its pose)"
-        return None
+        seeded, edges, front = self._placing[vid]
+        said = ""
+        for lane in [seeded] + self._route_lanes(edges, *front):
+            try:
+                self.sim.vehicle.moveTo(vid, *lane)
+                return None
+            except Exception as e:   # not on its route: the next
+                said = said or (str(e).splitlines()[0] if str(e) else "")
+        return ("SUMO held it off the road (no lane of its route within reach of its pose"
+                + (f"; and on its lane: {said})" if said else ")"))
+
+    def _route_lanes(self, edges: tuple, fx: float, fy: float) -> list[tuple[str, float]]:
+        """(lane id, m along it of the point nearest (fx, fy)) for the lanes of ``edges`` (a route's
+        first edges) and of the junctions between them, nearest first."""
+        net, pairs = self.net, set(zip(edges, edges[1:]))
+        ids = [f"{e}_{k}" for e in edges for k in range(self.net.sumo_net.getEdge(e).getLaneNumber())]
+        ids += [lane for lane, link in self._via.items() if link in pairs]
+        known = np.array([net.lane_index[i] for i in dict.fromkeys(ids) if i in net.lane_index], np.int64)
+        if not len(known):
+            return []
+        point = shapely.Point(fx, fy)
+        order = known[np.argsort(shapely.distance(net.lines[known], point))]
+        return [(net.lanes[k].id, float(shapely.line_locate_point(net.lines[k], point))) for k in order]
 
     def verify(self, report: SeedReport) -> SeedReport:
         """After a simulation step: which seeded agents are not where they were generated (those
@@ -374,7 +396,7 @@ class Seeder(Gaps, Settling, StopLines, PoseRoutes, Drops):
                        else "not in the simulation after the seeding step (SUMO did not insert it"
                        + (" into its segment, in its mesoscopic model)" if self.meso else ")"))
             elif not self.meso and not self.sim.vehicle.getLaneID(vid):
-                why = self._back_on_road(report, i, vid)
+                why = self._back_on_road(vid)
             if why is not None:
                 report.refused[i] = why
                 self._withdraw(vid)
