@@ -179,3 +179,36 @@ def test_run_waits_for_its_ego_as_the_users_sumo_runs(priority_net, tmp_path, mo
     theirs = _stock_ids(config, t, tmp_path)
     assert _stock_ids(config, t, tmp_path, "--collision.check-junctions", "true") != theirs   # the case tells
     assert len(theirs) > 5 and "late" in theirs and _kept(out, "scene_000") == theirs
+
+
+LATE_FLOW = """<routes>
+    <flow id="f" begin="500" end="700" period="7" from="A0A1" to="C1C2"/>
+</routes>
+"""
+
+
+@pytest.fixture(scope="module")
+def actuated_grid(tmp_path_factory) -> str:
+    """A 3x3 grid whose every junction has an actuated light (netgenerate, as osmWebWizard guesses them)."""
+    import subprocess
+
+    from sumo_scendiff.core.tools import sumo_binary
+    net = str(tmp_path_factory.mktemp("actuated") / "grid.net.xml")
+    netgenerate = os.path.join(os.path.dirname(sumo_binary()), "netgenerate")
+    done = subprocess.run([netgenerate, "--grid", "--grid.number", "3", "--grid.length", "200", "--tls.guess", "true",
+                           "--default-junction-type", "traffic_light", "--tls.default-type", "actuated", "-o", net],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-400:]
+    return net
+
+
+def test_a_configuration_without_begin_starts_at_sumos_zero(actuated_grid, tmp_path, monkeypatch):
+    """A configuration naming no begin is run from SUMO's default 0, as stock ``sumo -c`` runs it, not
+    from the demand's first departure: actuated lights start their program at SUMO's begin, so a later
+    start holds other vehicles at T (here one more of the flow on the road)."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    config = _user_scenario(tmp_path, actuated_grid, demand=LATE_FLOW)
+    theirs = _stock_ids(config, 651, tmp_path)
+    assert _stock_ids(config, 651, tmp_path, "-b", "500") != theirs   # the case tells: two more on the road
+    out = _run(config, tmp_path, "--begin", "650", "--scenes", "1", "--center", "200,200", "--vehicles", "0")
+    assert theirs and _kept(out, "scene_000") == theirs

@@ -313,13 +313,15 @@ def start_times(scen, edge_ids: set[str], begin: float | None, demand: Sequence[
                 seed: bool = True) -> tuple[float, float | None, Span]:
     """How the product runs a scenario's demand (``scen``: a sim.scenario.SumoScenario; ``demand``: the
     files holding it, :func:`demand_files`), as run, the fill and sweeps take it: (the time SUMO starts
-    at: the configuration's begin, else the demand's first departure; the seeding time the demand is run
+    at: the configuration's begin, else SUMO's own default 0, as stock ``sumo -c`` starts: actuated
+    lights start their program at SUMO's begin, so a later start holds other traffic at T even where
+    the network is empty before the first departure; the seeding time the demand is run
     to, :func:`seeding_time` of ``begin`` (None when ``seed`` is False: the caller decides); the demand's
     span, with a route file cut short in ``span.cut``). Raises :class:`DemandError`."""
     span = demand_span(list(scen.routes), edge_ids, scen.additional, begin=scen.begin, end=scen.end,
                        **route_steps_of(scen.options))
     at = seeding_time(begin, scen.begin, span, list(demand), flag=flag, config_end=scen.end) if seed else None
-    return (scen.begin if scen.begin is not None else span[0]), at, span
+    return (scen.begin if scen.begin is not None else 0.0), at, span
 
 
 def seeding_time(begin: float | None, config_begin: float | None, span: tuple[float, float],
