@@ -18,6 +18,10 @@ atexit.register(shutil.rmtree, _CACHE, True)
 # every torch test; set before any test module imports torch
 if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) > 1:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+# torch.compile is a no-op in the tests (and their subprocesses) but those of tests/test_train_compile.py,
+# which hold the compiled step equal to eager's: a first compile costs minutes of a clean machine's CPU in
+# every training test that would otherwise reach it
+os.environ.setdefault("TORCH_COMPILE_DISABLE", "1")
 
 
 def netconvert(nodes: str, edges: str, out: str, *extra: str, turnarounds: bool = False) -> str:

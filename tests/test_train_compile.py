@@ -20,6 +20,14 @@ from sumo_scendiff.train.compiling import compile_diffusion_stage
 from tests.test_end_to_end import TINY_AE, TINY_DIFF, one_scene_dataset, train
 
 
+@pytest.fixture(autouse=True)
+def compiling(monkeypatch):
+    """torch.compile on here (conftest turns it off for the other tests), in process and subprocesses."""
+    import torch._dynamo.config
+    monkeypatch.delenv("TORCH_COMPILE_DISABLE", raising=False)
+    monkeypatch.setattr(torch._dynamo.config, "disable", False)
+
+
 def _tiny_models():
     torch.manual_seed(0)
     ae = ScenarioAutoencoder(config_from_dict(AutoencoderConfig, TINY_AE)).eval().requires_grad_(False)
