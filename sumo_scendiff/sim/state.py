@@ -31,7 +31,7 @@ _ROUTE = re.compile(rb'<route id="([^"]*)"')
 _VEHICLE_ROUTE = re.compile(rb'<vehicle id="([^"]*)"[^>]*? route="([^"]*)"')
 _VEHICLE_DEPART = re.compile(rb'<vehicle id="([^"]*)"[^>]*? depart="([^"]*)"')
 _SUB_DRIVE_WAY = re.compile(rb'[ \t]*<subDriveWay [^>]*/>[ \t]*\r?\n?')
-_copies: dict[tuple, str] = {}     # (path, mtime, size) -> its copy for libsumo, this process's
+_copies: dict[tuple, str] = {}     # (path, mtime, size) -> what libsumo loads of it (itself or a copy)
 _folder: list[str] = []             # where those copies lie
 
 
@@ -79,7 +79,8 @@ def in_process_state(path: str) -> str:
     opener = gzip.open if path.endswith(".gz") else open
     with opener(path, "rb") as f:
         text = f.read()
-    if b"<subDriveWay " not in text:
+    if b"<subDriveWay " not in text:   # read once: a run starts scene after scene from one base state
+        _copies[key] = path
         return path
     copy = os.path.join(_copy_folder(), f"{len(_copies)}_{os.path.basename(path)}")
     with opener(copy, "wb") as f:
