@@ -19,6 +19,7 @@ from sumo_scendiff.map.locations import (
     auto_windows,
     candidates,
     parse_center,
+    vehicles_in,
     window_at,
 )
 from sumo_scendiff.map.network import Network
@@ -233,3 +234,77 @@ def test_real_network_cologne8():
     assert all(net.has_road(loc.window) for loc in locs)
     assert {loc.kind for loc in locs} == {"unsignalised", "signalised", "merge_diverge"}
     assert set(KINDS) >= {loc.kind for loc in locs}
+
+
+# ---- auto_windows with the host's traffic -------------------------------------------------------
+def _node_xy(net: Network, node: str) -> tuple[float, float]:
+    return tuple(net.sumo_net.getNode(node).getCoord()[:2])
+
+
+def _queue(x0: float, x1: float, y: float, k: int) -> np.ndarray:
+    return np.column_stack([np.linspace(x0, x1, k), np.full(k, y)])
+
+
+def test_vehicles_in_counts_points_per_window_edge_included():
+    windows = [Window(0.0, 0.0), Window(200.0, 0.0), Window(0.0, 0.0, math.pi / 4)]
+    pts = np.array([[0.0, 0.0], [50.0, 50.0], [60.0, 0.0], [200.0, -49.0], [0.0, 70.0]])
+    # the turned square reaches 70.7 m along the axes but not the upright one's corner (50, 50)
+    assert vehicles_in(windows, pts).tolist() == [2, 1, 3]
+    assert vehicles_in(windows, []).tolist() == [0, 0, 0] and vehicles_in(windows, None).tolist() == [0, 0, 0]
+    assert vehicles_in([], pts).tolist() == []
+
+
+def test_traffic_decides_where_the_windows_go(grid):
+    # ten vehicles on the bottom row's road between two of its junctions: only the junction there holds them
+    busy = next(c for c in candidates(grid) if c.window.cy == 0.0)
+    pts = _queue(busy.window.cx - 45, busy.window.cx + 45, -1.6, 10)
+    assert vehicles_in([c.window for c in candidates(grid)], pts).tolist().count(0) == 4
+    for seed in range(10):
+        locs = auto_windows(grid, 3, seed=seed, traffic=pts)
+        assert locs[0] == busy and len({loc.junction_id for loc in locs}) == 3
+        assert _min_separation(locs) >= 50.0   # then the layout's choice, spread as before
+    assert {auto_windows(grid, 1, seed=s)[0].junction_id for s in range(10)} != {busy.junction_id}
+
+
+def test_the_busier_half_drawn_in_proportion_to_their_vehicles(grid):
+    # 9 vehicles at the bottom junction's window, 3 at the top one's, 1 each at the left and right ones
+    by_xy = {(c.window.cx, c.window.cy): c.junction_id for c in candidates(grid)}
+    bottom, top, left, right = by_xy[100.0, 0.0], by_xy[100.0, 200.0], by_xy[0.0, 100.0], by_xy[200.0, 100.0]
+    pts = np.vstack([_queue(60, 140, -1.6, 9), _queue(60, 140, 201.6, 3), [[-1.6, 100.0], [201.6, 100.0]]])
+    first = Counter(auto_windows(grid, 1, seed=s, traffic=pts)[0].junction_id for s in range(200))
+    assert set(first) == {bottom, top}                  # at least the busy windows' median (2 vehicles)
+    assert first[bottom] > 2 * first[top]              # expected 150 / 50
+    four = auto_windows(grid, 4, seed=0, traffic=pts)
+    assert {loc.junction_id for loc in four[:2]} == {bottom, top} and {loc.junction_id for loc in four[2:]} == {
+        left, right}                                   # then the other windows holding vehicles
+
+
+def test_traffic_windows_are_deterministic_and_spread(city):
+    rng = np.random.default_rng(7)
+    pts, _ = city.random_road_points(400, rng)
+    locs = auto_windows(city, 12, seed=1, traffic=pts)
+    assert auto_windows(city, 12, seed=1, traffic=pts[::-1]) == locs    # the order of vehicles is no matter
+    assert auto_windows(city, 12, seed=2, traffic=pts) != locs
+    assert len(locs) == 12 and _min_separation(locs) >= 25.0 and all(city.has_road(loc.window) for loc in locs)
+    held = vehicles_in([loc.window for loc in locs], pts)
+    layout = vehicles_in([loc.window for loc in auto_windows(city, 12, seed=1)], pts)
+    assert held.min() > 0 and held.sum() > layout.sum()
+
+
+def test_no_vehicle_in_any_window_keeps_the_layouts_choice(city, diagonal_net):
+    far = np.array([[-5000.0, -5000.0], [9000.0, 0.0]])
+    for seed in (0, 3):
+        layout = auto_windows(city, 6, seed=seed)
+        assert auto_windows(city, 6, seed=seed, traffic=far) == layout
+        assert auto_windows(city, 6, seed=seed, traffic=np.empty((0, 2))) == layout
+    diag = Network.load(diagonal_net)
+    assert auto_windows(diag, 3, seed=0, traffic=far) == auto_windows(diag, 3, seed=0)
+
+
+def test_road_windows_go_where_the_vehicles_are(diagonal_net):
+    net = Network.load(diagonal_net)
+    pts = np.column_stack([np.linspace(250, 290, 5)] * 2)   # near the road's far end
+    locs = auto_windows(net, 2, seed=0, traffic=pts)
+    assert [loc.kind for loc in locs] == ["road"] * 2 and _min_separation(locs) >= 50.0
+    assert vehicles_in([locs[0].window], pts)[0] > 0
+    assert vehicles_in([auto_windows(net, 1, seed=0)[0].window], pts)[0] == 0   # the layout's went elsewhere

@@ -3,7 +3,7 @@
     net = Network.load("networks/city.net.xml")
     x, y = parse_center("1000,750")                # LocationError on anything but "X,Y"
     window = window_at(net, x, y)                  # LocationError when no car lane is within 30 m
-    for loc in auto_windows(net, 8, seed=0):       # list[Location]
+    for loc in auto_windows(net, 8, seed=0):       # list[Location]; traffic=xy: where vehicles are
         loc.window, loc.kind, loc.junction_id      # Window, one of KINDS (or "road"), SUMO node id
 
 Candidates are junctions where cars interact: nodes with >= 3 car arms (dead ends, internal and pure
@@ -14,7 +14,14 @@ of incoming car lanes, plus ``TLS_BONUS`` when signalised (a roundabout: entry l
 proportional to score, keeping centres at least ``size / 2`` apart; the separation is relaxed
 (``size / 4``, then none) when that leaves fewer than ``n``, and when ``n`` exceeds the candidates they
 are reused with a random yaw. A network without candidates (one long road) gets windows on random
-car-lane points, kind ``"road"``. Same (net, n, seed, size) -> same windows.
+car-lane points, kind ``"road"``.
+
+Given ``traffic`` (the host's vehicle positions at the seeding time: ``run`` with a demand), the
+traffic decides first: among the candidates whose window holds vehicles, those holding at least their
+median count are drawn with probability proportional to that count (any kind; centres ``size / 2``,
+then ``size / 4`` apart), then the other windows holding vehicles, then the layout's choice above fills
+the rest; road points go by their count too. Without a vehicle in any candidate window the choice is
+the layout's alone. Same (net, n, seed, size, traffic) -> same windows.
 """
 from __future__ import annotations
 
@@ -26,7 +33,7 @@ import numpy as np
 import shapely
 
 from ..core.geometry import Window
-from .network import CAR, Network
+from .network import CAR, Network, window_square
 
 KINDS = ("signalised", "roundabout", "merge_diverge", "unsignalised")
 NEAR = 30.0      # a user centre must have a car lane within this many metres
@@ -129,56 +136,84 @@ def candidates(net: Network, size: float = 100.0) -> list[Location]:
     return [c for c in out if net.has_road(c.window)]
 
 
-def auto_windows(net: Network, n: int, seed: int = 0, size: float = 100.0) -> list[Location]:
-    """``n`` busy, varied windows (see the module docstring); deterministic in (net, n, seed, size)."""
+def vehicles_in(windows, points) -> np.ndarray:
+    """How many of ``points`` (world x, y; e.g. the host's vehicles) lie in each window, edge included."""
+    pts = np.asarray(points if points is not None else (), dtype=np.float64).reshape(-1, 2)
+    if not len(windows) or not len(pts):
+        return np.zeros(len(windows), dtype=np.int64)
+    tree = shapely.STRtree(shapely.points(pts))
+    hit, _ = tree.query([window_square(w) for w in windows], predicate="intersects")
+    return np.bincount(hit, minlength=len(windows))
+
+
+def auto_windows(net: Network, n: int, seed: int = 0, size: float = 100.0, traffic=None) -> list[Location]:
+    """``n`` busy, varied windows (see the module docstring); deterministic in (net, n, seed, size,
+    traffic). ``traffic``: the host's vehicle positions (world x, y) at the seeding time, or None."""
     if n < 0:
         raise ValueError(f"auto_windows: n must be >= 0, got {n}")
     rng = np.random.default_rng(seed)
     cands = candidates(net, size)
     if not cands:
-        return _road_windows(net, n, rng, size)
+        return _road_windows(net, n, rng, size, traffic)
     by_kind = {k: [i for i, c in enumerate(cands) if c.kind == k] for k in KINDS}
     kinds = [k for k in KINDS if by_kind[k]]
     kinds = [kinds[i] for i in rng.permutation(len(kinds))]
-    xy = np.array([(c.window.cx, c.window.cy) for c in cands])
     score = np.array([max(c.score, 1e-3) for c in cands])
-    gap = np.full(len(cands), np.inf)  # distance to the nearest chosen centre; -1 once chosen
-    chosen: list[int] = []
-
-    def draw(pool: np.ndarray) -> int:
-        return int(pool[rng.choice(len(pool), p=score[pool] / score[pool].sum())])
-
-    for sep in (0.5 * size, 0.25 * size, 0.0):
-        active = list(kinds)
-        while active and len(chosen) < n:
-            for k in list(active):
-                if len(chosen) >= n:
-                    break
-                pool = np.asarray(by_kind[k])[gap[by_kind[k]] >= sep]
-                if len(pool):
-                    i = draw(pool)
-                    chosen.append(i)
-                    gap = np.minimum(gap, np.hypot(*(xy - xy[i]).T))
-                    gap[chosen] = -1.0
-                else:
-                    active.remove(k)
-    out = [cands[i] for i in chosen]
+    seps = (0.5 * size, 0.25 * size, 0.0)
+    rounds = [([by_kind[k] for k in kinds], score, sep) for sep in seps]
+    load = vehicles_in([c.window for c in cands], traffic)
+    if load.any():   # the traffic first: the busier half of the windows holding vehicles, then the rest
+        busy = np.flatnonzero(load)
+        busier = busy[load[busy] >= np.median(load[busy])]
+        rounds = [([pool], load, sep) for pool in (busier, busy) for sep in seps[:2]] + rounds
+    xy = np.array([(c.window.cx, c.window.cy) for c in cands])
+    out = [cands[i] for i in _pick(xy, rounds, n, rng)]
     while len(out) < n:  # more windows than candidates: reuse them, turned
         for k in kinds[: n - len(out)]:
-            c = cands[draw(np.asarray(by_kind[k]))]
+            c = cands[_draw(np.asarray(by_kind[k]), score, rng)]
             w = Window(c.window.cx, c.window.cy, float(rng.uniform(-np.pi, np.pi)), size)
             out.append(Location(w, c.kind, c.junction_id, c.score))
     return out
 
 
-def _road_windows(net: Network, n: int, rng: np.random.Generator, size: float) -> list[Location]:
-    """No junction candidates: windows on random car-lane points, ``size / 2`` apart where possible."""
+def _draw(pool: np.ndarray, weight: np.ndarray, rng: np.random.Generator) -> int:
+    return int(pool[rng.choice(len(pool), p=weight[pool] / weight[pool].sum())])
+
+
+def _pick(xy: np.ndarray, rounds: list, n: int, rng: np.random.Generator) -> list[int]:
+    """Up to ``n`` of the points ``xy``: each round (groups, weights, separation) takes its groups
+    round-robin, drawing in proportion to the weights among the points at least the separation from
+    every point already taken, until no group has one left."""
+    gap = np.full(len(xy), np.inf)  # distance to the nearest chosen centre; -1 once chosen
+    chosen: list[int] = []
+    for groups, weight, sep in rounds:
+        active = list(range(len(groups)))
+        while active and len(chosen) < n:
+            for g in list(active):
+                if len(chosen) >= n:
+                    break
+                pool = np.asarray(groups[g])[gap[groups[g]] >= sep]
+                if len(pool):
+                    i = _draw(pool, weight, rng)
+                    chosen.append(i)
+                    gap = np.minimum(gap, np.hypot(*(xy - xy[i]).T))
+                    gap[chosen] = -1.0
+                else:
+                    active.remove(g)
+    return chosen
+
+
+def _road_windows(net: Network, n: int, rng: np.random.Generator, size: float, traffic) -> list[Location]:
+    """No junction candidates: windows on random car-lane points, ``size / 2`` apart where possible
+    (with traffic: the points whose window holds the most vehicles first)."""
     if n == 0:
         return []
     xy, _ = net.random_road_points(max(4 * n, 32), rng)
-    keep = [0]
-    for i in range(1, len(xy)):
+    load = vehicles_in([Window(float(x), float(y), 0.0, size) for x, y in xy], traffic)
+    order = np.argsort(-load, kind="stable").tolist()
+    keep = order[:1]
+    for i in order[1:]:
         if len(keep) < n and np.hypot(*(xy[keep] - xy[i]).T).min() >= 0.5 * size:
             keep.append(i)
-    keep += [i for i in range(len(xy)) if i not in keep][: n - len(keep)]
+    keep += [i for i in order if i not in keep][: n - len(keep)]
     return [Location(Window(float(xy[i, 0]), float(xy[i, 1]), 0.0, size), "road", None) for i in keep]

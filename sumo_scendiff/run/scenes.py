@@ -137,7 +137,9 @@ def _windows(o, net, sim, cosim):
     if o.center:
         x, y = parse_center(o.center)
         return [(window_at(net, x, y, yaw=o.yaw), "center")] * o.scenes
-    return [(loc.window, loc.kind) for loc in auto_windows(net, o.scenes, seed=o.seed)]
+    # with a demand, where its vehicles are at the seeding time (front bumpers; none: the layout alone)
+    traffic = [sim.vehicle.getPosition(v) for v in sim.vehicle.getIDList()]
+    return [(loc.window, loc.kind) for loc in auto_windows(net, o.scenes, seed=o.seed, traffic=traffic)]
 
 
 def _scenario(o):
