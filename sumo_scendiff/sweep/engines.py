@@ -1,10 +1,12 @@
-"""Running sweep tasks: in this process, on a local process pool, or on Ray.
+"""Running sweep tasks: on a local process pool, or on Ray.
 
 Every engine hands whole tasks (scenarios sharing a network and sampler settings, see
 :func:`tasks`) to workers that each load the model once; progress is counted in scenarios as tasks
-finish. Workers of the local pool die with their parent (Linux ``PR_SET_PDEATHSIG``), so a sweep
-killed with SIGKILL leaves no orphan writing into the output directory. The pools are
-``core.pool``'s, shared with the whole-network fill.
+finish. A single worker runs in a process of the pool too, not in the sweep's own: a native crash
+of libsumo (SUMO 1.28 on some state loads) then kills a worker the pool replaces and runs the task
+again, as with more workers, not the sweep. Workers of the local pool die with their parent (Linux
+``PR_SET_PDEATHSIG``), so a sweep killed with SIGKILL leaves no orphan writing into the output
+directory. The pools are ``core.pool``'s, shared with the whole-network fill.
 """
 from __future__ import annotations
 
@@ -53,22 +55,17 @@ def _names(task: Task) -> str:
     return "scenarios " + ", ".join(s.id for s in task[0])
 
 
+def _drain(pool, all_tasks, bar) -> None:
+    """Run every task on ``pool``, counting each finished task's scenarios on ``bar``."""
+    for _, done in pool.map_unordered(all_tasks, name=_names):
+        if bar is not None:
+            bar.update(len(done))
+
+
 def run_local(all_tasks, spec: Spec, out: str, workers: int, checkpoint=None, bar=None) -> None:
     from .worker import Worker
-    if workers <= 1:
-        w = Worker(spec, out, checkpoint)
-        try:
-            for t in all_tasks:
-                done = w.run(*t)
-                if bar is not None:
-                    bar.update(len(done))
-        finally:
-            w.close()
-        return
-    with LocalPool(Worker, (spec, out, checkpoint), {"threads": _threads(workers)}, workers) as pool:
-        for _, done in pool.map_unordered(all_tasks, name=_names):
-            if bar is not None:
-                bar.update(len(done))
+    with LocalPool(Worker, (spec, out, checkpoint), {"threads": _threads(workers)}, max(1, workers)) as pool:
+        _drain(pool, all_tasks, bar)
 
 
 def run_ray(all_tasks, spec: Spec, out: str, workers: int, checkpoint=None, bar=None,
@@ -76,9 +73,7 @@ def run_ray(all_tasks, spec: Spec, out: str, workers: int, checkpoint=None, bar=
     from .worker import Worker
     with RayPool(Worker, (spec, out, checkpoint), {"threads": 1}, workers, address,
                  flag="--engine ray") as pool:
-        for _, done in pool.map_unordered(all_tasks, name=_names):
-            if bar is not None:
-                bar.update(len(done))
+        _drain(pool, all_tasks, bar)
 
 
 __all__ = ["EngineError", "TASK_SIZE", "run_local", "run_ray", "tasks"]
