@@ -181,6 +181,18 @@ def test_before_any_vehicle_departs_the_mix_is_the_route_files(cross_net, tmp_pa
     assert fleet.share == pytest.approx({"car": 50 / 75, "lorry": 25 / 75})
 
 
+def test_a_demand_rewritten_in_the_same_process_is_read_again(cross_net, tmp_path):
+    """The demand's types are read once per version of its files (a run's requests and each scene's
+    seeder ask again): a route file written anew is read anew, its distributions too."""
+    types = '<vType id="car" length="4.3"/><vType id="lorry" vClass="truck" length="9"/>'
+    flow = '<flow id="a" type="{}" begin="50" end="150" period="4" from="wc" to="ce"/>'
+    assert set(_fleet_of(cross_net, tmp_path, f'<routes>{types}{flow.format("car")}</routes>').share) == {"car"}
+    assert set(_fleet_of(cross_net, tmp_path, f'<routes>{types}{flow.format("lorry")}</routes>').share) == {"lorry"}
+    mixed = f'<routes>{types}<vTypeDistribution id="mix" vTypes="car lorry" probabilities="3 1"/>{flow.format("mix")}</routes>'
+    assert _fleet_of(cross_net, tmp_path, mixed).share == pytest.approx({"car": 0.75, "lorry": 0.25})
+    assert _fleet_of(cross_net, tmp_path, mixed.replace('"3 1"', '"1 1"')).share == pytest.approx({"car": 0.5, "lorry": 0.5})
+
+
 def test_a_vehicle_with_its_own_copy_of_a_type_counts_as_that_type(cross_net, tmp_path):
     """A host vehicle whose type parameters were set on it (SUMO's singular type ``car@v``, e.g. the
     user's TraCI) is one of the demand's cars in the mix, not a type of its own that leaves with it."""

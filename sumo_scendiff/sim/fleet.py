@@ -24,6 +24,7 @@ from __future__ import annotations
 import os
 from collections import Counter
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -81,35 +82,71 @@ def read_vtype(sim, tid: str) -> VType:
                  float(t.getMinGap(tid)), t.getEmissionClass(tid))
 
 
-def vtype_distributions(paths: Sequence[str]) -> dict[str, dict[str, float]]:
-    """Every vTypeDistribution in ``paths``: id -> member vType id -> probability (SUMO's: a member's
-    own ``probability``, or the distribution's ``probabilities`` list, else 1; normalised). The
-    files are read as SUMO reads them (core.sumo_xml: includes, gzip, any root)."""
+@dataclass(frozen=True)
+class DemandTypes:
+    """What the fleet takes from the scenario's files: its vTypeDistributions (id -> member vType id ->
+    probability) and the vehicles its route files depart per vType id as they name it (a
+    distribution's under its own id; :func:`_expand` shares them out)."""
+    dists: Mapping[str, Mapping[str, float]]
+    departs: Mapping[str, float]
+
+
+def demand_types(routes: Sequence[str], additional: Sequence[str] = ()) -> DemandTypes:
+    """The :class:`DemandTypes` of route files ``routes`` and additional files ``additional``, read
+    as SUMO reads them (core.sumo_xml: includes, gzip, any root) in one streaming pass, and kept per
+    version (path, size, modification time) of each file named: a run asks for them for its
+    requests and again for each scene's seeder, a sweep for each task, and a city's demand takes
+    seconds to read (docs/corpus.md). A file changed behind an ``<include>`` alone is not seen. The
+    answer is shared by every caller: read it, do not change it."""
+    return _scan(tuple(map(_version, routes)), tuple(map(_version, additional)))
+
+
+def _version(path: str) -> tuple:
+    try:
+        st = os.stat(path)
+    except OSError:   # no such file: the reading names it (core.sumo_xml.XmlError)
+        return os.path.abspath(path), None, None
+    return os.path.abspath(path), st.st_size, st.st_mtime_ns
+
+
+@lru_cache(maxsize=8)
+def _scan(routes: tuple, additional: tuple) -> DemandTypes:
     from ..core.sumo_xml import elements
-    out: dict[str, dict[str, float]] = {}
-    for _, el in elements(paths, ("vTypeDistribution",)):
-        names = (el.get("vTypes") or "").split()
-        probs = [float(p) for p in (el.get("probabilities") or "").split()]
-        members = {n: probs[k] if k < len(probs) else 1.0 for k, n in enumerate(names)}
-        for c in el.findall("vType"):
-            members[c.get("id")] = float(c.get("probability") or 1.0)
-        total = sum(members.values())
-        if total > 0:
-            out[el.get("id")] = {n: p / total for n, p in members.items()}
-    return out
+    dists: dict[str, dict[str, float]] = {}
+    departs: Counter = Counter()
+    for files, departing in ((routes, True), (additional, False)):
+        for _, el in elements([f[0] for f in files], ("vTypeDistribution", "vehicle", "trip", "flow")):
+            if el.tag == "vTypeDistribution":
+                members = _members(el)
+                if members:
+                    dists[el.get("id")] = members
+            elif departing:
+                departs[el.get("type") or "DEFAULT_VEHTYPE"] += flow_count(el) if el.tag == "flow" else 1.0
+    return DemandTypes(dists, departs)
+
+
+def _members(el) -> dict[str, float]:
+    """A ``<vTypeDistribution>``'s members and their probabilities (SUMO's: a member's own
+    ``probability``, or the distribution's ``probabilities`` list, else 1; normalised); empty where
+    they add up to nothing."""
+    names = (el.get("vTypes") or "").split()
+    probs = [float(p) for p in (el.get("probabilities") or "").split()]
+    members = {n: probs[k] if k < len(probs) else 1.0 for k, n in enumerate(names)}
+    for c in el.findall("vType"):
+        members[c.get("id")] = float(c.get("probability") or 1.0)
+    total = sum(members.values())
+    return {n: p / total for n, p in members.items()} if total > 0 else {}
+
+
+def vtype_distributions(paths: Sequence[str]) -> dict[str, dict[str, float]]:
+    """Every vTypeDistribution in ``paths``: id -> member vType id -> probability (:func:`demand_types`)."""
+    return {k: dict(v) for k, v in demand_types((), paths).dists.items()}
 
 
 def file_mix(paths: Sequence[str], dists: Mapping[str, Mapping[str, float]]) -> Counter:
     """The vehicles the route files ``paths`` depart, per vType (a flow's: :func:`flow_count`; a
-    distribution's vehicles shared by its probabilities)."""
-    from ..core.sumo_xml import elements
-    mix: Counter = Counter()
-    for _, el in elements(paths, ("vehicle", "trip", "flow")):
-        n = flow_count(el) if el.tag == "flow" else 1.0
-        tid = el.get("type") or "DEFAULT_VEHTYPE"
-        for member, p in dists.get(tid, {tid: 1.0}).items():
-            mix[member] += n * p
-    return mix
+    distribution's vehicles shared by its probabilities ``dists``)."""
+    return _expand(demand_types(paths).departs, dists)
 
 
 def flow_count(el) -> float:
@@ -165,14 +202,13 @@ class Fleet:
         """The fleet of ``sim``: its vTypes; the distributions of ``files`` (route and additional
         files; default: those the simulation loaded); the mix ``mix`` if given, else the vehicles
         present whose id does not start with ``exclude`` (the seeder's own), else the route files'."""
-        routes, additional = _sim_files(sim) if files is None else (list(files), [])
-        dists = vtype_distributions(routes + additional)
+        found = demand_types(*(_sim_files(sim) if files is None else (files, ())))
         if mix is None:
             mix = Counter(scenario_type(sim.vehicle.getTypeID(v), v) for v in sim.vehicle.getIDList()
                           if not (exclude and v.startswith(exclude)))
         if not mix:
-            mix = file_mix(routes, dists)
-        return cls(sim, _expand(mix, dists), dists)
+            mix = _expand(found.departs, found.dists)
+        return cls(sim, _expand(mix, found.dists), found.dists)
 
     # ---- the types ----------------------------------------------------------------------------
     @property
@@ -383,4 +419,4 @@ def _lane_rules(scene: Scene, net) -> list:
     return out
 
 
-__all__ = ["DRAWN_KEY", "Fleet", "VType", "crowded", "file_mix", "flow_count", "read_vtype", "room_for", "vtype_distributions"]
+__all__ = ["DRAWN_KEY", "DemandTypes", "Fleet", "VType", "crowded", "demand_types", "file_mix", "flow_count", "read_vtype", "room_for", "vtype_distributions"]
