@@ -114,16 +114,28 @@ class Worker:
             self._sessions[key] = session.prepare_at(at) if at is not None else session.prepare()
         return self._sessions[key]
 
-    def window(self, entry: NetworkEntry, location: str):
+    def window(self, entry: NetworkEntry, location: str, session=None):
+        """(window, kind of place) of a scenario's location; ``session``: the entry's, whose base state
+        places the automatic windows where the demand has vehicles (None: a centre, or no demand)."""
         from ..map.locations import auto_windows, window_at
         net = self.network(entry)
         if location.startswith("auto:"):
-            if entry.name not in self._auto:   # the same n in every worker: the same windows
-                self._auto[entry.name] = auto_windows(net, self.spec.auto_count(), seed=0)
+            if entry.name not in self._auto:   # the same n and base state in every worker: the same windows
+                self._auto[entry.name] = auto_windows(net, self.spec.auto_count(), seed=0,
+                                                      traffic=self._traffic(entry, session))
             loc = self._auto[entry.name][int(location[5:])]
             return loc.window, loc.kind
         x, y, *yaw = (float(v) for v in location.split(","))
         return window_at(net, x, y, yaw[0] if yaw else 0.0), "center"
+
+    def _traffic(self, entry: NetworkEntry, session) -> list | None:
+        """Where the entry's demand has vehicles at the seeding time (front bumpers), as run's automatic
+        windows take them; None without a demand (the layout alone). Read from the base state, which
+        every worker loads alike (an entry's scenarios share one step length: Spec.scenarios)."""
+        if session is None or not self.demand(entry):
+            return None
+        sim = session.at_base()
+        return [sim.vehicle.getPosition(v) for v in sim.vehicle.getIDList()]
 
     # ---- one task -----------------------------------------------------------------------------
     @staticmethod
@@ -167,7 +179,7 @@ class Worker:
         out = []
         for s in scenarios:
             try:
-                window, kind = self.window(entry, s.location)
+                window, kind = self.window(entry, s.location, session)
                 token_set = self.spec.token_sets[s.token_set]
                 # session.existing(): the session's simulation at the seeding time
                 req = window_request(session.net, session.sim, window, session.existing(window),
