@@ -1,6 +1,9 @@
 """Many scene folders exported (the network's OpenDRIVE converted once, the schema read once per
-process), in this process or on ``workers`` local processes (each replays in its own libsumo): what
-``python -m sumo_scendiff.export`` and the ``--export`` flags of ``run``, sweeps and the fill call."""
+process) on ``workers`` local processes, each replaying in its own libsumo: what
+``python -m sumo_scendiff.export`` and the ``--export`` flags of ``run``, sweeps and the fill call.
+A single worker is a process of the pool too, not the caller's: a native crash of libsumo in a replay
+kills a worker the pool replaces and runs the folder again (core.pool), not the caller with its
+output; a folder whose worker dies every time is an ExportError naming it."""
 from __future__ import annotations
 
 import os
@@ -47,26 +50,24 @@ def export_folders(folders: list[str], fmt: str = "openscenario", force: bool = 
     cannot be exported (the others finished by then are complete)."""
     from tqdm import tqdm
 
-    from ..core.pool import InProcess, LocalPool
+    from ..core.pool import EngineError, LocalPool
     if fmt not in FORMATS:
         raise ExportError(f"--format: {fmt!r} is not one of {', '.join(FORMATS)}")
     t0 = time.perf_counter()
     todo = [f for f in folders if not (keep_done and os.path.isfile(os.path.join(f, FILES[-1])))]
-    workers = max(1, min(workers, len(todo)))
+    if not todo:   # nothing to replay: no process to start
+        return {"exported": 0, "kept": len(folders), "vehicles": 0, "seconds": round(time.perf_counter() - t0, 3)}
+    vehicles, workers = 0, max(1, min(workers, len(todo)))
     if workers > 1:
         _networks_first(todo)
-    share = len(todo) > workers
-    here = Exporter(force, seconds, share) if workers == 1 else None
-    pool = InProcess(here) if here is not None else LocalPool(Exporter, (force, seconds, share), workers=workers)
-    vehicles = 0
     try:
-        with pool, tqdm(total=len(todo), desc="exporting OpenSCENARIO", disable=not progress, leave=False) as bar:
-            for _, record in pool.map_unordered([(f,) for f in todo]):
+        with LocalPool(Exporter, (force, seconds, len(todo) > workers), workers=workers) as pool, \
+                tqdm(total=len(todo), desc="exporting OpenSCENARIO", disable=not progress, leave=False) as bar:
+            for _, record in pool.map_unordered([(f,) for f in todo], name=lambda task: task[0]):
                 vehicles += record["vehicles"]
                 bar.update()
-    finally:   # libsumo is one simulation per process: the next command here starts its own
-        if here is not None:
-            here.close()
+    except EngineError as e:   # a replay that crashed its SUMO every time (or a worker that cannot start)
+        raise ExportError(str(e)) from None
     return {"exported": len(todo), "kept": len(folders) - len(todo), "vehicles": vehicles,
             "seconds": round(time.perf_counter() - t0, 3)}
 
