@@ -131,6 +131,7 @@ def _wait_for_ego(sim, o, progress: bool) -> None:
 
 def _windows(o, net, sim, cosim):
     from ..map.locations import auto_windows, parse_center, window_at
+    from ..sim.density import host_positions
     if o.ego:
         w = cosim.ego_window(o.ego, ahead_m=EGO_AHEAD_M)
         return [(w, "ego")] * o.scenes
@@ -138,8 +139,7 @@ def _windows(o, net, sim, cosim):
         x, y = parse_center(o.center)
         return [(window_at(net, x, y, yaw=o.yaw), "center")] * o.scenes
     # with a demand, where its vehicles are at the seeding time (front bumpers; none: the layout alone)
-    traffic = [sim.vehicle.getPosition(v) for v in sim.vehicle.getIDList()]
-    return [(loc.window, loc.kind) for loc in auto_windows(net, o.scenes, seed=o.seed, traffic=traffic)]
+    return [(loc.window, loc.kind) for loc in auto_windows(net, o.scenes, seed=o.seed, traffic=host_positions(sim))]
 
 
 def _scenario(o):

@@ -146,6 +146,12 @@ def host_has_traffic(sim) -> bool:
     return sim is not None and sim.vehicle.getIDCount() > 0
 
 
+def host_positions(sim) -> list[tuple[float, float]]:
+    """Where the host simulation's vehicles are (front bumpers, SUMO's positions): the automatic
+    windows of run and sweeps go where they are (map.locations.auto_windows' ``traffic``)."""
+    return [sim.vehicle.getPosition(v) for v in sim.vehicle.getIDList()]
+
+
 def default_density(density, vehicles, host: bool, has_density: bool):
     """The level a window is seeded at when the user names none: inside a host simulation that
     has traffic, the host's own level around the window ("auto": a scene seeded into running

@@ -134,8 +134,8 @@ class Worker:
         every worker loads alike (an entry's scenarios share one step length: Spec.scenarios)."""
         if session is None or not self.demand(entry):
             return None
-        sim = session.at_base()
-        return [sim.vehicle.getPosition(v) for v in sim.vehicle.getIDList()]
+        from ..sim.density import host_positions
+        return host_positions(session.at_base())
 
     # ---- one task -----------------------------------------------------------------------------
     @staticmethod
